@@ -1,0 +1,298 @@
+"""Components declare parameters, variables, ports and equations through a Builder.
+
+A component is a small Python class with a ``build(b)`` method. Inside it,
+``b.parameter``, ``b.state``, ``b.variable``, ``b.input`` and ``b.port`` create CasADi
+symbols named by the component's instance path (``"aps1.chamber.p"``); ``b.der``,
+``b.equation`` and ``b.output`` state the physics. Composite components ``b.add``
+children, ``b.connect`` their ports and ``b.expose`` inner ports as their own.
+:class:`System` is the root composite: ``System.flatten()`` returns a
+:class:`~sarcomere.dynamics.model.Model`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import casadi as cs
+
+from .errors import ModelError, ParameterError
+from .ports import Port, PortKind
+
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+@dataclass(frozen=True)
+class Var:
+    """Metadata of one flattened variable.
+
+    ``kind`` is one of "state", "algebraic", "input", "parameter", "output".
+    ``value`` is the default of a parameter; ``start`` the start value of the rest.
+    """
+
+    name: str
+    kind: str
+    unit: str
+    description: str = ""
+    start: float = 0.0
+    low: float = -math.inf
+    high: float = math.inf
+    value: float = math.nan
+    source: str = ""
+
+
+@dataclass
+class Collected:
+    """Everything the builders of one system have declared (filled, then flattened)."""
+
+    variables: dict[str, Var] = field(default_factory=dict)
+    symbols: dict[str, cs.SX] = field(default_factory=dict)
+    ders: dict[str, cs.SX] = field(default_factory=dict)
+    equations: list[tuple[cs.SX, str]] = field(default_factory=list)
+    outputs: dict[str, cs.SX] = field(default_factory=dict)
+    ports: list[Port] = field(default_factory=list)
+    connections: list[tuple[Port, Port]] = field(default_factory=list)
+    energies: dict[str, cs.SX] = field(default_factory=dict)
+    time_derivatives: dict[str, cs.SX] = field(default_factory=dict)
+    dissipations: dict[str, cs.SX] = field(default_factory=dict)
+
+
+class Handle:
+    """What ``Builder.add`` returns: a built child, giving access to its ports and symbols."""
+
+    def __init__(self, path: str, ports: dict[str, Port], symbols: dict[str, cs.SX]) -> None:
+        self.path = path
+        self.ports = ports
+        self.symbols = symbols
+
+    def __getattr__(self, name: str) -> Port:
+        ports = self.__dict__.get("ports", {})
+        if name in ports:
+            return ports[name]
+        raise AttributeError(
+            f"component '{self.__dict__.get('path')}' has no port '{name}'; "
+            f"ports: {', '.join(ports) or 'none'}"
+        )
+
+    def sym(self, name: str) -> cs.SX:
+        """The symbol of a variable of this child by its local name (e.g. ``"p"``)."""
+        try:
+            return self.symbols[name]
+        except KeyError:
+            raise ModelError(
+                f"component '{self.path}' has no variable '{name}'; has: {', '.join(self.symbols)}"
+            ) from None
+
+
+class Builder:
+    """The declaration API handed to ``Component.build``; one builder per instance path."""
+
+    def __init__(self, collected: Collected, path: str) -> None:
+        self._c = collected
+        self.path = path
+        self.ports: dict[str, Port] = {}
+        self.symbols: dict[str, cs.SX] = {}
+        self._children: set[str] = set()
+
+    # --- declarations -------------------------------------------------------------
+    def _new(self, local: str, var: Var) -> cs.SX:
+        if not _NAME.match(local):
+            raise ModelError(f"'{local}' in '{self.path}' is not a valid variable name")
+        return self._declare(local, var)
+
+    def _declare(self, local: str, var: Var) -> cs.SX:
+        if local in self.symbols:
+            raise ModelError(f"variable '{local}' declared twice in '{self.path}'")
+        full = f"{self.path}.{local}" if self.path else local
+        sym = cs.SX.sym(full)
+        self._c.variables[full] = Var(**{**var.__dict__, "name": full})
+        self._c.symbols[full] = sym
+        self.symbols[local] = sym
+        return sym
+
+    def parameter(
+        self,
+        name: str,
+        value: float,
+        unit: str,
+        description: str,
+        low: float = -math.inf,
+        high: float = math.inf,
+        source: str = "",
+    ) -> cs.SX:
+        """A named model parameter [unit] with default ``value`` (checked against the range)."""
+        value = float(value)
+        full = f"{self.path}.{name}" if self.path else name
+        if not (low <= value <= high) or math.isnan(value):
+            raise ParameterError(full, value, f"[{low:g}, {high:g}] {unit}")
+        return self._new(
+            name, Var(name, "parameter", unit, description, value, low, high, value, source)
+        )
+
+    def state(
+        self,
+        name: str,
+        start: float,
+        unit: str,
+        description: str,
+        low: float = -math.inf,
+        high: float = math.inf,
+    ) -> cs.SX:
+        """A state variable [unit]; give its derivative with :meth:`der`."""
+        return self._new(name, Var(name, "state", unit, description, float(start), low, high))
+
+    def variable(
+        self,
+        name: str,
+        unit: str,
+        description: str,
+        start: float = 0.0,
+        low: float = -math.inf,
+        high: float = math.inf,
+    ) -> cs.SX:
+        """An algebraic unknown [unit], fixed by the equations of the flattened system."""
+        return self._new(name, Var(name, "algebraic", unit, description, float(start), low, high))
+
+    def input(
+        self,
+        name: str,
+        unit: str,
+        description: str,
+        start: float = 0.0,
+        low: float = -math.inf,
+        high: float = math.inf,
+    ) -> cs.SX:
+        """An external input [unit] (a scenario signal or a controller drives it)."""
+        return self._new(name, Var(name, "input", unit, description, float(start), low, high))
+
+    def port(self, name: str, kind: PortKind) -> Port:
+        """A connector with potential and flow unknowns named ``<path>.<name>.<var>``."""
+        if name in self.ports or not _NAME.match(name):
+            raise ModelError(f"port '{name}' in '{self.path}' is declared twice or misnamed")
+        pot = self._declare(
+            f"{name}.{kind.potential}",
+            Var("", "algebraic", kind.potential_unit, f"{kind.name} {name}: {kind.potential}"),
+        )
+        flow = self._declare(
+            f"{name}.{kind.flow}",
+            Var("", "algebraic", kind.flow_unit, f"{kind.name} {name}: {kind.flow} (into)"),
+        )
+        p = Port(kind, f"{self.path}.{name}" if self.path else name, pot, flow)
+        self.ports[name] = p
+        self._c.ports.append(p)
+        return p
+
+    # --- equations -----------------------------------------------------------------
+    def der(self, state: cs.SX, rhs: cs.SX) -> None:
+        """``d state / dt = rhs``."""
+        name = state.name()
+        if self._c.variables.get(name, Var("", "", "")).kind != "state":
+            raise ModelError(f"der() of '{name}', which is not a state")
+        if name in self._c.ders:
+            raise ModelError(f"derivative of '{name}' given twice")
+        self._c.ders[name] = cs.SX(rhs)
+
+    def der_of(self, name: str, expr: cs.SX, unit: str, description: str) -> cs.SX:
+        """A variable equal to ``d expr / dt``, ``expr`` a function of the states only.
+
+        Used where a transport element needs a velocity (a damper): flattening replaces
+        it by ``d expr/dx . dx/dt`` once ``expr`` is known in terms of the states.
+        """
+        sym = self._new(name, Var(name, "derivative", unit, description))
+        self._c.time_derivatives[sym.name()] = cs.SX(expr)
+        return sym
+
+    def equation(self, lhs: cs.SX, rhs: cs.SX | float = 0.0) -> None:
+        """``lhs == rhs`` (stored as the residual ``lhs - rhs``)."""
+        self._c.equations.append((cs.SX(lhs) - rhs, self.path or "<system>"))
+
+    def output(self, name: str, expr: cs.SX, unit: str, description: str) -> None:
+        """A named output ``<path>.<name>`` [unit] computed from the other variables."""
+        full = f"{self.path}.{name}" if self.path else name
+        if full in self._c.outputs or full in self._c.variables:
+            raise ModelError(f"output '{full}' declared twice")
+        self._c.variables[full] = Var(full, "output", unit, description)
+        self._c.outputs[full] = cs.SX(expr)
+
+    def energy(self, name: str, expr: cs.SX) -> None:
+        """A stored energy term [J] (kinetic, potential, elastic or gas)."""
+        self._c.energies[f"{self.path}.{name}"] = cs.SX(expr)
+
+    def dissipation(self, name: str, expr: cs.SX) -> None:
+        """A dissipated power term [W], >= 0 (damping, throttling)."""
+        self._c.dissipations[f"{self.path}.{name}"] = cs.SX(expr)
+
+    # --- composition ---------------------------------------------------------------
+    def add(self, component: Component) -> Handle:
+        """Build a child component under this path and return its handle."""
+        child = Builder(self._c, f"{self.path}.{component.name}" if self.path else component.name)
+        if component.name in self._children:
+            raise ModelError(f"two components named '{component.name}' in '{self.path}'")
+        self._children.add(component.name)
+        component.build(child)
+        return Handle(child.path, child.ports, child.symbols)
+
+    def connect(self, a: Port, b: Port) -> None:
+        """Connect two ports of the same kind: potentials equal, flows sum to zero."""
+        if a.kind != b.kind:
+            raise ModelError(f"cannot connect {a.path} ({a.kind.name}) to {b.path} ({b.kind.name})")
+        self._c.connections.append((a, b))
+
+    def expose(self, name: str, port: Port) -> None:
+        """Make an inner port available as this component's port ``name``."""
+        if name in self.ports:
+            raise ModelError(f"port '{name}' declared twice in '{self.path}'")
+        self.ports[name] = port
+
+
+class Component:
+    """Base class: subclasses store their settings in ``__init__`` and implement ``build``."""
+
+    def __init__(self, name: str) -> None:
+        if not _NAME.match(name):
+            raise ModelError(f"component name '{name}' must be a Python identifier")
+        self.name = name
+
+    def build(self, b: Builder) -> None:  # pragma: no cover - abstract
+        """Declare variables and equations on ``b``."""
+        raise NotImplementedError
+
+
+class System:
+    """The root of a model: add components, connect them, then :meth:`flatten`.
+
+    Examples
+    --------
+    >>> from sarcomere.dynamics.components.mechanical import Fixed, Mass, Spring
+    >>> sys = System("oscillator")
+    >>> fix = sys.add(Fixed("fix"))
+    >>> spring = sys.add(Spring("spring", c=100.0))
+    >>> mass = sys.add(Mass("mass", m=1.0, g=0.0))
+    >>> sys.connect(fix.flange, spring.flange_a)
+    >>> sys.connect(spring.flange_b, mass.flange_a)
+    >>> model = sys.flatten()
+    >>> model.state_names
+    ['mass.s', 'mass.v']
+    """
+
+    def __init__(self, name: str) -> None:
+        if not _NAME.match(name):
+            raise ModelError(f"system name '{name}' must be a Python identifier")
+        self.name = name
+        self._c = Collected()
+        self._root = Builder(self._c, "")
+
+    def add(self, component: Component) -> Handle:
+        """Add and build a top-level component."""
+        return self._root.add(component)
+
+    def connect(self, a: Port, b: Port) -> None:
+        """Connect two ports (see :meth:`Builder.connect`)."""
+        self._root.connect(a, b)
+
+    def flatten(self):
+        """Flatten into one :class:`~sarcomere.dynamics.model.Model` (explicit ODE if possible)."""
+        from .flatten import flatten
+
+        return flatten(self.name, self._c)

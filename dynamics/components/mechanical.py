@@ -1,0 +1,135 @@
+"""Translational components along the chain axis (s points down, along gravity).
+
+Sign convention (Modelica): ``flange.f`` is the force the connected world exerts on
+the component [N], positive along +s (down).
+"""
+
+from __future__ import annotations
+
+import casadi as cs
+
+from ..component import Builder, Component
+from ..ports import FLANGE
+
+G_STANDARD = 9.80665  # m/s^2, standard gravity (ISO 80000-3)
+
+
+class Fixed(Component):
+    """A flange held at position ``s0`` [m] (the frame, a rigid fixture)."""
+
+    def __init__(self, name: str, s0: float = 0.0) -> None:
+        super().__init__(name)
+        self.s0 = s0
+
+    def build(self, b: Builder) -> None:
+        s0 = b.parameter("s0", self.s0, "m", "position of the fixed flange")
+        b.equation(b.port("flange", FLANGE).s, s0)
+
+
+class Mass(Component):
+    """A point mass ``m`` [kg] with gravity ``g`` [m/s^2] along +s; states s [m], v [m/s]."""
+
+    def __init__(
+        self, name: str, m: float, g: float = G_STANDARD, s_start: float = 0.0, v_start: float = 0.0
+    ) -> None:
+        super().__init__(name)
+        self.m, self.g, self.s_start, self.v_start = m, g, s_start, v_start
+
+    def build(self, b: Builder) -> None:
+        m = b.parameter("m", self.m, "kg", "mass", low=1e-12)
+        g = b.parameter("g", self.g, "m/s2", "gravitational acceleration along +s")
+        s = b.state("s", self.s_start, "m", "position")
+        v = b.state("v", self.v_start, "m/s", "velocity")
+        fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
+        b.equation(fa.s, s)
+        b.equation(fb.s, s)
+        b.der(s, v)
+        b.der(v, (fa.f + fb.f) / m + g)
+        b.energy("kinetic", 0.5 * m * v**2)
+        b.energy("gravity", -m * g * s)
+
+
+class _Compliant(Component):
+    """Base of two-flange transport elements: relative position s_rel = s_b - s_a."""
+
+    def _flanges(self, b: Builder):
+        fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
+        return fa, fb, fb.s - fa.s
+
+    @staticmethod
+    def _force(b: Builder, fa, fb, f) -> None:
+        """``f`` [N] is the tension of the element: it pulls its two flanges together."""
+        b.equation(fb.f, f)
+        b.equation(fa.f, -f)
+
+
+class Spring(_Compliant):
+    """Linear spring ``f = c (s_rel - s_rel0 - gap)`` [N], only while stretched past ``gap``.
+
+    With ``gap = 0`` and ``one_sided = False`` it is the textbook two-sided spring; with
+    ``one_sided = True`` it pushes back only when stretched beyond ``s_rel0 + gap``
+    (a fixture with play).
+    """
+
+    def __init__(
+        self, name: str, c: float, s_rel0: float = 0.0, gap: float = 0.0, one_sided: bool = False
+    ) -> None:
+        super().__init__(name)
+        self.c, self.s_rel0, self.gap, self.one_sided = c, s_rel0, gap, one_sided
+
+    def build(self, b: Builder) -> None:
+        c = b.parameter("c", self.c, "N/m", "spring constant", low=0.0)
+        s0 = b.parameter("s_rel0", self.s_rel0, "m", "unstretched length")
+        gap = b.parameter("gap", self.gap, "m", "play before the spring engages", low=0.0)
+        fa, fb, s_rel = self._flanges(b)
+        e = s_rel - s0 - gap
+        if self.one_sided:
+            e = cs.fmax(e, 0.0)
+        self._force(b, fa, fb, c * e)
+        b.output("f", c * e, "N", "spring tension")
+        b.energy("elastic", 0.5 * c * e**2)
+
+
+class Damper(_Compliant):
+    """Linear damper ``f = d v_rel`` [N] with ``v_rel = d(s_b - s_a)/dt`` [m/s]."""
+
+    def __init__(self, name: str, d: float) -> None:
+        super().__init__(name)
+        self.d = d
+
+    def build(self, b: Builder) -> None:
+        d = b.parameter("d", self.d, "N.s/m", "damping coefficient", low=0.0)
+        fa, fb, s_rel = self._flanges(b)
+        v_rel = b.der_of("v_rel", s_rel, "m/s", "relative velocity of flange_b to flange_a")
+        self._force(b, fa, fb, d * v_rel)
+        b.dissipation("damping", d * v_rel**2)
+
+
+class ForceSensor(Component):
+    """Massless sensor between two flanges; output ``f`` [N], the force it transmits."""
+
+    def build(self, b: Builder) -> None:
+        fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
+        b.equation(fa.s, fb.s)
+        b.equation(fa.f + fb.f, 0.0)
+        b.output("f", fb.f, "N", "tension transmitted (pulling flange_b along +s)")
+
+
+class PositionSensor(Component):
+    """Ideal position sensor; output ``s`` [m]."""
+
+    def build(self, b: Builder) -> None:
+        fl = b.port("flange", FLANGE)
+        b.equation(fl.f, 0.0)
+        b.output("s", fl.s, "m", "measured position")
+
+
+__all__ = [
+    "G_STANDARD",
+    "Damper",
+    "Fixed",
+    "ForceSensor",
+    "Mass",
+    "PositionSensor",
+    "Spring",
+]

@@ -1,0 +1,172 @@
+"""Flattening: connection equations, structural analysis (BLT) and symbolic elimination.
+
+Steps, as a Modelica tool does them:
+
+1. Connection sets (union-find over ports): potentials equal, flows sum to zero;
+   an unconnected port gets ``flow == 0``.
+2. Structural check: as many equations as algebraic unknowns, and a perfect matching
+   between them (scipy's bipartite matching); otherwise a :class:`ModelError` names
+   the equations or variables left over.
+3. Block-lower-triangular order: strongly connected components of the
+   equation-dependency graph (scipy), ordered topologically (graphlib).
+4. Each scalar block that is linear in its unknown is solved symbolically and
+   substituted forward. What remains (algebraic loops, nonlinear scalar equations)
+   stays as the algebraic part ``0 = g(x, z, u, p)`` of a semi-explicit DAE.
+
+Storage components (masses, chambers) alternating with transport components
+(springs, threads, orifices) give an explicit ODE with no algebraic part.
+"""
+
+from __future__ import annotations
+
+import graphlib
+
+import casadi as cs
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, maximum_bipartite_matching
+
+from .component import Collected
+from .errors import ModelError
+from .model import Model
+
+
+def _connection_equations(c: Collected) -> list[tuple[cs.SX, str]]:
+    parent: dict[int, int] = {id(p): id(p) for p in c.ports}
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for a, b in c.connections:
+        parent[find(id(a))] = find(id(b))
+    sets: dict[int, list] = {}
+    for p in c.ports:
+        sets.setdefault(find(id(p)), []).append(p)
+    eqs = []
+    for members in sets.values():
+        where = "connect(" + ", ".join(p.path for p in members) + ")"
+        first = members[0]
+        for other in members[1:]:
+            eqs.append((other.potential - first.potential, where))
+        eqs.append((sum((p.flow for p in members), cs.SX(0)), where))
+    return eqs
+
+
+def _substitute(expr: cs.SX, known: dict[str, cs.SX]) -> cs.SX:
+    syms = [s for s in cs.symvar(expr) if s.name() in known]
+    if not syms:
+        return expr
+    return cs.substitute(expr, cs.vertcat(*syms), cs.vertcat(*[known[s.name()] for s in syms]))
+
+
+def _blocks(residuals: cs.SX, unknowns: cs.SX, origins: list[str], names: list[str]):
+    """Matching + SCCs: a list of blocks (equation indices, unknown indices) in solve order."""
+    n = unknowns.numel()
+    jac = cs.jacobian(residuals, unknowns).sparsity()
+    rows, cols = jac.get_triplet()
+    inc = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    match = maximum_bipartite_matching(inc, perm_type="column")  # eq -> unknown
+    if np.any(match < 0):
+        bad_eq = [origins[i] for i in np.flatnonzero(match < 0)][:8]
+        used = set(match[match >= 0].tolist())
+        bad_var = [names[j] for j in range(n) if j not in used][:8]
+        raise ModelError(
+            "structurally singular system: equations from "
+            f"{sorted(set(bad_eq))} have no unknown left to determine, and unknowns "
+            f"{bad_var} are not determined by any equation (check connections and causality)"
+        )
+    var_to_eq = np.empty(n, dtype=int)
+    var_to_eq[match] = np.arange(n)
+    # eq i depends on eq j when eq i uses the unknown matched to eq j
+    dep = sp.csr_matrix((np.ones(len(rows)), (rows, var_to_eq[cols])), shape=(n, n))
+    ncomp, labels = connected_components(dep, directed=True, connection="strong")
+    comp_deps: dict[int, set[int]] = {k: set() for k in range(ncomp)}
+    d = dep.tocoo()
+    for i, j in zip(d.row, d.col, strict=True):
+        if labels[i] != labels[j]:
+            comp_deps[labels[i]].add(labels[j])
+    members: dict[int, list[int]] = {}
+    for i, lab in enumerate(labels):
+        members.setdefault(lab, []).append(i)
+    order = graphlib.TopologicalSorter(comp_deps).static_order()
+    return [(members[k], [int(match[i]) for i in members[k]]) for k in order]
+
+
+def _resolve_time_derivatives(
+    c: Collected, known: dict[str, cs.SX], ders: dict[str, cs.SX]
+) -> dict[str, cs.SX]:
+    """Replace each ``der_of`` variable by ``d expr/dx . f(x, ...)`` (expr of states only)."""
+    x = cs.vertcat(*[c.symbols[n] for n in ders])
+    f = cs.vertcat(*ders.values())
+    w_names = set(c.time_derivatives)
+    out = dict(known)
+    for name, expr in c.time_derivatives.items():
+        e = _substitute(expr, known)
+        others = [s.name() for s in cs.symvar(e) if s.name() not in ders]
+        params = {n for n, v in c.variables.items() if v.kind in ("parameter", "input")}
+        if set(others) - params:
+            raise ModelError(
+                f"'{name}' needs the time derivative of an expression of {sorted(others)}, "
+                "which are not states: attach the element to masses or chambers"
+            )
+        rate = cs.mtimes(cs.jacobian(e, x), f)
+        if any(s.name() in w_names for s in cs.symvar(rate)):
+            raise ModelError(f"'{name}' depends on itself through the dynamics (implicit loop)")
+        out[name] = rate
+    return {k: _substitute(v, out) for k, v in out.items()}
+
+
+def flatten(name: str, c: Collected) -> Model:
+    """Turn collected declarations into a :class:`Model` (see module docstring)."""
+    missing = [v for v, var in c.variables.items() if var.kind == "state" and v not in c.ders]
+    if missing:
+        raise ModelError(f"states without a derivative equation: {missing}")
+    eqs = list(c.equations) + _connection_equations(c)
+    unknown_names = [v for v, var in c.variables.items() if var.kind == "algebraic"]
+    if len(eqs) != len(unknown_names):
+        raise ModelError(
+            f"system '{name}' has {len(eqs)} equations for {len(unknown_names)} unknowns"
+        )
+    known: dict[str, cs.SX] = {}
+    kept_eqs: list[cs.SX] = []
+    kept_vars: list[str] = []
+    if eqs:
+        residuals = cs.vertcat(*[e for e, _ in eqs])
+        unknowns = cs.vertcat(*[c.symbols[v] for v in unknown_names])
+        origins = [o for _, o in eqs]
+        for eq_idx, var_idx in _blocks(residuals, unknowns, origins, unknown_names):
+            block = [_substitute(eqs[i][0], known) for i in eq_idx]
+            if len(block) == 1:
+                v = c.symbols[unknown_names[var_idx[0]]]
+                slope = cs.jacobian(block[0], v)
+                if not cs.depends_on(slope, v) and not slope.is_zero():
+                    offset = cs.substitute(block[0], v, cs.SX(0))
+                    known[v.name()] = -offset / slope
+                    continue
+            kept_eqs.extend(block)
+            kept_vars.extend(unknown_names[j] for j in var_idx)
+    ders = {k: _substitute(e, known) for k, e in c.ders.items()}
+    if c.time_derivatives:
+        known = _resolve_time_derivatives(c, known, ders)
+        ders = {k: _substitute(e, known) for k, e in ders.items()}
+    outputs = {k: _substitute(e, known) for k, e in c.outputs.items()}
+    energies = {k: _substitute(e, known) for k, e in c.energies.items()}
+    dissip = {k: _substitute(e, known) for k, e in c.dissipations.items()}
+    # Equations kept for the algebraic part may use unknowns solved later in BLT order.
+    kept_eqs = [_substitute(e, known) for e in kept_eqs]
+    solved = {k: _substitute(e, known) for k, e in known.items()}
+    return Model(
+        name=name,
+        variables=c.variables,
+        symbols=c.symbols,
+        ders=ders,
+        alg=kept_eqs,
+        alg_vars=kept_vars,
+        solved=solved,
+        outputs=outputs,
+        energies=energies,
+        dissipations=dissip,
+    )

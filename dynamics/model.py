@@ -1,0 +1,214 @@
+"""The flattened model: named variables and plain CasADi Functions.
+
+Every later stage (simulation, equilibrium, linearisation, MPC, FMU export) uses only
+what this class exposes: the symbol vectors ``x`` (states), ``z`` (algebraic unknowns
+left after elimination), ``u`` (inputs), ``p`` (parameters), the expressions ``ode``,
+``alg``, ``y`` (declared outputs), and Functions built from them with named inputs and
+outputs (``model.function("ode")(x=..., z=..., u=..., p=...)["ode"]``). There is no
+second copy of the physics anywhere.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Mapping
+
+import casadi as cs
+import numpy as np
+
+from .component import Var
+from .errors import ParameterError
+from .units import to_si
+
+_ARGS = ["x", "z", "u", "p"]
+
+
+class Model:
+    """A flattened semi-explicit DAE ``dx/dt = f(x, z, u, p)``, ``0 = g(x, z, u, p)``.
+
+    Attributes
+    ----------
+    state_names, alg_names, input_names, param_names, output_names : list of str
+        Variable paths in vector order, e.g. ``"aps1.chamber.m_air"``.
+    variables : dict of str to Var
+        Unit, start value, bounds, description (and default value for parameters).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        variables: dict[str, Var],
+        symbols: dict[str, cs.SX],
+        ders: dict[str, cs.SX],
+        alg: list[cs.SX],
+        alg_vars: list[str],
+        solved: dict[str, cs.SX],
+        outputs: dict[str, cs.SX],
+        energies: dict[str, cs.SX],
+        dissipations: dict[str, cs.SX],
+    ) -> None:
+        self.name = name
+        self.variables = variables
+        self.state_names = [v for v, m in variables.items() if m.kind == "state"]
+        self.alg_names = list(alg_vars)
+        self.input_names = [v for v, m in variables.items() if m.kind == "input"]
+        self.param_names = [v for v, m in variables.items() if m.kind == "parameter"]
+        self.output_names = list(outputs)
+        vec = [symbols[n] for n in self.state_names]
+        self.x = cs.vertcat(*vec) if vec else cs.SX(0, 1)
+        self.z = cs.vertcat(*[symbols[n] for n in self.alg_names]) if alg_vars else cs.SX(0, 1)
+        ins = [symbols[n] for n in self.input_names]
+        self.u = cs.vertcat(*ins) if ins else cs.SX(0, 1)
+        pars = [symbols[n] for n in self.param_names]
+        self.p = cs.vertcat(*pars) if pars else cs.SX(0, 1)
+        self.ode = cs.vertcat(*[ders[n] for n in self.state_names]) if vec else cs.SX(0, 1)
+        self.alg = cs.vertcat(*alg) if alg else cs.SX(0, 1)
+        self.y = cs.vertcat(*outputs.values()) if outputs else cs.SX(0, 1)
+        # Every named signal as an expression of (x, z, u, p): for result tables.
+        sig = {n: symbols[n] for n in self.state_names + self.alg_names + self.input_names}
+        sig.update(solved)
+        sig.update(outputs)
+        order = [n for n in variables if n in sig]
+        self.signal_names = order
+        self._signals = cs.vertcat(*[sig[n] for n in order])
+        self._energies = energies
+        self._dissipations = dissipations
+
+    # --- sizes and defaults --------------------------------------------------------
+    @property
+    def nx(self) -> int:
+        """Number of states."""
+        return self.x.numel()
+
+    @property
+    def nz(self) -> int:
+        """Number of algebraic unknowns left after elimination (0 for an explicit ODE)."""
+        return self.z.numel()
+
+    def unit(self, name: str) -> str:
+        """SI unit of a variable."""
+        return self.variables[name].unit
+
+    def x0(self) -> np.ndarray:
+        """Start values of the states."""
+        return np.array([self.variables[n].start for n in self.state_names], dtype=float)
+
+    def z0(self) -> np.ndarray:
+        """Start guesses of the algebraic unknowns."""
+        return np.array([self.variables[n].start for n in self.alg_names], dtype=float)
+
+    def u0(self) -> np.ndarray:
+        """Start values of the inputs."""
+        return np.array([self.variables[n].start for n in self.input_names], dtype=float)
+
+    def parameters(self, overrides: Mapping[str, object] | None = None) -> np.ndarray:
+        """The parameter vector (defaults, then ``overrides`` by name; units allowed).
+
+        Raises
+        ------
+        ParameterError
+            For an unknown name or a value outside the parameter's range.
+        """
+        values = {n: self.variables[n].value for n in self.param_names}
+        for key, raw in (overrides or {}).items():
+            if key not in values:
+                import difflib
+
+                close = difflib.get_close_matches(key, self.param_names, n=3)
+                hint = f"did you mean {close}?" if close else f"{len(values)} parameters exist"
+                raise ParameterError(key, raw, f"a parameter of model '{self.name}'", hint)
+            var = self.variables[key]
+            val = to_si(raw, var.unit, key)
+            if not (var.low <= val <= var.high):
+                raise ParameterError(key, raw, f"[{var.low:g}, {var.high:g}] {var.unit}")
+            values[key] = val
+        return np.array([values[n] for n in self.param_names], dtype=float)
+
+    def index(self, name: str) -> tuple[str, int]:
+        """Which vector (``"x"``, ``"z"``, ``"u"``, ``"p"``, ``"y"``) holds ``name``, and where."""
+        for vec, names in (
+            ("x", self.state_names),
+            ("z", self.alg_names),
+            ("u", self.input_names),
+            ("p", self.param_names),
+            ("y", self.output_names),
+        ):
+            if name in names:
+                return vec, names.index(name)
+        raise KeyError(f"model '{self.name}' has no variable '{name}'")
+
+    # --- CasADi Functions ----------------------------------------------------------
+    @functools.cached_property
+    def _syms(self) -> list[cs.SX]:
+        return [self.x, self.z, self.u, self.p]
+
+    @functools.cache  # noqa: B019 - one model, a handful of names
+    def function(self, which: str) -> cs.Function:
+        """A CasADi Function of (x, z, u, p) with named inputs and outputs.
+
+        ``which`` is one of "ode", "alg", "y" (declared outputs), "signals" (every
+        named variable, in :attr:`signal_names` order), "energy" (stored energies [J]
+        and dissipated powers [W], summed as ``E`` and ``D``), "jac" (the Jacobians
+        ``A = d ode/dx``, ``B = d ode/du``, ``C = dy/dx``, ``D = dy/du`` of the explicit
+        ODE, for ``nz == 0``), "dae_jac" (``ode_x, ode_z, alg_x, alg_z``).
+        """
+        s = self._syms
+        if which in ("ode", "alg", "y", "signals"):
+            expr = {"ode": self.ode, "alg": self.alg, "y": self.y, "signals": self._signals}
+            return cs.Function(which, s, [expr[which]], _ARGS, [which])
+        if which == "energy":
+            e = cs.vertcat(*self._energies.values()) if self._energies else cs.SX(0, 1)
+            d = cs.vertcat(*self._dissipations.values()) if self._dissipations else cs.SX(0, 1)
+            return cs.Function(
+                "energy", s, [cs.sum1(e), cs.sum1(d), e, d], _ARGS, ["E", "D", "terms", "dterms"]
+            )
+        if which == "jac":
+            return cs.Function(
+                "jacobians",
+                s,
+                [
+                    cs.jacobian(self.ode, self.x),
+                    cs.jacobian(self.ode, self.u),
+                    cs.jacobian(self.y, self.x),
+                    cs.jacobian(self.y, self.u),
+                ],
+                _ARGS,
+                ["A", "B", "C", "D"],
+            )
+        if which == "dae_jac":
+            return cs.Function(
+                "dae_jac",
+                s,
+                [
+                    cs.jacobian(self.ode, self.x),
+                    cs.jacobian(self.ode, self.z),
+                    cs.jacobian(self.alg, self.x),
+                    cs.jacobian(self.alg, self.z),
+                ],
+                _ARGS,
+                ["ode_x", "ode_z", "alg_x", "alg_z"],
+            )
+        raise ValueError(
+            f"unknown function '{which}'; one of ode, alg, y, signals, energy, jac, dae_jac"
+        )
+
+    @property
+    def energy_names(self) -> list[str]:
+        """Names of the stored-energy terms, in the order of ``function("energy")["terms"]``."""
+        return list(self._energies)
+
+    def describe(self) -> str:
+        """A one-paragraph summary: sizes and the first variables."""
+        return (
+            f"model '{self.name}': {self.nx} states, {self.nz} algebraic, "
+            f"{len(self.input_names)} inputs, {len(self.param_names)} parameters, "
+            f"{len(self.output_names)} outputs"
+        )
+
+    def check_finite(self, values: np.ndarray, what: str) -> None:
+        """Raise ParameterError if a vector holds NaN or inf (names the first bad entry)."""
+        names = {"x": self.state_names, "u": self.input_names, "p": self.param_names}[what]
+        for n, v in zip(names, np.ravel(values), strict=True):
+            if not math.isfinite(v):
+                raise ParameterError(n, v, "a finite number")
