@@ -62,6 +62,63 @@ def _substitute(expr: cs.SX, known: dict[str, cs.SX]) -> cs.SX:
     return cs.substitute(expr, cs.vertcat(*syms), cs.vertcat(*[known[s.name()] for s in syms]))
 
 
+def _linear_coefficient(e: cs.SX, v: cs.SX, others: cs.SX) -> cs.SX | None:
+    """Coefficient of ``v`` if ``e`` is linear in ``v`` with a coefficient free of ``others``."""
+    slope = cs.jacobian(e, v)
+    if slope.is_zero() or cs.depends_on(slope, cs.vertcat(v, others)):
+        return None
+    return slope
+
+
+def _tear(
+    eqs: list[cs.SX], unknowns: list[cs.SX], known: dict[str, cs.SX]
+) -> tuple[list[cs.SX], list[cs.SX]]:
+    """Greedy tearing of an algebraic loop: solve equations that are linear in one of the
+    loop's unknowns (aliases, flow balances) and substitute, keeping the rest as residuals.
+
+    Solved unknowns go into ``known``. If the torn residual system is structurally
+    singular, the untorn block is returned unchanged.
+    """
+    original = (list(eqs), list(unknowns))
+    eqs, unknowns = list(eqs), list(unknowns)
+    solved: dict[str, cs.SX] = {}
+    progress = True
+    while progress and len(eqs) > 1:
+        progress = False
+        order = sorted(range(len(eqs)), key=lambda i: len(cs.symvar(eqs[i])))
+        for i in order:
+            e = eqs[i]
+            present = [v for v in unknowns if cs.depends_on(e, v)]
+            for v in present:
+                rest = cs.vertcat(*[u for u in unknowns if u is not v])
+                coeff = _linear_coefficient(e, v, rest)
+                if coeff is None:
+                    continue
+                sol = -cs.substitute(e, v, cs.SX(0)) / coeff
+                eqs = [cs.substitute(x, v, sol) for j, x in enumerate(eqs) if j != i]
+                solved = {k: cs.substitute(x, v, sol) for k, x in solved.items()}
+                solved[v.name()] = sol
+                unknowns = [u for u in unknowns if u is not v]
+                progress = True
+                break
+            if progress:
+                break
+    if len(eqs) != len(unknowns) or not _structurally_regular(eqs, unknowns):
+        return original
+    known.update(solved)
+    return eqs, unknowns
+
+
+def _structurally_regular(eqs: list[cs.SX], unknowns: list[cs.SX]) -> bool:
+    if not eqs:
+        return True
+    jac = cs.jacobian(cs.vertcat(*eqs), cs.vertcat(*unknowns)).sparsity()
+    rows, cols = jac.get_triplet()
+    n = len(eqs)
+    inc = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    return bool(np.all(maximum_bipartite_matching(inc, perm_type="column") >= 0))
+
+
 def _blocks(residuals: cs.SX, unknowns: cs.SX, origins: list[str], names: list[str]):
     """Matching + SCCs: a list of blocks (equation indices, unknown indices) in solve order."""
     n = unknowns.numel()
@@ -146,8 +203,10 @@ def flatten(name: str, c: Collected) -> Model:
                     offset = cs.substitute(block[0], v, cs.SX(0))
                     known[v.name()] = -offset / slope
                     continue
+            block_vars = [c.symbols[unknown_names[j]] for j in var_idx]
+            block, block_vars = _tear(block, block_vars, known)
             kept_eqs.extend(block)
-            kept_vars.extend(unknown_names[j] for j in var_idx)
+            kept_vars.extend(v.name() for v in block_vars)
     ders = {k: _substitute(e, known) for k, e in c.ders.items()}
     if c.time_derivatives:
         known = _resolve_time_derivatives(c, known, ders)

@@ -49,6 +49,24 @@ class Mass(Component):
         b.energy("gravity", -m * g * s)
 
 
+class Node(Component):
+    """A massless point, optionally carrying a weight ``weight`` [N] along +s.
+
+    Its position is fixed by the forces of what is connected (they must balance), so it
+    turns a mass into an algebraic unknown: the quasi-static fidelity level uses it.
+    """
+
+    def __init__(self, name: str, weight: float = 0.0) -> None:
+        super().__init__(name)
+        self.weight = weight
+
+    def build(self, b: Builder) -> None:
+        w = b.parameter("weight", self.weight, "N", "weight carried by the node")
+        fl = b.port("flange_a", FLANGE)
+        b.equation(fl.f + w, 0.0)
+        b.energy("gravity", -w * fl.s)
+
+
 class _Compliant(Component):
     """Base of two-flange transport elements: relative position s_rel = s_b - s_a."""
 
@@ -130,6 +148,7 @@ __all__ = [
     "Fixed",
     "ForceSensor",
     "Mass",
+    "Node",
     "PositionSensor",
     "Spring",
 ]

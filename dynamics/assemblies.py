@@ -1,0 +1,104 @@
+"""Ready-made systems for the paper's experiments: hanging load and isometric fixture.
+
+Each function builds a :class:`~sarcomere.dynamics.component.System`, flattens it and
+returns the :class:`~sarcomere.dynamics.model.Model`. Stable signal names:
+
+* ``regulator.p_cmd`` (input, Pa gauge), ``regulator.p_out`` (Pa gauge);
+* ``myofibril.length`` (m), ``myofibril.apsK.chamber.p_gauge`` (Pa), ``myofibril.actinK.T`` (N);
+* hanging load: ``load.s`` (m), ``load.m`` (parameter, kg);
+* isometric: ``sensor.f`` (N), the force on the fixture.
+"""
+
+from __future__ import annotations
+
+from .component import System
+from .components.aps import APSParams, Myofibril
+from .components.mechanical import G_STANDARD, Fixed, ForceSensor, Mass, Spring
+from .components.pneumatic import Regulator
+from .errors import ParameterError
+from .model import Model
+
+HOOK_MASS_KG = 1.0e-3
+"""Mass of the load hook and clip [kg] (estimate); the load mass adds to it, so the
+"0 g" experiment still has a defined bottom end."""
+
+FIDELITIES = ("full", "quasi_static")
+
+
+def _check_fidelity(fidelity: str) -> bool:
+    if fidelity not in FIDELITIES:
+        raise ParameterError("fidelity", fidelity, f"one of {FIDELITIES}")
+    return fidelity == "quasi_static"
+
+
+def hanging_load(
+    n: int = 3,
+    params: APSParams | None = None,
+    load_kg: float = 0.0,
+    fidelity: str = "full",
+    regulator_tau: float = 0.05,
+    g: float = G_STANDARD,
+) -> Model:
+    """Myofibril of ``n`` APS hanging from the frame, a load mass [kg] at its lower end."""
+    if not load_kg >= 0:
+        raise ParameterError("load_kg", load_kg, "[0, inf) kg")
+    p = params or APSParams.from_paper()
+    qs = _check_fidelity(fidelity)
+    sys = System(f"hanging_n{n}_{fidelity}")
+    frame = sys.add(Fixed("frame"))
+    reg = sys.add(Regulator("regulator", tau=regulator_tau))
+    myo = Myofibril("myofibril", n, p, quasi_static=qs, g=g)
+    mf = sys.add(myo)
+    load = sys.add(Mass("load", m=HOOK_MASS_KG + load_kg, g=g, s_start=myo.rest_length))
+    sys.connect(frame.flange, mf.flange_a)
+    sys.connect(reg.port, mf.port)
+    sys.connect(mf.flange_b, load.flange_a)
+    return sys.flatten()
+
+
+def isometric(
+    n: int = 1,
+    params: APSParams | None = None,
+    fidelity: str = "full",
+    fixture_stiffness: float | None = None,
+    fixture_gap: float = 0.0,
+    length: float | None = None,
+    regulator_tau: float = 0.05,
+    g: float = G_STANDARD,
+) -> Model:
+    """Myofibril between the frame and a force sensor on a fixture.
+
+    ``fixture_stiffness`` None means rigid; otherwise a one-sided spring [N/m] with
+    ``fixture_gap`` [m] of play. ``length`` [m] is the fixture position (default: the
+    geometric rest length of the chain).
+    """
+    p = params or APSParams.from_paper()
+    qs = _check_fidelity(fidelity)
+    sys = System(f"isometric_n{n}_{fidelity}")
+    frame = sys.add(Fixed("frame"))
+    reg = sys.add(Regulator("regulator", tau=regulator_tau))
+    myo = Myofibril("myofibril", n, p, quasi_static=qs, g=g)
+    mf = sys.add(myo)
+    L = myo.rest_length if length is None else length
+    if not L > 0:
+        raise ParameterError("length", L, "(0, inf) m")
+    sensor = sys.add(ForceSensor("sensor"))
+    sys.connect(frame.flange, mf.flange_a)
+    sys.connect(reg.port, mf.port)
+    sys.connect(mf.flange_b, sensor.flange_a)
+    if fixture_stiffness is None:
+        fix = sys.add(Fixed("fixture", s0=L))
+        sys.connect(sensor.flange_b, fix.flange)
+    else:
+        if not fixture_stiffness > 0:
+            raise ParameterError("fixture_stiffness", fixture_stiffness, "(0, inf) N/m or None")
+        # a spring from the fixture (at L) to the chain end, engaging after the gap
+        anchor = sys.add(Fixed("fixture", s0=L))
+        spring = sys.add(
+            Spring("fixture_spring", c=fixture_stiffness, gap=fixture_gap, one_sided=True)
+        )
+        end = sys.add(Mass("hook", m=HOOK_MASS_KG, g=g, s_start=L))
+        sys.connect(sensor.flange_b, end.flange_a)
+        sys.connect(end.flange_b, spring.flange_b)
+        sys.connect(spring.flange_a, anchor.flange)
+    return sys.flatten()

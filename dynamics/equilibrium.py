@@ -1,0 +1,192 @@
+"""Static equilibrium of a flattened model: ``ode(x, z, u, p) = 0``, ``alg = 0``.
+
+A damped Newton method on the exact sparse CasADi Jacobian, with continuation: the
+inputs and parameters move from a solved state to their targets in steps that halve
+on failure. It never returns silently wrong: a failure raises
+:class:`~sarcomere.dynamics.errors.SolverError` with the residual, the iteration count
+and the continuation fraction reached; a solution that leaves the physical domain (the
+thread pulled straight, a negative air mass) is reported as such.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import casadi as cs
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .errors import SolverError
+from .model import Model
+
+
+@dataclass
+class Equilibrium:
+    """A solved operating point: vectors, named signals and solver diagnostics."""
+
+    x: np.ndarray
+    z: np.ndarray
+    u: np.ndarray
+    p: np.ndarray
+    signals: dict[str, float]
+    residual: float
+    iterations: int
+
+    def __getitem__(self, name: str) -> float:
+        return self.signals[name]
+
+
+class _Newton:
+    """Cached residual and Jacobian Functions of one model."""
+
+    def __init__(self, model: Model) -> None:
+        m = model
+        w = cs.vertcat(m.x, m.z)
+        F = cs.vertcat(m.ode, m.alg)
+        self.model = m
+        self.F = cs.Function("F", [w, m.u, m.p], [F])
+        self.J = cs.Function("J", [w, m.u, m.p], [cs.jacobian(F, w)])
+        self.sig = m.function("signals")
+
+    def residual(self, w, u, p) -> np.ndarray:
+        return np.array(self.F(w, u, p)).ravel()
+
+    def jacobian(self, w, u, p) -> sp.csc_matrix:
+        return self.J(w, u, p).sparse().tocsc()
+
+    def solve(self, w0, u, p, tol, max_iter) -> tuple[np.ndarray, float, int]:
+        w = np.array(w0, dtype=float)
+        scale = np.maximum(np.abs(w), 1e-6)
+        for it in range(1, max_iter + 1):
+            r = self.residual(w, u, p)
+            J = self.jacobian(w, u, p)
+            # row scaling so that every residual is compared in its own units
+            rs = 1.0 / np.maximum(
+                abs(J).multiply(scale[None, :]).max(axis=1).toarray().ravel(), 1e-300
+            )
+            norm = np.linalg.norm(r * rs, np.inf)
+            if not np.isfinite(norm):
+                raise _Fail("residual is not finite", norm, it)
+            if norm < tol:
+                return w, norm, it
+            try:
+                dw = spla.spsolve(J, -r)
+            except RuntimeError as exc:  # pragma: no cover - scipy raises for singular
+                raise _Fail(f"singular Jacobian ({exc})", norm, it) from None
+            if not np.all(np.isfinite(dw)):
+                raise _Fail("singular Jacobian (Newton step not finite)", norm, it)
+            alpha = 1.0
+            while alpha > 1e-4:
+                wn = w + alpha * dw
+                rn = self.residual(wn, u, p)
+                if (
+                    np.all(np.isfinite(rn))
+                    and np.linalg.norm(rn * rs, np.inf) < (1 - 1e-4 * alpha) * norm
+                ):
+                    break
+                alpha *= 0.5
+            else:
+                raise _Fail("line search failed (no descent)", norm, it)
+            w = wn
+        raise _Fail(f"no convergence in {max_iter} iterations", norm, max_iter)
+
+
+class _Fail(Exception):
+    def __init__(self, why: str, residual: float, iterations: int) -> None:
+        super().__init__(why)
+        self.why, self.residual, self.iterations = why, residual, iterations
+
+
+_SOLVERS: dict[int, _Newton] = {}
+THETA_MIN_RAD = 1e-2
+"""Smallest thread angle [rad] accepted at an equilibrium (cos theta = 2 r2 / l)."""
+
+
+def solve_equilibrium(
+    model: Model,
+    inputs: Mapping[str, float] | None = None,
+    params: Mapping[str, object] | None = None,
+    guess: Equilibrium | None = None,
+    tol: float = 1e-10,
+    max_iter: int = 60,
+    min_fraction_step: float = 1e-4,
+) -> Equilibrium:
+    """Equilibrium for constant ``inputs`` (by name, SI) and parameter overrides.
+
+    Continuation starts from ``guess`` (or from the model's start values with its
+    default inputs and parameters) and moves linearly to the target inputs and
+    parameters; each step that fails is halved, down to ``min_fraction_step``.
+
+    Raises
+    ------
+    SolverError
+        If no equilibrium is found (with the cause, residual and how far the
+        continuation got), or if it leaves the physical domain.
+    """
+    m = model
+    newton = _SOLVERS.get(id(m))
+    if newton is None or newton.model is not m:
+        newton = _SOLVERS[id(m)] = _Newton(m)
+    u_target = m.u0()
+    for k, v in (inputs or {}).items():
+        kind, i = m.index(k)
+        if kind != "u":
+            raise SolverError(f"'{k}' is not an input of model '{m.name}'")
+        u_target[i] = float(v)
+    p_target = m.parameters(params)
+    if guess is None:
+        w = np.concatenate([m.x0(), m.z0()])
+        u_start, p_start = m.u0(), m.parameters()
+    else:
+        w = np.concatenate([guess.x, guess.z])
+        u_start, p_start = guess.u, guess.p
+    frac, step = 0.0, 1.0
+    last = (np.inf, 0, "not started")
+    while frac < 1.0:
+        nxt = min(1.0, frac + step)
+        u = u_start + nxt * (u_target - u_start)
+        p = p_start + nxt * (p_target - p_start)
+        try:
+            w_new, res, its = newton.solve(w, u, p, tol, max_iter)
+            _check_domain(m, w_new)
+        except _Fail as f:
+            last = (f.residual, f.iterations, f.why)
+            step /= 2
+            if step < min_fraction_step:
+                raise SolverError(
+                    f"equilibrium of '{m.name}' not found: {last[2]} (scaled residual "
+                    f"{last[0]:.3g} after {last[1]} Newton iterations); continuation reached "
+                    f"{100 * frac:.3g} % of the way to the target inputs/parameters"
+                ) from None
+            continue
+        w, frac, step = w_new, nxt, min(1.0, step * 2)
+        last = (res, its, "ok")
+    x, z = w[: m.nx], w[m.nx :]
+    vals = np.array(newton.sig(x, z, u_target, p_target)).ravel()
+    signals = dict(zip(m.signal_names, vals.tolist(), strict=True))
+    for name, v in signals.items():
+        if name.rsplit(".", 1)[-1].startswith("theta_") and v < THETA_MIN_RAD:
+            raise SolverError(
+                f"equilibrium of '{m.name}' has the thread pulled straight: {name} = "
+                f"{np.degrees(v):.3g} deg (< {np.degrees(THETA_MIN_RAD):.2g} deg); the "
+                "expansion exceeds what the thread geometry allows (lower the pressure)"
+            )
+    return Equilibrium(
+        x,
+        z,
+        u_target,
+        p_target,
+        signals,
+        float(last[0]),
+        int(last[1]),
+    )
+
+
+def _check_domain(m: Model, w: np.ndarray) -> None:
+    """Reject solutions outside the physical domain (raises _Fail to shrink the step)."""
+    x = w[: m.nx]
+    for i, name in enumerate(m.state_names):
+        if name.endswith("m_air") and x[i] <= 0:
+            raise _Fail(f"negative air mass in {name}", np.inf, 0)
