@@ -89,12 +89,12 @@ class APSParams:
     A_band: float = 30e-3
     h_jz: float = 2e-3
     L_r: float = 4e-3
-    A_r: float = 0.4e-6
+    A_r: float = 2.6106e-7
     C1: float = 0.096e6
     C2: float = 0.0095e6
     C3: float = 0.0
-    A_p: float = 2.5e-6
-    k_s: float = 2.0e3
+    A_p: float = 4.0479e-6
+    k_s: float = 417.72
     c_s: float = 0.5
     eps_slack: float = 1e-5
     m_e: float = 1e-3
