@@ -94,7 +94,7 @@ class CalibrationResult:
         }
 
 
-_UNITS = {"A_p": "m2", "A_r": "m2", "k_s": "N/m"}
+_UNITS = {"A_p": "m^2", "A_r": "m^2", "k_s": "N/m"}
 
 
 def _param_expr(model: Model, base: np.ndarray, theta: dict[str, cs.SX]) -> cs.SX:

@@ -205,6 +205,12 @@ def flatten(name: str, c: Collected) -> Model:
                     continue
             block_vars = [c.symbols[unknown_names[j]] for j in var_idx]
             block, block_vars = _tear(block, block_vars, known)
+            if not _structurally_regular(block, block_vars):
+                raise ModelError(
+                    "singular system: after elimination, the equations from "
+                    f"{sorted({origins[i] for i in eq_idx})} do not determine "
+                    f"{[v.name() for v in block_vars]} (a free body or an unconstrained port?)"
+                )
             kept_eqs.extend(block)
             kept_vars.extend(v.name() for v in block_vars)
     ders = {k: _substitute(e, known) for k, e in c.ders.items()}
@@ -217,7 +223,7 @@ def flatten(name: str, c: Collected) -> Model:
     # Equations kept for the algebraic part may use unknowns solved later in BLT order.
     kept_eqs = [_substitute(e, known) for e in kept_eqs]
     solved = {k: _substitute(e, known) for k, e in known.items()}
-    return Model(
+    model = Model(
         name=name,
         variables=c.variables,
         symbols=c.symbols,
@@ -229,3 +235,22 @@ def flatten(name: str, c: Collected) -> Model:
         energies=energies,
         dissipations=dissip,
     )
+    _check_numerically_regular(model)
+    return model
+
+
+def _check_numerically_regular(model: Model) -> None:
+    """Refuse an algebraic part whose Jacobian is exactly singular at the start values
+    (a residual that cancels symbolically, e.g. a spring with both ends free)."""
+    if not model.nz:
+        return
+    J = model.function("dae_jac")(x=model.x0(), z=model.z0(), u=model.u0(), p=model.parameters())[
+        "alg_z"
+    ]
+    sv = np.linalg.svd(np.array(J), compute_uv=False)
+    if sv[-1] <= 1e-14 * max(sv[0], 1e-300):
+        raise ModelError(
+            f"singular system '{model.name}': the algebraic equations do not determine "
+            f"{model.alg_names} (their Jacobian is singular: a free body or an "
+            "unconstrained port?)"
+        )

@@ -182,7 +182,7 @@ class YeohSpring(Component):
         A_r = b.parameter(
             "A_r",
             p.A_r,
-            "m2",
+            "m^2",
             "effective restoring cross-section",
             low=0.0,
             source="calibrated against the paper's concentric experiment",
@@ -248,7 +248,7 @@ class Actin(Component):
             low=0.0,
             source="calibrated against the 100 g passive stretch",
         )
-        c_s = b.parameter("c_s", p.c_s, "N.s/m", "I-band damping", low=0.0, source="estimate")
+        c_s = b.parameter("c_s", p.c_s, "N*s/m", "I-band damping", low=0.0, source="estimate")
         eps = b.parameter("eps_slack", p.eps_slack, "m", "slack regularisation", low=1e-12)
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         L_geo = cs.SX(0)

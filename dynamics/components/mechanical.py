@@ -37,7 +37,7 @@ class Mass(Component):
 
     def build(self, b: Builder) -> None:
         m = b.parameter("m", self.m, "kg", "mass", low=1e-12)
-        g = b.parameter("g", self.g, "m/s2", "gravitational acceleration along +s")
+        g = b.parameter("g", self.g, "m/s^2", "gravitational acceleration along +s")
         s = b.state("s", self.s_start, "m", "position")
         v = b.state("v", self.v_start, "m/s", "velocity")
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
@@ -116,7 +116,7 @@ class Damper(_Compliant):
         self.d = d
 
     def build(self, b: Builder) -> None:
-        d = b.parameter("d", self.d, "N.s/m", "damping coefficient", low=0.0)
+        d = b.parameter("d", self.d, "N*s/m", "damping coefficient", low=0.0)
         fa, fb, s_rel = self._flanges(b)
         v_rel = b.der_of("v_rel", s_rel, "m/s", "relative velocity of flange_b to flange_a")
         self._force(b, fa, fb, d * v_rel)

@@ -143,14 +143,14 @@ class Restriction(Component):
         C = b.parameter(
             "C",
             self.C,
-            "m3/(s.Pa)",
+            "m^3/(s*Pa)",
             "sonic conductance",
             low=0.0,
             source="estimate: tube + push-in fitting, 0.1-0.5 l/(s bar)",
         )
         bc = b.parameter("b", self.b, "1", "critical pressure ratio", 0.0, 0.999, "ISO 6358-1")
         rl = b.parameter("r_lam", self.r_lam, "1", "laminar threshold ratio", 0.5, 0.99999)
-        rho0 = b.parameter("rho0", RHO0_ISO, "kg/m3", "ISO 6358 reference density", low=0.0)
+        rho0 = b.parameter("rho0", RHO0_ISO, "kg/m^3", "ISO 6358 reference density", low=0.0)
         pa, pb = b.port("port_a", PNEUMATIC), b.port("port_b", PNEUMATIC)
         q = iso6358_flow(pa.p, pb.p, C, bc, rl, rho0, smooth=self.smooth)
         b.equation(pa.m_flow, q)
@@ -189,31 +189,29 @@ class Chamber(Component):
         )
 
     def build(self, b: Builder) -> None:
-        V0 = b.parameter("V0", self.V0, "m3", "volume at s = 0", low=1e-15)
-        A = b.parameter("A", self.A, "m2", "effective area dV/ds of the moving wall", low=0.0)
-        n = b.parameter("n_poly", self.n_poly, "1", "polytropic exponent", 1.0, 1.67)
+        V0 = b.parameter("V0", self.V0, "m^3", "volume at s = 0", low=1e-15)
+        A = b.parameter("A", self.A, "m^2", "effective area dV/ds of the moving wall", low=0.0)
         T = b.parameter("T", self.T, "K", "temperature at the reference state", low=1.0)
         p_amb = b.parameter("p_amb", self.p_amb, "Pa", "ambient pressure", low=1.0)
-        rho_amb = p_amb / (R_AIR * T)
+        R = b.parameter("R", R_AIR, "J/(kg*K)", "specific gas constant of air", low=1.0)
+        rho_amb = p_amb / (R * T)
         # start mass from the start pressure at s = 0 (the same polytropic law)
-        m0 = (
-            self.V0
-            * (self.p_amb / (R_AIR * self.T))
-            * (self.p_start / self.p_amb) ** (1.0 / self.n_poly)
-        )
-        m = b.state("m_air", m0, "kg", "air mass in the chamber", low=0.0)
+        rho0 = self.p_amb / (R_AIR * self.T) * (self.p_start / self.p_amb) ** (1 / self.n_poly)
+        m = b.state("m_air", self.V0 * rho0, "kg", "air mass in the chamber", low=0.0)
         port, wall = b.port("port", PNEUMATIC), b.port("flange", FLANGE)
         V = V0 + A * wall.s
         rho = m / V
-        p = p_amb * (rho / rho_amb) ** n
+        if self.n_poly == 1.0:  # isothermal: a structural choice, not a parameter value
+            p = rho * R * T
+            e_gas = m * R * T * (cs.log(rho / rho_amb) - 1.0)
+        else:
+            n = b.parameter("n_poly", self.n_poly, "1", "polytropic exponent", 1.0001, 1.67)
+            p = p_amb * (rho / rho_amb) ** n
+            e_gas = p * V / (n - 1.0)
         b.der(m, port.m_flow)
         b.equation(port.p, p)
         b.equation(wall.f, -(p - p_amb) * A)
         b.output("p", p, "Pa", "absolute pressure")
         b.output("p_gauge", p - p_amb, "Pa", "gauge pressure")
-        b.output("V", V, "m3", "volume")
-        if self.n_poly == 1.0:
-            e_gas = m * R_AIR * T * (cs.log(rho / rho_amb) - 1.0)
-        else:
-            e_gas = p * V / (n - 1.0)
+        b.output("V", V, "m^3", "volume")
         b.energy("gas", e_gas + p_amb * V)

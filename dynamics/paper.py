@@ -1,0 +1,754 @@
+"""The paper's static model, exactly as printed: the "paper" fidelity level.
+
+This module evaluates the closed-form model of the source paper (Modeling: Inflation of
+the Myosin, Output Force; Kinematic Analysis) with every known inconsistency exposed as
+an explicit, documented switch of :class:`PaperOptions`. The defaults reproduce the
+printed equations; :meth:`PaperOptions.corrected` applies the documented corrections.
+See ``docs/paper.md`` for the numbers behind each switch.
+
+Equations (SI inside; pressure ``P`` is gauge, Pa)
+---------------------------------------------------
+* wall factor ``K = h_ch / (2 t_w)`` if ``t_w < h_ch / 4`` (thin-walled), else
+  ``K = 1 + h_ch^2 / (2 t_w (t_w + h_ch))``; wall stress ``sigma_w = P K``;
+* ``F_e,wall = 2 sigma_w a_ch b_ch`` (eq. force-h-zone);
+* ``lambda_jz = cauchyStress^-1(F_e,wall / (a_hz b_hz))`` (eq. cauchy-stress-inverse);
+* ``c_m = -2.49 t_w/h_ch - 6.101 P[MPa] + 11.457`` (eq. adjustment-coeff; P in MPa);
+* ``F_e = c_m P pi a_ch (lambda_jz h_jz + h_ch + 2 t_w)`` (eq. expansion-force-final);
+* ``F_r = cauchyStress(lambda_jz) a_hz b_hz``; ``F_SPA = F_e - F_r`` (eq. spa-force);
+* ``F_contr = F_SPA tan(theta)``, ``theta = arccos(span / l)`` (eq. contraction-force);
+* kinematics: ``r1^2 + r2^2 = (l/2)^2`` with ``2 r2 = h_m - 2 t_w - h_ch`` (plus the
+  junction-zone growth ``2 (lambda_jz - 1) h_jz``), ``L_mf = n (A + 2 r1)``.
+
+Force scale
+-----------
+In any consistent unit system the printed force equations give ``F_SPA = 314 N`` at
+0.1 MPa for the experimental APS, against 0.315 N measured. All of the paper's reported
+forces (Table 1, the isometric experiment) equal the printed expressions times 1e-3.
+``PaperOptions.force_scale = 1e-3`` multiplies *every* force (``F_e,wall``, ``F_e``,
+``F_r``, ``F_SPA``, ``F_contr``) and nothing else: ``lambda_jz``, ``K``, ``sigma_w``,
+``c_m`` and ``theta`` are unit-free or do not depend on the slip. The reading that gives
+exactly this factor: forces evaluated with stress in kPa and lengths in m come out in
+kN (1 kPa m^2 = 1 kN) and were reported as N, while ``c_m`` was fitted with P in MPa.
+Scaling ``F_e`` (or ``c_m``) alone cannot work: ``F_r`` is 43.4 N at 0.1 MPa and would
+make ``F_SPA`` negative.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+from scipy.optimize import brentq
+from scipy.special import ellipe
+
+from .errors import ParameterError
+from .params.ambient import Ambient
+from .params.core import ParameterSet
+from .params.geometry import FEM_H_CH_ESTIMATE_M, FEM_T_W_OVER_H_CH, fem_geometry
+from .params.materials import (
+    YeohMaterial,
+    cauchy_stress,
+    cauchy_stress_inverse,
+    get_material,
+)
+
+__all__ = [
+    "FEM_PRESSURE_SWEEPS_PA",
+    "REPORTED",
+    "TABLE1",
+    "PaperOptions",
+    "PaperResult",
+    "Table1Row",
+    "comparison_table",
+    "implied_gains",
+    "max_length_ratio",
+    "myofibril_length",
+    "paper_static",
+    "rest_length",
+    "table1_mean_max_force",
+    "theta_rest",
+    "wall_factor",
+]
+
+MPA = 1e6
+_CM_PRESSURE_UNITS = {"MPa": 1e6, "kPa": 1e3, "bar": 1e5, "Pa": 1.0}
+_THETA = ("printed", "corrected")
+_KINEMATICS = ("triangle", "ellipse", "ellipse_corrected")
+_REST_KINEMATICS = (*_KINEMATICS, "band_ratio")
+_TABLE1_READINGS = ("mean_pressure", "sweep_max", "sweep_average")
+
+
+# --------------------------------------------------------------------------------------
+# Options and result
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PaperOptions:
+    """Switches of the paper model; the defaults are the equations as printed.
+
+    Attributes
+    ----------
+    force_scale : float, default 1.0
+        Factor applied to every force output, dimensionless, > 0. ``1.0`` = as printed
+        (forces about 1000x too large); ``1e-3`` = the documented unit correction, which
+        reproduces Table 1 and the measured 0.315 N.
+    theta : {"printed", "corrected"}, default "printed"
+        Thread angle. ``"printed"``: ``cos(theta) = (2 t_w + h_ch + 2 lambda_jz h_jz)/l``
+        (67.98 deg at rest for the experimental APS, one chamber short).
+        ``"corrected"``: ``cos(theta) = (h_m - 2 t_w - h_ch + 2 (lambda_jz - 1) h_jz)/l``
+        = ``2 r2 / l`` (51.32 deg at rest, the angle the paper states).
+    kinematics : {"triangle", "ellipse", "ellipse_corrected"}, default "triangle"
+        Thread shape giving ``r1`` from ``r2``. ``"triangle"``: the two legs of a taut
+        V, ``r1^2 + r2^2 = (l/2)^2`` (what the paper uses "for simplicity", and exact for
+        a taut inextensible thread pulled at mid-span). ``"ellipse"``: the paper's
+        semi-ellipse system as printed (minor semi-axis ``h_m/2``); it has no real
+        solution for the paper's geometry and raises :class:`ParameterError` saying why.
+        ``"ellipse_corrected"``: semi-ellipse of arc length ``l`` over the anchor span,
+        semi-axes ``r1`` and ``r2``.
+    use_tan : bool, default True
+        ``F_contr = F_SPA tan(theta)`` as printed; ``False`` gives ``F_contr = F_SPA``
+        (the reading under which the measured 0.315 N is matched).
+    include_c3 : bool, default False
+        Use the Yeoh C3 term in cauchyStress and its inverse (the paper omits it).
+    cm_pressure_unit : {"MPa", "kPa", "bar", "Pa"}, default "MPa"
+        Unit in which ``P`` enters the fitted ``c_m``. MPa is the only reading
+        consistent with the paper's correlations and with positive forces.
+
+    Raises
+    ------
+    ParameterError
+        An unknown option value, naming the allowed values.
+    """
+
+    force_scale: float = 1.0
+    theta: str = "printed"
+    kinematics: str = "triangle"
+    use_tan: bool = True
+    include_c3: bool = False
+    cm_pressure_unit: str = "MPa"
+
+    def __post_init__(self) -> None:
+        fs = self.force_scale
+        if (
+            isinstance(fs, bool)
+            or not isinstance(fs, int | float)
+            or not (math.isfinite(fs) and fs > 0)
+        ):
+            raise ParameterError("force_scale", fs, "(0, inf) 1")
+        object.__setattr__(self, "force_scale", float(fs))
+        _choice("theta", self.theta, _THETA)
+        _choice("kinematics", self.kinematics, _KINEMATICS)
+        _choice("cm_pressure_unit", self.cm_pressure_unit, tuple(_CM_PRESSURE_UNITS))
+        for name in ("use_tan", "include_c3"):
+            if not isinstance(getattr(self, name), bool):
+                raise ParameterError(name, getattr(self, name), "True or False")
+
+    @classmethod
+    def as_printed(cls) -> PaperOptions:
+        """The equations exactly as printed (same as ``PaperOptions()``)."""
+        return cls()
+
+    @classmethod
+    def corrected(cls, **changes: object) -> PaperOptions:
+        """The documented corrections: ``force_scale=1e-3``, ``theta="corrected"``.
+
+        ``kinematics="triangle"`` and ``use_tan=True`` are kept; keyword arguments
+        override any field.
+        """
+        base = {"force_scale": 1e-3, "theta": "corrected"}
+        base.update(changes)
+        return cls(**base)  # type: ignore[arg-type]
+
+
+def _choice(name: str, value: object, allowed: tuple[str, ...]) -> None:
+    if value not in allowed:
+        raise ParameterError(name, value, "one of " + ", ".join(repr(a) for a in allowed))
+
+
+@dataclass(frozen=True)
+class PaperResult:
+    """Outputs of :func:`paper_static`, each a numpy array shaped like the pressure.
+
+    Names carry the SI unit (``_Pa``, ``_N``, ``_m``, ``_rad``); names without a unit
+    are dimensionless. Thread outputs (``theta_rad``, ``r1_m``, ``r2_m``,
+    ``F_contr_N``) are ``None`` when the geometry has no thread (the FEM set).
+
+    Attributes
+    ----------
+    pressure_Pa : gauge pressure, Pa.
+    K : wall factor, 1.
+    sigma_w_Pa : wall stress ``P K``, Pa.
+    sigma_jz_Pa : stress on the junction zone ``F_e,wall / (a_hz b_hz)`` (unscaled), Pa.
+    lambda_jz : junction-zone stretch, 1.
+    c_m : adjustment coefficient, 1.
+    F_e_wall_N : expansion force ``2 sigma_w a_ch b_ch`` (eq. force-h-zone), N.
+    F_e_N : expansion force ``c_m P pi a_ch (...)`` (eq. expansion-force-final), N.
+    F_r_N : restoring force ``cauchyStress(lambda_jz) a_hz b_hz``, N (equals
+        ``F_e_wall_N`` by construction).
+    F_spa_N : SPA force ``F_e - F_r``, N.
+    h_m_m : myosin height ``h_m + 2 (lambda_jz - 1) h_jz``, m.
+    theta_rad : thread angle, rad.
+    r1_m, r2_m : half I-band (thread bulge) and half anchor span, m.
+    F_contr_N : contraction force (``F_SPA tan(theta)`` or ``F_SPA``), N.
+    options : the :class:`PaperOptions` used.
+    """
+
+    pressure_Pa: np.ndarray
+    K: np.ndarray
+    sigma_w_Pa: np.ndarray
+    sigma_jz_Pa: np.ndarray
+    lambda_jz: np.ndarray
+    c_m: np.ndarray
+    F_e_wall_N: np.ndarray
+    F_e_N: np.ndarray
+    F_r_N: np.ndarray
+    F_spa_N: np.ndarray
+    h_m_m: np.ndarray
+    theta_rad: np.ndarray | None
+    r1_m: np.ndarray | None
+    r2_m: np.ndarray | None
+    F_contr_N: np.ndarray | None
+    options: PaperOptions = field(default_factory=PaperOptions)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of the signal fields (everything except ``options``)."""
+        return tuple(f.name for f in fields(self) if f.name != "options")
+
+    def __getitem__(self, name: str) -> np.ndarray | None:
+        if name not in self.names:
+            raise ParameterError("signal", name, "one of " + ", ".join(self.names))
+        return getattr(self, name)
+
+    def as_dict(self) -> dict[str, np.ndarray | None]:
+        """All signals by name."""
+        return {n: getattr(self, n) for n in self.names}
+
+
+# --------------------------------------------------------------------------------------
+# Pieces of the model
+# --------------------------------------------------------------------------------------
+def wall_factor(t_w: float, h_ch: float) -> float:
+    """The paper's wall factor ``K`` (dimensionless) with ``sigma_w = P K``.
+
+    Thin-walled if ``t_w < h_ch / 4`` (strict, as printed): ``K = h_ch / (2 t_w)``;
+    otherwise thick-walled: ``K = 1 + h_ch^2 / (2 t_w (t_w + h_ch))``.
+
+    Parameters
+    ----------
+    t_w, h_ch : float
+        Wall thickness and chamber height, m, > 0.
+    """
+    if not (t_w > 0 and h_ch > 0):
+        raise ParameterError("t_w, h_ch", (t_w, h_ch), "(0, inf) m")
+    if t_w < h_ch / 4.0:
+        return h_ch / (2.0 * t_w)
+    return 1.0 + h_ch**2 / (2.0 * t_w * (t_w + h_ch))
+
+
+def _pressure(pressure_Pa: object, ambient: Ambient) -> np.ndarray:
+    try:
+        p = np.asarray(pressure_Pa, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError("pressure_Pa", pressure_Pa, "numbers in Pa (gauge)") from None
+    allowed = f"[{-ambient.p_amb:.6g}, inf) Pa (gauge, finite)"
+    bad = ~np.isfinite(p) | (p < -ambient.p_amb)
+    if np.any(bad):
+        raise ParameterError("pressure_Pa", float(p[bad].ravel()[0]), allowed)
+    return p
+
+
+def _need(geometry: ParameterSet, names: tuple[str, ...], what: str) -> None:
+    missing = [n for n in names if n not in geometry]
+    if missing:
+        raise ParameterError(
+            ", ".join(missing),
+            None,
+            f"a geometry with {', '.join(names)}",
+            f"{what} needs them; {geometry.name or 'the geometry'} has none",
+        )
+
+
+def _span(g: ParameterSet, lam: np.ndarray, theta: str) -> np.ndarray:
+    """Length whose ratio to ``l`` is cos(theta), m."""
+    if theta == "printed":
+        return 2.0 * g["t_w"] + g["h_ch"] + 2.0 * lam * g["h_jz"]
+    return g["h_m"] - 2.0 * g["t_w"] - g["h_ch"] + 2.0 * (lam - 1.0) * g["h_jz"]
+
+
+def _theta(g: ParameterSet, lam: np.ndarray, theta: str, p: np.ndarray) -> np.ndarray:
+    span = _span(g, lam, theta)
+    too_wide = span >= g["l"]
+    if np.any(too_wide):
+        i = np.flatnonzero(too_wide.ravel())[0]
+        raise ParameterError(
+            "pressure_Pa",
+            float(np.broadcast_to(p, span.shape).ravel()[i]),
+            f"pressures with span < l = {g['l'] * 1e3:.6g} mm",
+            f"theta ({theta}): span = {span.ravel()[i] * 1e3:.6g} mm >= l, arccos undefined "
+            "(the inextensible thread would have to stretch)",
+        )
+    return np.arccos(span / g["l"])
+
+
+def _half_arc(r1: float, r2: float) -> float:
+    """Arc length of a semi-ellipse with semi-axes r1 (height) and r2 (half base), m."""
+    big, small = max(r1, r2), min(r1, r2)
+    if big == 0.0:
+        return 0.0
+    return 2.0 * big * float(ellipe(1.0 - (small / big) ** 2))
+
+
+def _r1(
+    g: ParameterSet, r2: np.ndarray, h_m_now: np.ndarray, kinematics: str, p: np.ndarray
+) -> np.ndarray:
+    """Half I-band (thread bulge) r1 for half anchor span r2, m."""
+    length = g["l"]
+    too_wide = 2.0 * r2 >= length
+    if np.any(too_wide):
+        i = np.flatnonzero(too_wide.ravel())[0]
+        raise ParameterError(
+            "pressure_Pa",
+            float(np.broadcast_to(p, r2.shape).ravel()[i]),
+            f"pressures with anchor span 2 r2 < l = {length * 1e3:.6g} mm",
+            f"2 r2 = {2 * r2.ravel()[i] * 1e3:.6g} mm: the thread would have to stretch",
+        )
+    if kinematics == "triangle":
+        return np.sqrt((length / 2.0) ** 2 - r2**2)
+    if kinematics == "ellipse":
+        roots = []
+        # as printed: e = sqrt(1 - (h_m' + dh_m)^2 / (4 r1^2)), l = r1 int_0^pi sqrt(...)
+        for b in np.ravel(h_m_now / 2.0):
+            if length < math.pi * b:
+                raise ParameterError(
+                    "kinematics",
+                    "ellipse",
+                    "'triangle' or 'ellipse_corrected'",
+                    "the paper's semi-ellipse system has no real solution: its "
+                    f"eccentricity uses h_m/2 = {b * 1e3:.4g} mm as the minor semi-axis, "
+                    f"so a real eccentricity needs r1 >= {b * 1e3:.4g} mm, and the "
+                    f"shortest such semi-ellipse (a semicircle) has arc pi h_m/2 = "
+                    f"{math.pi * b * 1e3:.4g} mm > l = {length * 1e3:.4g} mm",
+                )
+            roots.append(brentq(lambda r, b=b: _half_arc(r, b) - length, b, length / 2))
+        return np.reshape(roots, r2.shape)
+    # ellipse_corrected: semi-ellipse of arc l over the anchor span 2 r2
+    roots = [brentq(lambda r, b=b: _half_arc(r, b) - length, 0.0, length / 2) for b in r2.ravel()]
+    return np.reshape(roots, r2.shape)
+
+
+# --------------------------------------------------------------------------------------
+# Public model
+# --------------------------------------------------------------------------------------
+def paper_static(
+    pressure_Pa: object,
+    geometry: ParameterSet,
+    material: YeohMaterial | str = "dragonskin_30",
+    options: PaperOptions | None = None,
+    ambient: Ambient | None = None,
+) -> PaperResult:
+    """Evaluate the paper's static SPA and sarcomere model at given pressures.
+
+    Parameters
+    ----------
+    pressure_Pa : float or array_like
+        Gauge pressure, Pa, finite, ``>= -ambient.p_amb``.
+    geometry : ParameterSet
+        :func:`~sarcomere.dynamics.params.experimental_geometry` or
+        :func:`~sarcomere.dynamics.params.fem_geometry` (lengths in m). Without a thread
+        (no ``l``), the thread outputs of the result are ``None``.
+    material : YeohMaterial or str, default "dragonskin_30"
+        Yeoh material or its slug.
+    options : PaperOptions, default None
+        Switches; ``None`` means :meth:`PaperOptions.as_printed`.
+    ambient : Ambient, default None
+        Gives the lower pressure bound ``-p_amb``; ``None`` means ``Ambient()``.
+
+    Returns
+    -------
+    PaperResult
+        Named arrays with units in their names.
+
+    Raises
+    ------
+    ParameterError
+        Bad pressure, unknown material, a stress beyond a non-monotone Yeoh law, a
+        thread span exceeding ``l``, or the printed (unsolvable) ellipse kinematics.
+
+    Examples
+    --------
+    >>> from sarcomere.dynamics.params import experimental_geometry
+    >>> r = paper_static(0.1e6, experimental_geometry(), "dragonskin_30",
+    ...                  PaperOptions(force_scale=1e-3))
+    >>> round(float(r.F_spa_N), 3)
+    0.314
+    """
+    opts = options if options is not None else PaperOptions()
+    amb = ambient if ambient is not None else Ambient()
+    mat = get_material(material)
+    p = _pressure(pressure_Pa, amb)
+    _need(geometry, ("a_ch", "b_ch", "a_hz", "b_hz", "h_jz", "t_w", "h_ch", "h_m"), "the SPA")
+    g = geometry
+    t_w, h_ch, h_jz = g["t_w"], g["h_ch"], g["h_jz"]
+
+    K = wall_factor(t_w, h_ch)
+    sigma_w = p * K
+    F_e_wall = 2.0 * sigma_w * g["a_ch"] * g["b_ch"]
+    sigma_jz = F_e_wall / (g["a_hz"] * g["b_hz"])
+    lam = np.asarray(cauchy_stress_inverse(sigma_jz, mat, include_c3=opts.include_c3))
+    p_fit = p / _CM_PRESSURE_UNITS[opts.cm_pressure_unit]
+    c_m = -2.49 * (t_w / h_ch) - 6.101 * p_fit + 11.457
+    F_e = c_m * p * math.pi * g["a_ch"] * (lam * h_jz + h_ch + 2.0 * t_w)
+    F_r = np.asarray(cauchy_stress(lam, mat, include_c3=opts.include_c3)) * g["a_hz"] * g["b_hz"]
+    F_spa = F_e - F_r
+    h_m_now = g["h_m"] + 2.0 * (lam - 1.0) * h_jz
+
+    s = opts.force_scale
+    theta = r1 = r2 = F_contr = None
+    if "l" in g:
+        theta = _theta(g, lam, opts.theta, p)
+        r2 = (h_m_now - 2.0 * t_w - h_ch) / 2.0
+        r1 = _r1(g, r2, h_m_now, opts.kinematics, p)
+        F_contr = s * F_spa * (np.tan(theta) if opts.use_tan else 1.0)
+
+    shape = p.shape
+    return PaperResult(
+        pressure_Pa=p,
+        K=np.full(shape, K),
+        sigma_w_Pa=sigma_w,
+        sigma_jz_Pa=sigma_jz,
+        lambda_jz=lam.reshape(shape),
+        c_m=np.broadcast_to(c_m, shape).copy(),
+        F_e_wall_N=s * F_e_wall,
+        F_e_N=s * F_e,
+        F_r_N=s * F_r,
+        F_spa_N=s * F_spa,
+        h_m_m=h_m_now,
+        theta_rad=theta,
+        r1_m=r1,
+        r2_m=r2,
+        F_contr_N=F_contr,
+        options=opts,
+    )
+
+
+def theta_rest(geometry: ParameterSet, options: PaperOptions | None = None) -> float:
+    """Thread angle at rest (``lambda_jz = 1``), rad.
+
+    ``"printed"``: arccos(12/32) = 67.98 deg; ``"corrected"``: arccos(20/32) = 51.32 deg
+    (experimental geometry).
+
+    Parameters
+    ----------
+    geometry : ParameterSet
+        Needs ``t_w``, ``h_ch``, ``h_jz``, ``h_m``, ``l`` (m).
+    options : PaperOptions, default None
+        Only ``options.theta`` is used; ``None`` = as printed.
+    """
+    opts = options if options is not None else PaperOptions()
+    _need(geometry, ("t_w", "h_ch", "h_jz", "h_m", "l"), "theta")
+    return float(_theta(geometry, np.array(1.0), opts.theta, np.array(0.0)))
+
+
+def _n(n: object) -> int:
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        raise ParameterError("n", n, "integers >= 1", "number of sarcomeres in series")
+    return int(n)
+
+
+def rest_length(n: int, geometry: ParameterSet, kinematics: str = "triangle") -> float:
+    """Rest length of a myofibril of ``n`` APS, m.
+
+    Parameters
+    ----------
+    n : int
+        Number of sarcomeres (APS) in series, >= 1.
+    geometry : ParameterSet
+        Needs ``A``, ``l``, ``h_m``, ``t_w``, ``h_ch`` (m).
+    kinematics : {"triangle", "ellipse", "ellipse_corrected", "band_ratio"}
+        ``"triangle"`` (default): ``L' = n (A + 2 r1')`` with
+        ``r1' = sqrt((l/2)^2 - r2'^2)`` and ``2 r2' = h_m - 2 t_w - h_ch``: 164.9 mm for
+        n = 3 (measured: 165 mm). ``"ellipse_corrected"``: semi-ellipse of arc ``l``
+        over the anchors (152.2 mm). ``"ellipse"``: the printed system (raises: no real
+        solution). ``"band_ratio"``: the paper's design rule ``L' = n (A' + I')`` with
+        ``I' = 2/3 A'`` (150 mm).
+    """
+    n = _n(n)
+    _choice("kinematics", kinematics, _REST_KINEMATICS)
+    _need(geometry, ("A",), "the rest length")
+    if kinematics == "band_ratio":
+        return n * (geometry["A"] + 2.0 / 3.0 * geometry["A"])
+    _need(geometry, ("l", "h_m", "t_w", "h_ch"), "the rest length")
+    r2 = np.array((geometry["h_m"] - 2.0 * geometry["t_w"] - geometry["h_ch"]) / 2.0)
+    r1 = _r1(geometry, r2, np.array(geometry["h_m"]), kinematics, np.array(0.0))
+    return float(n * (geometry["A"] + 2.0 * r1))
+
+
+def myofibril_length(
+    n: int,
+    pressure_Pa: object,
+    geometry: ParameterSet,
+    material: YeohMaterial | str = "dragonskin_30",
+    options: PaperOptions | None = None,
+) -> np.ndarray:
+    """Unloaded myofibril length ``L_mf = n (A + 2 r1)`` at given pressures, m.
+
+    ``r1`` follows from ``options.kinematics`` and the junction-zone stretch of
+    :func:`paper_static` (the paper's model has no load: this is the free length).
+
+    Parameters
+    ----------
+    n : int
+        Number of APS in series, >= 1.
+    pressure_Pa : float or array_like
+        Gauge pressure, Pa.
+    geometry : ParameterSet
+        With thread and A-band (``l``, ``A``), lengths in m.
+    material : YeohMaterial or str, default "dragonskin_30"
+    options : PaperOptions, default None (as printed)
+    """
+    n = _n(n)
+    _need(geometry, ("A", "l"), "the myofibril length")
+    r = paper_static(pressure_Pa, geometry, material, options)
+    return n * (geometry["A"] + 2.0 * r.r1_m)
+
+
+def max_length_ratio(geometry: ParameterSet, kinematics: str = "triangle") -> float:
+    """Upper bound of ``L_mf / L'_mf`` with an inextensible thread (dimensionless).
+
+    The longest a sarcomere can get is ``A + l`` (thread straight along the fibre,
+    ``r2 -> 0``), so ``L_max / L' = (A + l) / (A + 2 r1')``: 1.128 for the experimental
+    APS, far below the paper's stretch bound 1.7.
+    """
+    return (geometry["A"] + geometry["l"]) / rest_length(1, geometry, kinematics)
+
+
+# --------------------------------------------------------------------------------------
+# Table 1 and the reported numbers
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Table1Row:
+    """One row of the paper's Table 1 (SI units).
+
+    Attributes
+    ----------
+    mean_pressure_Pa : float
+        "Mean pressure P" column, Pa (printed in MPa).
+    fem_force_N : float
+        "Mean max FEM force", N.
+    analytical_force_N : float
+        "Mean max an. force", N.
+    """
+
+    mean_pressure_Pa: float
+    fem_force_N: float
+    analytical_force_N: float
+
+
+TABLE1: dict[str, Table1Row] = {
+    "ecoflex_00_30": Table1Row(0.0055 * MPA, 0.0355, 0.0416),
+    "elastosil_m4601": Table1Row(0.0401 * MPA, 0.2812, 0.2968),
+    "smooth_sil_950": Table1Row(0.1060 * MPA, 0.6957, 0.7191),
+}
+"""The paper's Table 1 by material slug."""
+
+FEM_PRESSURE_SWEEPS_PA: dict[str, np.ndarray] = {
+    "ecoflex_00_30": np.linspace(0.001, 0.011, 11) * MPA,
+    "elastosil_m4601": np.linspace(0.01, 0.085, 16) * MPA,
+    "smooth_sil_950": np.linspace(0.02, 0.22, 11) * MPA,
+}
+"""Pressure sweeps of the paper's FEM study, Pa (paper, Inflation of the Myosin)."""
+
+REPORTED: Mapping[str, object] = {
+    "theta_rest_deg": 51.32,
+    "rest_length_3aps_m": 0.165,
+    "isometric_force_N": {1: 0.315, 2: 0.741, 3: 1.033},
+    "isometric_pressure_Pa": 0.1 * MPA,
+    "gain_over_n_single": {2: 0.1345, 3: 0.1939},
+    "length_ratio_measured": (0.875, 1.07),
+    "length_ratio_bounds": (0.6, 1.7),
+}
+"""Numbers the paper reports (Results), SI or dimensionless as the key says."""
+
+
+def implied_gains() -> dict[int, float]:
+    """Gain of n APS over n times one APS implied by the reported maxima (fraction).
+
+    ``F_n / (n F_1) - 1`` with F = 0.315, 0.741, 1.033 N: 0.176 (n = 2) and 0.093
+    (n = 3), against the reported 0.1345 and 0.1939.
+    """
+    f = REPORTED["isometric_force_N"]
+    return {n: f[n] / (n * f[1]) - 1.0 for n in (2, 3)}  # type: ignore[index]
+
+
+def table1_mean_max_force(
+    material_slug: str,
+    options: PaperOptions | None = None,
+    h_ch: float = FEM_H_CH_ESTIMATE_M,
+    pressure_reading: str = "mean_pressure",
+) -> float:
+    """The paper model's counterpart of Table 1's "mean max an. force", N.
+
+    ``F_SPA`` of the FEM geometry averaged over the six wall ratios
+    (1/5, 1/4, 1/3, 1/2, 1, 3/2).
+
+    Parameters
+    ----------
+    material_slug : {"ecoflex_00_30", "elastosil_m4601", "smooth_sil_950"}
+    options : PaperOptions, default None
+        ``None`` = as printed (forces 1000x too large); use ``force_scale=1e-3``.
+    h_ch : float, default FEM_H_CH_ESTIMATE_M = 6.85e-3
+        FEM chamber height, m (not stated in the paper).
+    pressure_reading : {"mean_pressure", "sweep_max", "sweep_average"}
+        ``"mean_pressure"`` (default, the documented reading): every ratio at Table 1's
+        "mean pressure" (each ratio's FEM run stopped at its own maximum pressure; the
+        table gives their mean). ``"sweep_max"``: every ratio at the last pressure of
+        the FEM sweep. ``"sweep_average"``: ``F_SPA`` averaged over the whole sweep.
+
+    Returns
+    -------
+    float
+        Mean force, N.
+    """
+    if material_slug not in TABLE1:
+        raise ParameterError("material_slug", material_slug, "one of " + ", ".join(TABLE1))
+    _choice("pressure_reading", pressure_reading, _TABLE1_READINGS)
+    if pressure_reading == "mean_pressure":
+        p = np.array([TABLE1[material_slug].mean_pressure_Pa])
+    elif pressure_reading == "sweep_max":
+        p = FEM_PRESSURE_SWEEPS_PA[material_slug][-1:]
+    else:
+        p = FEM_PRESSURE_SWEEPS_PA[material_slug]
+    forces = [
+        paper_static(p, fem_geometry(ratio, h_ch), material_slug, options).F_spa_N.mean()
+        for ratio in FEM_T_W_OVER_H_CH
+    ]
+    return float(np.mean(forces))
+
+
+def comparison_table(h_ch: float = FEM_H_CH_ESTIMATE_M) -> list[dict[str, object]]:
+    """Reported numbers against this implementation (rows for docs/paper.md).
+
+    Each row: ``quantity``, ``reported``, ``ours``, ``option`` and ``status``
+    ("reproduced" within 5 %, else "not reproduced"; "inconsistent in the paper" where
+    the paper's own numbers or equations contradict each other).
+
+    Parameters
+    ----------
+    h_ch : float, default FEM_H_CH_ESTIMATE_M
+        FEM chamber height for the Table 1 rows, m.
+    """
+    from .params.geometry import experimental_geometry
+
+    g = experimental_geometry()
+    fixed = PaperOptions(force_scale=1e-3)
+    rows: list[dict[str, object]] = []
+
+    def add(quantity: str, reported: float, ours: float, option: str, status: str = "") -> None:
+        if not status:
+            status = "reproduced" if abs(ours / reported - 1) <= 0.05 else "not reproduced"
+        rows.append(
+            {
+                "quantity": quantity,
+                "reported": reported,
+                "ours": ours,
+                "option": option,
+                "status": status,
+            }
+        )
+
+    add(
+        "theta at rest, deg",
+        51.32,
+        math.degrees(theta_rest(g, PaperOptions.corrected())),
+        "theta='corrected'",
+    )
+    add(
+        "theta at rest, deg (printed formula)",
+        51.32,
+        math.degrees(theta_rest(g)),
+        "theta='printed'",
+        "inconsistent in the paper",
+    )
+    add("h_m, mm", 28.0, g["h_m"] * 1e3, "derived 3(2 t_w + h_ch) + 2 h_jz")
+    add("3-APS rest length, mm", 165.0, rest_length(3, g) * 1e3, "kinematics='triangle'")
+    add(
+        "3-APS rest length, mm (L' = n(A'+I'))",
+        165.0,
+        rest_length(3, g, "band_ratio") * 1e3,
+        "rest_length(kinematics='band_ratio')",
+    )
+    add(
+        "3-APS rest length, mm (corrected ellipse)",
+        165.0,
+        rest_length(3, g, "ellipse_corrected") * 1e3,
+        "kinematics='ellipse_corrected'",
+    )
+    r_printed = paper_static(0.1 * MPA, g, "dragonskin_30", PaperOptions())
+    add(
+        "F (1 APS, 0.1 MPa), N: F_SPA as printed",
+        0.315,
+        float(r_printed.F_spa_N),
+        "force_scale=1",
+        "inconsistent in the paper",
+    )
+    r = paper_static(0.1 * MPA, g, "dragonskin_30", fixed)
+    add("F (1 APS, 0.1 MPa), N: F_SPA", 0.315, float(r.F_spa_N), "force_scale=1e-3")
+    r_t = paper_static(0.1 * MPA, g, "dragonskin_30", PaperOptions.corrected())
+    add(
+        "F (1 APS, 0.1 MPa), N: F_SPA tan(theta)",
+        0.315,
+        float(r_t.F_contr_N),
+        "force_scale=1e-3, theta='corrected', use_tan=True",
+    )
+    r_tp = paper_static(0.1 * MPA, g, "dragonskin_30", fixed)
+    add(
+        "F (1 APS, 0.1 MPa), N: F_SPA tan(theta printed)",
+        0.315,
+        float(r_tp.F_contr_N),
+        "force_scale=1e-3, theta='printed', use_tan=True",
+    )
+    for slug, row in TABLE1.items():
+        add(
+            f"Table 1 analytical force, {slug}, N",
+            row.analytical_force_N,
+            table1_mean_max_force(slug, fixed, h_ch),
+            "force_scale=1e-3, mean_pressure",
+        )
+    for n in (2, 3):
+        add(
+            f"F ({n} APS in series, 0.1 MPa, rigid fixture), N",
+            REPORTED["isometric_force_N"][n],  # type: ignore[index]
+            float(r.F_spa_N),
+            "identical units in series share one tension",
+        )
+    add(
+        "L/L' 3 APS, 0.1 MPa, no load",
+        0.875,
+        float(myofibril_length(3, 0.1 * MPA, g, "dragonskin_30", fixed) / rest_length(3, g)),
+        "kinematics='triangle'",
+    )
+    add(
+        "stretch bound L/L'",
+        1.7,
+        max_length_ratio(g),
+        "inextensible thread, triangle",
+        "inconsistent in the paper",
+    )
+    gains = implied_gains()
+    add(
+        "gain 2 APS over 2 x 1 APS",
+        0.1345,
+        gains[2],
+        "from reported maxima",
+        "inconsistent in the paper",
+    )
+    add(
+        "gain 3 APS over 3 x 1 APS",
+        0.1939,
+        gains[3],
+        "from reported maxima",
+        "inconsistent in the paper",
+    )
+    return rows

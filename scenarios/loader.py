@@ -1,0 +1,442 @@
+"""Read a scenario TOML file into a :class:`~sarcomere.scenarios.spec.Scenario`.
+
+Every quantity is converted to SI with :func:`~sarcomere.dynamics.units.to_si`. Anything
+wrong raises :class:`~sarcomere.dynamics.errors.ScenarioError` naming the file, the dotted
+key and its line; unknown keys are listed with the valid ones and the closest match.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from collections.abc import Sequence
+from importlib import resources
+from importlib.resources.abc import Traversable
+from pathlib import Path
+
+import numpy as np
+
+from sarcomere.dynamics.errors import ParameterError, ScenarioError
+from sarcomere.dynamics.units import to_si
+
+from .signals import SIGNAL_TYPES, signal_from_spec
+from .spec import (
+    FIDELITIES,
+    KNOWN_UNITS,
+    SI_UNITS,
+    KeyPath,
+    MetricCheck,
+    ModelSpec,
+    OutputSpec,
+    Scenario,
+    SimulationSpec,
+    SolverSpec,
+    SweepAxis,
+    describe,
+    did_you_mean,
+    dotted,
+    line_of,
+    unknown_key,
+)
+
+SECTIONS = (
+    "scenario",
+    "model",
+    "parameters",
+    "inputs",
+    "sweep",
+    "simulation",
+    "solver",
+    "outputs",
+    "metrics",
+)
+
+_REQUIRED = object()
+_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+# ---------------------------------------------------------------------------- key lines
+
+_PART = r'(?:[A-Za-z0-9_-]+|"(?:[^"\\]|\\.)*"|\'[^\']*\')'
+_KEY = rf"{_PART}(?:\s*\.\s*{_PART})*"
+_TABLE_LINE = re.compile(rf"^\[\[?\s*({_KEY})\s*\]\]?")
+_KEY_LINE = re.compile(rf"^({_KEY})\s*=(.*)$")
+
+
+def _key_parts(key: str) -> KeyPath:
+    """Split a TOML key (``a."b.c"``) into its parts, unquoted."""
+    return tuple(
+        tomllib.loads(f"k = {p}")["k"] if p[0] in "\"'" else p for p in re.findall(_PART, key)
+    )
+
+
+def _open_brackets(value: str) -> tuple[int, str | None]:
+    """Bracket depth left open by ``value`` and an unclosed multi-line string delimiter."""
+    depth, i, quote = 0, 0, None
+    while i < len(value):
+        if quote:
+            if value.startswith(quote, i) and (len(quote) == 3 or value[i - 1] != "\\"):
+                i, quote = i + len(quote), None
+                continue
+        elif value.startswith(('"""', "'''"), i):
+            quote = value[i : i + 3]
+            i += 3
+            continue
+        elif value[i] in "\"'":
+            quote = value[i]
+        elif value[i] == "#":
+            break
+        elif value[i] in "[{":
+            depth += 1
+        elif value[i] in "]}":
+            depth -= 1
+        i += 1
+    return depth, quote if quote and len(quote) == 3 else None
+
+
+def key_lines(text: str) -> dict[KeyPath, int]:
+    """Map each table and key path of a TOML text to the line (1-based) defining it.
+
+    tomllib reports no positions, so this scans the text: table headers set the current
+    table, ``key = value`` lines add a key under it. Values spanning several lines
+    (arrays, inline tables, multi-line strings) are skipped over.
+    """
+    lines: dict[KeyPath, int] = {}
+    table: KeyPath = ()
+    depth, quote = 0, None
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if quote:
+            if quote in line:
+                quote = None
+            continue
+        if depth > 0:
+            depth += _open_brackets(line)[0]
+            continue
+        if match := _TABLE_LINE.match(line):
+            table = _key_parts(match[1])
+            path = table
+        elif match := _KEY_LINE.match(line):
+            path = table + _key_parts(match[1])
+            depth, quote = _open_brackets(match[2])
+        else:
+            continue
+        for k in range(1, len(path) + 1):  # a.b defines a too, if not yet defined
+            lines.setdefault(path[:k], lineno)
+    return lines
+
+
+# ---------------------------------------------------------------------------- resolution
+
+
+def packaged_scenarios() -> dict[str, Traversable]:
+    """Scenarios shipped with the package: name -> resource, sorted by name."""
+    root = resources.files("sarcomere.scenarios")
+    found = {p.name.removesuffix(".toml"): p for p in root.iterdir() if p.name.endswith(".toml")}
+    return dict(sorted(found.items()))
+
+
+def resolve_scenario(source: str | Path) -> Traversable:
+    """Find a scenario: an existing file path, or the bare name of a packaged scenario.
+
+    Parameters
+    ----------
+    source : str or pathlib.Path
+        ``"path/to/file.toml"`` or a bare name such as ``"paper-static"``.
+
+    Raises
+    ------
+    ScenarioError
+        No such file, or no packaged scenario of that name (listing the packaged ones).
+    """
+    path = Path(source)
+    if path.is_file():
+        return path
+    text = str(source)
+    if "/" in text or "\\" in text or path.suffix == ".toml":
+        raise ScenarioError(text, "scenario", "no such file")
+    packaged = packaged_scenarios()
+    if text in packaged:
+        return packaged[text]
+    hint = did_you_mean(text, list(packaged))
+    raise ScenarioError(
+        text,
+        "scenario",
+        f"no such file or packaged scenario{hint} (packaged: {', '.join(packaged)})",
+    )
+
+
+def load_scenario(source: str | Path) -> Scenario:
+    """Read and check a scenario given as a file path or a packaged scenario's name.
+
+    Examples
+    --------
+    >>> load_scenario("paper-static").kind
+    'static'
+    """
+    res = resolve_scenario(source)
+    with resources.as_file(res) as path:
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ScenarioError(str(path), "scenario", f"cannot read: {exc}") from None
+        return parse_scenario(text, str(path))
+
+
+# ---------------------------------------------------------------------------- parsing
+
+
+class _Reader:
+    """Typed access to the parsed TOML, turning every problem into a ScenarioError."""
+
+    def __init__(self, file: str, lines: dict[KeyPath, int]) -> None:
+        self.file, self.lines = file, lines
+
+    def error(self, path: KeyPath, message: str, key: str | None = None) -> ScenarioError:
+        """A ScenarioError at ``path`` (shown as ``key`` if given)."""
+        return ScenarioError(self.file, key or dotted(path), message, line_of(self.lines, path))
+
+    def table(
+        self,
+        value: object,
+        path: KeyPath,
+        allowed: Sequence[str] | None = None,
+        required: Sequence[str] = (),
+    ) -> dict:
+        """``value`` as a table, its keys checked against ``allowed`` (None: any)."""
+        if not isinstance(value, dict):
+            raise self.error(path, f"expected a table, got {value!r}")
+        for key in value:
+            if allowed is not None and key not in allowed:
+                raise self.error((*path, key), unknown_key(key, allowed))
+        for key in required:
+            if key not in value:
+                raise self.error(path, f"missing required key '{key}'")
+        return value
+
+    def text(self, tbl: dict, path: KeyPath, key: str, default: object = _REQUIRED) -> str:
+        value = tbl.get(key, default)
+        if value is _REQUIRED:
+            raise self.error(path, f"missing required key '{key}'")
+        if not isinstance(value, str):
+            raise self.error((*path, key), f"expected a string, got {value!r}")
+        return value
+
+    def choice(
+        self, tbl: dict, path: KeyPath, key: str, choices: Sequence[str], default: object
+    ) -> str:
+        value = self.text(tbl, path, key, default)
+        if value not in choices:
+            raise self.error((*path, key), f"'{value}' is not one of {', '.join(choices)}")
+        return value
+
+    def quantity(self, value: object, path: KeyPath, unit: str) -> float:
+        try:
+            return to_si(value, unit, dotted(path))
+        except ParameterError as exc:
+            raise self.error(path, describe(exc)) from None
+
+    def opt_quantity(self, tbl: dict, path: KeyPath, key: str, unit: str) -> float | None:
+        return None if key not in tbl else self.quantity(tbl[key], (*path, key), unit)
+
+    def number(self, value: object, path: KeyPath, minimum: float | None = None) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.error(path, f"expected a number, got {value!r}")
+        if minimum is not None and value < minimum:
+            raise self.error(path, f"must be >= {minimum}")
+        return float(value)
+
+    def strings(self, value: object, path: KeyPath) -> tuple[str, ...]:
+        if not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
+            raise self.error(path, f"expected a list of strings, got {value!r}")
+        return tuple(value)
+
+    def unit(self, tbl: dict, path: KeyPath, variable: str) -> str:
+        """The SI unit of ``variable``: the ``unit`` key, or a known default."""
+        unit = self.text(tbl, path, "unit", KNOWN_UNITS.get(variable, _REQUIRED))
+        if unit not in SI_UNITS:
+            raise self.error((*path, "unit"), f"'{unit}' is not an SI unit ({', '.join(SI_UNITS)})")
+        return unit
+
+
+def _syntax_error(exc: tomllib.TOMLDecodeError, text: str, file: str) -> ScenarioError:
+    match = re.search(r"at line (\d+)", str(exc))
+    line = int(match[1]) if match else None
+    message = re.sub(r"\s*\(at .*\)$", "", str(exc))
+    lines = key_lines(text)
+    before = [p for p, n in lines.items() if line and n <= line]
+    key = dotted(max(before, key=lines.__getitem__)) if before else "(toml syntax)"
+    return ScenarioError(file, key, f"TOML syntax error: {message}", line)
+
+
+def parse_scenario(text: str, file: str = "<string>") -> Scenario:
+    """Parse scenario TOML ``text``; ``file`` names it in errors and anchors relative paths.
+
+    Raises
+    ------
+    ScenarioError
+        Syntax error, unknown or missing key, wrong type, wrong dimension or bad value.
+    """
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise _syntax_error(exc, text, file) from None
+    lines = key_lines(text)
+    r = _Reader(file, lines)
+    r.table(data, (), SECTIONS, required=("scenario",))
+    head = r.table(data["scenario"], ("scenario",), ("name", "kind", "description"), ("kind",))
+    stem = Path(file).stem if file != "<string>" else "scenario"
+    name = r.text(head, ("scenario",), "name", stem)
+    if not _NAME.match(name):
+        raise r.error(("scenario", "name"), "use letters, digits, '_', '-' and '.' only")
+    return Scenario(
+        name=name,
+        kind=r.text(head, ("scenario",), "kind"),
+        description=r.text(head, ("scenario",), "description", ""),
+        model=_model(r, data.get("model", {})),
+        parameters=_parameters(r, data.get("parameters", {}), ("parameters",)),
+        inputs=_inputs(r, data.get("inputs", {}), Path(file).parent),
+        sweep=_sweep(r, data.get("sweep", {})),
+        simulation=_simulation(r, data["simulation"]) if "simulation" in data else None,
+        solver=_solver(r, data.get("solver", {})),
+        outputs=_outputs(r, data.get("outputs", {})),
+        metrics=_metrics(r, data.get("metrics", {})),
+        file=file,
+        key_lines=lines,
+    )
+
+
+def _model(r: _Reader, value: object) -> ModelSpec:
+    path = ("model",)
+    keys = ("name", "fidelity", "n", "material", "geometry", "options")
+    tbl = r.table(value, path, keys)
+    n = tbl.get("n", 1)
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise r.error((*path, "n"), f"expected an integer >= 1, got {n!r}")
+    default = ModelSpec()
+    return ModelSpec(
+        name=r.text(tbl, path, "name", default.name),
+        fidelity=r.choice(tbl, path, "fidelity", FIDELITIES, default.fidelity),
+        n=n,
+        material=r.text(tbl, path, "material", default.material),
+        geometry=r.text(tbl, path, "geometry", default.geometry),
+        options=r.table(tbl.get("options", {}), (*path, "options")),
+    )
+
+
+def _parameters(r: _Reader, value: object, path: KeyPath) -> dict[str, object]:
+    """Flatten nested tables into dotted names: ``[parameters.load] m`` -> ``load.m``."""
+    out: dict[str, object] = {}
+    for key, item in r.table(value, path).items():
+        if isinstance(item, dict):
+            for sub, v in _parameters(r, item, (*path, key)).items():
+                out[f"{key}.{sub}"] = v
+        elif isinstance(item, str | int | float):
+            out[key] = item
+        else:
+            raise r.error((*path, key), f"expected a number or a string with a unit, got {item!r}")
+    return out
+
+
+def _inputs(r: _Reader, value: object, base_dir: Path) -> dict:
+    out = {}
+    for name, item in r.table(value, ("inputs",)).items():
+        path = ("inputs", name)
+        spec = dict(r.table(item, path))
+        cls = SIGNAL_TYPES[r.choice(spec, path, "type", list(SIGNAL_TYPES), _REQUIRED)]
+        r.table(spec, path, ["type", "unit", *cls.spec_keys], cls.required_keys())
+        unit = r.unit(spec, path, name)
+        spec.pop("unit", None)
+        try:
+            out[name] = signal_from_spec(spec, unit, dotted(path), base_dir)
+        except ParameterError as exc:
+            raise r.error(_key_parts(exc.name.split("[")[0]), describe(exc), exc.name) from None
+    return out
+
+
+def _sweep(r: _Reader, value: object) -> tuple[SweepAxis, ...]:
+    axes = []
+    for name, item in r.table(value, ("sweep",)).items():
+        path = ("sweep", name)
+        tbl = r.table(item, path, ("unit", "values", "start", "stop", "step"))
+        unit = r.unit(tbl, path, name)
+        if "values" in tbl:
+            if {"start", "stop", "step"} & set(tbl):
+                raise r.error(path, "give either 'values' or 'start', 'stop', 'step', not both")
+            if not isinstance(tbl["values"], list) or not tbl["values"]:
+                raise r.error((*path, "values"), "expected a non-empty list of quantities")
+            values = [r.quantity(v, (*path, "values"), unit) for v in tbl["values"]]
+        else:
+            r.table(tbl, path, required=("start", "stop", "step"))
+            start, stop, step = (
+                r.quantity(tbl[k], (*path, k), unit) for k in ("start", "stop", "step")
+            )
+            if step <= 0 or stop < start:
+                raise r.error((*path, "step"), "need step > 0 and stop >= start")
+            count = (stop - start) / step
+            if abs(count - round(count)) > 1e-9 * max(1.0, count):
+                raise r.error((*path, "step"), "step must divide stop - start")
+            values = list(np.linspace(start, stop, round(count) + 1))
+        if np.any(np.diff(values) <= 0):
+            raise r.error((*path, "values"), "values must be strictly increasing")
+        axes.append(SweepAxis(name, unit, tuple(float(v) for v in values)))
+    return tuple(axes)
+
+
+def _simulation(r: _Reader, value: object) -> SimulationSpec:
+    path = ("simulation",)
+    tbl = r.table(value, path, ("start_time", "stop_time", "output_interval"), ("stop_time",))
+    start = r.opt_quantity(tbl, path, "start_time", "s") or 0.0
+    stop = r.quantity(tbl["stop_time"], (*path, "stop_time"), "s")
+    if stop <= start:
+        raise r.error((*path, "stop_time"), f"must be later than start_time ({start} s)")
+    interval = r.opt_quantity(tbl, path, "output_interval", "s")
+    if interval is not None and interval <= 0:
+        raise r.error((*path, "output_interval"), "must be > 0 s")
+    return SimulationSpec(stop, interval, start)
+
+
+def _solver(r: _Reader, value: object) -> SolverSpec:
+    path = ("solver",)
+    tbl = dict(r.table(value, path))
+    method = r.text(tbl, path, "method") if "method" in tbl else None
+    tols = {}
+    for key in ("rtol", "atol"):
+        tols[key] = r.opt_quantity(tbl, path, key, "1")
+        if tols[key] is not None and tols[key] <= 0:
+            raise r.error((*path, key), "must be > 0")
+    step = r.opt_quantity(tbl, path, "step", "s")
+    if step is not None and step <= 0:
+        raise r.error((*path, "step"), "must be > 0 s")
+    rest = {k: v for k, v in tbl.items() if k not in ("method", "rtol", "atol", "step")}
+    return SolverSpec(method, tols["rtol"], tols["atol"], step, rest)
+
+
+def _outputs(r: _Reader, value: object) -> OutputSpec:
+    path = ("outputs",)
+    tbl = r.table(value, path, ("signals", "tolerance", "plots"))
+    signals = r.strings(tbl.get("signals", []), (*path, "signals"))
+    tolerance = r.opt_quantity(tbl, path, "tolerance", "1")
+    if tolerance is not None and tolerance <= 0:
+        raise r.error((*path, "tolerance"), "must be > 0")
+    plots = {
+        group: r.strings(names, (*path, "plots", group))
+        for group, names in r.table(tbl.get("plots", {}), (*path, "plots")).items()
+    }
+    return OutputSpec(signals, tolerance, plots)
+
+
+def _metrics(r: _Reader, value: object) -> tuple[MetricCheck, ...]:
+    checks = []
+    for name, item in r.table(value, ("metrics",)).items():
+        path = ("metrics", name)
+        if not isinstance(item, dict):
+            checks.append(MetricCheck(name, r.number(item, path)))
+            continue
+        tbl = r.table(item, path, ("reference", "rtol", "atol", "source"), ("reference",))
+        numbers = {
+            key: r.number(tbl[key], (*path, key), minimum)
+            for key, minimum in (("reference", None), ("rtol", 0.0), ("atol", 0.0))
+            if key in tbl
+        }
+        checks.append(MetricCheck(name, source=r.text(tbl, path, "source", ""), **numbers))
+    return tuple(checks)

@@ -1,0 +1,185 @@
+"""Run a scenario: look up the runner of its kind, time it, write and print the results.
+
+Each scenario ``kind`` ("static", later "equilibrium", "transient") has one runner,
+``fn(scenario, out_dir) -> RunOutput``, registered with :func:`register_runner`. The
+runner computes; this module checks the output (no NaN), writes ``summary.json``, the
+CSV files and the plots (see :mod:`.output`), and prints a short summary.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from sarcomere.dynamics.results import Result
+
+from .loader import load_scenario
+from .output import RunOutput, check_finite, write_summary, write_timeseries
+from .plots import groups_by_unit, plot_groups
+from .spec import Scenario
+
+Runner = Callable[[Scenario, Path], RunOutput]
+
+_RUNNERS: dict[str, Runner] = {}
+
+
+def register_runner(kind: str, fn: Runner, *, replace: bool = False) -> None:
+    """Make ``fn`` the runner of scenarios with ``[scenario] kind = kind``.
+
+    Parameters
+    ----------
+    kind : str
+        Scenario kind, e.g. ``"static"``.
+    fn : callable
+        ``fn(scenario, out_dir) -> RunOutput``. It may write extra files into ``out_dir``
+        (which exists); it must not write ``summary.json`` or ``timeseries*.csv``.
+    replace : bool
+        Allow replacing a runner already registered for ``kind``.
+
+    Raises
+    ------
+    ValueError
+        ``kind`` already has a different runner and ``replace`` is false.
+    """
+    if kind in _RUNNERS and _RUNNERS[kind] is not fn and not replace:
+        raise ValueError(f"kind '{kind}' already has runner {_RUNNERS[kind].__qualname__}")
+    _RUNNERS[kind] = fn
+
+
+def runner_kinds() -> tuple[str, ...]:
+    """Registered scenario kinds, sorted."""
+    return tuple(sorted(_RUNNERS))
+
+
+def _selected(scenario: Scenario, key: str, result: Result) -> Result:
+    """``result`` restricted to ``[outputs] signals`` (all signals if none given)."""
+    wanted = scenario.outputs.signals
+    for name in wanted:
+        if name not in result.signals:
+            raise scenario.error(
+                ("outputs", "signals"),
+                f"result '{key}' has no signal '{name}'; available: {', '.join(result.names)}",
+            )
+    return result.select(list(wanted)) if wanted else result
+
+
+def _plot_groups(scenario: Scenario, result: Result) -> dict[str, tuple[str, ...]]:
+    """``[outputs.plots]`` checked against ``result``, or the signals grouped by unit."""
+    if not scenario.outputs.plots:
+        return groups_by_unit(result, result.names)
+    for group, names in scenario.outputs.plots.items():
+        path = ("outputs", "plots", group)
+        missing = [n for n in names if n not in result.signals]
+        if missing or not names:
+            raise scenario.error(
+                path, f"unknown signals {missing}; available: {', '.join(result.names)}"
+            )
+        units = {result.units[n] for n in names}
+        if len(units) > 1:
+            raise scenario.error(path, f"signals of one figure must share a unit, got {units}")
+    return dict(scenario.outputs.plots)
+
+
+def evaluate_checks(scenario: Scenario, metrics: dict[str, float]) -> dict[str, dict]:
+    """Compare metrics with the ``[metrics]`` references.
+
+    Returns
+    -------
+    dict
+        Metric name -> ``{"value", "reference", "rtol", "atol", "ok", "source"}``.
+
+    Raises
+    ------
+    ScenarioError
+        A reference names a metric the run did not compute.
+    """
+    checks = {}
+    for check in scenario.metrics:
+        if check.name not in metrics:
+            raise scenario.error(
+                ("metrics", check.name),
+                f"no such metric; this run computes {', '.join(metrics) or 'none'}",
+            )
+        value = metrics[check.name]
+        checks[check.name] = {
+            "value": value,
+            "reference": check.reference,
+            "rtol": check.rtol,
+            "atol": check.atol,
+            "ok": check.passes(value),
+            "source": check.source,
+        }
+    return checks
+
+
+def format_summary(output: RunOutput, checks: dict, out_dir: Path, files: list[Path]) -> str:
+    """A short human summary: header line, metric table with references, files written."""
+    head = (
+        f"{output.scenario}: fidelity {output.fidelity}, solver {output.solver}, "
+        f"{output.wall_time_s * 1e3:.1f} ms"
+    )
+    width = max([len("metric"), *map(len, output.metrics)])
+    rows = [f"  {'metric':<{width}}  {'value':>12}  {'reference':>12}  check"]
+    for name, value in output.metrics.items():
+        check = checks.get(name)
+        ref = f"{check['reference']:>12.6g}" if check else " " * 12
+        verdict = ("ok" if check["ok"] else "OFF") if check else ""
+        rows.append(f"  {name:<{width}}  {value:>12.6g}  {ref}  {verdict}".rstrip())
+    names = ", ".join(p.name for p in files)
+    return "\n".join([head, *rows, f"wrote {out_dir}: {names}"])
+
+
+def run(
+    scenario: str | Path | Scenario, out_dir: str | Path | None = None, *, quiet: bool = False
+) -> RunOutput:
+    """Run a scenario and write its outputs.
+
+    Parameters
+    ----------
+    scenario : str, pathlib.Path or Scenario
+        A scenario file, the name of a packaged scenario (``"paper-static"``), or a
+        loaded :class:`~sarcomere.scenarios.spec.Scenario`.
+    out_dir : str or pathlib.Path, optional
+        Output folder, created if needed; default ``out/<scenario name>``.
+    quiet : bool
+        Do not print the summary.
+
+    Returns
+    -------
+    RunOutput
+        With ``wall_time_s`` set (the kind runner alone, not the file writing).
+
+    Raises
+    ------
+    ScenarioError
+        Malformed scenario, unknown kind, or outputs asking for signals the run lacks.
+    SolverError
+        The run failed or produced a NaN (naming the signal).
+
+    Examples
+    --------
+    >>> out = run("paper-static", tmp_path, quiet=True)  # doctest: +SKIP
+    >>> sorted(out.metrics)[:2]  # doctest: +SKIP
+    ['force_0p1MPa_N', 'force_spa_0p1MPa_N']
+    """
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    if sc.kind not in _RUNNERS:
+        kinds = ", ".join(runner_kinds()) or "none"
+        raise sc.error(("scenario", "kind"), f"unknown kind '{sc.kind}' (registered: {kinds})")
+    out = Path(out_dir) if out_dir is not None else Path("out") / sc.name
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    output = _RUNNERS[sc.kind](sc, out)
+    output.wall_time_s = time.perf_counter() - start
+    check_finite(output)
+    checks = evaluate_checks(sc, output.metrics)
+    results = {key: _selected(sc, key, r) for key, r in output.results.items()}
+    files = write_timeseries(results, out)
+    if results:
+        groups = _plot_groups(sc, next(iter(results.values())))
+        files += plot_groups(results, groups, out, sc.name)
+    files.insert(0, write_summary(output, sc, out, files, checks))
+    if not quiet:
+        print(format_summary(output, checks, out, files))
+    return output

@@ -1,0 +1,302 @@
+"""The scenario schema: frozen dataclasses holding a parsed scenario file in SI units.
+
+A scenario is data (see ``docs/scenarios.md``): what to model, which inputs drive it, what
+to sweep or simulate, with which solver, and what to report. :mod:`.loader` builds these
+objects from TOML; the runners of each ``kind`` read them.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import TYPE_CHECKING
+
+from sarcomere.dynamics.errors import ParameterError, ScenarioError
+
+if TYPE_CHECKING:
+    from .signals import Signal
+
+#: Allowed values of ``[model] fidelity``.
+FIDELITIES = ("paper", "quasi_static", "full", "symmetric", "auto")
+
+#: SI units of well-known input and sweep variables; other variables state ``unit``.
+KNOWN_UNITS: Mapping[str, str] = MappingProxyType(
+    {"pressure": "Pa", "load.m": "kg", "load.F": "N", "time": "s"}
+)
+
+#: SI units a signal or sweep axis may declare with ``unit``.
+SI_UNITS = ("1", "Pa", "m", "kg", "N", "s", "rad", "Hz", "K", "m^3", "kg/s", "N/m", "J", "W")
+
+KeyPath = tuple[str, ...]
+
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def dotted(path: KeyPath | str) -> str:
+    """Write a key path as TOML does: ``("parameters", "load.m")`` -> ``parameters."load.m"``."""
+    if isinstance(path, str):
+        return path
+    return ".".join(p if _BARE_KEY.match(p) else f'"{p}"' for p in path)
+
+
+def did_you_mean(word: str, choices: Sequence[str]) -> str:
+    """``"; did you mean 'x'?"`` for the closest of ``choices``, or ``""``."""
+    close = difflib.get_close_matches(word, choices, n=1)
+    return f"; did you mean '{close[0]}'?" if close else ""
+
+
+def unknown_key(key: str, allowed: Sequence[str]) -> str:
+    """Message for an unknown key: the closest valid key, and all valid keys."""
+    return f"unknown key '{key}'{did_you_mean(key, allowed)} (valid keys: {', '.join(allowed)})"
+
+
+def describe(exc: ParameterError) -> str:
+    """A ParameterError's message without its ``parameter 'name' =`` prefix."""
+    return str(exc).removeprefix(f"parameter '{exc.name}' = ")
+
+
+def line_of(key_lines: Mapping[KeyPath, int], path: KeyPath) -> int | None:
+    """Line of ``path``, or of its closest enclosing key or table; None if unknown."""
+    for k in range(len(path), 0, -1):
+        if path[:k] in key_lines:
+            return key_lines[path[:k]]
+    return None
+
+
+def _freeze(obj: object, *names: str) -> None:
+    """Replace the mapping fields ``names`` of a frozen dataclass by read-only copies."""
+    for name in names:
+        object.__setattr__(obj, name, MappingProxyType(dict(getattr(obj, name))))
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """``[model]``: which system, at which fidelity.
+
+    Parameters
+    ----------
+    name : str
+        The modelled system, e.g. ``"myofibril"`` (a chain of ``n`` APS).
+    fidelity : str
+        One of :data:`FIDELITIES`; ``"auto"`` picks the cheapest level meeting
+        ``[outputs] tolerance``.
+    n : int
+        Number of units (APS) in series, >= 1.
+    material : str
+        Material slug, e.g. ``"dragonskin_30"``.
+    geometry : str
+        Geometry set name, e.g. ``"experimental"``.
+    options : mapping
+        Model-specific switches, e.g. the paper model's options; passed through.
+    """
+
+    name: str = "myofibril"
+    fidelity: str = "auto"
+    n: int = 1
+    material: str = "dragonskin_30"
+    geometry: str = "experimental"
+    options: Mapping[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        _freeze(self, "options")
+
+
+@dataclass(frozen=True)
+class SweepAxis:
+    """One ``[sweep.<name>]`` axis.
+
+    Parameters
+    ----------
+    name : str
+        Swept variable, e.g. ``"pressure"`` or ``"load.m"``.
+    unit : str
+        SI unit of ``values``.
+    values : tuple of float
+        Strictly increasing values, in ``unit``.
+    """
+
+    name: str
+    unit: str
+    values: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class SimulationSpec:
+    """``[simulation]``: the time span of a transient run.
+
+    Parameters
+    ----------
+    stop_time : float
+        End time, s.
+    output_interval : float or None
+        Spacing of the output grid, s; None lets the runner choose.
+    start_time : float
+        Start time, s.
+    """
+
+    stop_time: float
+    output_interval: float | None = None
+    start_time: float = 0.0
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    """``[solver]``: integrator or root-finder settings, passed through to the runner.
+
+    Parameters
+    ----------
+    method : str or None
+        Solver name, e.g. ``"idas"``, ``"cvodes"``, ``"rk4"``; None for the runner's default.
+    rtol, atol : float or None
+        Relative and absolute tolerances (absolute in the states' SI units).
+    step : float or None
+        Fixed or maximum step, s.
+    options : mapping
+        Any other keys of ``[solver]``, unconverted.
+    """
+
+    method: str | None = None
+    rtol: float | None = None
+    atol: float | None = None
+    step: float | None = None
+    options: Mapping[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        _freeze(self, "options")
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    """``[outputs]``: what to write and how accurate it must be.
+
+    Parameters
+    ----------
+    signals : tuple of str
+        Signals to write and plot; empty means all the runner returns.
+    tolerance : float or None
+        Relative accuracy needed (``"1 %"`` -> 0.01); guides ``fidelity = "auto"``.
+    plots : mapping of str to tuple of str
+        Figure name -> signals drawn together (same unit); empty groups signals by unit.
+    """
+
+    signals: tuple[str, ...] = ()
+    tolerance: float | None = None
+    plots: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        _freeze(self, "plots")
+
+
+@dataclass(frozen=True)
+class MetricCheck:
+    """One ``[metrics]`` entry: a reference value a computed metric is compared with.
+
+    Parameters
+    ----------
+    name : str
+        Metric name, ending in its unit (``theta_rest_deg``).
+    reference : float
+        Reference value, in the unit the name ends with.
+    rtol : float
+        Relative tolerance of the comparison.
+    atol : float
+        Absolute tolerance, in the metric's unit.
+    source : str
+        Where the reference comes from (free text).
+    """
+
+    name: str
+    reference: float
+    rtol: float = 0.01
+    atol: float = 0.0
+    source: str = ""
+
+    def passes(self, value: float) -> bool:
+        """True if ``value`` is within ``atol + rtol |reference|`` of the reference."""
+        return abs(value - self.reference) <= self.atol + self.rtol * abs(self.reference)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A parsed scenario, every quantity in SI.
+
+    Parameters
+    ----------
+    name : str
+        Scenario name (defaults to the file stem); names the output folder.
+    kind : str
+        Runner kind, e.g. ``"static"``; see :func:`sarcomere.scenarios.runner.register_runner`.
+    description : str
+        One line shown by ``sarcomere list``.
+    model : ModelSpec
+    parameters : mapping of str to object
+        Parameter overrides, dotted name -> value as written (numbers or strings with
+        units), for ``ParameterSet.with_overrides``.
+    inputs : mapping of str to Signal
+    sweep : tuple of SweepAxis
+        The first axis is the index of each result; further axes give one result each.
+    simulation : SimulationSpec or None
+    solver : SolverSpec
+    outputs : OutputSpec
+    metrics : tuple of MetricCheck
+    file : str
+        Scenario file path, or a label such as ``"<string>"``.
+    key_lines : mapping of tuple to int
+        Key path -> line in ``file``, for error messages; see :meth:`error`.
+    """
+
+    name: str
+    kind: str
+    description: str = ""
+    model: ModelSpec = field(default_factory=ModelSpec)
+    parameters: Mapping[str, object] = field(default_factory=dict)
+    inputs: Mapping[str, Signal] = field(default_factory=dict)
+    sweep: tuple[SweepAxis, ...] = ()
+    simulation: SimulationSpec | None = None
+    solver: SolverSpec = field(default_factory=SolverSpec)
+    outputs: OutputSpec = field(default_factory=OutputSpec)
+    metrics: tuple[MetricCheck, ...] = ()
+    file: str = "<string>"
+    key_lines: Mapping[KeyPath, int] = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        _freeze(self, "parameters", "inputs", "key_lines")
+
+    @property
+    def base_dir(self) -> Path:
+        """Folder of the scenario file: relative paths inside it start here."""
+        return Path(self.file).parent
+
+    def axis(self, name: str) -> SweepAxis:
+        """The sweep axis ``name``; ScenarioError naming ``[sweep]`` if there is none."""
+        for ax in self.sweep:
+            if ax.name == name:
+                return ax
+        have = ", ".join(ax.name for ax in self.sweep) or "none"
+        raise self.error(("sweep",), f"needs a sweep axis '{name}' (axes: {have})")
+
+    def error(self, path: KeyPath, message: str) -> ScenarioError:
+        """A ScenarioError for ``path`` with this file and the key's line.
+
+        Examples
+        --------
+        >>> raise Scenario("x", "static").error(("model", "n"), "must be 1")
+        Traceback (most recent call last):
+        ...
+        sarcomere.dynamics.errors.ScenarioError: <string>: key 'model.n': must be 1
+        """
+        return ScenarioError(self.file, dotted(path), message, line_of(self.key_lines, path))
+
+    def parameter_error(self, name: str, message: str) -> ScenarioError:
+        """A ScenarioError for the ``[parameters]`` entry ``name`` (a dotted name).
+
+        Finds the line whether the file wrote ``"geometry.h_ch" = ...`` or
+        ``[parameters.geometry] h_ch = ...``.
+        """
+        flat = f"parameters.{name}"
+        path = next((p for p in self.key_lines if ".".join(p) == flat), ("parameters", name))
+        return self.error(path, message)
