@@ -440,10 +440,10 @@ def signal_from_spec(
     Raises
     ------
     ParameterError
-        Unknown type or key, missing key, a quantity of the wrong dimension or out of range;
-        ``.name`` is the dotted key.
+        Unknown type or key, missing key, a quantity of the wrong dimension or out of range,
+        an unreadable table file; ``.name`` is the dotted key.
     ScenarioError
-        A table's CSV file is missing or malformed.
+        A malformed row in a table's CSV file (naming that file and line).
 
     Examples
     --------

@@ -36,10 +36,8 @@ KeyPath = tuple[str, ...]
 _BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 
 
-def dotted(path: KeyPath | str) -> str:
+def dotted(path: KeyPath) -> str:
     """Write a key path as TOML does: ``("parameters", "load.m")`` -> ``parameters."load.m"``."""
-    if isinstance(path, str):
-        return path
     return ".".join(p if _BARE_KEY.match(p) else f'"{p}"' for p in path)
 
 

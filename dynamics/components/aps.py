@@ -23,7 +23,7 @@ import casadi as cs
 
 from ..component import Builder, Component
 from ..errors import ParameterError
-from ..params import experimental_geometry, get_material
+from ..params import experimental_geometry, get_material, yeoh_energy
 from ..ports import FLANGE
 from .mechanical import G_STANDARD, Damper, Fixed, Mass, Node
 from .pneumatic import T_REF, Chamber, Restriction
@@ -154,12 +154,6 @@ class APSParams:
         return self.A_band + 2 * self.r1_rest
 
 
-def yeoh_energy_density(lam: cs.SX, C1, C2, C3) -> cs.SX:
-    """Yeoh strain energy [J/m^3] in the paper's plane-strain form, ``I1 - 3 = (lam - 1/lam)^2``."""
-    i = (lam - 1.0 / lam) ** 2
-    return C1 * i + C2 * i**2 + C3 * i**3
-
-
 def thread_height(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
     """Taut height ``r1`` [m] of one thread V for expansion ``d`` [m].
 
@@ -200,7 +194,7 @@ class YeohSpring(Component):
         C3 = b.parameter("C3", p.C3, "Pa", "Yeoh C3", source="paper (0 for DragonSkin 30)")
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         lam = 1.0 + (fb.s - fa.s) / L_r
-        energy = A_r * L_r * yeoh_energy_density(lam, C1, C2, C3)
+        energy = A_r * L_r * yeoh_energy(lam, C1, C2, C3)
         force = cs.gradient(energy, fb.s)
         b.equation(fb.f, force)
         b.equation(fa.f, -force)
@@ -409,5 +403,4 @@ __all__ = [
     "Myofibril",
     "YeohSpring",
     "thread_height",
-    "yeoh_energy_density",
 ]

@@ -29,6 +29,7 @@ from .materials import (
     strain_energy,
     stress_slope,
     true_cauchy_stress,
+    yeoh_energy,
 )
 
 __all__ = [
@@ -54,4 +55,5 @@ __all__ = [
     "strain_energy",
     "stress_slope",
     "true_cauchy_stress",
+    "yeoh_energy",
 ]

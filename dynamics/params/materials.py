@@ -255,6 +255,14 @@ def _slope(lam: np.ndarray, c1: float, c2: float, c3: float) -> np.ndarray:
     return df * g + f * dg
 
 
+def yeoh_energy(lam, c1, c2, c3):
+    """Plane-strain Yeoh energy density [J/m^3] from plain arithmetic, so that the same
+    expression serves numpy arrays and CasADi symbols (the dynamic model's restoring
+    element). ``x = lam^2 + lam^-2 - 2 = I1 - 3``; coefficients in Pa."""
+    x = lam**2 + lam**-2 - 2.0
+    return c1 * x + c2 * x**2 + c3 * x**3
+
+
 def strain_energy(lam: object, material: YeohMaterial, *, include_c3: bool = False):
     """Plane-strain Yeoh strain energy density ``W(lambda)``, Pa (J/m^3).
 
@@ -271,9 +279,7 @@ def strain_energy(lam: object, material: YeohMaterial, *, include_c3: bool = Fal
         Add the C3 term (the paper omits it).
     """
     arr = _stretch(lam)
-    c1, c2, c3 = _coefficients(material, include_c3)
-    x = arr**2 + arr**-2 - 2.0
-    return _out(c1 * x + c2 * x**2 + c3 * x**3, lam)
+    return _out(yeoh_energy(arr, *_coefficients(material, include_c3)), lam)
 
 
 def cauchy_stress(lam: object, material: YeohMaterial, *, include_c3: bool = False):

@@ -80,8 +80,10 @@ def test_energy_is_conserved_without_damping():
     res = simulate(model, 2.0, settings=SolverSettings(rtol=1e-11, atol=1e-14))
     E = model.function("energy")
     p = model.parameters()
-    energies = [float(E(x=[s, v], z=[], u=[], p=p)["E"]) for s, v in
-                zip(res["mass.s"], res["mass.v"], strict=True)]
+    energies = [
+        float(E(x=[s, v], z=[], u=[], p=p)["E"])
+        for s, v in zip(res["mass.s"], res["mass.v"], strict=True)
+    ]
     assert np.ptp(energies) < 1e-9 * energies[0]
     assert energies[0] == pytest.approx(0.5 * 50.0 * 0.1**2)
 
