@@ -183,6 +183,11 @@ class Builder:
         self._c.ports.append(p)
         return p
 
+    def set_start(self, sym: cs.SX, value: float) -> None:
+        """Start value (or Newton guess, for an algebraic unknown) of a declared variable."""
+        var = self._c.variables[sym.name()]
+        self._c.variables[sym.name()] = Var(**{**var.__dict__, "start": float(value)})
+
     # --- equations -----------------------------------------------------------------
     def der(self, state: cs.SX, rhs: cs.SX) -> None:
         """``d state / dt = rhs``."""

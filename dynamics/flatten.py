@@ -20,6 +20,7 @@ Storage components (masses, chambers) alternating with transport components
 from __future__ import annotations
 
 import graphlib
+from dataclasses import replace
 
 import casadi as cs
 import numpy as np
@@ -47,12 +48,21 @@ def _connection_equations(c: Collected) -> list[tuple[cs.SX, str]]:
         sets.setdefault(find(id(p)), []).append(p)
     eqs = []
     for members in sets.values():
+        _share_start(c, [p.potential.name() for p in members])
         where = "connect(" + ", ".join(p.path for p in members) + ")"
         first = members[0]
         for other in members[1:]:
             eqs.append((other.potential - first.potential, where))
         eqs.append((sum((p.flow for p in members), cs.SX(0)), where))
     return eqs
+
+
+def _share_start(c: Collected, names: list[str]) -> None:
+    """Give every potential of a connection set the start value one of them declares."""
+    starts = [c.variables[n].start for n in names if c.variables[n].start != 0.0]
+    if starts:
+        for n in names:
+            c.variables[n] = replace(c.variables[n], start=starts[0])
 
 
 def _substitute(expr: cs.SX, known: dict[str, cs.SX]) -> cs.SX:

@@ -305,7 +305,7 @@ class APS(Component):
         yeoh = b.add(YeohSpring("yeoh", p))
         if self.quasi_static:
             exp = b.add(Node("expansion"))
-            body = b.add(Node("body", weight=p.m_body * self.g))
+            body = b.add(Node("body", weight=p.m_body * self.g, s_start=self.s_start))
         else:
             exp = b.add(Mass("expansion", m=p.m_e, g=0.0))
             loss = b.add(Damper("loss", d=p.c_e))

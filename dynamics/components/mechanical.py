@@ -56,13 +56,14 @@ class Node(Component):
     turns a mass into an algebraic unknown: the quasi-static fidelity level uses it.
     """
 
-    def __init__(self, name: str, weight: float = 0.0) -> None:
+    def __init__(self, name: str, weight: float = 0.0, s_start: float = 0.0) -> None:
         super().__init__(name)
-        self.weight = weight
+        self.weight, self.s_start = weight, s_start
 
     def build(self, b: Builder) -> None:
         w = b.parameter("weight", self.weight, "N", "weight carried by the node")
         fl = b.port("flange_a", FLANGE)
+        b.set_start(fl.s, self.s_start)
         b.equation(fl.f + w, 0.0)
         b.energy("gravity", -w * fl.s)
 

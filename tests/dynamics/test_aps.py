@@ -1,0 +1,208 @@
+"""The APS myofibril model: Jacobians, dimensions, energy, equilibrium, calibration."""
+
+import math
+from fnmatch import fnmatch
+
+import numpy as np
+import pint
+import pytest
+
+from sarcomere.dynamics.assemblies import hanging_load, isometric
+from sarcomere.dynamics.calibration import TARGETS, evaluate
+from sarcomere.dynamics.components.aps import APSParams, Myofibril
+from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError, SolverError
+from sarcomere.dynamics.simulate import SolverSettings, simulate
+
+P = "regulator.p_cmd"
+
+
+@pytest.fixture(scope="module")
+def hang3():
+    return hanging_load(3, load_kg=0.05)
+
+
+def test_rest_length_is_the_papers_164p9_mm():
+    assert Myofibril("m", 3, APSParams.from_paper()).rest_length == pytest.approx(0.16494, abs=5e-5)
+
+
+def test_jacobian_matches_finite_differences(hang3):
+    m = hang3
+    eq = solve_equilibrium(m, {P: 0.06e6})
+    rng = np.random.default_rng(1)
+    x = eq.x * (1 + 1e-3 * rng.standard_normal(m.nx)) + 1e-6 * rng.standard_normal(m.nx)
+    f = m.function("ode")
+    A = np.array(m.function("jac")(x=x, z=[], u=eq.u, p=eq.p)["A"])
+    for j in range(m.nx):
+        h = 1e-6 * max(abs(x[j]), 1e-4)
+        xp, xm = x.copy(), x.copy()
+        xp[j] += h
+        xm[j] -= h
+        fd = (
+            np.array(f(x=xp, z=[], u=eq.u, p=eq.p)["ode"])
+            - np.array(f(x=xm, z=[], u=eq.u, p=eq.p)["ode"])
+        ).ravel() / (2 * h)
+        scale = np.maximum(np.abs(A[:, j]), np.abs(fd)).max() + 1e-300
+        assert np.max(np.abs(A[:, j] - fd)) / scale < 1e-5, m.state_names[j]
+
+
+def _dimension(ureg, unit):
+    return ureg.Quantity(1.0, unit or "dimensionless").to_base_units()
+
+
+def test_every_equation_is_dimensionally_consistent(hang3):
+    """Change the base units (m, kg, s, K) by random factors: if every equation is
+    dimensionally consistent, each derivative scales exactly like state/time."""
+    m = hang3
+    ureg = pint.UnitRegistry()
+    base = {"[length]": 3.7, "[mass]": 0.61, "[time]": 2.3, "[temperature]": 1.9}
+
+    def factor(unit):
+        q = _dimension(ureg, unit)
+        f = q.magnitude
+        for dim, power in q.dimensionality.items():
+            f *= base[dim] ** power
+        return f
+
+    eq = solve_equilibrium(m, {P: 0.05e6})
+    x = eq.x * 1.01 + 1e-4
+    fx = np.array([factor(m.unit(n)) for n in m.state_names])
+    fp = np.array([factor(m.unit(n)) for n in m.param_names])
+    fu = np.array([factor(m.unit(n)) for n in m.input_names])
+    f = m.function("ode")
+    ode = np.array(f(x=x, z=[], u=eq.u, p=eq.p)["ode"]).ravel()
+    ode_scaled = np.array(f(x=x * fx, z=[], u=eq.u * fu, p=eq.p * fp)["ode"]).ravel()
+    np.testing.assert_allclose(ode_scaled, ode * fx / base["[time]"], rtol=1e-9, atol=1e-300)
+
+
+def _set(m, patterns, value):
+    return {n: value for n in m.param_names if any(fnmatch(n, pat) for pat in patterns)}
+
+
+SEALED = ("*.tube*.C",)
+UNDAMPED = ("*.loss.d", "*.actin*.c_s")
+
+
+def _kicked(m, pressure):
+    eq = solve_equilibrium(m, {P: pressure})
+    x0 = eq.x.copy()
+    x0[m.state_names.index("load.v")] = 0.05  # kick the load
+    return eq, x0
+
+
+def test_energy_conserved_with_sealed_chambers_and_no_damping():
+    m = hanging_load(2, load_kg=0.02)
+    eq, x0 = _kicked(m, 0.05e6)
+    over = _set(m, SEALED + UNDAMPED, 0.0)
+    eq.p = m.parameters(over)
+    res = simulate(
+        m,
+        0.3,
+        inputs={P: 0.05e6},
+        x0=x0,
+        params=over,
+        output_interval=1e-3,
+        settings=SolverSettings(rtol=1e-11, atol=1e-14),
+    )
+    E = m.function("energy").map(len(res.index))
+    X = np.array([res[n] for n in m.state_names])
+    Ez = np.array(
+        E(
+            X,
+            np.zeros((0, len(res.index))),
+            np.zeros((1, len(res.index))),
+            np.repeat(eq.p[:, None], len(res.index), 1),
+        )[0]
+    ).ravel()
+    kinetic0 = 0.5 * (0.001 + 0.02) * 0.05**2
+    assert np.ptp(Ez) < 1e-6 * kinetic0
+
+
+def test_dissipation_accounts_for_energy_loss():
+    m = hanging_load(2, load_kg=0.02)
+    eq, x0 = _kicked(m, 0.05e6)
+    over = _set(m, SEALED, 0.0)
+    eq.p = m.parameters(over)
+    res = simulate(
+        m,
+        0.2,
+        inputs={P: 0.05e6},
+        x0=x0,
+        params=over,
+        output_interval=2e-5,
+        settings=SolverSettings(rtol=1e-11, atol=1e-14),
+    )
+    n = len(res.index)
+    out = m.function("energy").map(n)(
+        np.array([res[k] for k in m.state_names]),
+        np.zeros((0, n)),
+        np.zeros((1, n)),
+        np.repeat(eq.p[:, None], n, 1),
+    )
+    E, D = np.array(out[0]).ravel(), np.array(out[1]).ravel()
+    dissipated = np.sum(0.5 * (D[1:] + D[:-1]) * np.diff(res.index))
+    loss = E[0] - E[-1]
+    assert loss > 0
+    assert dissipated == pytest.approx(loss, rel=2e-3)
+
+
+def test_steady_state_of_dynamics_equals_equilibrium(hang3):
+    m = hang3
+    eq0 = solve_equilibrium(m, {P: 0.0})
+    res = simulate(
+        m, 8.0, inputs={P: 0.08e6}, x0=eq0.x, settings=SolverSettings(rtol=1e-10, atol=1e-13)
+    )
+    eq1 = solve_equilibrium(m, {P: 0.08e6}, guess=eq0)
+    assert res.final("myofibril.length") == pytest.approx(eq1["myofibril.length"], rel=1e-8)
+    assert res.final("myofibril.aps2.chamber.p_gauge") == pytest.approx(0.08e6, rel=1e-6)
+
+
+def test_quasi_static_equilibrium_equals_full():
+    full = solve_equilibrium(hanging_load(3, load_kg=0.02), {P: 0.1e6})
+    qs = solve_equilibrium(hanging_load(3, load_kg=0.02, fidelity="quasi_static"), {P: 0.1e6})
+    assert qs["myofibril.length"] == pytest.approx(full["myofibril.length"], rel=1e-9)
+
+
+def test_calibrated_defaults_meet_the_papers_targets_within_1_percent():
+    achieved = evaluate(APSParams.from_paper())
+    for key, target in TARGETS.items():
+        assert achieved[key] == pytest.approx(target, rel=0.01), key
+
+
+def test_isometric_force_cannot_grow_with_n_on_a_rigid_fixture():
+    """Units in series share one tension: F_n <= F_1 (the paper's 0.741/1.033 N are not
+    reproducible; docs/paper.md)."""
+    forces = []
+    for n in (1, 2, 3):
+        m = isometric(n)
+        f0 = solve_equilibrium(m, {P: 0.0})["sensor.f"]
+        forces.append(solve_equilibrium(m, {P: 0.1e6})["sensor.f"] - f0)
+    assert forces[0] == pytest.approx(0.315, rel=0.01)
+    assert forces[1] < 2 * forces[0] and forces[2] < 3 * forces[0]
+
+
+def test_bad_inputs_name_the_value():
+    with pytest.raises(ParameterError, match="w0"):
+        APSParams.from_paper(w0=0.04)  # anchors wider than the 32 mm thread
+    with pytest.raises(ParameterError, match="load_kg"):
+        hanging_load(1, load_kg=-0.1)
+    with pytest.raises(ParameterError, match="load.m"):
+        hanging_load(1).parameters({"load.m": "-5 g"})
+    with pytest.raises(ParameterError, match="fidelity"):
+        hanging_load(1, fidelity="coarse")
+
+
+def test_equilibrium_reports_thread_pulled_straight():
+    m = hanging_load(1, load_kg=0.0)
+    with pytest.raises(SolverError, match="pulled straight|not found"):
+        solve_equilibrium(m, {P: 5.0e6}, max_iter=30)
+
+
+def test_solver_failure_names_time_and_cause(hang3):
+    with pytest.raises(SolverError, match=r"too many steps.*t = "):
+        simulate(hang3, 1.0, inputs={P: 1e5}, settings=SolverSettings(max_steps=5, rtol=1e-8))
+
+
+def test_r1_rest_geometry():
+    p = APSParams.from_paper()
+    assert math.degrees(math.acos(p.w0 / p.l)) == pytest.approx(51.32, abs=0.01)
