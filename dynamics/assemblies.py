@@ -12,7 +12,7 @@ returns the :class:`~sarcomere.dynamics.model.Model`. Stable signal names:
 from __future__ import annotations
 
 from .component import System
-from .components.aps import APSParams, Myofibril
+from .components.aps import CHAIN_LEVELS, APSParams, Myofibril, SymmetricMyofibril
 from .components.mechanical import G_STANDARD, Fixed, ForceSensor, Mass, Spring
 from .components.pneumatic import Regulator
 from .errors import ParameterError
@@ -22,13 +22,17 @@ HOOK_MASS_KG = 1.0e-3
 """Mass of the load hook and clip [kg] (estimate); the load mass adds to it, so the
 "0 g" experiment still has a defined bottom end."""
 
-FIDELITIES = ("full", "quasi_static")
+FIDELITIES = (*CHAIN_LEVELS, "symmetric")
+"""Dynamic fidelity levels (see :data:`CHAIN_LEVELS` and docs/model.md); "symmetric" is
+one representative unit for n identical units."""
 
 
-def _check_fidelity(fidelity: str) -> bool:
+def _chain(n: int, p: APSParams, fidelity: str, g: float) -> Myofibril | SymmetricMyofibril:
     if fidelity not in FIDELITIES:
         raise ParameterError("fidelity", fidelity, f"one of {FIDELITIES}")
-    return fidelity == "quasi_static"
+    if fidelity == "symmetric":
+        return SymmetricMyofibril("myofibril", n, p, g=g)
+    return Myofibril("myofibril", n, p, level=fidelity, g=g)
 
 
 def hanging_load(
@@ -43,11 +47,10 @@ def hanging_load(
     if not load_kg >= 0:
         raise ParameterError("load_kg", load_kg, "[0, inf) kg")
     p = params or APSParams.from_paper()
-    qs = _check_fidelity(fidelity)
+    myo = _chain(n, p, fidelity, g)
     sys = System(f"hanging_n{n}_{fidelity}")
     frame = sys.add(Fixed("frame"))
     reg = sys.add(Regulator("regulator", tau=regulator_tau))
-    myo = Myofibril("myofibril", n, p, quasi_static=qs, g=g)
     mf = sys.add(myo)
     load = sys.add(Mass("load", m=HOOK_MASS_KG + load_kg, g=g, s_start=myo.rest_length))
     sys.connect(frame.flange, mf.flange_a)
@@ -73,11 +76,10 @@ def isometric(
     geometric rest length of the chain).
     """
     p = params or APSParams.from_paper()
-    qs = _check_fidelity(fidelity)
+    myo = _chain(n, p, fidelity, g)
     sys = System(f"isometric_n{n}_{fidelity}")
     frame = sys.add(Fixed("frame"))
     reg = sys.add(Regulator("regulator", tau=regulator_tau))
-    myo = Myofibril("myofibril", n, p, quasi_static=qs, g=g)
     mf = sys.add(myo)
     L = myo.rest_length if length is None else length
     if not L > 0:

@@ -162,27 +162,45 @@ def _blocks(residuals: cs.SX, unknowns: cs.SX, origins: list[str], names: list[s
     return [(members[k], [int(match[i]) for i in members[k]]) for k in order]
 
 
+MAX_RATE_LOOP = 64
+"""Largest linear loop of ``der_of`` rates solved symbolically (a dense solve)."""
+
+
 def _resolve_time_derivatives(
     c: Collected, known: dict[str, cs.SX], ders: dict[str, cs.SX]
 ) -> dict[str, cs.SX]:
-    """Replace each ``der_of`` variable by ``d expr/dx . f(x, ...)`` (expr of states only)."""
+    """Replace each ``der_of`` variable ``w = d expr/dt`` by ``d expr/dx . f(x, w, ...)``.
+
+    ``expr`` must be a function of the states. Where the rates depend on each other
+    through the dynamics (a damper on a first-order viscous node), the loop is linear
+    in the rates and is solved: ``(I - dR/dw) w = R(w = 0)``.
+    """
     x = cs.vertcat(*[c.symbols[n] for n in ders])
     f = cs.vertcat(*ders.values())
-    w_names = set(c.time_derivatives)
-    out = dict(known)
-    for name, expr in c.time_derivatives.items():
-        e = _substitute(expr, known)
-        others = [s.name() for s in cs.symvar(e) if s.name() not in ders]
-        params = {n for n, v in c.variables.items() if v.kind in ("parameter", "input")}
-        if set(others) - params:
+    params = {n for n, v in c.variables.items() if v.kind in ("parameter", "input")}
+    names = list(c.time_derivatives)
+    rates = []
+    for name in names:
+        e = _substitute(c.time_derivatives[name], known)
+        others = {s.name() for s in cs.symvar(e) if s.name() not in ders} - params
+        if others:
             raise ModelError(
                 f"'{name}' needs the time derivative of an expression of {sorted(others)}, "
-                "which are not states: attach the element to masses or chambers"
+                "which are not states: attach the element to masses or viscous nodes"
             )
-        rate = cs.mtimes(cs.jacobian(e, x), f)
-        if any(s.name() in w_names for s in cs.symvar(rate)):
-            raise ModelError(f"'{name}' depends on itself through the dynamics (implicit loop)")
-        out[name] = rate
+        rates.append(cs.mtimes(cs.jacobian(e, x), f))
+    w = cs.vertcat(*[c.symbols[n] for n in names])
+    R = cs.vertcat(*rates)
+    if cs.depends_on(R, w):
+        J = cs.jacobian(R, w)
+        if cs.depends_on(J, w) or len(names) > MAX_RATE_LOOP:
+            raise ModelError(
+                f"the rates {names[:6]} depend on each other nonlinearly or in a loop larger "
+                f"than {MAX_RATE_LOOP}: give the elements inertia (choose another level)"
+            )
+        R = cs.solve(cs.SX.eye(len(names)) - J, cs.substitute(R, w, cs.SX.zeros(w.shape)))
+    out = dict(known)
+    out.update({n: R[i] for i, n in enumerate(names)})
     return {k: _substitute(v, out) for k, v in out.items()}
 
 

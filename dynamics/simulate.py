@@ -149,6 +149,7 @@ def simulate(
     inputs: Mapping[str, object] | None = None,
     params: Mapping[str, object] | None = None,
     x0: np.ndarray | Mapping[str, float] | None = None,
+    z0: np.ndarray | None = None,
     settings: SolverSettings | None = None,
     output_interval: float | None = None,
     t_out: np.ndarray | None = None,
@@ -167,6 +168,8 @@ def simulate(
         Parameter overrides by name (SI floats or strings with units).
     x0 : array or mapping, optional
         Initial state (full vector, or a mapping of state names to values).
+    z0 : array, optional
+        Initial guess of the algebraic unknowns (e.g. ``Equilibrium.z``).
     settings : SolverSettings, optional
         Method and tolerances; default CVODES at rtol 1e-6.
     output_interval, t_out : optional
@@ -208,7 +211,8 @@ def simulate(
         if hasattr(sig, "breakpoints"):
             bps.extend(float(b) for b in sig.breakpoints(t_out[0], t_out[-1]))
     bps = [b for b in bps if t_out[0] < b < t_out[-1]]
-    prob = Problem(model, p, x_init, model.z0(), signals, t_out, bps, settings)
+    z_init = model.z0() if z0 is None else np.asarray(z0, dtype=float).reshape(-1)
+    prob = Problem(model, p, x_init, z_init, signals, t_out, bps, settings)
     tic = _time.perf_counter()
     X, Z = METHODS[settings.method](prob)
     wall = _time.perf_counter() - tic

@@ -25,7 +25,7 @@ from ..component import Builder, Component
 from ..errors import ParameterError
 from ..params import experimental_geometry, get_material, yeoh_energy
 from ..ports import FLANGE
-from .mechanical import G_STANDARD, Damper, Fixed, Mass, Node
+from .mechanical import G_STANDARD, Damper, Fixed, Mass, Node, ViscousNode
 from .pneumatic import T_REF, Chamber, Restriction
 
 
@@ -283,8 +283,9 @@ class APS(Component):
 
     Ports: ``port`` (pneumatic, the chamber inlet), ``body`` (chain flange at the SPA
     body centre), ``exp`` (the expansion flange the actins hang on).
-    ``quasi_static=True`` drops the expansion inertia and damping (the expansion is
-    then an algebraic unknown: index-1 DAE).
+    ``quasi_static=True`` drops the expansion inertia (the expansion becomes a first-order
+    viscous state); ``massless_body=True`` makes the body a weighted massless node (its
+    position an algebraic unknown).
     """
 
     def __init__(
@@ -294,9 +295,11 @@ class APS(Component):
         s_start: float = 0.0,
         quasi_static: bool = False,
         g: float = G_STANDARD,
+        massless_body: bool = False,
     ) -> None:
         super().__init__(name)
         self.p, self.s_start, self.quasi_static, self.g = p, s_start, quasi_static, g
+        self.massless_body = massless_body
 
     def build(self, b: Builder) -> None:
         p = self.p
@@ -304,13 +307,15 @@ class APS(Component):
         chamber = b.add(Chamber("chamber", V0=p.V0, A=p.A_p, n_poly=p.n_poly, T=T_REF))
         yeoh = b.add(YeohSpring("yeoh", p))
         if self.quasi_static:
-            exp = b.add(Node("expansion"))
-            body = b.add(Node("body", weight=p.m_body * self.g, s_start=self.s_start))
+            exp = b.add(ViscousNode("expansion", d=p.c_e))
         else:
             exp = b.add(Mass("expansion", m=p.m_e, g=0.0))
             loss = b.add(Damper("loss", d=p.c_e))
             b.connect(ground.flange, loss.flange_a)
             b.connect(loss.flange_b, exp.flange_a)
+        if self.massless_body:
+            body = b.add(Node("body", weight=p.m_body * self.g, s_start=self.s_start))
+        else:
             body = b.add(Mass("body", m=p.m_body, g=self.g, s_start=self.s_start))
         b.connect(ground.flange, yeoh.flange_a)
         b.connect(yeoh.flange_b, exp.flange_a)
@@ -320,13 +325,23 @@ class APS(Component):
         b.expose("exp", exp.flange_a)
 
 
+CHAIN_LEVELS = {  # level -> (massless SPA expansion, massless bodies)
+    "full": (False, False),
+    "quasi_static": (True, False),
+    "static_chain": (True, True),
+}
+"""Fidelity levels of :class:`Myofibril`: all inertias; massless SPA expansion (first
+order, viscous; explicit ODE); massless SPA and bodies (undamped threads; the body
+positions are algebraic: an index-1 DAE)."""
+
+
 class Myofibril(Component):
     """``n`` APS in series, each fed by its own tube from one manifold port.
 
     Ports: ``port`` (the manifold, pneumatic), ``flange_a`` (top hook, on the frame),
     ``flange_b`` (bottom hook, to the load or the fixture). Output ``length`` [m]:
     ``flange_b.s - flange_a.s``. ``params`` is one APSParams for identical units or a
-    list of ``n``.
+    list of ``n``. ``level`` is one of :data:`CHAIN_LEVELS`.
     """
 
     def __init__(
@@ -334,7 +349,7 @@ class Myofibril(Component):
         name: str,
         n: int,
         params: APSParams | list[APSParams],
-        quasi_static: bool = False,
+        level: str = "full",
         g: float = G_STANDARD,
         s_top: float = 0.0,
     ) -> None:
@@ -344,13 +359,9 @@ class Myofibril(Component):
         plist = list(params) if isinstance(params, list | tuple) else [params] * n
         if len(plist) != n:
             raise ParameterError("params", len(plist), f"one APSParams or a list of n = {n}")
-        self.n, self.params, self.quasi_static, self.g, self.s_top = (
-            n,
-            plist,
-            quasi_static,
-            g,
-            s_top,
-        )
+        if level not in CHAIN_LEVELS:
+            raise ParameterError("level", level, f"one of {tuple(CHAIN_LEVELS)}")
+        self.n, self.params, self.level, self.g, self.s_top = n, plist, level, g, s_top
 
     def build(self, b: Builder) -> None:
         units, s = [], self.s_top
@@ -365,7 +376,8 @@ class Myofibril(Component):
                     + p.r1_rest
                 )
             )
-            unit = b.add(APS(f"aps{i + 1}", p, s_start=s, quasi_static=self.quasi_static, g=self.g))
+            massless_expansion, massless_body = CHAIN_LEVELS[self.level]
+            unit = b.add(APS(f"aps{i + 1}", p, s, massless_expansion, self.g, massless_body))
             tube = b.add(Restriction(f"tube{i + 1}", C=p.C_tube, b=p.b_tube, r_lam=p.r_lam))
             b.connect(tube.port_b, unit.port)
             if i == 0:
@@ -373,7 +385,7 @@ class Myofibril(Component):
             else:
                 b.connect(b.ports["port"], tube.port_a)
             units.append(unit)
-        damped = not self.quasi_static
+        damped = not CHAIN_LEVELS[self.level][1]  # thread damping needs body velocities
         top = b.add(Actin("actin0", self.params[0], upper=False, lower=True, damped=damped))
         b.connect(top.flange_b, units[0].body)
         b.connect(top.exp_b, units[0].exp)
@@ -396,11 +408,77 @@ class Myofibril(Component):
         return sum(p.unit_length_rest for p in self.params)
 
 
+class SeriesCopies(Component):
+    """``ratio`` identical copies in series of what hangs on ``flange_a``.
+
+    ``s_b = ratio s_a`` and ``f_a = -f_b``: every copy carries the same force and adds
+    its own stretch. Not passive on its own (the other copies do work); the energy
+    function of a model using it counts one copy.
+    """
+
+    def __init__(self, name: str, ratio: float) -> None:
+        super().__init__(name)
+        self.ratio = ratio
+
+    def build(self, b: Builder) -> None:
+        r = b.parameter("ratio", self.ratio, "1", "number of copies in series", low=1.0)
+        fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
+        b.equation(fb.s, r * fa.s)
+        b.equation(fa.f, -fb.f)
+
+
+class SymmetricMyofibril(Component):
+    """``n`` identical APS reduced to one representative unit (the "symmetric" level).
+
+    All units share one pressure, one expansion and one tension: the representative
+    APS (full internal dynamics) carries one unit length ``A + 2 r1(d)`` through an I-band
+    of stiffness ``n k_s / (n + 1)`` and damping ``n c_s / (n + 1)`` (the ``n + 1``
+    I-bands of the chain in series, per unit); :class:`SeriesCopies` of ratio ``n`` maps
+    it to the chain end.
+    The bodies are massless; their weight ``n m_body g / 2`` (the mean over the chain)
+    acts at the chain end. Ports and the ``length`` output as :class:`Myofibril`.
+    """
+
+    def __init__(self, name: str, n: int, params: APSParams, g: float = G_STANDARD) -> None:
+        super().__init__(name)
+        if not (isinstance(n, int) and 1 <= n <= 10_000):
+            raise ParameterError("n", n, "an integer in [1, 10000]")
+        self.n, self.p, self.g = n, params, g
+
+    def build(self, b: Builder) -> None:
+        n, p = self.n, self.p
+        unit = b.add(APS("aps1", replace(p, m_body=0.0), g=self.g, massless_body=True))
+        tube = b.add(Restriction("tube1", C=p.C_tube, b=p.b_tube, r_lam=p.r_lam))
+        b.connect(tube.port_b, unit.port)
+        b.expose("port", tube.port_a)
+        per_unit = n / (n + 1)
+        band = b.add(
+            Actin("actin", replace(p, k_s=per_unit * p.k_s, c_s=per_unit * p.c_s), True, True)
+        )
+        b.connect(band.flange_b, unit.body)
+        b.connect(band.exp_a, unit.exp)
+        b.connect(band.exp_b, unit.exp)
+        lever = b.add(SeriesCopies("chain", ratio=float(n)))
+        b.connect(band.flange_b, lever.flange_a)
+        end = b.add(Node("bodies", weight=0.5 * n * p.m_body * self.g))
+        b.connect(lever.flange_b, end.flange_a)
+        b.expose("flange_a", band.flange_a)
+        b.expose("flange_b", lever.flange_b)
+        b.output("length", lever.flange_b.s - band.flange_a.s, "m", "myofibril length")
+
+    @property
+    def rest_length(self) -> float:
+        """Geometric rest length ``n (A + 2 r1')`` [m]."""
+        return self.n * self.p.unit_length_rest
+
+
 __all__ = [
     "APS",
     "APSParams",
     "Actin",
     "Myofibril",
+    "SeriesCopies",
+    "SymmetricMyofibril",
     "YeohSpring",
     "thread_height",
 ]

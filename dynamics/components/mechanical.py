@@ -68,6 +68,23 @@ class Node(Component):
         b.energy("gravity", -w * fl.s)
 
 
+class ViscousNode(Component):
+    """A massless point held by viscous drag ``d`` [N s/m] to the ground: first order,
+    ``d ds/dt = f`` with ``f`` the sum of the forces of what is connected [N]."""
+
+    def __init__(self, name: str, d: float, s_start: float = 0.0) -> None:
+        super().__init__(name)
+        self.d, self.s_start = d, s_start
+
+    def build(self, b: Builder) -> None:
+        d = b.parameter("d", self.d, "N*s/m", "viscous drag to the ground", low=1e-12)
+        s = b.state("s", self.s_start, "m", "position")
+        fl = b.port("flange_a", FLANGE)
+        b.equation(fl.s, s)
+        b.der(s, fl.f / d)
+        b.dissipation("damping", fl.f**2 / d)
+
+
 class _Compliant(Component):
     """Base of two-flange transport elements: relative position s_rel = s_b - s_a."""
 
@@ -152,4 +169,5 @@ __all__ = [
     "Node",
     "PositionSensor",
     "Spring",
+    "ViscousNode",
 ]
