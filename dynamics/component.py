@@ -212,12 +212,24 @@ class Builder:
         """``lhs == rhs`` (stored as the residual ``lhs - rhs``)."""
         self._c.equations.append((cs.SX(lhs) - rhs, self.path or "<system>"))
 
-    def output(self, name: str, expr: cs.SX, unit: str, description: str) -> None:
-        """A named output ``<path>.<name>`` [unit] computed from the other variables."""
+    def output(
+        self,
+        name: str,
+        expr: cs.SX,
+        unit: str,
+        description: str,
+        low: float = -math.inf,
+        high: float = math.inf,
+    ) -> None:
+        """A named output ``<path>.<name>`` [unit] computed from the other variables.
+
+        ``low``/``high`` bound its physical domain: equilibria and simulations that leave
+        it are reported, not returned.
+        """
         full = f"{self.path}.{name}" if self.path else name
         if full in self._c.outputs or full in self._c.variables:
             raise ModelError(f"output '{full}' declared twice")
-        self._c.variables[full] = Var(full, "output", unit, description)
+        self._c.variables[full] = Var(full, "output", unit, description, low=low, high=high)
         self._c.outputs[full] = cs.SX(expr)
 
     def energy(self, name: str, expr: cs.SX) -> None:

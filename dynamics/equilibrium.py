@@ -100,8 +100,6 @@ class _Fail(Exception):
 
 
 _SOLVERS: dict[int, _Newton] = {}
-THETA_MIN_RAD = 1e-2
-"""Smallest thread angle [rad] accepted at an equilibrium (cos theta = 2 r2 / l)."""
 
 
 def solve_equilibrium(
@@ -136,9 +134,15 @@ def solve_equilibrium(
             raise SolverError(f"'{k}' is not an input of model '{m.name}'")
         u_target[i] = float(v)
     p_target = m.parameters(params)
-    if guess is None:
-        w = np.concatenate([m.x0(), m.z0()])
+    if guess is None:  # first the model's own operating point, then continue from it
         u_start, p_start = m.u0(), m.parameters()
+        try:
+            w = newton.solve(np.concatenate([m.x0(), m.z0()]), u_start, p_start, tol, max_iter)[0]
+            _check_domain(newton, w, u_start, p_start)
+        except _Fail as f:
+            raise SolverError(
+                f"no equilibrium of '{m.name}' at its start values: {f.why}"
+            ) from None
     else:
         w = np.concatenate([guess.x, guess.z])
         u_start, p_start = guess.u, guess.p
@@ -150,7 +154,7 @@ def solve_equilibrium(
         p = p_start + nxt * (p_target - p_start)
         try:
             w_new, res, its = newton.solve(w, u, p, tol, max_iter)
-            _check_domain(m, w_new)
+            _check_domain(newton, w_new, u, p)
         except _Fail as f:
             last = (f.residual, f.iterations, f.why)
             step /= 2
@@ -166,13 +170,6 @@ def solve_equilibrium(
     x, z = w[: m.nx], w[m.nx :]
     vals = np.array(newton.sig(x, z, u_target, p_target)).ravel()
     signals = dict(zip(m.signal_names, vals.tolist(), strict=True))
-    for name, v in signals.items():
-        if name.rsplit(".", 1)[-1].startswith("theta_") and v < THETA_MIN_RAD:
-            raise SolverError(
-                f"equilibrium of '{m.name}' has the thread pulled straight: {name} = "
-                f"{np.degrees(v):.3g} deg (< {np.degrees(THETA_MIN_RAD):.2g} deg); the "
-                "expansion exceeds what the thread geometry allows (lower the pressure)"
-            )
     return Equilibrium(
         x,
         z,
@@ -184,9 +181,29 @@ def solve_equilibrium(
     )
 
 
-def _check_domain(m: Model, w: np.ndarray) -> None:
-    """Reject solutions outside the physical domain (raises _Fail to shrink the step)."""
-    x = w[: m.nx]
-    for i, name in enumerate(m.state_names):
-        if name.endswith("m_air") and x[i] <= 0:
-            raise _Fail(f"negative air mass in {name}", np.inf, 0)
+def _check_domain(newton: _Newton, w: np.ndarray, u: np.ndarray, p: np.ndarray) -> None:
+    """Reject a root outside the physical domain of any bounded signal (raises _Fail, so
+    the continuation step shrinks)."""
+    m = newton.model
+    bad = out_of_domain(m, np.array(newton.sig(w[: m.nx], w[m.nx :], u, p)).ravel()[:, None])
+    if bad:
+        raise _Fail(bad, np.inf, 0)
+
+
+def out_of_domain(model: Model, values: np.ndarray) -> str:
+    """A message naming the first signal outside its ``[low, high]`` bounds, or "".
+
+    ``values``: signals in ``model.signal_names`` order, shape (n_signals, n_points).
+    """
+    for i, name in enumerate(model.signal_names):
+        var = model.variables[name]
+        if var.low == -np.inf and var.high == np.inf:
+            continue
+        row = values[i]
+        out = np.flatnonzero((row < var.low) | (row > var.high))
+        if out.size:
+            return (
+                f"{name} = {row[out[0]]:.4g} {var.unit} is outside its physical domain "
+                f"[{var.low:.4g}, {var.high:.4g}] ({var.description})"
+            )
+    return ""

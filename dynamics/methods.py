@@ -6,7 +6,7 @@ method     what                                                       needs
 rk4        classic explicit Runge-Kutta, 4 stages, order 4             ``step``
 euler      explicit Euler, order 1 (a stability yardstick)             ``step``
 collocation CasADi ``integrator("collocation")``, Radau points         ``step``
-radau_fixed Radau IIA (``casadi.simpleIRK``, 3 points: order 5)         ``step``
+radau_fixed Radau IIA, 3 points (order 5), Newton on SX residuals         ``step``
 scipy_rk45 ``scipy.integrate.RK45`` (Dormand-Prince, explicit)         rtol, atol
 scipy_radau ``scipy.integrate.Radau`` with the exact sparse Jacobian    rtol, atol
 scipy_bdf  ``scipy.integrate.BDF`` with the exact sparse Jacobian       rtol, atol
@@ -335,15 +335,16 @@ def step_grid(
 
 
 def _march(
-    prob: Problem, step: cs.Function, n_stage_rhs: int | None
+    prob: Problem, step: cs.Function, rhs_per_step: int | None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Run a one-step Function ``(x, t, h, p, seg) -> x_next`` over every segment."""
+    """Run a one-step Function ``(x, z, t, h, p, seg) -> (x_next, z_next)`` everywhere."""
     m, s = prob.model, prob.settings
     h = _require_step(prob)
-    chunk = step.mapaccum("chunk", CHUNK_STEPS)
+    chunk = step.mapaccum("chunk", CHUNK_STEPS, [0, 1], [0, 1])
     X = np.empty((len(prob.t_out), m.nx))
-    X[0] = prob.x0
-    x = prob.x0.copy()
+    Z = np.empty((len(prob.t_out), m.nz))
+    X[0], Z[0] = prob.x0, prob.z0
+    x, z = prob.x0.copy(), prob.z0.copy()
     n_steps, h_max, n_seg = 0, 0.0, 0
     for a, b, grid in prob.segments():
         starts, sizes, out_idx = step_grid(a, b, grid, h)
@@ -354,52 +355,53 @@ def _march(
                 a,
                 x,
             )
-        traj = _run_chunks(prob, chunk, x, starts, sizes, _seg(a, b))
-        X[np.searchsorted(prob.t_out, grid)] = traj[out_idx]
-        x = traj[-1]
+        xs, zs = _run_chunks(prob, chunk, (x, z), starts, sizes, _seg(a, b))
+        idx = np.searchsorted(prob.t_out, grid)
+        X[idx], Z[idx] = xs[out_idx], zs[out_idx]
+        x, z = xs[-1], zs[-1]
         n_steps += len(starts)
         h_max = max(h_max, float(sizes.max()))
         n_seg += 1
     prob.stats.update(
         n_steps=n_steps,
-        n_rhs=None if n_stage_rhs is None else n_stage_rhs * n_steps,
-        n_jac=0 if n_stage_rhs is not None else None,
+        n_rhs=None if rhs_per_step is None else rhs_per_step * n_steps,
+        n_jac=None if rhs_per_step is None else 0,
         n_segments=n_seg,
         max_step_s=h_max,
     )
-    return X, np.zeros((len(prob.t_out), 0))
+    return X, Z
 
 
 def _run_chunks(
     prob: Problem,
     chunk: cs.Function,
-    x: np.ndarray,
+    xz: tuple[np.ndarray, np.ndarray],
     starts: np.ndarray,
     sizes: np.ndarray,
     seg: np.ndarray,
-) -> np.ndarray:
-    """States after each step, shape (len(starts), nx); padding steps have h = 0."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """States and algebraic unknowns after each step; padding steps have h = 0."""
     n = len(starts)
     pad = (-n) % CHUNK_STEPS
     T = np.concatenate([starts, np.full(pad, starts[-1])])
     H = np.concatenate([sizes, np.zeros(pad)])
-    out = np.empty((n + pad, len(x)))
+    x, z = xz
+    xs, zs = np.empty((n + pad, len(x))), np.empty((n + pad, len(z)))
     for k in range(0, n + pad, CHUNK_STEPS):
         sl = slice(k, k + CHUNK_STEPS)
         try:
-            Xk = np.array(chunk(x, T[None, sl], H[None, sl], prob.p, seg)).T
+            Xk, Zk = (np.array(v).T for v in chunk(x, z, T[None, sl], H[None, sl], prob.p, seg))
         except RuntimeError as exc:
             raise prob.fail(_casadi_cause(str(exc)), float(T[k]), x) from None
-        bad = ~np.all(np.isfinite(Xk), axis=1)
+        bad = ~(np.all(np.isfinite(Xk), axis=1) & np.all(np.isfinite(Zk), axis=1))
         if bad.any():
             i = int(np.argmax(bad))
             before = Xk[i - 1] if i else x
-            raise prob.fail(
-                "the state became non-finite (blew up)", float(T[k + i] + H[k + i]), before
-            )
-        out[sl] = Xk
-        x = Xk[-1]
-    return out[:n]
+            t_bad = float(T[k + i] + H[k + i])
+            raise prob.fail("the state became non-finite (blew up)", t_bad, before)
+        xs[sl], zs[sl] = Xk, Zk
+        x, z = Xk[-1], Zk[-1]
+    return xs[:n], zs[:n]
 
 
 def _casadi_cause(msg: str) -> str:
@@ -408,8 +410,11 @@ def _casadi_cause(msg: str) -> str:
     return msg.strip().splitlines()[-1][:300]
 
 
+_STEP_ARGS = ["x", "z", "t", "h", "p", "seg"]
+
+
 def _explicit_step(dae: SegmentDAE, scheme: ExplicitScheme) -> cs.Function:
-    """``(x, t, h, p, seg) -> x_next`` for an explicit Runge-Kutta tableau."""
+    """``(x, z, t, h, p, seg) -> (x_next, z)`` for an explicit Runge-Kutta tableau."""
     h = cs.SX.sym("h")
     f = dae.rhs()
     k = []
@@ -419,10 +424,10 @@ def _explicit_step(dae: SegmentDAE, scheme: ExplicitScheme) -> cs.Function:
     x_next = dae.x + h * sum(bi * ki for bi, ki in zip(scheme.b, k, strict=True))
     return cs.Function(
         scheme.name,
-        [dae.x, dae.t, h, dae.p, dae.seg],
-        [x_next],
-        ["x", "t", "h", "p", "seg"],
-        ["xf"],
+        [dae.x, dae.z, dae.t, h, dae.p, dae.seg],
+        [x_next, dae.z],
+        _STEP_ARGS,
+        ["xf", "zf"],
     )
 
 
@@ -432,15 +437,15 @@ def _explicit(prob: Problem, scheme: ExplicitScheme) -> tuple[np.ndarray, np.nda
     opts = _options(prob, {"on_unstable": "warn"})
     h_used = max(float(step_grid(a, b, grid, h)[1].max()) for a, b, grid in prob.segments())
     _guard(prob, scheme, h_used, opts["on_unstable"])
-    return _march(
-        prob, _cached_step(prob, scheme.name, lambda d: _explicit_step(d, scheme)), len(scheme.c)
-    )
+    step = _cached(prob, scheme.name, lambda d: _explicit_step(d, scheme))
+    return _march(prob, step, len(scheme.c))
 
 
 _STEP_CACHE: dict = {}
 
 
-def _cached_step(prob: Problem, kind: object, build) -> cs.Function:
+def _cached(prob: Problem, kind: object, build) -> cs.Function:
+    """``build(segment_dae(prob))``, cached per DAE and ``kind``."""
     dae = segment_dae(prob)
     key = (id(dae), kind)
     hit = _STEP_CACHE.get(key)
@@ -464,91 +469,159 @@ def _euler(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
 
 
 # --- implicit fixed-step ----------------------------------------------------------------
-def _radau_step(dae: SegmentDAE, points: int) -> cs.Function:
-    """``(x, t, h, p, seg) -> x_next``: one Radau IIA step (``casadi.simpleIRK``).
+NEWTON_TOL = 1e-3
+"""Newton tolerance of the implicit fixed-step methods, in units of the error weight
+``rtol max(|x_n|, |x_n + h f_n|) + atol`` (the unknowns are scaled by that weight)."""
 
-    Time is appended to the state (``dt/dt = 1``) so that the inputs see each
-    collocation point's time; the segment bounds ride along with the parameters.
+
+@dataclass(frozen=True)
+class _ScaledStep:
+    """One step on ``[t_n, t_n + h]`` in normalised time ``tau`` and weighted unknowns.
+
+    ``x = w_x xi``, ``z = w_z zeta``, ``t = t_n + h tau``: every unknown is O(1/rtol)
+    whatever its unit, so one absolute Newton tolerance fits air masses (1e-6 kg)
+    and pressures (1e5 Pa) alike.
     """
-    xa = cs.vertcat(dae.x, dae.t)
-    f = cs.Function("f_aug", [xa, dae.p_seg], [cs.vertcat(dae.ode, 1)])
-    irk = cs.simpleIRK(f, 1, points, "radau", "newton", {"max_iter": 50, "abstolStep": 1e-14})
-    xs = cs.MX.sym("x", dae.x.numel())
-    ts, hs = cs.MX.sym("t"), cs.MX.sym("h")
-    ps, segs = cs.MX.sym("p", dae.p.numel()), cs.MX.sym("seg", 2)
-    xf = irk(cs.vertcat(xs, ts), cs.vertcat(ps, segs), hs)[: dae.x.numel()]
-    return cs.Function("radau", [xs, ts, hs, ps, segs], [xf], ["x", "t", "h", "p", "seg"], ["xf"])
+
+    xi: cs.SX
+    zeta: cs.SX
+    tau: cs.SX
+    P: cs.SX
+    ode: cs.SX
+    alg: cs.SX
+
+    @classmethod
+    def of(cls, dae: SegmentDAE) -> _ScaledStep:
+        nx, nz = dae.x.numel(), dae.z.numel()
+        xi, zeta, tau = cs.SX.sym("xi", nx), cs.SX.sym("zeta", nz), cs.SX.sym("tau")
+        tn, h = cs.SX.sym("t_n"), cs.SX.sym("h")
+        wx, wz = cs.SX.sym("w_x", nx), cs.SX.sym("w_z", nz)
+        ode, alg = cs.substitute(
+            [dae.ode, dae.alg], [dae.t, dae.x, dae.z], [tn + h * tau, wx * xi, wz * zeta]
+        )
+        P = cs.vertcat(dae.p, dae.seg, tn, h, wx, wz)
+        return cls(xi, zeta, tau, P, h * ode / wx, alg)
+
+
+def _implicit_step(dae: SegmentDAE, one_step, tol: tuple[float, float]) -> cs.Function:
+    """``(x, z, t, h, p, seg) -> (x_next, z_next)`` around a normalised scaled step.
+
+    ``one_step(xi0, zeta0, P) -> (xi1, zeta1)`` solves the step in scaled unknowns.
+    """
+    rtol, atol = tol
+    nx, nz, n_p = dae.x.numel(), dae.z.numel(), dae.p.numel()
+    x, z = cs.MX.sym("x", nx), cs.MX.sym("z", nz)
+    t, h, p, seg = cs.MX.sym("t"), cs.MX.sym("h"), cs.MX.sym("p", n_p), cs.MX.sym("seg", 2)
+    f = cs.Function("f", [dae.t, dae.x, dae.z, dae.p, dae.seg], [dae.ode])
+    wx = rtol * cs.fmax(cs.fabs(x), cs.fabs(x + h * f(t, x, z, p, seg))) + atol
+    wz = rtol * cs.fabs(z) + atol
+    xi1, zeta1 = one_step(x / wx, z / wz, cs.vertcat(p, seg, t, h, wx, wz))
+    return cs.Function(
+        "implicit_step", [x, z, t, h, p, seg], [wx * xi1, wz * zeta1], _STEP_ARGS, ["xf", "zf"]
+    )
+
+
+def _newton_options() -> dict:
+    return {
+        "abstol": NEWTON_TOL,
+        "abstolStep": NEWTON_TOL,
+        "max_iter": 50,
+        "linear_solver": "csparse",
+    }
+
+
+def _radau_one_step(dae: SegmentDAE, points: int):
+    """Radau IIA collocation equations in SX, solved by ``casadi.rootfinder`` (Newton).
+
+    Unknowns: the scaled states at the ``points`` Radau points (``casadi.collocation_points``);
+    residuals ``ode(x_j, tau_j) - sum_r C[r, j] x_r`` with ``C`` from
+    ``casadi.collocation_coeff``. The last Radau point is the step end.
+    """
+    sc = _ScaledStep.of(dae)
+    nx = sc.xi.numel()
+    tau = cs.collocation_points(points, "radau")
+    C = cs.collocation_coeff(tau)[0]
+    V = cs.SX.sym("V", nx, points)
+    xi0 = cs.SX.sym("xi0", nx)
+    Xall = cs.horzcat(xi0, V)
+    f = cs.Function("f", [sc.xi, sc.tau, sc.P], [sc.ode])
+    res = [f(V[:, j], tau[j], sc.P) - cs.mtimes(Xall, C[:, j]) for j in range(points)]
+    resid = cs.Function("radau_residual", [cs.vec(V), xi0, sc.P], [cs.vertcat(*res)])
+    rf = cs.rootfinder("radau_newton", "newton", resid, _newton_options())
+
+    def one_step(xi0, zeta0, P):
+        return rf(cs.repmat(xi0, points, 1), xi0, P)[-nx:], zeta0
+
+    return one_step
+
+
+def _collocation_one_step(dae: SegmentDAE, order: int, scheme: str):
+    """One element of CasADi's ``collocation`` integrator (ODE or DAE)."""
+    sc = _ScaledStep.of(dae)
+    spec = {"x": sc.xi, "p": sc.P, "t": sc.tau, "ode": sc.ode}
+    if sc.zeta.numel():
+        spec.update(z=sc.zeta, alg=sc.alg)
+    F = cs.integrator(
+        "collocation_step",
+        "collocation",
+        spec,
+        0.0,
+        1.0,
+        {
+            "number_of_finite_elements": 1,
+            "interpolation_order": order,
+            "collocation_scheme": scheme,
+            "rootfinder_options": _newton_options(),
+        },
+    )
+
+    def one_step(xi0, zeta0, P):
+        res = F(x0=xi0, z0=zeta0, p=P)
+        return res["xf"], res["zf"]
+
+    return one_step
+
+
+def _tol(prob: Problem) -> tuple[float, float]:
+    return prob.settings.rtol, prob.settings.atol
 
 
 @register_method("radau_fixed")
 def _radau_fixed(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """Fixed-step Radau IIA; option ``points`` (default 3: order 5)."""
+    """Fixed-step Radau IIA; option ``points`` (default 3: order 5).
+
+    ``rtol`` and ``atol`` set the Newton tolerance (:data:`NEWTON_TOL`), not the step.
+    """
     _require_ode(prob)
     _require_step(prob)
     points = int(_options(prob, {"points": 3})["points"])
     if not 1 <= points <= 9:
         raise ParameterError("solver.options.points", points, "1..9 Radau points")
-    step = _cached_step(prob, ("radau", points), lambda d: _radau_step(d, points))
+    tol = _tol(prob)
+    step = _cached(
+        prob, ("radau", points, tol), lambda d: _implicit_step(d, _radau_one_step(d, points), tol)
+    )
     return _march(prob, step, None)
-
-
-_COLLOCATION_CACHE: dict = {}
 
 
 @register_method("collocation")
 def _collocation(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """CasADi's collocation integrator on a fixed grid (ODE or DAE).
+    """CasADi's ``collocation`` integrator, one element per fixed step (ODE or DAE).
 
     Options ``interpolation_order`` (default 3) and ``collocation_scheme`` (default
-    "radau") go to CasADi; ``number_of_finite_elements`` per segment is
-    ``ceil((b - a) / step)`` and CasADi adds elements to land on output times.
+    "radau": Radau IIA, order 5 with 3 points). ``rtol`` and ``atol`` set the Newton
+    tolerance (:data:`NEWTON_TOL`), not the step.
     """
-    m = prob.model
-    h = _require_step(prob)
+    _require_step(prob)
     opts = _options(prob, {"interpolation_order": 3, "collocation_scheme": "radau"})
-    dae = segment_dae(prob)
-    spec = {"x": dae.x, "p": dae.p_seg, "t": dae.t, "ode": dae.ode}
-    if m.nz:
-        spec.update(z=dae.z, alg=dae.alg)
-    X = np.empty((len(prob.t_out), m.nx))
-    Z = np.empty((len(prob.t_out), m.nz))
-    X[0], Z[0] = prob.x0, prob.z0
-    x, z = prob.x0, prob.z0
-    n_steps = n_seg = 0
-    for a, b, grid in prob.segments():
-        times = tuple(grid) if len(grid) and grid[-1] == b else (*grid, b)
-        nfe = max(1, math.ceil((b - a) / h * (1.0 - 1e-12)))
-        if nfe > prob.settings.max_steps:
-            raise prob.fail(f"{nfe} steps needed, more than max_steps", a, x)
-        key = (id(dae), a, times, nfe, tuple(sorted(opts.items())))
-        hit = _COLLOCATION_CACHE.get(key)
-        if hit is None or hit[0] is not dae:
-            F = cs.integrator(
-                "collocation",
-                "collocation",
-                spec,
-                a,
-                list(times),
-                {**opts, "number_of_finite_elements": nfe},
-            )
-            if len(_COLLOCATION_CACHE) > 256:
-                _COLLOCATION_CACHE.clear()
-            hit = _COLLOCATION_CACHE[key] = (dae, F)
-        F = hit[1]
-        try:
-            res = F(x0=x, z0=z, p=np.concatenate([prob.p, _seg(a, b)]))
-        except RuntimeError as exc:
-            raise prob.fail(_casadi_cause(str(exc)), a, x) from None
-        xf = np.array(res["xf"])
-        zf = np.array(res["zf"]) if m.nz else np.zeros((0, len(times)))
-        idx = np.searchsorted(prob.t_out, grid)
-        X[idx] = xf[:, : len(grid)].T
-        Z[idx] = zf[:, : len(grid)].T
-        x, z = xf[:, -1], zf[:, -1]
-        n_steps += int(F.stats().get("n_call_step", 0))
-        n_seg += 1
-    prob.stats.update(n_steps=n_steps, n_rhs=None, n_jac=None, n_segments=n_seg)
-    return X, Z
+    order, scheme = int(opts["interpolation_order"]), str(opts["collocation_scheme"])
+    tol = _tol(prob)
+    step = _cached(
+        prob,
+        ("collocation", order, scheme, tol),
+        lambda d: _implicit_step(d, _collocation_one_step(d, order, scheme), tol),
+    )
+    return _march(prob, step, None)
 
 
 # --- scipy baselines --------------------------------------------------------------------
@@ -618,10 +691,10 @@ def _scipy(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
     if opts["call"] not in _CALLS:
         raise ParameterError("solver.options.call", opts["call"], sorted(_CALLS))
     cls, jac_kind = _SCIPY[s.method]
-    fun = _CALLS[opts["call"]](_cached_step(prob, "rhs", SegmentDAE.rhs), prob.p)
+    fun = _CALLS[opts["call"]](_cached(prob, "rhs", SegmentDAE.rhs), prob.p)
     jcall = None
     if jac_kind:
-        Jf = _cached_step(prob, "jac", SegmentDAE.jac)
+        Jf = _cached(prob, "jac", SegmentDAE.jac)
         jcall = _CALLS[opts["call"]](Jf, prob.p)
     X = np.empty((len(prob.t_out), m.nx))
     X[0] = prob.x0
@@ -638,8 +711,8 @@ def _scipy(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
         solver = cls(fun, a, x, b, **kwargs)
         x = _scipy_segment(prob, solver, grid, X, stats)
         stats["n_rhs"] += solver.nfev
-        stats["n_jac"] += getattr(solver, "njev", 0)
-        stats["n_lu"] += getattr(solver, "nlu", 0)
+        stats["n_jac"] += int(getattr(solver, "njev", 0))
+        stats["n_lu"] += int(getattr(solver, "nlu", 0))
         stats["n_segments"] += 1
     prob.stats.update(stats)
     return X, np.zeros((len(prob.t_out), 0))

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import casadi as cs
 import numpy as np
 
+from .equilibrium import out_of_domain
 from .errors import ParameterError, SolverError
 from .model import Model
 from .results import Result
@@ -234,6 +235,9 @@ def _result(prob: Problem, X: np.ndarray, Z: np.ndarray, wall: float) -> Result:
         raise prob.fail(
             f"state '{m.state_names[bad[1]]}' became non-finite", prob.t_out[bad[0]], X[bad[0] - 1]
         )
+    bad = out_of_domain(m, S)
+    if bad:
+        raise prob.fail(f"left the physical domain: {bad}", float(prob.t_out[-1]), X[-1])
     signals = {n: S[i] for i, n in enumerate(m.signal_names)}
     units = {n: m.unit(n) for n in m.signal_names}
     meta = {

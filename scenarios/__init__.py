@@ -9,15 +9,26 @@ for its ``kind`` and writes ``summary.json``, CSV time series and PNG plots.
 'paper'
 """
 
-from . import static  # noqa: F401  (registers the "static" kind)
+from . import dynamic, static  # noqa: F401  (register the kinds)
 from .loader import load_scenario, packaged_scenarios, parse_scenario, resolve_scenario
 from .output import RunOutput, quantity_tag
 from .runner import register_runner, run, runner_kinds
-from .signals import SIGNAL_TYPES, Ramp, Signal, Sine, Staircase, Step, Table, signal_from_spec
+from .signals import (
+    SIGNAL_TYPES,
+    Chirp,
+    Ramp,
+    Signal,
+    Sine,
+    Staircase,
+    Step,
+    Table,
+    signal_from_spec,
+)
 from .spec import Scenario
 
 __all__ = [
     "SIGNAL_TYPES",
+    "Chirp",
     "Ramp",
     "RunOutput",
     "Scenario",

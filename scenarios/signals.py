@@ -271,6 +271,67 @@ class Sine(Signal):
 
 
 @dataclass(frozen=True, kw_only=True)
+class Chirp(Signal):
+    """Linear sine sweep from ``f0`` to ``f1`` over ``duration`` from ``start`` on.
+
+    ``offset + amplitude sin(2 pi (f0 tau + (f1 - f0) tau^2 / (2 duration)))`` with
+    ``tau = clamp(t - start, 0, duration)``; held at ``offset`` before ``start`` and at its
+    end value after the sweep (the slope jumps at both ends).
+
+    Parameters
+    ----------
+    amplitude, offset : float
+        In ``unit``.
+    f0, f1 : float
+        Start and end frequency, Hz (>= 0).
+    duration : float
+        Sweep time, s (> 0).
+    start : float
+        Start time, s.
+
+    Examples
+    --------
+    >>> round(Chirp(amplitude=1.0, f0=1.0, f1=1.0, duration=2.0)(0.25), 12)
+    1.0
+    """
+
+    amplitude: float
+    f0: float
+    f1: float
+    duration: float
+    offset: float = 0.0
+    start: float = 0.0
+    spec_keys: ClassVar[dict[str, str]] = {
+        "amplitude": "value",
+        "f0": "Hz",
+        "f1": "Hz",
+        "duration": "s",
+        "offset": "value",
+        "start": "s",
+    }
+
+    def __post_init__(self) -> None:
+        if not (self.f0 >= 0 and self.f1 >= 0):
+            raise ParameterError("f0/f1", (self.f0, self.f1), "frequencies >= 0 Hz")
+        if not self.duration > 0:
+            raise ParameterError("duration", self.duration, "a duration > 0 s")
+
+    def _phase(self, tau):
+        return 2.0 * math.pi * (self.f0 * tau + 0.5 * (self.f1 - self.f0) * tau**2 / self.duration)
+
+    def __call__(self, t: float | np.ndarray) -> float | np.ndarray:
+        tau = np.clip(np.asarray(t, float) - self.start, 0.0, self.duration)
+        return _shaped(t, self.offset + self.amplitude * np.sin(self._phase(tau)))
+
+    def breakpoints(self, t0: float, tf: float) -> list[float]:
+        return _inside([self.start, self.start + self.duration], t0, tf)
+
+    def casadi(self, t: ca.SX | ca.MX) -> ca.SX | ca.MX:
+        tau = ca.fmin(ca.fmax(t - self.start, 0.0), self.duration)
+        return self.offset + self.amplitude * ca.sin(self._phase(tau))
+
+
+@dataclass(frozen=True, kw_only=True)
 class Table(Signal):
     """Linear interpolation in a table of (time, value); end values held outside it.
 
@@ -411,6 +472,7 @@ SIGNAL_TYPES: dict[str, type[Signal]] = {
     "ramp": Ramp,
     "staircase": Staircase,
     "sine": Sine,
+    "chirp": Chirp,
     "table": Table,
 }
 

@@ -154,6 +154,11 @@ class APSParams:
         return self.A_band + 2 * self.r1_rest
 
 
+THETA_MIN_RAD = 1e-2
+"""Smallest physical thread angle [rad]: below it the thread is taken as pulled straight
+(the taut height r1 is floored there, see :func:`thread_height`)."""
+
+
 def thread_height(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
     """Taut height ``r1`` [m] of one thread V for expansion ``d`` [m].
 
@@ -198,7 +203,7 @@ class YeohSpring(Component):
         force = cs.gradient(energy, fb.s)
         b.equation(fb.f, force)
         b.equation(fa.f, -force)
-        b.output("lambda", lam, "1", "junction-zone stretch")
+        b.output("lambda", lam, "1", "junction-zone stretch", low=0.0)
         b.output("f", force, "N", "restoring force")
         b.energy("elastic", energy)
 
@@ -257,7 +262,10 @@ class Actin(Component):
                     f"theta_{side[-1]}",
                     cs.acos(cos_theta),
                     "rad",
-                    "thread angle, cos(theta) = 2 r2 / l (paper)",
+                    "thread angle, cos(theta) = 2 r2 / l (paper); at its lower bound the thread "
+                    "is pulled straight, at its upper bound the anchors meet",
+                    low=THETA_MIN_RAD,
+                    high=0.5 * math.pi,
                 )
         e = fb.s - fa.s - L_geo
         sp = 0.5 * (e + cs.sqrt(e**2 + eps**2))

@@ -211,7 +211,7 @@ class Chamber(Component):
         b.der(m, port.m_flow)
         b.equation(port.p, p)
         b.equation(wall.f, -(p - p_amb) * A)
-        b.output("p", p, "Pa", "absolute pressure")
+        b.output("p", p, "Pa", "absolute pressure", low=0.0)
         b.output("p_gauge", p - p_amb, "Pa", "gauge pressure")
         b.output("V", V, "m^3", "volume")
         b.energy("gas", e_gas + p_amb * V)

@@ -194,8 +194,16 @@ def test_bad_inputs_name_the_value():
 
 def test_equilibrium_reports_thread_pulled_straight():
     m = hanging_load(1, load_kg=0.0)
-    with pytest.raises(SolverError, match="pulled straight|not found"):
-        solve_equilibrium(m, {P: 5.0e6}, max_iter=30)
+    with pytest.raises(SolverError, match=r"theta_b = .* outside its physical domain.*straight"):
+        solve_equilibrium(m, {P: 5.0e6}, {"regulator.p_max": 5.0e6})
+
+
+def test_equilibrium_from_scratch_stays_on_the_physical_branch():
+    """A direct solve at 20 kPa once found lambda < 0 (a root outside the domain)."""
+    m = hanging_load(3, load_kg=0.05)
+    e = solve_equilibrium(m, {P: 0.02e6})
+    assert all(0.5 < e[f"myofibril.aps{i}.yeoh.lambda"] < 1.5 for i in (1, 2, 3))
+    assert e["myofibril.length"] < solve_equilibrium(m, {P: 0.0})["myofibril.length"]
 
 
 def test_solver_failure_names_time_and_cause(hang3):

@@ -1,0 +1,401 @@
+"""Scenario kinds on the lumped dynamic model: "equilibrium" sweeps and "transient" runs.
+
+``[model]`` for ``name = "myofibril"``: ``n``, ``material``, ``fidelity`` (one of
+:data:`~sarcomere.dynamics.assemblies.FIDELITIES`, or ``"auto"`` for transients), and
+``[model.options]``:
+
+- ``setup``: ``"hanging"`` (a load hangs from the chain end, default) or ``"isometric"``
+  (the chain end is held by a force sensor on a fixture);
+- ``load``: the hanging mass ("50 g"); ``regulator_tau``: the regulator lag ("50 ms");
+- ``fixture_stiffness`` ("2000 N/m", default rigid) and ``fixture_gap`` ("1 mm").
+
+``[parameters]``: ``aps.<field>`` sets an :class:`~sarcomere.dynamics.components.aps.APSParams`
+field for every unit ("aps.k_s" = "400 N/m"); any other key is a model parameter path
+("load.m", "myofibril.tube1.C").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from sarcomere.dynamics.assemblies import FIDELITIES, hanging_load, isometric
+from sarcomere.dynamics.components.aps import APSParams
+from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError, SarcomereError
+from sarcomere.dynamics.model import Model
+from sarcomere.dynamics.results import Result
+from sarcomere.dynamics.simulate import SolverSettings, simulate
+from sarcomere.dynamics.units import to_si
+
+from .output import RunOutput, quantity_tag
+from .runner import register_runner
+from .spec import Scenario, describe, unknown_key
+
+P_CMD = "regulator.p_cmd"
+OPTIONS = {  # option -> SI unit ("" for text)
+    "setup": "",
+    "load": "kg",
+    "regulator_tau": "s",
+    "fixture_stiffness": "N/m",
+    "fixture_gap": "m",
+}
+INPUT_ALIASES = {"pressure": P_CMD}
+
+
+@dataclasses.dataclass(frozen=True)
+class Binding:
+    """A scenario's model settings in SI: what to build and the parameter overrides."""
+
+    setup: str
+    n: int
+    aps: APSParams
+    load_kg: float
+    regulator_tau: float
+    fixture_stiffness: float | None
+    fixture_gap: float
+    overrides: dict
+
+    def build(self, fidelity: str, n: int | None = None) -> Model:
+        """Flatten the model for one fidelity level (and optionally another n)."""
+        n = self.n if n is None else n
+        if self.setup == "isometric":
+            return isometric(
+                n,
+                self.aps,
+                fidelity,
+                self.fixture_stiffness,
+                self.fixture_gap,
+                regulator_tau=self.regulator_tau,
+            )
+        return hanging_load(n, self.aps, self.load_kg, fidelity, self.regulator_tau)
+
+
+def bind(sc: Scenario) -> Binding:
+    """Read ``[model]`` and ``[parameters]`` (see the module docstring)."""
+    if sc.model.name != "myofibril":
+        raise sc.error(("model", "name"), f"'{sc.model.name}' is not a model; use 'myofibril'")
+    opts = {}
+    for key, raw in sc.model.options.items():
+        if key not in OPTIONS:
+            raise sc.error(("model", "options", key), unknown_key(key, list(OPTIONS)))
+        try:
+            opts[key] = raw if OPTIONS[key] == "" else to_si(raw, OPTIONS[key], key)
+        except ParameterError as exc:
+            raise sc.error(("model", "options", key), describe(exc)) from None
+    setup = opts.get("setup", "hanging")
+    if setup not in ("hanging", "isometric"):
+        raise sc.error(("model", "options", "setup"), f"'{setup}': use 'hanging' or 'isometric'")
+    aps_fields = {f.name for f in dataclasses.fields(APSParams)} - {"sources"}
+    aps_over, model_over = {}, {}
+    for key, raw in sc.parameters.items():
+        group, _, name = key.partition(".")
+        if group == "aps":
+            if name not in aps_fields:
+                raise sc.parameter_error(key, unknown_key(name, sorted(aps_fields)))
+            unit = _APS_UNITS.get(name, "1")
+            try:
+                aps_over[name] = to_si(raw, unit, key)
+            except ParameterError as exc:
+                raise sc.parameter_error(key, describe(exc)) from None
+        else:
+            model_over[key] = raw
+    try:
+        aps = APSParams.from_paper(sc.model.material, **aps_over)
+    except ParameterError as exc:
+        raise sc.parameter_error(f"aps.{exc.name}", describe(exc)) from None
+    return Binding(
+        setup,
+        sc.model.n,
+        aps,
+        opts.get("load", 0.0),
+        opts.get("regulator_tau", 0.05),
+        opts.get("fixture_stiffness"),
+        opts.get("fixture_gap", 0.0),
+        model_over,
+    )
+
+
+_APS_UNITS = {
+    **dict.fromkeys(("l", "w0", "A_band", "h_jz", "L_r", "eps_slack"), "m"),
+    **dict.fromkeys(("A_r", "A_p"), "m^2"),
+    **dict.fromkeys(("C1", "C2", "C3"), "Pa"),
+    "k_s": "N/m",
+    "c_s": "N*s/m",
+    "c_e": "N*s/m",
+    "m_e": "kg",
+    "m_body": "kg",
+    "V0": "m^3",
+    "C_tube": "m^3/(s*Pa)",
+}
+
+
+def _fidelity(sc: Scenario, allow_auto: bool) -> str:
+    fid = sc.model.fidelity
+    allowed = FIDELITIES + (("auto",) if allow_auto else ())
+    if fid not in allowed:
+        raise sc.error(("model", "fidelity"), f"'{fid}' is not one of {', '.join(allowed)}")
+    return fid
+
+
+def _solve(sc: Scenario, model: Model, pressure: float, over: dict, guess):
+    try:
+        return solve_equilibrium(model, {P_CMD: pressure}, over, guess=guess)
+    except ParameterError as exc:
+        raise sc.parameter_error(exc.name, describe(exc)) from None
+
+
+# --- kind "equilibrium" -------------------------------------------------------------
+def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
+    """Sweep pressure (first axis) for each value of the other axes (``n`` or ``load``).
+
+    Isometric: the tared force ``force`` = F(P) - F(0) [N]. Hanging: ``length`` [m],
+    ``length_ratio`` = L / L' with L' = L(0 MPa, no load, same n) and the paper's
+    actuation strain ``strain`` = (L[P, load] - L[0, load]) / L[0, 0].
+    """
+    b = bind(sc)
+    fid = _fidelity(sc, allow_auto=False)
+    if not sc.sweep or sc.sweep[0].name != "pressure":
+        raise sc.error(("sweep",), "the first sweep axis must be 'pressure'")
+    pressures = np.asarray(sc.sweep[0].values)
+    others = sc.sweep[1:]
+    if len(others) > 1 or (others and others[0].name not in ("n", "load")):
+        raise sc.error(("sweep",), "at most one more axis, 'n' or 'load'")
+    axis = others[0] if others else None
+    cases = axis.values if axis else (None,)
+    results, metrics = {}, {}
+    for value in cases:
+        n = int(value) if axis is not None and axis.name == "n" else b.n
+        load = value if axis is not None and axis.name == "load" else b.load_kg
+        key, res, mets = _equilibrium_case(sc, b, fid, pressures, n, load)
+        results[key] = res
+        metrics.update(mets)
+    return RunOutput(
+        sc.name,
+        fid,
+        "damped Newton on the exact sparse Jacobian, continuation",
+        metrics=metrics,
+        results=results,
+        extra={"aps_params": _aps_dict(b.aps), "setup": b.setup},
+    )
+
+
+def _equilibrium_case(sc, b: Binding, fid, pressures, n, load):
+    model = b.build(fid, n)
+    over = dict(b.overrides)
+    if b.setup == "hanging":
+        over["load.m"] = model.variables["load.m"].value - b.load_kg + load
+    rest = _solve(sc, model, 0.0, {**over, **_no_load(model, b)}, None)
+    base = _solve(sc, model, 0.0, over, rest)
+    rows, guess = [], base
+    for p in pressures:
+        guess = _solve(sc, model, float(p), over, guess)
+        rows.append(guess)
+    chamber = np.array([e["myofibril.aps1.chamber.p_gauge"] for e in rows])
+    tag_p = quantity_tag(pressures[-1] / 1e6, "MPa")
+    if b.setup == "isometric":
+        force = np.array([e["sensor.f"] for e in rows]) - base["sensor.f"]
+        key = f"n{n}"
+        res = Result(
+            "pressure",
+            "Pa",
+            pressures,
+            {"force": force, "chamber_pressure": chamber},
+            {"force": "N", "chamber_pressure": "Pa"},
+        )
+        return key, res, {f"force_n{n}_{tag_p}_N": float(force[-1])}
+    L = np.array([e["myofibril.length"] for e in rows])
+    L00, L0 = rest["myofibril.length"], base["myofibril.length"]
+    grams = quantity_tag(load * 1e3, "g")
+    res = Result(
+        "pressure",
+        "Pa",
+        pressures,
+        {
+            "length": L,
+            "length_ratio": L / L00,
+            "strain": (L - L0) / L00,
+            "chamber_pressure": chamber,
+        },
+        {"length": "m", "length_ratio": "1", "strain": "1", "chamber_pressure": "Pa"},
+    )
+    mets = {
+        f"rest_length_n{n}_mm": L00 * 1e3,
+        f"length_ratio_{grams}_0MPa": L0 / L00,
+        f"length_ratio_{grams}_{tag_p}": float(L[-1] / L00),
+        f"strain_{grams}_{tag_p}": float((L[-1] - L0) / L00),
+    }
+    return f"load_{grams}", res, mets
+
+
+def _no_load(model: Model, b: Binding) -> dict:
+    if b.setup != "hanging":
+        return {}
+    return {"load.m": model.variables["load.m"].value - b.load_kg}
+
+
+def _aps_dict(p: APSParams) -> dict:
+    return {k: v for k, v in dataclasses.asdict(p).items() if k != "sources"}
+
+
+# --- kind "transient" ---------------------------------------------------------------
+def _inputs(sc: Scenario, model: Model) -> dict:
+    out = {}
+    for name, sig in sc.inputs.items():
+        target = INPUT_ALIASES.get(name, name)
+        if target not in model.input_names:
+            raise sc.error(
+                ("inputs", name), unknown_key(name, [*INPUT_ALIASES, *model.input_names])
+            )
+        out[target] = sig
+    return out
+
+
+def _settings(sc: Scenario, model: Model) -> SolverSettings:
+    s = sc.solver
+    method = s.method or "cvodes"
+    if method == "cvodes" and model.nz:  # a DAE level (static_chain): same BDF, DAE form
+        method = "idas"
+    kw = {k: v for k, v in (("rtol", s.rtol), ("atol", s.atol), ("step", s.step)) if v}
+    try:
+        return SolverSettings(method=method, options=tuple(s.options.items()), **kw)
+    except ParameterError as exc:
+        raise sc.error(("solver", exc.name.split(".")[-1]), describe(exc)) from None
+
+
+def _default_signals(model: Model) -> list[str]:
+    keep = ("regulator.p_cmd", "regulator.p_out", "myofibril.length", "load.s", "sensor.f")
+    suffix = (".chamber.p_gauge", ".expansion.s", ".T", ".e")
+    return [
+        n
+        for n in model.signal_names
+        if n in keep or (n.startswith("myofibril.") and n.endswith(suffix))
+    ]
+
+
+def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
+    model = b.build(fid)
+    inputs = _inputs(sc, model)
+    sim = sc.simulation
+    if sim is None:
+        raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
+    u0 = {k: float(sig(sim.start_time)) for k, sig in inputs.items()}
+    start = solve_equilibrium(model, u0, b.overrides)
+    res = simulate(
+        model,
+        sim.stop_time,
+        inputs,
+        b.overrides,
+        x0=start.x,
+        z0=start.z,
+        settings=_settings(sc, model),
+        output_interval=sim.output_interval,
+    )
+    wanted = list(dict.fromkeys(_default_signals(model) + list(sc.outputs.signals)))
+    missing = [n for n in wanted if n not in res]
+    if missing:
+        raise sc.error(("outputs", "signals"), f"unknown signals {missing}")
+    sel = res.select(wanted)
+    sel.meta.update(res.meta)
+    return model, sel
+
+
+def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
+    """Simulate from the equilibrium at the inputs' start values (see module docstring).
+
+    ``fidelity = "auto"``: every level runs; the cheapest (measured wall time) whose
+    error against "full" on ``[outputs] signals`` is within ``[outputs] tolerance``
+    is chosen (see :func:`choose_fidelity`).
+    """
+    b = bind(sc)
+    fid = _fidelity(sc, allow_auto=True)
+    extra = {"aps_params": _aps_dict(b.aps), "setup": b.setup}
+    metrics = {}
+    if fid == "auto":
+        fid, res, report = choose_fidelity(sc, b)
+        extra["fidelity_levels"] = report
+        metrics["fidelity_error"] = report[fid]["error"]
+        metrics["time_saved_pct"] = 100 * (
+            1 - report[fid]["wall_time_s"] / report["full"]["wall_time_s"]
+        )
+    else:
+        _, res = _simulate(sc, b, fid)
+    metrics.update(transient_metrics(res))
+    return RunOutput(
+        sc.name, fid, res.meta["method"], metrics=metrics, results={"main": res}, extra=extra
+    )
+
+
+def transient_metrics(res: Result) -> dict[str, float]:
+    """Final and initial length and pressure, rise time, slack time, solver statistics."""
+    m = {}
+    if "myofibril.length" in res:
+        L = res["myofibril.length"]
+        m["length_initial_mm"] = float(L[0] * 1e3)
+        m["length_final_mm"] = float(L[-1] * 1e3)
+        m["rise_time_10_90_s"] = _rise_time(res.index, L)
+    m["pressure_final_kPa"] = res.final("myofibril.aps1.chamber.p_gauge") / 1e3
+    if "sensor.f" in res:
+        m["force_final_N"] = res.final("sensor.f")
+    stretches = [n for n in res.names if n.endswith(".e") and ".actin" in n]
+    if stretches:
+        slack = np.any(np.array([res[n] < 0 for n in stretches]), axis=0)
+        m["slack_time_s"] = float(np.sum(np.diff(res.index) * slack[:-1]))
+    m["solver_steps"] = float(res.meta.get("n_steps", math.nan))
+    return m
+
+
+def _rise_time(t: np.ndarray, y: np.ndarray) -> float:
+    dy = y[-1] - y[0]
+    if abs(dy) < 1e-12:
+        return 0.0
+    frac = (y - y[0]) / dy
+    i10, i90 = np.argmax(frac >= 0.1), np.argmax(frac >= 0.9)
+    return float(t[i90] - t[i10])
+
+
+AUTO_REPEATS = 3
+"""Runs per level in ``fidelity = "auto"``; the median wall time ranks the levels."""
+
+
+def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
+    """Run every level, measure its error against "full" and its wall time; pick the
+    fastest (median of :data:`AUTO_REPEATS` runs) within tolerance. Error: max over the
+    scenario's ``[outputs] signals`` (default ``myofibril.length``) of
+    ``max |y - y_full| / (max y_full - min y_full)``."""
+    tol = sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01
+    care = list(sc.outputs.signals) or ["myofibril.length"]
+    report, results = {}, {}
+    for fid in FIDELITIES:
+        try:
+            model, res = _simulate(sc, b, fid)
+        except SarcomereError as exc:  # a level that cannot run this scene is skipped
+            report[fid] = {"error": math.inf, "wall_time_s": math.inf, "failed": str(exc)}
+            continue
+        results[fid] = res
+        report[fid] = {
+            "wall_time_s": res.meta["wall_time_s"],
+            "states": model.nx,
+            "algebraic": model.nz,
+        }
+    if "full" not in results:
+        raise SarcomereError(f"fidelity auto: the full model failed: {report['full']}")
+    ref = results["full"]
+    for fid, res in results.items():
+        errs = []
+        for name in care:
+            if name not in res:
+                raise sc.error(("outputs", "signals"), f"'{name}' is not in level '{fid}'")
+            span = max(np.ptp(ref[name]), 1e-12 * max(np.max(np.abs(ref[name])), 1e-300))
+            errs.append(float(np.max(np.abs(res[name] - ref[name])) / span))
+        report[fid]["error"] = max(errs)
+    ok = [f for f in results if report[f]["error"] <= tol]
+    best = min(ok, key=lambda f: report[f]["wall_time_s"])
+    return best, results[best], report
+
+
+register_runner("equilibrium", run_equilibrium)
+register_runner("transient", run_transient)
