@@ -188,6 +188,7 @@ def calibrate(start: APSParams | None = None, verbose: bool = False) -> Calibrat
         nlp,
         {
             "ipopt.print_level": 5 if verbose else 0,
+            "ipopt.sb": "yes",
             "print_time": False,
             "ipopt.tol": 1e-12,
             "ipopt.max_iter": 500,

@@ -526,7 +526,8 @@ def _newton_options() -> dict:
         "abstol": NEWTON_TOL,
         "abstolStep": NEWTON_TOL,
         "max_iter": 50,
-        "linear_solver": "csparse",
+        "line_search": False,
+        "linear_solver": "qr",
     }
 
 

@@ -1,4 +1,4 @@
-"""The ``sarcomere`` command line: ``sarcomere list``, ``sarcomere run SCENARIO``.
+"""The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``calibrate``.
 
 Subcommands are rows of :data:`COMMANDS` (name, help, handler, add_arguments); add one by
 appending a :class:`Command`. A :class:`~sarcomere.dynamics.errors.SarcomereError` prints
@@ -15,6 +15,7 @@ from pathlib import Path
 
 from sarcomere.dynamics.errors import SarcomereError
 
+from . import calibrate
 from .loader import load_scenario, packaged_scenarios
 from .runner import run
 
@@ -70,6 +71,12 @@ def _run(args: argparse.Namespace) -> int:
 COMMANDS: list[Command] = [
     Command("list", "list the packaged scenarios", _list),
     Command("run", "run a scenario and write summary.json, CSV and plots", _run, _run_arguments),
+    Command(
+        "calibrate",
+        "fit A_p, A_r, k_s to the paper's three measured targets (IPOPT)",
+        calibrate.handler,
+        calibrate.add_arguments,
+    ),
 ]
 
 

@@ -36,12 +36,12 @@ from .runner import register_runner
 from .spec import Scenario, describe, unknown_key
 
 P_CMD = "regulator.p_cmd"
-OPTIONS = {  # option -> SI unit ("" for text)
-    "setup": "",
-    "load": "kg",
-    "regulator_tau": "s",
-    "fixture_stiffness": "N/m",
-    "fixture_gap": "m",
+OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
+    "setup": ("", None, True),
+    "load": ("kg", 0.0, True),
+    "regulator_tau": ("s", 0.0, False),
+    "fixture_stiffness": ("N/m", 0.0, False),
+    "fixture_gap": ("m", 0.0, True),
 }
 INPUT_ALIASES = {"pressure": P_CMD}
 
@@ -82,10 +82,14 @@ def bind(sc: Scenario) -> Binding:
     for key, raw in sc.model.options.items():
         if key not in OPTIONS:
             raise sc.error(("model", "options", key), unknown_key(key, list(OPTIONS)))
+        unit, low, inclusive = OPTIONS[key]
         try:
-            opts[key] = raw if OPTIONS[key] == "" else to_si(raw, OPTIONS[key], key)
+            opts[key] = raw if unit == "" else to_si(raw, unit, key)
         except ParameterError as exc:
             raise sc.error(("model", "options", key), describe(exc)) from None
+        if low is not None and not (opts[key] >= low if inclusive else opts[key] > low):
+            interval = f"[{low:g}, inf)" if inclusive else f"({low:g}, inf)"
+            raise sc.error(("model", "options", key), f"{raw!r} is outside {interval} {unit}")
     setup = opts.get("setup", "hanging")
     if setup not in ("hanging", "isometric"):
         raise sc.error(("model", "options", "setup"), f"'{setup}': use 'hanging' or 'isometric'")
