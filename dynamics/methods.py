@@ -340,7 +340,6 @@ def _march(
     """Run a one-step Function ``(x, z, t, h, p, seg) -> (x_next, z_next)`` everywhere."""
     m, s = prob.model, prob.settings
     h = _require_step(prob)
-    chunk = step.mapaccum("chunk", CHUNK_STEPS, [0, 1], [0, 1])
     X = np.empty((len(prob.t_out), m.nx))
     Z = np.empty((len(prob.t_out), m.nz))
     X[0], Z[0] = prob.x0, prob.z0
@@ -355,7 +354,7 @@ def _march(
                 a,
                 x,
             )
-        xs, zs = _run_chunks(prob, chunk, (x, z), starts, sizes, _seg(a, b))
+        xs, zs = _run_chunks(prob, step, (x, z), starts, sizes, _seg(a, b))
         idx = np.searchsorted(prob.t_out, grid)
         X[idx], Z[idx] = xs[out_idx], zs[out_idx]
         x, z = xs[-1], zs[-1]
@@ -374,13 +373,14 @@ def _march(
 
 def _run_chunks(
     prob: Problem,
-    chunk: cs.Function,
+    step: cs.Function,
     xz: tuple[np.ndarray, np.ndarray],
     starts: np.ndarray,
     sizes: np.ndarray,
     seg: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """States and algebraic unknowns after each step; padding steps have h = 0."""
+    chunk = step.mapaccum("chunk", CHUNK_STEPS, [0, 1], [0, 1])
     n = len(starts)
     pad = (-n) % CHUNK_STEPS
     T = np.concatenate([starts, np.full(pad, starts[-1])])
@@ -391,8 +391,8 @@ def _run_chunks(
         sl = slice(k, k + CHUNK_STEPS)
         try:
             Xk, Zk = (np.array(v).T for v in chunk(x, z, T[None, sl], H[None, sl], prob.p, seg))
-        except RuntimeError as exc:
-            raise prob.fail(_casadi_cause(str(exc)), float(T[k]), x) from None
+        except RuntimeError:
+            raise _locate_failure(prob, step, (x, z), T[sl], H[sl], seg) from None
         bad = ~(np.all(np.isfinite(Xk), axis=1) & np.all(np.isfinite(Zk), axis=1))
         if bad.any():
             i = int(np.argmax(bad))
@@ -402,6 +402,24 @@ def _run_chunks(
         xs[sl], zs[sl] = Xk, Zk
         x, z = Xk[-1], Zk[-1]
     return xs[:n], zs[:n]
+
+
+def _locate_failure(
+    prob: Problem,
+    step: cs.Function,
+    xz: tuple[np.ndarray, np.ndarray],
+    T: np.ndarray,
+    H: np.ndarray,
+    seg: np.ndarray,
+) -> SolverError:
+    """Replay a failed chunk one step at a time; the error names the failing step."""
+    x, z = xz
+    for t, h in zip(T, H, strict=True):
+        try:
+            x, z = (np.array(v).ravel() for v in step(x, z, t, h, prob.p, seg))
+        except RuntimeError as exc:
+            return prob.fail(f"{_casadi_cause(str(exc))} (step {h:.3g} s)", float(t), x)
+    return prob.fail("a step failed inside a chunk but not when replayed", float(T[0]), xz[0])
 
 
 def _casadi_cause(msg: str) -> str:

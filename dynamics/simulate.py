@@ -144,6 +144,21 @@ def _input_signals(model: Model, inputs: Mapping[str, object] | None) -> list:
     return out
 
 
+def _check_input_range(model: Model, signals: list, t_out: np.ndarray) -> None:
+    """Refuse an input signal that leaves its variable's range on the output grid."""
+    for name, sig in zip(model.input_names, signals, strict=True):
+        var = model.variables[name]
+        values = np.asarray(sig(t_out), dtype=float) * np.ones_like(t_out)
+        bad = np.flatnonzero(~((values >= var.low) & (values <= var.high)))
+        if bad.size:
+            raise ParameterError(
+                name,
+                f"{values[bad[0]]:g} {var.unit} at t = {t_out[bad[0]]:g} s",
+                f"[{var.low:g}, {var.high:g}] {var.unit}",
+                var.description,
+            )
+
+
 def simulate(
     model: Model,
     t_final: float,
@@ -207,6 +222,7 @@ def simulate(
         x_init = np.asarray(x0, dtype=float).reshape(-1)
     model.check_finite(x_init, "x")
     signals = _input_signals(model, inputs)
+    _check_input_range(model, signals, t_out)
     bps = []
     for sig in signals:
         if hasattr(sig, "breakpoints"):

@@ -71,7 +71,14 @@ class Regulator(Component):
             source="Festo VPPE-3-1-1/8-6-010-E1 data sheet: 6 bar",
         )
         p_amb = b.parameter("p_amb", self.p_amb, "Pa", "ambient pressure", low=0.0)
-        p_cmd = b.input("p_cmd", "Pa", "commanded gauge pressure", 0.0, -math.inf, math.inf)
+        p_cmd = b.input(
+            "p_cmd",
+            "Pa",
+            "commanded gauge pressure (below -p_amb is below vacuum)",
+            0.0,
+            -self.p_amb,
+            math.inf,
+        )
         p_set = b.state("p_set", 0.0, "Pa", "set gauge pressure after the lag")
         b.der(p_set, (cs.fmin(cs.fmax(p_cmd, 0.0), p_max) - p_set) / tau)
         port = b.port("port", PNEUMATIC)

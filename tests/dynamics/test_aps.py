@@ -192,6 +192,11 @@ def test_bad_inputs_name_the_value():
         hanging_load(1, fidelity="coarse")
 
 
+def test_command_below_vacuum_is_refused(hang3):
+    with pytest.raises(ParameterError, match=r"regulator.p_cmd.*-200000 Pa at t = 0.*below vacuum"):
+        simulate(hang3, 0.1, inputs={P: -2e5})
+
+
 def test_equilibrium_reports_thread_pulled_straight():
     m = hanging_load(1, load_kg=0.0)
     with pytest.raises(SolverError, match=r"theta_b = .* outside its physical domain.*straight"):
