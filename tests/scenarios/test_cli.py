@@ -6,6 +6,7 @@ import csv
 import json
 import math
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -121,5 +122,8 @@ def test_nan_is_never_silent() -> None:
 
 
 def test_console_script_help() -> None:
-    done = subprocess.run(["sarcomere", "--help"], capture_output=True, text=True, check=True)
+    # the script installed beside this interpreter (a venv's bin/), not whatever is on PATH
+    script = Path(sys.executable).parent / "sarcomere"
+    assert script.exists(), f"console script not installed beside {sys.executable}"
+    done = subprocess.run([str(script), "--help"], capture_output=True, text=True, check=True)
     assert "run" in done.stdout and "list" in done.stdout
