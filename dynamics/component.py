@@ -130,41 +130,23 @@ class Builder:
             name, Var(name, "parameter", unit, description, value, low, high, value, source)
         )
 
-    def state(
-        self,
-        name: str,
-        start: float,
-        unit: str,
-        description: str,
-        low: float = -math.inf,
-        high: float = math.inf,
-    ) -> cs.SX:
-        """A state variable [unit]; give its derivative with :meth:`der`."""
-        return self._new(name, Var(name, "state", unit, description, float(start), low, high))
+    def state(self, name: str, start: float, unit: str, description: str, **bounds) -> cs.SX:
+        """A state variable [unit]; give its derivative with :meth:`der`.
 
-    def variable(
-        self,
-        name: str,
-        unit: str,
-        description: str,
-        start: float = 0.0,
-        low: float = -math.inf,
-        high: float = math.inf,
-    ) -> cs.SX:
+        ``bounds``: ``low``, ``high`` (its physical range, default unbounded).
+        """
+        return self._unknown(name, "state", unit, description, start, **bounds)
+
+    def variable(self, name: str, unit: str, description: str, start=0.0, **bounds) -> cs.SX:
         """An algebraic unknown [unit], fixed by the equations of the flattened system."""
-        return self._new(name, Var(name, "algebraic", unit, description, float(start), low, high))
+        return self._unknown(name, "algebraic", unit, description, start, **bounds)
 
-    def input(
-        self,
-        name: str,
-        unit: str,
-        description: str,
-        start: float = 0.0,
-        low: float = -math.inf,
-        high: float = math.inf,
-    ) -> cs.SX:
+    def input(self, name: str, unit: str, description: str, start=0.0, **bounds) -> cs.SX:
         """An external input [unit] (a scenario signal or a controller drives it)."""
-        return self._new(name, Var(name, "input", unit, description, float(start), low, high))
+        return self._unknown(name, "input", unit, description, start, **bounds)
+
+    def _unknown(self, name, kind, unit, description, start, low=-math.inf, high=math.inf) -> cs.SX:
+        return self._new(name, Var(name, kind, unit, description, float(start), low, high))
 
     def port(self, name: str, kind: PortKind) -> Port:
         """A connector with potential and flow unknowns named ``<path>.<name>.<var>``."""

@@ -7,8 +7,6 @@ at the reference temperature (see docs/model.md for that and the other assumptio
 
 from __future__ import annotations
 
-import math
-
 import casadi as cs
 
 from ..component import Builder, Component
@@ -76,8 +74,7 @@ class Regulator(Component):
             "Pa",
             "commanded gauge pressure (below -p_amb is below vacuum)",
             0.0,
-            -self.p_amb,
-            math.inf,
+            low=-self.p_amb,
         )
         p_set = b.state("p_set", 0.0, "Pa", "set gauge pressure after the lag")
         b.der(p_set, (cs.fmin(cs.fmax(p_cmd, 0.0), p_max) - p_set) / tau)
