@@ -143,7 +143,6 @@ class Model:
     def _syms(self) -> list[cs.SX]:
         return [self.x, self.z, self.u, self.p]
 
-    @functools.cache  # noqa: B019 - one model, a handful of names
     def function(self, which: str) -> cs.Function:
         """A CasADi Function of (x, z, u, p) with named inputs and outputs.
 
@@ -153,6 +152,12 @@ class Model:
         ``A = d ode/dx``, ``B = d ode/du``, ``C = dy/dx``, ``D = dy/du`` of the explicit
         ODE, for ``nz == 0``), "dae_jac" (``ode_x, ode_z, alg_x, alg_z``).
         """
+        cache = self.__dict__.setdefault("_functions", {})
+        if which not in cache:
+            cache[which] = self._build_function(which)
+        return cache[which]
+
+    def _build_function(self, which: str) -> cs.Function:
         s = self._syms
         if which in ("ode", "alg", "y", "signals"):
             expr = {"ode": self.ode, "alg": self.alg, "y": self.y, "signals": self._signals}
