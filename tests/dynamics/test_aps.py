@@ -197,3 +197,15 @@ def test_solver_failure_names_time_and_cause(hang3):
 def test_r1_rest_geometry():
     p = APSParams.from_paper()
     assert math.degrees(math.acos(p.w0 / p.l)) == pytest.approx(51.32, abs=0.01)
+
+
+def test_symmetric_reduction_is_exact_for_weightless_bodies():
+    """With weightless bodies every I-band carries one tension and every unit the same
+    expansion: one representative unit times n must give the full chain's equilibrium,
+    up to the slack regularisation (``eps^2 k_s / (4 T)``, about 2e-8 m per I-band)."""
+    p = APSParams.from_paper(m_body=1e-9)
+    for n in (1, 3, 7):
+        full = solve_equilibrium(hanging_load(n, p, 0.05), {P: 0.08e6})
+        sym = solve_equilibrium(hanging_load(n, p, 0.05, fidelity="symmetric"), {P: 0.08e6})
+        assert sym["myofibril.length"] == pytest.approx(full["myofibril.length"], abs=2e-7)
+        assert hanging_load(n, p, 0.05, fidelity="symmetric").nx == 6
