@@ -1,17 +1,15 @@
 """Integration methods beyond SUNDIALS, registered in :data:`~.simulate.METHODS`.
 
-========== ========================================================== ==============
-method     what                                                       needs
-========== ========================================================== ==============
-rk4        classic explicit Runge-Kutta, 4 stages, order 4             ``step``
-euler      explicit Euler, order 1 (a stability yardstick)             ``step``
-collocation CasADi ``integrator("collocation")``, Radau points         ``step``
-radau_fixed Radau IIA, 3 points (order 5), Newton on SX residuals         ``step``
-scipy_rk45 ``scipy.integrate.RK45`` (Dormand-Prince, explicit)         rtol, atol
-scipy_radau ``scipy.integrate.Radau`` with the exact sparse Jacobian    rtol, atol
-scipy_bdf  ``scipy.integrate.BDF`` with the exact sparse Jacobian       rtol, atol
-scipy_lsoda ``scipy.integrate.LSODA`` with the exact (dense) Jacobian   rtol, atol
-========== ========================================================== ==============
+* ``rk4``: classic explicit Runge-Kutta (4 stages, order 4); needs ``step``.
+* ``euler``: explicit Euler (order 1, a stability yardstick); needs ``step``.
+* ``collocation``: one element of CasADi's ``integrator("collocation")`` per step
+  (Radau points, 3 by default: order 5; ODE or DAE); needs ``step``.
+* ``radau_fixed``: Radau IIA with 3 points (order 5), Newton on SX residuals;
+  needs ``step``.
+* ``scipy_rk45``, ``scipy_radau``, ``scipy_bdf``, ``scipy_lsoda``: scipy's solvers
+  (the classes behind ``solve_ivp``) on the model's CasADi right-hand side; the
+  implicit ones get the exact Jacobian (sparse for Radau and BDF, dense for LSODA);
+  ``rtol``, ``atol``.
 
 Conventions shared by every method here:
 
@@ -28,9 +26,10 @@ Conventions shared by every method here:
   non-finite state is a failure, never a result.
 
 Before an explicit fixed-step method runs, :func:`stability_limit` estimates the
-largest stable step from the eigenvalues of the Jacobian at the initial state (see
-:func:`stability_radius`); a larger step warns with :class:`StepStabilityWarning`,
-or raises with ``options=(("on_unstable", "raise"),)``.
+largest stable step from the eigenvalues of the Jacobian at the initial state and at
+the equilibrium after the first input step (see :func:`stability_radius`); a larger
+step warns with :class:`StepStabilityWarning`, or raises with
+``options=(("on_unstable", "raise"),)`` (``"ignore"`` skips the check).
 """
 
 from __future__ import annotations
@@ -45,7 +44,8 @@ import scipy.integrate as si
 import scipy.optimize as so
 import scipy.sparse as sp
 
-from .errors import ParameterError, SolverError
+from .equilibrium import solve_equilibrium
+from .errors import ParameterError, SarcomereError, SolverError
 from .model import Model
 from .simulate import Problem, register_method
 
@@ -54,7 +54,7 @@ CHUNK_STEPS = 128
 
 
 class StepStabilityWarning(UserWarning):
-    """A fixed explicit step exceeds the linear stability limit at the initial state."""
+    """A fixed explicit step exceeds the estimated linear stability limit."""
 
 
 # --- the ODE with the inputs substituted ------------------------------------------------
@@ -82,11 +82,6 @@ class SegmentDAE:
     p: cs.SX
     ode: cs.SX
     alg: cs.SX
-
-    @property
-    def p_seg(self) -> cs.SX:
-        """Parameters followed by the segment bounds (what CasADi integrators get as p)."""
-        return cs.vertcat(self.p, self.seg)
 
     def rhs(self) -> cs.Function:
         """``rhs(t, x, p, seg) -> ode`` (explicit ODE only)."""
@@ -268,24 +263,39 @@ def jacobian_eigenvalues(model: Model, x: np.ndarray, u: np.ndarray, p: np.ndarr
     return np.linalg.eigvals(A)
 
 
-def stability_limit(prob: Problem, scheme: ExplicitScheme) -> tuple[float, complex, float]:
-    """Stability limit of ``scheme`` at the initial state of ``prob``.
+def stability_limit(prob: Problem, scheme: ExplicitScheme) -> tuple[float, complex, str]:
+    """Stability limit of ``scheme`` estimated before a run.
 
-    Evaluated at ``x0`` with the input at the start and just after the first
-    breakpoint (a command step may change the Jacobian through the input).
+    Two points are checked: the initial state (with the input at the start), and the
+    equilibrium that the input just after the first breakpoint leads to (the input at
+    the end if there is no breakpoint; skipped when no equilibrium is found). The
+    second catches models that are stiffest at the new operating point (e.g. a wider
+    laminar region, ``r_lam = 0.995``); points in between are not checked
+    (:mod:`sarcomere.dynamics.stability` scans a whole trajectory).
 
     Returns
     -------
-    (float, complex, float)
-        Limit [s], the eigenvalue [1/s] that sets it, and the input time [s] used.
+    (float, complex, str)
+        Limit [s], the eigenvalue [1/s] that sets it, and where it was found.
     """
-    times = [float(prob.t_out[0]), *sorted(prob.breakpoints)[:1]]
-    best = (math.inf, complex(0.0), times[0])
-    for t in times:
-        lam = jacobian_eigenvalues(prob.model, prob.x0, prob.u_at(t), prob.p)
-        h, crit = max_stable_step(lam, scheme)
+    m = prob.model
+    t_after = min(prob.breakpoints, default=float(prob.t_out[-1]))
+    u_after = prob.u_at(t_after)
+    points = [("the initial state", prob.x0, prob.u_at(float(prob.t_out[0])))]
+    try:
+        eq = solve_equilibrium(
+            m,
+            dict(zip(m.input_names, u_after.tolist(), strict=True)),
+            params=dict(zip(m.param_names, prob.p.tolist(), strict=True)),
+        )
+        points.append((f"the equilibrium for the input at t = {t_after:.4g} s", eq.x, u_after))
+    except SarcomereError:
+        pass
+    best = (math.inf, complex(0.0), points[0][0])
+    for where, x, u in points:
+        h, crit = max_stable_step(jacobian_eigenvalues(m, x, u, prob.p), scheme)
         if h < best[0]:
-            best = (h, crit, t)
+            best = (h, crit, where)
     return best
 
 
@@ -294,7 +304,7 @@ def _guard(prob: Problem, scheme: ExplicitScheme, h_used: float, action: str) ->
         raise ParameterError("solver.options.on_unstable", action, "'warn', 'raise' or 'ignore'")
     if action == "ignore":
         return
-    h_max, lam, t = stability_limit(prob, scheme)
+    h_max, lam, where = stability_limit(prob, scheme)
     prob.stats["stability_limit_s"] = h_max
     if h_used <= h_max:
         return
@@ -302,8 +312,8 @@ def _guard(prob: Problem, scheme: ExplicitScheme, h_used: float, action: str) ->
     why = (
         f"{scheme.name} step {h_used:.4g} s exceeds the linear stability limit "
         f"{h_max:.4g} s = r(theta)/|lambda| set by the Jacobian eigenvalue "
-        f"{lam.real:.4g}{lam.imag:+.4g}j 1/s (theta = {theta:.1f} deg) at the initial state "
-        f"(input at t = {t:.4g} s); the answer may blow up or settle into a false oscillation"
+        f"{lam.real:.4g}{lam.imag:+.4g}j 1/s (theta = {theta:.1f} deg) at {where}; "
+        "the answer may blow up or settle into a false oscillation"
     )
     if action == "raise":
         raise ParameterError("solver.step", h_used, f"(0, {h_max:.4g}] s", why)

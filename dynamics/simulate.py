@@ -350,3 +350,6 @@ def _cvodes(prob: Problem):
 @register_method("idas")
 def _idas(prob: Problem):
     return _sundials(prob, "idas")
+
+
+from . import methods as _methods  # noqa: E402, F401  (registers rk4, euler, collocation, radau_fixed, scipy_*)

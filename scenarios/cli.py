@@ -1,4 +1,4 @@
-"""The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``calibrate``.
+"""The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``calibrate``, ``bench``.
 
 Subcommands are rows of :data:`COMMANDS` (name, help, handler, add_arguments); add one by
 appending a :class:`Command`. A :class:`~sarcomere.dynamics.errors.SarcomereError` prints
@@ -15,7 +15,7 @@ from pathlib import Path
 
 from sarcomere.dynamics.errors import SarcomereError
 
-from . import calibrate
+from . import bench, calibrate
 from .loader import load_scenario, packaged_scenarios
 from .runner import run
 
@@ -76,6 +76,9 @@ COMMANDS: list[Command] = [
         "fit A_p, A_r, k_s to the paper's three measured targets (IPOPT)",
         calibrate.handler,
         calibrate.add_arguments,
+    ),
+    Command(
+        "bench", "numerical studies: work-precision, stability", bench.handler, bench.add_arguments
     ),
 ]
 

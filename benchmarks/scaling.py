@@ -1,0 +1,141 @@
+"""Cost per simulated second against chain length n, and CVODES linear-solver options.
+
+For n = 1, 3, 10, 30, 100 APS (50 g, step 0 -> 0.1 MPa at 0.1 s, 0.5 s, 51 saved
+points; start: the 0 MPa equilibrium, or where Newton does not converge from the
+start values (n >= 30) the state after 5 s of settling) each configuration is run
+``--repeats`` times warm; reported: the median wall time of ``simulate`` per simulated
+second and per integrator step, with the exponent ``k`` of a least-squares fit
+``cost ~ n^k`` over n >= 3 (a failed run is recorded, not timed). Configurations:
+CVODES with its default linear solver, with ``linear_solver = "csparse"`` (sparse
+LU) and ``"qr"`` (CasADi's sparse QR), and scipy Radau with the exact sparse Jacobian.
+
+Usage::
+
+    python benchmarks/scaling.py --out out/bench/scaling.json [--repeats 3] [--max-n 100]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sarcomere.dynamics import workprecision as wp
+from sarcomere.dynamics.assemblies import hanging_load
+from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.errors import SolverError
+from sarcomere.dynamics.simulate import SolverSettings, simulate
+
+SIZES = (1, 3, 10, 30, 100)
+SETTLE_S = 5.0
+T_FINAL_S = 0.5
+RTOL = 1e-6
+CONFIGS = {
+    "cvodes (default)": SolverSettings("cvodes", RTOL, RTOL * 1e-3),
+    "cvodes csparse": SolverSettings(
+        "cvodes", RTOL, RTOL * 1e-3, options=(("linear_solver", "csparse"),)
+    ),
+    "cvodes qr (sparse QR)": SolverSettings(
+        "cvodes", RTOL, RTOL * 1e-3, options=(("linear_solver", "qr"),)
+    ),
+    "scipy_radau": SolverSettings("scipy_radau", RTOL, RTOL * 1e-3),
+}
+
+
+def start_state(model) -> tuple[np.ndarray, str]:
+    """The 0 MPa equilibrium, or (if Newton fails, as for long chains) 5 s settled by CVODES."""
+    try:
+        return solve_equilibrium(model, {wp.P_CMD: 0.0}).x, "equilibrium"
+    except SolverError:
+        res = simulate(model, SETTLE_S, settings=SolverSettings("cvodes", 1e-8, 1e-11))
+        return np.array([res.final(n) for n in model.state_names]), f"settled {SETTLE_S:g} s"
+
+
+def cost(model, x0: np.ndarray, settings: SolverSettings, repeats: int) -> dict:
+    """Median warm wall time per simulated second [s/s] and statistics of one config."""
+    step = dataclasses.replace(wp.scenarios(1)["step"], t_final=T_FINAL_S, n_out=51)
+
+    def run():
+        return simulate(
+            model,
+            step.t_final,
+            inputs={wp.P_CMD: step.command},
+            x0=x0,
+            settings=settings,
+            t_out=step.t_out,
+        )
+
+    tic = time.perf_counter()
+    try:
+        res = run()
+    except SolverError as exc:
+        return {"status": "failed", "message": " ".join(str(exc).split())[:200]}
+    cold = time.perf_counter() - tic
+    walls = []
+    for _ in range(repeats):
+        tic = time.perf_counter()
+        res = run()
+        walls.append(time.perf_counter() - tic)
+    return {
+        "status": "ok",
+        "cost_s_per_s": statistics.median(walls) / step.t_final,
+        "cost_per_step_us": statistics.median(walls) / res.meta["n_steps"] * 1e6,
+        "cold_s": cold,
+        "method_s": res.meta["wall_time_s"],
+        "n_steps": res.meta["n_steps"],
+        "n_rhs": res.meta["n_rhs"],
+        "n_jac": res.meta["n_jac"],
+    }
+
+
+def exponent(sizes: list[int], costs: list[float]) -> float:
+    """Slope of log(cost) against log(n), least squares."""
+    return float(np.polyfit(np.log(sizes), np.log(costs), 1)[0])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("out/bench/scaling.json"))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--max-n", type=int, default=100)
+    args = parser.parse_args()
+    sizes = [n for n in SIZES if n <= args.max_n]
+    table: dict[str, dict] = {label: {} for label in CONFIGS}
+    for n in sizes:
+        tic = time.perf_counter()
+        model = hanging_load(n, load_kg=0.05)
+        x0, start = start_state(model)
+        build = time.perf_counter() - tic
+        for label, settings in CONFIGS.items():
+            table[label][n] = {**cost(model, x0, settings, args.repeats), "nx": model.nx}
+            table[label][n]["start"] = start
+            row = table[label][n]
+            if row["status"] != "ok":
+                print(f"n={n:4d} nx={model.nx:4d} {label:18s} FAILED {row['message'][:120]}")
+                continue
+            print(
+                f"n={n:4d} nx={model.nx:4d} {label:18s} {row['cost_s_per_s']:.4g} s/s, "
+                f"{row['cost_per_step_us']:.1f} us/step (steps {row['n_steps']}, "
+                f"build+start {build:.2f} s, {start})"
+            )
+    fits = {}
+    for label, rows in table.items():
+        ok = [n for n in sizes if n >= 3 and rows[n]["status"] == "ok"]
+        for key in ("cost_s_per_s", "cost_per_step_us"):
+            fits[f"{label}: {key}"] = (
+                exponent(ok, [rows[n][key] for n in ok]) if len(ok) > 1 else None
+            )
+    result = {"rtol": RTOL, "t_final_s": T_FINAL_S, "sizes": sizes, "table": table}
+    result["exponent_n_ge_3"] = fits
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1))
+    print(json.dumps(fits, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,207 @@
+"""Speed of the CasADi CVODES path against scipy's Radau at equal accuracy.
+
+Scenario: n = 3 APS, 50 g, pressure step 0 -> 0.1 MPa at 0.1 s, 2 s, 201 saved points
+(:func:`sarcomere.dynamics.workprecision.scenarios`). Accuracy: the l2 error of
+:mod:`sarcomere.dynamics.workprecision` (states scaled by their nominal magnitude)
+against CVODES at rtol 1e-12. Each solver is swept over rtol = 10^-2.5 ... 10^-8 in
+half decades, every point timed as the median of ``--repeats`` warm calls of
+``simulate``, and the wall time at error 1e-6 is interpolated log-log.
+
+Then the CVODES path is taken apart (cold call, integrator, output evaluation,
+restart) and a compiled right-hand side (CasADi ``jit`` with gcc -O2) is measured.
+
+Usage::
+
+    python benchmarks/speed.py --out out/bench/speed.json [--repeats 7]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+
+import casadi as cs
+import numpy as np
+
+from sarcomere.dynamics import workprecision as wp
+from sarcomere.dynamics.simulate import SolverSettings
+
+TARGET = 1e-6
+TOLERANCES = tuple(10.0 ** (-k / 2) for k in range(5, 17))
+SOLVERS = {
+    "cvodes": ("cvodes", ()),
+    "scipy_radau (buffered CasADi calls)": ("scipy_radau", ()),
+    "scipy_radau (plain CasADi calls)": ("scipy_radau", (("call", "plain"),)),
+    "scipy_bdf": ("scipy_bdf", ()),
+    "scipy_lsoda": ("scipy_lsoda", ()),
+}
+
+
+def median_wall(fn, repeats: int) -> tuple[float, float]:
+    """(cold, median of ``repeats`` warm) wall times [s] of ``fn()``."""
+    tic = time.perf_counter()
+    fn()
+    cold = time.perf_counter() - tic
+    walls = []
+    for _ in range(repeats):
+        tic = time.perf_counter()
+        fn()
+        walls.append(time.perf_counter() - tic)
+    return cold, statistics.median(walls)
+
+
+def equal_accuracy(sc: wp.Scenario, ref: wp.Reference, repeats: int) -> dict:
+    """Wall time at l2 error 1e-6 per solver, interpolated on its tolerance sweep."""
+    plan = wp.Plan(TOLERANCES, {}, repeats, 10.0, 0.0)
+    out = {}
+    for label, (method, options) in SOLVERS.items():
+        recs = []
+        for tol in TOLERANCES:
+            s = SolverSettings(method, tol, tol * wp.ATOL_PER_RTOL, options=options)
+            recs.append(wp.run_point(sc, ref, s, plan))
+            if recs[-1]["status"] == "ok" and recs[-1]["error_l2"] < TARGET / 10:
+                break
+        out[label] = {
+            "wall_at_1em6_s": wp.wall_at_error(recs, method, TARGET),
+            "points": [
+                {
+                    k: r.get(k)
+                    for k in ("rtol", "error_l2", "wall_time_s", "n_steps", "n_rhs", "status")
+                }
+                for r in recs
+            ],
+        }
+        print(f"{label:40s} wall at 1e-6: {out[label]['wall_at_1em6_s']}")
+    return out
+
+
+def dissect_cvodes(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
+    """Where the time of one ``simulate`` call with CVODES goes."""
+    model, x0 = sc.setup()
+    settings = SolverSettings("cvodes", rtol, rtol * wp.ATOL_PER_RTOL)
+    sc.run(settings)
+    totals, methods = [], []
+    for _ in range(repeats):
+        tic = time.perf_counter()
+        res = sc.run(settings)
+        totals.append(time.perf_counter() - tic)
+        methods.append(res.meta["wall_time_s"])
+    out = {
+        "rtol": rtol,
+        "simulate_total_s": statistics.median(totals),
+        "method_s": statistics.median(methods),
+        "n_steps": res.meta["n_steps"],
+        "n_rhs": res.meta["n_rhs"],
+        "n_jac": res.meta["n_jac"],
+    }
+    out["outputs_and_setup_s"] = out["simulate_total_s"] - out["method_s"]
+    out.update(_output_costs(model, res, repeats))
+    jit = SolverSettings(
+        "cvodes", rtol, rtol * wp.ATOL_PER_RTOL, options=(("jit", True), ("compiler", "shell"))
+    )
+    cold, warm = median_wall(lambda: sc.run(jit), repeats)
+    out["simulate_jit_default_flags_cold_s"], out["simulate_jit_default_flags_s"] = cold, warm
+    for label, extra in (
+        ("integrator", {}),
+        (
+            "integrator_jit_O2",
+            {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}},
+        ),
+    ):
+        tic = time.perf_counter()
+        F_pre, F_post = _direct_integrators(sc, model, rtol, extra)
+        out[f"{label}_build_s"] = time.perf_counter() - tic
+
+        def run(F_pre=F_pre, F_post=F_post):
+            xa = F_pre(x0=x0, p=model.parameters())["xf"]
+            F_post(x0=xa[:, -1], p=model.parameters())
+
+        out[f"{label}_call_s"] = median_wall(run, repeats)[1]
+    no_restart = wp.Scenario(
+        "step_no_restart", "", sc.n, sc.load_kg, sc.p_start, _NoBreakpoints(sc.command)
+    )
+    ref = wp.reference(sc, 1e-8)
+    settings_nr = SolverSettings("cvodes", rtol, rtol * wp.ATOL_PER_RTOL)
+    res_nr = no_restart.run(settings_nr)
+    out["no_restart_s"] = median_wall(lambda: no_restart.run(settings_nr), repeats)[1]
+    out["no_restart_error_l2"] = wp.state_errors(wp.states(res_nr, model), ref)[1]
+    out["restart_error_l2"] = wp.state_errors(wp.states(res, model), ref)[1]
+    return out
+
+
+def _output_costs(model, res, repeats: int) -> dict:
+    """Cost of evaluating every named signal on the output grid (what ``simulate`` does)."""
+    N = len(res.index)
+    f = model.function("signals")
+    tic = time.perf_counter()
+    fm = f.map(N)
+    build = time.perf_counter() - tic
+    X = wp.states(res, model).T
+    Z = np.zeros((model.nz, N))
+    U = np.vstack([res[n] for n in model.input_names])
+    P = np.repeat(model.parameters()[:, None], N, axis=1)
+    evaluate = median_wall(lambda: np.array(fm(X, Z, U, P)), repeats)[1]
+    return {"signals_map_build_s": build, "signals_eval_s": evaluate}
+
+
+class _NoBreakpoints:
+    """The same command without breakpoints: the integrator steps across the jump."""
+
+    def __init__(self, sig) -> None:
+        self.sig = sig
+
+    def __call__(self, t):
+        return self.sig(t)
+
+    def casadi(self, t):
+        return self.sig.casadi(t)
+
+
+def _direct_integrators(sc: wp.Scenario, model, rtol: float, extra: dict):
+    """The two CVODES integrators that ``simulate`` builds (before/after the step)."""
+    t = cs.SX.sym("t")
+    ode = cs.substitute(model.ode, model.u, sc.command.casadi(t))
+    dae = {"x": model.x, "p": model.p, "t": t, "ode": ode}
+    opts = {"abstol": rtol * wp.ATOL_PER_RTOL, "reltol": rtol, **extra}
+    tb = sc.command.time
+    grid = sc.t_out
+    pre = [float(v) for v in grid[(grid > 0) & (grid <= tb)]]
+    post = [float(v) for v in grid[grid > tb]]
+    return (
+        cs.integrator("pre", "cvodes", dae, 0.0, pre, opts),
+        cs.integrator("post", "cvodes", dae, tb, post, opts),
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("out/bench/speed.json"))
+    parser.add_argument("--repeats", type=int, default=7)
+    args = parser.parse_args()
+    sc = wp.scenarios(3)["step"]
+    ref = wp.reference(sc, 1e-8)
+    acc = equal_accuracy(sc, ref, args.repeats)
+    cv = acc["cvodes"]["wall_at_1em6_s"]
+    ratios = {
+        k: (v["wall_at_1em6_s"] / cv if v["wall_at_1em6_s"] and cv else None)
+        for k, v in acc.items()
+    }
+    dis = dissect_cvodes(sc, 1e-6, args.repeats)
+    result = {
+        "scenario": sc.description,
+        "target_error_l2": TARGET,
+        "equal_accuracy": acc,
+        "ratio_to_cvodes": ratios,
+        "cvodes_dissection": dis,
+        "reference_crosscheck": ref.crosscheck,
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1))
+    print(json.dumps({"ratio_to_cvodes": ratios, "cvodes_dissection": dis}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,75 @@
+"""``sarcomere bench``: numerical studies of the simulation engine.
+
+* ``sarcomere bench work-precision --out DIR [--quick]``: error against wall time for
+  every integration method on three scenarios (:mod:`sarcomere.dynamics.workprecision`);
+  writes ``DIR/work_precision.json`` (records), one chart per scenario and
+  ``DIR/summary.json``.
+* ``sarcomere bench stability --out DIR [--quick]``: predicted against observed step
+  limits of the explicit fixed-step methods (:mod:`sarcomere.dynamics.stability`);
+  writes ``DIR/stability.json``, two charts and ``DIR/summary.json``.
+
+``--quick`` uses fewer tolerances, steps and repeats (under a minute each).
+The CLI wires :func:`add_arguments` and :func:`handler` as the ``bench`` subcommand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+
+from sarcomere.dynamics import stability, workprecision
+
+STUDIES = {
+    "work-precision": (
+        workprecision.study,
+        "cvodes (reference: rtol 1e-12) against rk4, radau_fixed, collocation and scipy",
+    ),
+    "stability": (stability.study, "rk4 and euler (reference: cvodes rtol 1e-10)"),
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare ``STUDY --out DIR [--quick]``."""
+    parser.add_argument("study", choices=sorted(STUDIES), help="which study to run")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    parser.add_argument(
+        "--quick", action="store_true", help="fewer points and repeats (under a minute)"
+    )
+
+
+def handler(args: argparse.Namespace) -> int:
+    """Run the study, write its files and ``summary.json``; print one line per file."""
+    run, solver = STUDIES[args.study]
+    tic = time.perf_counter()
+    out = run(args.out, quick=args.quick)
+    wall = time.perf_counter() - tic
+    summary = {
+        "scenario": f"bench {args.study}" + (" --quick" if args.quick else ""),
+        "fidelity": "full",
+        "solver": solver,
+        "wall_time_s": wall,
+        "metrics": out["metrics"],
+        "provenance": {
+            "sarcomere_version": _version(),
+            "utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        },
+        "files": [p.name for p in out["files"]],
+    }
+    path = args.out / "summary.json"
+    path.write_text(json.dumps(summary, indent=1))
+    for p in [path, *out["files"]]:
+        print(p)
+    for key, value in out["metrics"].items():
+        print(f"  {key} = {value if value is None else f'{value:.4g}'}")
+    return 0
+
+
+def _version() -> str:
+    try:
+        return metadata.version("sarcomere")
+    except metadata.PackageNotFoundError:  # pragma: no cover - not installed
+        return "unknown"

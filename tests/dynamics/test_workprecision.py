@@ -1,0 +1,102 @@
+"""Tests of sarcomere.dynamics.workprecision: metric, records, interpolation, scenarios."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import sarcomere.dynamics.methods  # noqa: F401  (registers the methods)
+from sarcomere.dynamics import workprecision as wp
+from sarcomere.dynamics.results import Result
+from sarcomere.dynamics.simulate import SolverSettings
+
+TINY = wp.Plan(
+    tolerances=(1e-3, 1e-5, 1e-7),
+    steps={"rk4": (1e-3, 2.5e-4)},
+    repeats=1,
+    budget_s=0.05,
+    check_rtol=1e-7,
+)
+
+
+@pytest.fixture(scope="module")
+def small():
+    """The step scenario for one APS, 0.4 s, with its reference."""
+    sc = dataclasses.replace(wp.scenarios(1)["step"], t_final=0.4, n_out=41)
+    return sc, wp.reference(sc, TINY.check_rtol)
+
+
+def test_error_metric_scales_each_state_by_its_magnitude():
+    X = np.array([[1.0, 100.0], [2.0, 200.0]])
+    res = Result("time", "s", np.array([0.0, 1.0]), {}, {})
+    ref = wp.Reference(res, X, np.abs(X).max(axis=0), SolverSettings())
+    final, l2 = wp.state_errors(X * np.array([1.0, 1.01]), ref)
+    assert final == pytest.approx(np.sqrt(0.5 * 0.01**2))
+    assert l2 == pytest.approx(np.sqrt((0.005**2 + 0.01**2) / 4))
+
+
+def test_reference_is_cross_checked(small):
+    _, ref = small
+    check = ref.crosscheck
+    assert check["method"] == "scipy_radau"
+    assert 0 < check["error_l2"] < 1e-6
+    assert ref.settings.rtol == wp.REFERENCE_RTOL
+
+
+def test_sweep_records_and_error_falls_with_tolerance(small):
+    sc, ref = small
+    recs = wp.sweep(sc, ref, TINY, only=["cvodes", "scipy_radau", "rk4"])
+    assert len(recs) == 3 + 3 + 2
+    keys = {"scenario", "method", "kind", "rtol", "atol", "step_s", "status", "error_final"}
+    keys |= {"error_l2", "wall_time_s", "n_steps", "n_rhs", "n_jac"}
+    for r in recs:
+        assert r["status"] == "ok", r
+        assert keys <= set(r)
+        assert r["wall_time_s"] > 0
+    for method in ("cvodes", "scipy_radau", "rk4"):
+        errs = [r["error_l2"] for r in recs if r["method"] == method]
+        assert errs[-1] < errs[0] / 10, (method, errs)
+    cvodes = [r for r in recs if r["method"] == "cvodes"]
+    assert all(r["atol"] == pytest.approx(r["rtol"] * wp.ATOL_PER_RTOL) for r in cvodes)
+
+
+def test_wall_at_error_interpolates_log_log():
+    recs = [
+        {
+            "method": "m",
+            "status": "ok",
+            "rtol": 1e-4,
+            "step_s": None,
+            "error_l2": 1e-4,
+            "wall_time_s": 1.0,
+        },
+        {
+            "method": "m",
+            "status": "ok",
+            "rtol": 1e-8,
+            "step_s": None,
+            "error_l2": 1e-8,
+            "wall_time_s": 100.0,
+        },
+        {"method": "m", "status": "failed", "rtol": 1e-9, "step_s": None},
+    ]
+    assert wp.wall_at_error(recs, "m", 1e-6) == pytest.approx(10.0)
+    assert wp.wall_at_error(recs, "m", 1e-10) is None
+
+
+def test_vent_scenario_slackens_the_threads():
+    sc = wp.scenarios(3)["vent"]
+    res = sc.run(SolverSettings(rtol=1e-8, atol=1e-11))
+    stretch = [
+        res[n].min() for n in res.names if n.startswith("myofibril.actin") and n.endswith(".e")
+    ]
+    assert min(stretch) < 0
+
+
+def test_plot_writes_a_small_png(small, tmp_path):
+    sc, ref = small
+    recs = wp.sweep(sc, ref, TINY, only=["cvodes"])
+    path = wp.plot(recs, sc, ref, tmp_path / "wp.png")
+    assert path.exists() and 0 < path.stat().st_size < 200_000
