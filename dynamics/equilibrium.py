@@ -190,12 +190,13 @@ def _check_domain(newton: _Newton, w: np.ndarray, u: np.ndarray, p: np.ndarray) 
         raise _Fail(bad, np.inf, 0)
 
 
-def out_of_domain(model: Model, values: np.ndarray) -> str:
+def out_of_domain(model: Model, values: np.ndarray, names: list[str] | None = None) -> str:
     """A message naming the first signal outside its ``[low, high]`` bounds, or "".
 
-    ``values``: signals in ``model.signal_names`` order, shape (n_signals, n_points).
+    ``values``: the signals ``names`` (default ``model.signal_names``), shape
+    (n_signals, n_points).
     """
-    for i, name in enumerate(model.signal_names):
+    for i, name in enumerate(model.signal_names if names is None else names):
         var = model.variables[name]
         if var.low == -np.inf and var.high == np.inf:
             continue

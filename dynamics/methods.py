@@ -47,6 +47,7 @@ import scipy.sparse as sp
 from .equilibrium import solve_equilibrium
 from .errors import ParameterError, SarcomereError, SolverError
 from .model import Model
+from .pysource import python_function
 from .simulate import Problem, register_method
 
 CHUNK_STEPS = 128
@@ -693,10 +694,28 @@ class _Plain:
 _SCIPY = {
     "scipy_rk45": (si.RK45, None),
     "scipy_radau": (si.Radau, "sparse"),
+    "scipy_radau_numpy": (si.Radau, "sparse"),
     "scipy_bdf": (si.BDF, "sparse"),
     "scipy_lsoda": (si.LSODA, "dense"),
 }
-_CALLS = {"buffer": _Buffered, "plain": _Plain}
+
+
+class _Python:
+    """The same Function as generated straight-line Python (a numpy/math right-hand side
+    as a user would write it, from the one copy of the physics: :mod:`.pysource`)."""
+
+    def __init__(self, F: cs.Function, p: np.ndarray) -> None:
+        self.f, self.p, self.seg = python_function(F), np.asarray(p, float), np.zeros(2)
+
+    def __call__(self, t: float, x: np.ndarray) -> np.ndarray:
+        return self.f((t,), x, self.p, self.seg)[0]
+
+
+_CALLS = {"buffer": _Buffered, "plain": _Plain, "python": _Python}
+_SCIPY_DEFAULTS = {  # the baseline a user writes: a Python/numpy RHS, scipy's FD Jacobian
+    "scipy_radau_numpy": {"call": "python", "jacobian": "finite_differences"},
+}
+_JACOBIANS = ("exact", "finite_differences")
 
 
 def _jacobian_callable(F: cs.Function, call, kind: str):
@@ -716,10 +735,15 @@ def _scipy(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
     """Drive a scipy OdeSolver step by step (what ``solve_ivp`` does), segment by segment."""
     _require_ode(prob)
     s, m = prob.settings, prob.model
-    opts = _options(prob, {"call": "buffer", "first_step": None, "max_step": math.inf})
+    defaults = {"call": "buffer", "jacobian": "exact", "first_step": None, "max_step": math.inf}
+    opts = _options(prob, {**defaults, **_SCIPY_DEFAULTS.get(s.method, {})})
     if opts["call"] not in _CALLS:
         raise ParameterError("solver.options.call", opts["call"], sorted(_CALLS))
+    if opts["jacobian"] not in _JACOBIANS:
+        raise ParameterError("solver.options.jacobian", opts["jacobian"], _JACOBIANS)
     cls, jac_kind = _SCIPY[s.method]
+    if opts["jacobian"] == "finite_differences":
+        jac_kind = None  # scipy estimates it by finite differences of the right-hand side
     fun = _CALLS[opts["call"]](_cached(prob, "rhs", SegmentDAE.rhs), prob.p)
     jcall = None
     if jac_kind:

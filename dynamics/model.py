@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import casadi as cs
 import numpy as np
@@ -197,6 +197,26 @@ class Model:
         raise ValueError(
             f"unknown function '{which}'; one of ode, alg, y, signals, energy, jac, dae_jac"
         )
+
+    @property
+    def bounded_signal_names(self) -> list[str]:
+        """Signals with a physical domain (finite ``low`` or ``high``)."""
+        return [
+            n
+            for n in self.signal_names
+            if np.isfinite(self.variables[n].low) or np.isfinite(self.variables[n].high)
+        ]
+
+    def signals_function(self, names: Sequence[str]) -> cs.Function:
+        """``signals(x, z, u, p)`` for a subset of :attr:`signal_names` (cached)."""
+        key = ("signals", *names)
+        cache = self.__dict__.setdefault("_functions", {})
+        if key not in cache:
+            index = {n: i for i, n in enumerate(self.signal_names)}
+            rows = [index[n] for n in names]
+            expr = self._signals[rows] if rows else cs.SX(0, 1)
+            cache[key] = cs.Function("signals", self._syms, [expr], _ARGS, ["signals"])
+        return cache[key]
 
     @property
     def energy_names(self) -> list[str]:

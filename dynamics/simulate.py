@@ -14,7 +14,7 @@ here, others (fixed-step, collocation, scipy) in :mod:`sarcomere.dynamics.method
 from __future__ import annotations
 
 import time as _time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import casadi as cs
@@ -169,6 +169,7 @@ def simulate(
     settings: SolverSettings | None = None,
     output_interval: float | None = None,
     t_out: np.ndarray | None = None,
+    signals: Sequence[str] | None = None,
 ) -> Result:
     """Simulate ``model`` from t = 0 to ``t_final`` [s].
 
@@ -190,6 +191,9 @@ def simulate(
         Method and tolerances; default CVODES at rtol 1e-6.
     output_interval, t_out : optional
         Output grid: a spacing [s] (default t_final/500) or explicit times.
+    signals : sequence of str, optional
+        The signals to return (default: every named signal). Evaluating all of them
+        costs about as much as the integration itself on small models.
 
     Returns
     -------
@@ -221,6 +225,10 @@ def simulate(
     elif x0 is not None:
         x_init = np.asarray(x0, dtype=float).reshape(-1)
     model.check_finite(x_init, "x")
+    wanted = list(model.signal_names if signals is None else signals)
+    unknown = [n for n in wanted if n not in model.signal_names]
+    if unknown:
+        raise ParameterError("signals", unknown[:5], f"signals of model '{model.name}'")
     signals = _input_signals(model, inputs)
     _check_input_range(model, signals, t_out)
     bps = []
@@ -233,29 +241,30 @@ def simulate(
     tic = _time.perf_counter()
     X, Z = METHODS[settings.method](prob)
     wall = _time.perf_counter() - tic
-    return _result(prob, X, Z, wall)
+    return _result(prob, X, Z, wall, wanted)
 
 
-def _result(prob: Problem, X: np.ndarray, Z: np.ndarray, wall: float) -> Result:
+def _result(prob: Problem, X: np.ndarray, Z: np.ndarray, wall: float, wanted: list[str]) -> Result:
     m = prob.model
     U = (
         np.column_stack([sig(prob.t_out) * np.ones_like(prob.t_out) for sig in prob.inputs])
         if prob.inputs
         else np.zeros((len(prob.t_out), 0))
     )
-    f = m.function("signals").map(len(prob.t_out))
-    P = np.repeat(prob.p[:, None], len(prob.t_out), axis=1)
-    S = np.array(f(X.T, Z.T, U.T, P))
     if not np.all(np.isfinite(X)):
         bad = np.argwhere(~np.isfinite(X))[0]
         raise prob.fail(
             f"state '{m.state_names[bad[1]]}' became non-finite", prob.t_out[bad[0]], X[bad[0] - 1]
         )
-    bad = out_of_domain(m, S)
+    names = list(dict.fromkeys(wanted + m.bounded_signal_names))
+    f = m.signals_function(names).map(len(prob.t_out))
+    P = np.repeat(prob.p[:, None], len(prob.t_out), axis=1)
+    S = np.array(f(X.T, Z.T, U.T, P)).reshape(len(names), len(prob.t_out))
+    bad = out_of_domain(m, S, names)
     if bad:
         raise prob.fail(f"left the physical domain: {bad}", float(prob.t_out[-1]), X[-1])
-    signals = {n: S[i] for i, n in enumerate(m.signal_names)}
-    units = {n: m.unit(n) for n in m.signal_names}
+    signals = {n: S[i] for i, n in enumerate(names[: len(wanted)])}
+    units = {n: m.unit(n) for n in signals}
     meta = {
         "model": m.name,
         "method": prob.settings.method,
@@ -272,6 +281,18 @@ def _result(prob: Problem, X: np.ndarray, Z: np.ndarray, wall: float) -> Result:
 _CACHE: dict = {}
 
 
+def _dae(prob: Problem) -> dict:
+    """The integrator's DAE dict: the model with the inputs as expressions of time."""
+    m = prob.model
+    t = cs.SX.sym("t")
+    u = prob.u_expr(t)
+    ode = cs.substitute(m.ode, m.u, u) if m.u.numel() else m.ode
+    dae = {"x": m.x, "p": m.p, "t": t, "ode": ode}
+    if m.nz:
+        dae.update(z=m.z, alg=cs.substitute(m.alg, m.u, u) if m.u.numel() else m.alg)
+    return dae
+
+
 def _sundials(prob: Problem, plugin: str) -> tuple[np.ndarray, np.ndarray]:
     m, s = prob.model, prob.settings
     if plugin == "cvodes" and m.nz:
@@ -279,13 +300,6 @@ def _sundials(prob: Problem, plugin: str) -> tuple[np.ndarray, np.ndarray]:
             f"cvodes needs an explicit ODE but model '{m.name}' keeps {m.nz} algebraic "
             "unknowns: use method 'idas'"
         )
-    t = cs.SX.sym("t")
-    u = prob.u_expr(t)
-    ode = cs.substitute(m.ode, m.u, u) if m.u.numel() else m.ode
-    alg = cs.substitute(m.alg, m.u, u) if m.u.numel() else m.alg
-    dae = {"x": m.x, "p": m.p, "t": t, "ode": ode}
-    if m.nz:
-        dae.update(z=m.z, alg=alg)
     opts = {
         "abstol": s.atol,
         "reltol": s.rtol,
@@ -300,10 +314,10 @@ def _sundials(prob: Problem, plugin: str) -> tuple[np.ndarray, np.ndarray]:
     stats = {"n_steps": 0, "n_rhs": 0, "n_jac": 0, "n_segments": 0}
     for a, b, grid in prob.segments():
         times = list(grid) if len(grid) and grid[-1] == b else [*grid, b]
-        key = (m, plugin, s, tuple(map(repr, prob.inputs)), a, tuple(times))
+        key = (m, plugin, repr(s), tuple(map(repr, prob.inputs)), a, tuple(times))
         F = _CACHE.get(key)
         if F is None:
-            F = cs.integrator("F", plugin, dae, a, times, opts)
+            F = cs.integrator("F", plugin, _dae(prob), a, times, opts)
             if len(_CACHE) > 256:
                 _CACHE.clear()
             _CACHE[key] = F
