@@ -136,13 +136,7 @@ def solve_equilibrium(
     p_target = m.parameters(params)
     if guess is None:  # first the model's own operating point, then continue from it
         u_start, p_start = m.u0(), m.parameters()
-        try:
-            w = newton.solve(np.concatenate([m.x0(), m.z0()]), u_start, p_start, tol, max_iter)[0]
-            _check_domain(newton, w, u_start, p_start)
-        except _Fail as f:
-            raise SolverError(
-                f"no equilibrium of '{m.name}' at its start values: {f.why}"
-            ) from None
+        w = _start_point(newton, u_start, p_start, tol, max_iter)
     else:
         w = np.concatenate([guess.x, guess.z])
         u_start, p_start = guess.u, guess.p
@@ -179,6 +173,50 @@ def solve_equilibrium(
         float(last[0]),
         int(last[1]),
     )
+
+
+SETTLE_TIME_S = 10.0
+"""Simulated time [s] of the fallback that lets a model settle before Newton."""
+
+
+def _start_point(newton: _Newton, u: np.ndarray, p: np.ndarray, tol: float, max_iter: int):
+    """The equilibrium at the start values: Newton from the start values, or, where that
+    fails (long chains start far from it), Newton after letting the dynamics settle."""
+    m = newton.model
+    w0 = np.concatenate([m.x0(), m.z0()])
+    try:
+        w = newton.solve(w0, u, p, tol, max_iter)[0]
+        _check_domain(newton, w, u, p)
+        return w
+    except _Fail as first:
+        if m.nz:
+            raise SolverError(
+                f"no equilibrium of '{m.name}' at its start values: {first.why}"
+            ) from None
+        why = first.why
+    from .simulate import SolverSettings, simulate  # simulate imports this module
+
+    try:
+        res = simulate(
+            m,
+            SETTLE_TIME_S,
+            dict(zip(m.input_names, u, strict=True)),
+            dict(zip(m.param_names, p, strict=True)),
+            x0=m.x0(),
+            settings=SolverSettings(rtol=1e-6, atol=1e-10),
+            t_out=np.array([0.0, SETTLE_TIME_S]),
+            signals=[],
+        )
+        x = np.array([res.meta["x_final"]]).ravel()
+        w = newton.solve(x, u, p, tol, max_iter)[0]
+        _check_domain(newton, w, u, p)
+        return w
+    except (SolverError, _Fail) as exc:
+        raise SolverError(
+            f"no equilibrium of '{m.name}' at its start values: Newton from the start values "
+            f"failed ({why}), and after {SETTLE_TIME_S:g} s of settling: "
+            f"{getattr(exc, 'why', exc)}"
+        ) from None
 
 
 def _check_domain(newton: _Newton, w: np.ndarray, u: np.ndarray, p: np.ndarray) -> None:

@@ -198,7 +198,7 @@ class Model:
             f"unknown function '{which}'; one of ode, alg, y, signals, energy, jac, dae_jac"
         )
 
-    @property
+    @functools.cached_property
     def bounded_signal_names(self) -> list[str]:
         """Signals with a physical domain (finite ``low`` or ``high``)."""
         return [
@@ -207,15 +207,20 @@ class Model:
             if np.isfinite(self.variables[n].low) or np.isfinite(self.variables[n].high)
         ]
 
-    def signals_function(self, names: Sequence[str]) -> cs.Function:
-        """``signals(x, z, u, p)`` for a subset of :attr:`signal_names` (cached)."""
-        key = ("signals", *names)
+    def signals_function(self, names: Sequence[str], n_points: int = 1) -> cs.Function:
+        """``signals(x, z, u, p)`` for a subset of :attr:`signal_names`, mapped over
+        ``n_points`` columns (cached)."""
+        key = ("signals", n_points, *names)
         cache = self.__dict__.setdefault("_functions", {})
         if key not in cache:
             index = {n: i for i, n in enumerate(self.signal_names)}
             rows = [index[n] for n in names]
             expr = self._signals[rows] if rows else cs.SX(0, 1)
-            cache[key] = cs.Function("signals", self._syms, [expr], _ARGS, ["signals"])
+            f = cs.Function("signals", self._syms, [expr], _ARGS, ["signals"])
+            cache[key] = f.map(n_points) if n_points > 1 else f
+            if len(cache) > 64:  # a handful of grids per model; keep the cache bounded
+                for old in [k for k in cache if k[0] == "signals"][:32]:
+                    del cache[old]
         return cache[key]
 
     @property

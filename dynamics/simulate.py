@@ -257,7 +257,7 @@ def _result(prob: Problem, X: np.ndarray, Z: np.ndarray, wall: float, wanted: li
             f"state '{m.state_names[bad[1]]}' became non-finite", prob.t_out[bad[0]], X[bad[0] - 1]
         )
     names = list(dict.fromkeys(wanted + m.bounded_signal_names))
-    f = m.signals_function(names).map(len(prob.t_out))
+    f = m.signals_function(names, len(prob.t_out))
     P = np.repeat(prob.p[:, None], len(prob.t_out), axis=1)
     S = np.array(f(X.T, Z.T, U.T, P)).reshape(len(names), len(prob.t_out))
     bad = out_of_domain(m, S, names)
@@ -272,6 +272,7 @@ def _result(prob: Problem, X: np.ndarray, Z: np.ndarray, wall: float, wanted: li
         "atol": prob.settings.atol,
         "step": prob.settings.step,
         "wall_time_s": wall,
+        "x_final": X[-1].tolist(),
         **prob.stats,
     }
     return Result("time", "s", prob.t_out, signals, units, meta)

@@ -209,3 +209,13 @@ def test_symmetric_reduction_is_exact_for_weightless_bodies():
         sym = solve_equilibrium(hanging_load(n, p, 0.05, fidelity="symmetric"), {P: 0.08e6})
         assert sym["myofibril.length"] == pytest.approx(full["myofibril.length"], abs=2e-7)
         assert hanging_load(n, p, 0.05, fidelity="symmetric").nx == 6
+
+
+def test_long_chain_equilibrium_settles_first_where_newton_alone_fails():
+    m = hanging_load(30, load_kg=0.05)
+    e = solve_equilibrium(m, {P: 0.0})
+    assert (
+        np.max(np.abs(e.x[[m.state_names.index(n) for n in m.state_names if n.endswith(".v")]]))
+        < 1e-9
+    )
+    assert 30 * 0.0549 < e["myofibril.length"] < 30 * 0.07
