@@ -93,7 +93,7 @@ def bind(sc: Scenario) -> Binding:
     setup = opts.get("setup", "hanging")
     if setup not in ("hanging", "isometric"):
         raise sc.error(("model", "options", "setup"), f"'{setup}': use 'hanging' or 'isometric'")
-    aps_fields = {f.name for f in dataclasses.fields(APSParams)} - {"sources"}
+    aps_fields = {f.name for f in dataclasses.fields(APSParams)}
     aps_over, model_over = {}, {}
     for key, raw in sc.parameters.items():
         group, _, name = key.partition(".")
@@ -242,7 +242,7 @@ def _no_load(model: Model, b: Binding) -> dict:
 
 
 def _aps_dict(p: APSParams) -> dict:
-    return {k: v for k, v in dataclasses.asdict(p).items() if k != "sources"}
+    return dataclasses.asdict(p)
 
 
 # --- kind "transient" ---------------------------------------------------------------

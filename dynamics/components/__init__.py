@@ -1,1 +1,1 @@
-"""placeholder"""
+"""The physics as components: mechanical, pneumatic and the APS/myofibril assembly."""

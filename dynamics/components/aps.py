@@ -17,7 +17,7 @@ an energy, so ``p dV`` work, elastic energy and gravity balance exactly.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import casadi as cs
 
@@ -105,7 +105,6 @@ class APSParams:
     b_tube: float = 0.3
     r_lam: float = 0.999
     n_poly: float = 1.0
-    sources: dict = field(default_factory=dict, compare=False, hash=False)
 
     def __post_init__(self) -> None:
         for name in ("l", "w0", "A_band", "h_jz", "L_r", "A_r", "A_p", "V0", "eps_slack"):
