@@ -126,6 +126,8 @@ def solve_equilibrium(
     m = model
     newton = _SOLVERS.get(id(m))
     if newton is None or newton.model is not m:
+        if len(_SOLVERS) > 64:  # bounded: sweeps build many models
+            _SOLVERS.clear()
         newton = _SOLVERS[id(m)] = _Newton(m)
     u_target = m.u0()
     for k, v in (inputs or {}).items():

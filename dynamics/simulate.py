@@ -82,10 +82,7 @@ class Problem:
 
     def u_expr(self, t: cs.SX) -> cs.SX:
         """Input vector as a CasADi expression of symbolic time."""
-        parts = [
-            sig.casadi(t) if hasattr(sig, "casadi") else cs.SX(float(sig(0.0)))
-            for sig in self.inputs
-        ]
+        parts = [sig.casadi(t) for sig in self.inputs]
         return cs.vertcat(*parts) if parts else cs.SX(0, 1)
 
     def segments(self) -> list[tuple[float, float, np.ndarray]]:
@@ -140,6 +137,13 @@ def _input_signals(model: Model, inputs: Mapping[str, object] | None) -> list:
     out = []
     for name in model.input_names:
         sig = inputs.get(name, model.variables[name].start)
+        if callable(sig) and not hasattr(sig, "casadi"):
+            raise ParameterError(
+                f"inputs.{name}",
+                sig,
+                "a constant or a signal with casadi(t) (see sarcomere.scenarios.signals): "
+                "the integrators need the input as an expression of time",
+            )
         out.append(sig if callable(sig) else _Const(float(sig)))
     return out
 

@@ -219,3 +219,8 @@ def test_long_chain_equilibrium_settles_first_where_newton_alone_fails():
         < 1e-9
     )
     assert 30 * 0.0549 < e["myofibril.length"] < 30 * 0.07
+
+
+def test_input_without_a_casadi_expression_is_refused(hang3):
+    with pytest.raises(ParameterError, match="casadi"):
+        simulate(hang3, 0.1, inputs={P: lambda t: 1e5})
