@@ -10,8 +10,15 @@ Steps, as a Modelica tool does them:
 3. Block-lower-triangular order: strongly connected components of the
    equation-dependency graph (scipy), ordered topologically (graphlib).
 4. Each scalar block that is linear in its unknown is solved symbolically and
-   substituted forward. What remains (algebraic loops, nonlinear scalar equations)
-   stays as the algebraic part ``0 = g(x, z, u, p)`` of a semi-explicit DAE.
+   substituted forward. Larger blocks (algebraic loops) are torn: equations linear in
+   one of the loop's unknowns (aliases, force balances) are solved and substituted;
+   what remains stays as the algebraic part ``0 = g(x, z, u, p)`` of a semi-explicit
+   DAE (a structurally or numerically singular remainder is a ModelError).
+5. Velocities asked for with ``Builder.der_of`` (dampers) become ``d expr/dx . f``; a
+   linear loop among them (a damper on a viscous node) is solved.
+
+Connection sets also share the start value one member declares (Newton guesses of
+algebraic potentials).
 
 Storage components (masses, chambers) alternating with transport components
 (springs, threads, orifices) give an explicit ODE with no algebraic part.
