@@ -141,7 +141,7 @@ def _input_signals(model: Model, inputs: Mapping[str, object] | None) -> list:
             raise ParameterError(
                 f"inputs.{name}",
                 sig,
-                "a constant or a signal with casadi(t) (see sarcomere.scenarios.signals): "
+                "a constant or a signal with casadi(t) (see sarcomere.dynamics.signals): "
                 "the integrators need the input as an expression of time",
             )
         out.append(sig if callable(sig) else _Const(float(sig)))

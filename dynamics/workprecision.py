@@ -35,7 +35,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import casadi as cs
 import numpy as np
 
 from . import methods  # noqa: F401  (registers the methods)
@@ -44,50 +43,12 @@ from .equilibrium import solve_equilibrium
 from .errors import SarcomereError
 from .model import Model
 from .results import Result
+from .signals import Ramp, Step
 from .simulate import SolverSettings, simulate
 
 P_CMD = "regulator.p_cmd"
 ATOL_PER_RTOL = 1e-3
 """Paired tolerances: ``atol = rtol * ATOL_PER_RTOL``."""
-
-
-# --- inputs (small local signals; the scenario layer has its own) -----------------------
-@dataclass(frozen=True)
-class StepCommand:
-    """``before`` [Pa] until ``time`` [s], then ``after`` [Pa] (right-continuous)."""
-
-    before: float
-    after: float
-    time: float
-
-    def __call__(self, t):
-        return np.where(np.asarray(t, float) < self.time, self.before, self.after) + 0.0
-
-    def casadi(self, t: cs.SX) -> cs.SX:
-        return cs.if_else(t < self.time, self.before, self.after)
-
-    def breakpoints(self, t0: float, tf: float) -> list[float]:
-        return [self.time] if t0 < self.time < tf else []
-
-
-@dataclass(frozen=True)
-class RampCommand:
-    """Linear from ``before`` [Pa] at t = 0 to ``after`` [Pa] at ``duration`` [s], then held."""
-
-    before: float
-    after: float
-    duration: float
-
-    def __call__(self, t):
-        frac = np.clip(np.asarray(t, float) / self.duration, 0.0, 1.0)
-        return self.before + (self.after - self.before) * frac
-
-    def casadi(self, t: cs.SX) -> cs.SX:
-        frac = cs.fmin(cs.fmax(t / self.duration, 0.0), 1.0)
-        return self.before + (self.after - self.before) * frac
-
-    def breakpoints(self, t0: float, tf: float) -> list[float]:
-        return [self.duration] if t0 < self.duration < tf else []
 
 
 # --- scenarios --------------------------------------------------------------------------
@@ -105,7 +66,7 @@ class Scenario:
         Load mass [kg] (the 1 g hook comes on top).
     p_start : float
         Command of the start equilibrium [Pa gauge].
-    command : StepCommand or RampCommand
+    command : Step or Ramp
         The regulator command [Pa gauge] over time.
     t_final : float
         Stop time [s].
@@ -120,7 +81,7 @@ class Scenario:
     n: int
     load_kg: float
     p_start: float
-    command: StepCommand | RampCommand
+    command: Step | Ramp
     t_final: float = 2.0
     n_out: int = 201
     params: tuple = ()
@@ -166,7 +127,7 @@ def scenarios(n: int = 3) -> dict[str, Scenario]:
             n,
             0.05,
             0.0,
-            RampCommand(0.0, 1e5, 2.0),
+            Ramp(final=1e5, duration=2.0, unit="Pa"),
         ),
         "step": Scenario(
             "step",
@@ -174,7 +135,7 @@ def scenarios(n: int = 3) -> dict[str, Scenario]:
             n,
             0.05,
             0.0,
-            StepCommand(0.0, 1e5, 0.1),
+            Step(final=1e5, time=0.1, unit="Pa"),
         ),
         "vent": Scenario(
             "vent",
@@ -182,7 +143,7 @@ def scenarios(n: int = 3) -> dict[str, Scenario]:
             n,
             0.0,
             1e5,
-            StepCommand(1e5, 0.0, 0.1),
+            Step(initial=1e5, final=0.0, time=0.1, unit="Pa"),
             params=(("regulator.tau", 0.01),),
         ),
     }

@@ -14,8 +14,8 @@ from sarcomere.dynamics.component import Component, System
 from sarcomere.dynamics.components.mechanical import Damper, Fixed, Mass, Spring
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SolverError
+from sarcomere.dynamics.signals import Ramp, Step
 from sarcomere.dynamics.simulate import SolverSettings, simulate
-from sarcomere.dynamics.workprecision import RampCommand, StepCommand
 
 ADAPTIVE = ["cvodes", "scipy_rk45", "scipy_radau", "scipy_bdf", "scipy_lsoda"]
 FIXED = {"rk4": 1e-3, "euler": 1e-4, "radau_fixed": 1e-2, "collocation": 1e-2}
@@ -89,7 +89,7 @@ def lag_model(tau: float = TAU_S):
 
 @pytest.mark.parametrize("method", ADAPTIVE + list(FIXED))
 def test_step_input_restarts_at_breakpoint(method):
-    step = StepCommand(0.0, 1.0, 0.3)
+    step = Step(final=1.0, time=0.3)
     res = simulate(
         lag_model(), 1.0, {"lag.u": step}, settings=settings(method), output_interval=0.01
     )
@@ -102,7 +102,7 @@ def test_step_input_restarts_at_breakpoint(method):
 
 @pytest.mark.parametrize("method", ["scipy_radau", "scipy_rk45", "rk4", "radau_fixed"])
 def test_ramp_input_evaluated_at_stage_times(method):
-    ramp = RampCommand(0.0, 1.0, 1.0)
+    ramp = Ramp(final=1.0, duration=1.0)
     res = simulate(
         lag_model(), 1.0, {"lag.u": ramp}, settings=settings(method), output_interval=0.05
     )
@@ -147,7 +147,7 @@ def test_max_stable_step_ignores_growing_and_zero_modes():
 
 def test_guard_warns_above_the_limit_and_not_below():
     model = lag_model(tau=0.01)  # lambda = -100 1/s: RK4 limit 27.85 ms
-    inputs = {"lag.u": StepCommand(0.0, 1.0, 0.3)}
+    inputs = {"lag.u": Step(final=1.0, time=0.3)}
     with warnings.catch_warnings():
         warnings.simplefilter("error", methods.StepStabilityWarning)
         simulate(
@@ -173,7 +173,7 @@ def test_blow_up_is_an_error_naming_the_time():
 def muscle():
     model = hanging_load(1, load_kg=0.05)
     x0 = solve_equilibrium(model, {"regulator.p_cmd": 0.0}).x
-    inputs = {"regulator.p_cmd": StepCommand(0.0, 1e5, 0.1)}
+    inputs = {"regulator.p_cmd": Step(final=1e5, time=0.1, unit="Pa")}
     ref = simulate(
         model,
         0.4,

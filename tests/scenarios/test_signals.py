@@ -10,6 +10,7 @@ import pytest
 
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
 from sarcomere.scenarios.signals import (
+    Chirp,
     Ramp,
     Signal,
     Sine,
@@ -24,6 +25,7 @@ SIGNALS = [
     Ramp(final=1e5, duration=2.0, initial=1e4, start=0.5, unit="Pa"),
     Staircase(levels=(0.0, 1e4, 3e4, 2e4), dwell=0.7, start=0.2, unit="Pa"),
     Sine(amplitude=2.0, frequency=1.5, offset=1.0, phase=0.3, start=0.4),
+    Chirp(amplitude=3e4, f0=0.5, f1=10.0, duration=2.0, offset=5e4, start=0.3, unit="Pa"),
     Table(times=(0.0, 0.5, 2.0, 3.0), values=(0.0, 4.0, -1.0, 2.0)),
 ]
 
@@ -154,3 +156,13 @@ def test_table_missing_file(tmp_path: Path) -> None:
 def test_signals_are_frozen() -> None:
     with pytest.raises(AttributeError):
         SIGNALS[0].final = 0.0  # type: ignore[misc]
+
+
+def test_chirp_sweeps_its_frequency_and_holds_after() -> None:
+    c = Chirp(amplitude=1.0, f0=1.0, f1=3.0, duration=1.0)
+    # instantaneous frequency f0 + (f1 - f0) t / T: zero crossings get closer
+    t = np.linspace(0.0, 1.0, 20001)
+    crossings = t[1:][np.diff(np.sign(c(t))) != 0]
+    assert np.all(np.diff(np.diff(crossings)) < 1e-3)
+    assert c(1.5) == pytest.approx(c(1.0))
+    assert c.breakpoints(0.0, 2.0) == [1.0]
