@@ -94,13 +94,14 @@ def isometric(
     else:
         if not fixture_stiffness > 0:
             raise ParameterError("fixture_stiffness", fixture_stiffness, "(0, inf) N/m or None")
-        # a spring from the fixture (at L) to the chain end, engaging after the gap
+        # a tension spring from the chain end (above) down to the fixture at L: it
+        # engages once the chain has lifted the hook by more than the gap
         anchor = sys.add(Fixed("fixture", s0=L))
         spring = sys.add(
             Spring("fixture_spring", c=fixture_stiffness, gap=fixture_gap, one_sided=True)
         )
         end = sys.add(Mass("hook", m=HOOK_MASS_KG, g=g, s_start=L))
         sys.connect(sensor.flange_b, end.flange_a)
-        sys.connect(end.flange_b, spring.flange_b)
-        sys.connect(spring.flange_a, anchor.flange)
+        sys.connect(end.flange_b, spring.flange_a)
+        sys.connect(spring.flange_b, anchor.flange)
     return sys.flatten()

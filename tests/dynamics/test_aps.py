@@ -224,3 +224,20 @@ def test_long_chain_equilibrium_settles_first_where_newton_alone_fails():
 def test_input_without_a_casadi_expression_is_refused(hang3):
     with pytest.raises(ParameterError, match="casadi"):
         simulate(hang3, 0.1, inputs={P: lambda t: 1e5})
+
+
+def _tared_force(m):
+    e0 = solve_equilibrium(m, {P: 0.0})
+    return solve_equilibrium(m, {P: 0.1e6}, guess=e0)["sensor.f"] - e0["sensor.f"]
+
+
+def test_spring_fixture_reads_less_than_rigid_and_gap_less_still():
+    rigid = _tared_force(isometric(1))
+    stiff = _tared_force(isometric(1, fixture_stiffness=1e5))
+    soft = _tared_force(isometric(1, fixture_stiffness=200.0))
+    gap = _tared_force(isometric(1, fixture_stiffness=2e3, fixture_gap=2e-3))
+    assert soft < stiff < rigid
+    assert stiff == pytest.approx(rigid, rel=0.05)
+    assert gap < _tared_force(isometric(1, fixture_stiffness=2e3))
+    # on a compliant fixture a second unit adds far less than a second 0.315 N
+    assert _tared_force(isometric(2, fixture_stiffness=200.0)) < 1.2 * soft
