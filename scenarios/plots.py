@@ -11,9 +11,6 @@ import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-
 from sarcomere.dynamics.results import Result
 
 #: SI unit -> (display unit, factor from SI to display).
@@ -83,6 +80,9 @@ def plot_groups(
     paths = []
     for group, names in groups.items():
         y_unit, y_scale = display(first.units[names[0]])
+        from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: CLI start-up
+        from matplotlib.figure import Figure
+
         fig = Figure(figsize=(6.4, 4.4), layout="constrained")
         FigureCanvasAgg(fig)
         ax = fig.add_subplot()
