@@ -219,3 +219,29 @@ class Chamber(Component):
         b.output("p_gauge", p - p_amb, "Pa", "gauge pressure")
         b.output("V", V, "m^3", "volume")
         b.energy("gas", e_gas + p_amb * V)
+
+
+class Cap(Component):
+    """A closed pneumatic port: no mass flow."""
+
+    def build(self, b: Builder) -> None:
+        b.equation(b.port("port", PNEUMATIC).m_flow, 0.0)
+
+
+class SealedVolume(Component):
+    """A :class:`Chamber` behind a :class:`Cap`: a gas spring on the flange (position s).
+
+    Parameters as :class:`Chamber`; the air mass is constant, so an isothermal volume
+    keeps ``p V`` constant and a polytropic one ``p V^n``.
+    """
+
+    def __init__(
+        self, name: str, V0: float, A: float, p_start: float = P_AMB, n_poly: float = 1.0
+    ) -> None:
+        super().__init__(name)
+        self.V0, self.A, self.p_start, self.n_poly = V0, A, p_start, n_poly
+
+    def build(self, b: Builder) -> None:
+        ch = b.add(Chamber("chamber", self.V0, self.A, self.p_start, self.n_poly))
+        b.connect(ch.port, b.add(Cap("cap")).port)
+        b.expose("flange", ch.flange)
