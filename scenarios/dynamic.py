@@ -93,7 +93,7 @@ def bind(sc: Scenario) -> Binding:
     setup = opts.get("setup", "hanging")
     if setup not in ("hanging", "isometric"):
         raise sc.error(("model", "options", "setup"), f"'{setup}': use 'hanging' or 'isometric'")
-    aps_fields = {f.name for f in dataclasses.fields(APSParams)}
+    aps_fields = {f.name for f in dataclasses.fields(APSParams)} - {"material"}  # [model]
     aps_over, model_over = {}, {}
     for key, raw in sc.parameters.items():
         group, _, name = key.partition(".")

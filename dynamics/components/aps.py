@@ -82,6 +82,8 @@ class APSParams:
         Laminar-region threshold ratio [1] (numerical, 0.995..0.999 typical).
     n_poly : float
         Polytropic exponent of the chamber air [1] (1 isothermal, 1.4 adiabatic).
+    material : str
+        Slug of the Yeoh material C1..C3 come from (provenance only).
     """
 
     l: float = 32e-3
@@ -105,6 +107,7 @@ class APSParams:
     b_tube: float = 0.3
     r_lam: float = 0.999
     n_poly: float = 1.0
+    material: str = "dragonskin_30"
 
     def __post_init__(self) -> None:
         for name in ("l", "w0", "A_band", "h_jz", "L_r", "A_r", "A_p", "V0", "eps_slack"):
@@ -139,6 +142,7 @@ class APSParams:
             C1=mat.C1,
             C2=mat.C2,
             C3=mat.C3,
+            material=mat.slug,
         )
         return replace(base, **overrides)
 
@@ -193,9 +197,10 @@ class YeohSpring(Component):
             low=1e-6,
             source="paper geometry: two junction zones of h_jz = 2 mm",
         )
-        C1 = b.parameter("C1", p.C1, "Pa", "Yeoh C1", source="paper (DragonSkin 30)")
-        C2 = b.parameter("C2", p.C2, "Pa", "Yeoh C2", source="paper (DragonSkin 30)")
-        C3 = b.parameter("C3", p.C3, "Pa", "Yeoh C3", source="paper (0 for DragonSkin 30)")
+        src = f"paper, material '{p.material}'"
+        C1 = b.parameter("C1", p.C1, "Pa", "Yeoh C1", source=src)
+        C2 = b.parameter("C2", p.C2, "Pa", "Yeoh C2", source=src)
+        C3 = b.parameter("C3", p.C3, "Pa", "Yeoh C3", source=src)
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         lam = 1.0 + (fb.s - fa.s) / L_r
         energy = A_r * L_r * yeoh_energy(lam, C1, C2, C3)
