@@ -35,6 +35,18 @@ def _chain(n: int, p: APSParams, fidelity: str, g: float) -> Myofibril | Symmetr
     return Myofibril("myofibril", n, p, level=fidelity, g=g)
 
 
+def _frame_regulator_chain(setup, n, params, fidelity, regulator_tau, g):
+    """The part both set-ups share: the chain hung from the frame, fed by the regulator."""
+    myo = _chain(n, params or APSParams.from_paper(), fidelity, g)
+    sys = System(f"{setup}_n{n}_{fidelity}")
+    frame = sys.add(Fixed("frame"))
+    reg = sys.add(Regulator("regulator", tau=regulator_tau))
+    mf = sys.add(myo)
+    sys.connect(frame.flange, mf.flange_a)
+    sys.connect(reg.port, mf.port)
+    return sys, myo, mf
+
+
 def hanging_load(
     n: int = 3,
     params: APSParams | None = None,
@@ -46,15 +58,8 @@ def hanging_load(
     """Myofibril of ``n`` APS hanging from the frame, a load mass [kg] at its lower end."""
     if not load_kg >= 0:
         raise ParameterError("load_kg", load_kg, "[0, inf) kg")
-    p = params or APSParams.from_paper()
-    myo = _chain(n, p, fidelity, g)
-    sys = System(f"hanging_n{n}_{fidelity}")
-    frame = sys.add(Fixed("frame"))
-    reg = sys.add(Regulator("regulator", tau=regulator_tau))
-    mf = sys.add(myo)
+    sys, myo, mf = _frame_regulator_chain("hanging", n, params, fidelity, regulator_tau, g)
     load = sys.add(Mass("load", m=HOOK_MASS_KG + load_kg, g=g, s_start=myo.rest_length))
-    sys.connect(frame.flange, mf.flange_a)
-    sys.connect(reg.port, mf.port)
     sys.connect(mf.flange_b, load.flange_a)
     return sys.flatten()
 
@@ -75,18 +80,11 @@ def isometric(
     ``fixture_gap`` [m] of play. ``length`` [m] is the fixture position (default: the
     geometric rest length of the chain).
     """
-    p = params or APSParams.from_paper()
-    myo = _chain(n, p, fidelity, g)
-    sys = System(f"isometric_n{n}_{fidelity}")
-    frame = sys.add(Fixed("frame"))
-    reg = sys.add(Regulator("regulator", tau=regulator_tau))
-    mf = sys.add(myo)
+    sys, myo, mf = _frame_regulator_chain("isometric", n, params, fidelity, regulator_tau, g)
     L = myo.rest_length if length is None else length
     if not L > 0:
         raise ParameterError("length", L, "(0, inf) m")
     sensor = sys.add(ForceSensor("sensor"))
-    sys.connect(frame.flange, mf.flange_a)
-    sys.connect(reg.port, mf.port)
     sys.connect(mf.flange_b, sensor.flange_a)
     if fixture_stiffness is None:
         fix = sys.add(Fixed("fixture", s0=L))
