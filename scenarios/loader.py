@@ -286,8 +286,12 @@ def parse_scenario(text: str, file: str = "<string>") -> Scenario:
     head = r.table(data["scenario"], ("scenario",), ("name", "kind", "description"), ("kind",))
     stem = Path(file).stem if file != "<string>" else "scenario"
     name = r.text(head, ("scenario",), "name", stem)
-    if not _NAME.match(name):
-        raise r.error(("scenario", "name"), "use letters, digits, '_', '-' and '.' only")
+    if not _NAME.match(name) or set(name) == {"."}:
+        raise r.error(
+            ("scenario", "name"),
+            f"'{name}': use letters, digits, '_', '-' and '.' only, not only dots "
+            "(it names the output folder)",
+        )
     return Scenario(
         name=name,
         kind=r.text(head, ("scenario",), "kind"),

@@ -78,10 +78,10 @@ stop_time = "1 s"
 """
 
 
-def test_bad_option_names_the_key_and_value():
+def test_bad_option_names_the_key_and_value(tmp_path):
     sc = parse_scenario(BAD, "bad.toml")
     with pytest.raises(ScenarioError, match=r"bad.toml.*load"):
-        run(sc, None, quiet=True)
+        run(sc, tmp_path, quiet=True)
 
 
 def test_unknown_setup_is_refused(tmp_path):
