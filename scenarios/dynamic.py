@@ -169,12 +169,17 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     if len(others) > 1 or (others and others[0].name not in ("n", "load")):
         raise sc.error(("sweep",), "at most one more axis, 'n' or 'load'")
     axis = others[0] if others else None
+    if axis is not None and axis.name == "n":
+        _check_n_values(sc, axis.values)
+    if axis is not None and axis.name == "load" and b.setup == "isometric":
+        raise sc.error(("sweep", "load"), "the isometric set-up holds no load; sweep 'n' instead")
     cases = axis.values if axis else (None,)
     results, metrics = {}, {}
     for value in cases:
-        n = int(value) if axis is not None and axis.name == "n" else b.n
+        n = round(value) if axis is not None and axis.name == "n" else b.n
         load = value if axis is not None and axis.name == "load" else b.load_kg
-        key, res, mets = _equilibrium_case(sc, b, fid, pressures, n, load)
+        prefix = f"n{n}_" if axis is not None and axis.name == "n" else ""
+        key, res, mets = _equilibrium_case(sc, b, fid, pressures, n, load, prefix)
         results[key] = res
         metrics.update(mets)
     return RunOutput(
@@ -187,7 +192,16 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     )
 
 
-def _equilibrium_case(sc, b: Binding, fid, pressures, n, load):
+def _check_n_values(sc: Scenario, values) -> None:
+    """Refuse a value of a ``[sweep.n]`` axis that is not a whole number of units >= 1."""
+    for v in values:
+        if v != round(v) or v < 1:
+            raise sc.error(("sweep", "n", "values"), f"{v:g} is not a whole number of units >= 1")
+
+
+def _equilibrium_case(sc, b: Binding, fid, pressures, n, load, prefix=""):
+    """One curve against pressure; ``prefix`` (``"n2_"``) names the swept n in its key
+    and metrics when n is an axis."""
     model = b.build(fid, n)
     over = dict(b.overrides)
     if b.setup == "hanging":
@@ -228,11 +242,11 @@ def _equilibrium_case(sc, b: Binding, fid, pressures, n, load):
     )
     mets = {
         f"rest_length_n{n}_mm": L00 * 1e3,
-        f"length_ratio_{grams}_0MPa": L0 / L00,
-        f"length_ratio_{grams}_{tag_p}": float(L[-1] / L00),
-        f"strain_{grams}_{tag_p}": float((L[-1] - L0) / L00),
+        f"length_ratio_{prefix}{grams}_0MPa": L0 / L00,
+        f"length_ratio_{prefix}{grams}_{tag_p}": float(L[-1] / L00),
+        f"strain_{prefix}{grams}_{tag_p}": float((L[-1] - L0) / L00),
     }
-    return f"load_{grams}", res, mets
+    return f"{prefix}load_{grams}", res, mets
 
 
 def _no_load(model: Model, b: Binding) -> dict:
