@@ -44,6 +44,8 @@ OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
     "fixture_gap": ("m", 0.0, True),
 }
 INPUT_ALIASES = {"pressure": P_CMD}
+#: Set-up -> options the other set-up reads and this one would ignore.
+SETUP_ONLY = {"hanging": ("fixture_stiffness", "fixture_gap"), "isometric": ("load",)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +80,12 @@ def bind(sc: Scenario) -> Binding:
     """Read ``[model]`` and ``[parameters]`` (see the module docstring)."""
     if sc.model.name != "myofibril":
         raise sc.error(("model", "name"), f"'{sc.model.name}' is not a model; use 'myofibril'")
+    if sc.model.geometry is not None:
+        raise sc.error(
+            ("model", "geometry"),
+            f"kind '{sc.kind}' does not use a geometry set (the paper model's, kind 'static'); "
+            "set APS dimensions with [parameters] aps.<field>",
+        )
     opts = {}
     for key, raw in sc.model.options.items():
         if key not in OPTIONS:
@@ -93,6 +101,11 @@ def bind(sc: Scenario) -> Binding:
     setup = opts.get("setup", "hanging")
     if setup not in ("hanging", "isometric"):
         raise sc.error(("model", "options", "setup"), f"'{setup}': use 'hanging' or 'isometric'")
+    for key in SETUP_ONLY[setup]:
+        if key in opts:
+            raise sc.error(
+                ("model", "options", key), f"set-up '{setup}' does not use '{key}'; remove it"
+            )
     aps_fields = {f.name for f in dataclasses.fields(APSParams)} - {"material"}  # [model]
     aps_over, model_over = {}, {}
     for key, raw in sc.parameters.items():
@@ -160,6 +173,7 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     ``length_ratio`` = L / L' with L' = L(0 MPa, no load, same n) and the paper's
     actuation strain ``strain`` = (L[P, load] - L[0, load]) / L[0, 0].
     """
+    sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=False)
     if not sc.sweep or sc.sweep[0].name != "pressure":
@@ -268,6 +282,12 @@ def _inputs(sc: Scenario, model: Model) -> dict:
             raise sc.error(
                 ("inputs", name), unknown_key(name, [*INPUT_ALIASES, *model.input_names])
             )
+        unit = model.variables[target].unit
+        if sig.unit != unit:
+            raise sc.error(
+                ("inputs", name, "unit"),
+                f"the signal is in '{sig.unit}' but input '{target}' is in '{unit}'",
+            )
         out[target] = sig
     return out
 
@@ -328,6 +348,9 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     error against "full" on ``[outputs] signals`` is within ``[outputs] tolerance``
     is chosen (see :func:`choose_fidelity`).
     """
+    sc.refuse_unused("sweep")
+    if sc.model.fidelity != "auto":
+        sc.refuse_unused("outputs.tolerance")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=True)
     extra = {"aps_params": _aps_dict(b.aps), "setup": b.setup}

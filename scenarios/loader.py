@@ -322,7 +322,7 @@ def _model(r: _Reader, value: object) -> ModelSpec:
         fidelity=r.choice(tbl, path, "fidelity", FIDELITIES, default.fidelity),
         n=n,
         material=r.text(tbl, path, "material", default.material),
-        geometry=r.text(tbl, path, "geometry", default.geometry),
+        geometry=r.text(tbl, path, "geometry") if "geometry" in tbl else None,
         options=r.table(tbl.get("options", {}), (*path, "options")),
     )
 

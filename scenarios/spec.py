@@ -86,8 +86,9 @@ class ModelSpec:
         Number of units (APS) in series, >= 1.
     material : str
         Material slug, e.g. ``"dragonskin_30"``.
-    geometry : str
-        Geometry set name, e.g. ``"experimental"``.
+    geometry : str or None
+        Geometry set name of the paper's model (kind "static"), e.g. ``"experimental"``;
+        None if not given (the other kinds take their geometry from ``[parameters]``).
     options : mapping
         Model-specific switches, e.g. the paper model's options; passed through.
     """
@@ -96,7 +97,7 @@ class ModelSpec:
     fidelity: str = "auto"
     n: int = 1
     material: str = "dragonskin_30"
-    geometry: str = "experimental"
+    geometry: str | None = None
     options: Mapping[str, object] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -288,6 +289,26 @@ class Scenario:
         sarcomere.dynamics.errors.ScenarioError: <string>: key 'model.n': must be 1
         """
         return ScenarioError(self.file, dotted(path), message, line_of(self.key_lines, path))
+
+    def refuse_unused(self, *sections: str) -> None:
+        """Refuse any of ``sections`` the file gives: this kind would ignore it.
+
+        ``sections`` are ``"inputs"``, ``"sweep"``, ``"simulation"``, ``"solver"`` and
+        ``"outputs.tolerance"``.
+        """
+        given = {
+            "inputs": bool(self.inputs),
+            "sweep": bool(self.sweep),
+            "simulation": self.simulation is not None,
+            "solver": self.solver != SolverSpec(),
+            "outputs.tolerance": self.outputs.tolerance is not None,
+        }
+        for section in sections:
+            if given[section]:
+                raise self.error(
+                    tuple(section.split(".")),
+                    f"kind '{self.kind}' does not use [{section}]; remove it",
+                )
 
     def parameter_error(self, name: str, message: str) -> ScenarioError:
         """A ScenarioError for the ``[parameters]`` entry ``name`` (a dotted name).
