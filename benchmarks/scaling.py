@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sarcomere.dynamics import workprecision as wp
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import SolverError
-from sarcomere.dynamics.simulate import SolverSettings, simulate
+from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
+from sarcomere.dynamics.studies import workprecision as wp
 
 SIZES = (1, 3, 10, 30, 100)
 T_FINAL_S = 0.5

@@ -1,8 +1,8 @@
 """Speed of the CasADi CVODES path against scipy's Radau at equal accuracy.
 
 Scenario: n = 3 APS, 50 g, pressure step 0 -> 0.1 MPa at 0.1 s, 2 s, 201 saved points
-(:func:`sarcomere.dynamics.workprecision.scenarios`). Accuracy: the l2 error of
-:mod:`sarcomere.dynamics.workprecision` (states scaled by their nominal magnitude)
+(:func:`sarcomere.dynamics.studies.workprecision.scenarios`). Accuracy: the l2 error of
+:mod:`sarcomere.dynamics.studies.workprecision` (states scaled by their nominal magnitude)
 against CVODES at rtol 1e-12. Each solver is swept over rtol = 10^-2.5 ... 10^-8 in
 half decades, every point timed as the median of ``--repeats`` warm calls of
 ``simulate``, and the wall time at error 1e-6 is interpolated log-log.
@@ -26,8 +26,8 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 
-from sarcomere.dynamics import workprecision as wp
-from sarcomere.dynamics.simulate import SolverSettings
+from sarcomere.dynamics.simulation.simulate import SolverSettings
+from sarcomere.dynamics.studies import workprecision as wp
 
 TARGET = 1e-6
 TOLERANCES = tuple(10.0 ** (-k / 2) for k in range(5, 17))

@@ -1,7 +1,7 @@
 """Ready-made systems for the paper's experiments: hanging load and isometric fixture.
 
-Each function builds a :class:`~sarcomere.dynamics.component.System`, flattens it and
-returns the :class:`~sarcomere.dynamics.model.Model`. Stable signal names:
+Each function builds a :class:`~sarcomere.dynamics.modeling.component.System`, flattens it and
+returns the :class:`~sarcomere.dynamics.modeling.model.Model`. Stable signal names:
 
 * ``regulator.p_cmd`` (input, Pa gauge), ``regulator.p_out`` (Pa gauge);
 * ``myofibril.length`` (m), ``myofibril.apsK.chamber.p_gauge`` (Pa), ``myofibril.actinK.T`` (N);
@@ -11,12 +11,12 @@ returns the :class:`~sarcomere.dynamics.model.Model`. Stable signal names:
 
 from __future__ import annotations
 
-from .component import System
 from .components.aps import CHAIN_LEVELS, APSParams, Myofibril, SymmetricMyofibril
 from .components.mechanical import G_STANDARD, Fixed, ForceSensor, Mass, Spring
 from .components.pneumatic import Regulator
 from .errors import ParameterError
-from .model import Model
+from .modeling.component import System
+from .modeling.model import Model
 
 HOOK_MASS_KG = 1.0e-3
 """Mass of the load hook and clip [kg] (estimate); the load mass adds to it, so the

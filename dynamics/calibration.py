@@ -26,7 +26,7 @@ from .assemblies import hanging_load, isometric
 from .components.aps import APSParams
 from .equilibrium import solve_equilibrium
 from .errors import SolverError
-from .model import Model
+from .modeling.model import Model
 
 P_TEST = 1.0e5  # Pa, the paper's maximum test pressure (0.1 MPa)
 

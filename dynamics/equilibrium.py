@@ -19,7 +19,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .errors import SolverError
-from .model import Model
+from .modeling.model import Model
 
 
 @dataclass
@@ -196,20 +196,8 @@ def _start_point(newton: _Newton, u: np.ndarray, p: np.ndarray, tol: float, max_
                 f"no equilibrium of '{m.name}' at its start values: {first.why}"
             ) from None
         why = first.why
-    from .simulate import SolverSettings, simulate  # simulate imports this module
-
     try:
-        res = simulate(
-            m,
-            SETTLE_TIME_S,
-            dict(zip(m.input_names, u, strict=True)),
-            dict(zip(m.param_names, p, strict=True)),
-            x0=m.x0(),
-            settings=SolverSettings(rtol=1e-6, atol=1e-10),
-            t_out=np.array([0.0, SETTLE_TIME_S]),
-            signals=[],
-        )
-        x = np.array([res.meta["x_final"]]).ravel()
+        x = _settle(m, u, p)
         w = newton.solve(x, u, p, tol, max_iter)[0]
         _check_domain(newton, w, u, p)
         return w
@@ -219,6 +207,24 @@ def _start_point(newton: _Newton, u: np.ndarray, p: np.ndarray, tol: float, max_
             f"failed ({why}), and after {SETTLE_TIME_S:g} s of settling: "
             f"{getattr(exc, 'why', exc)}"
         ) from None
+
+
+def _settle(m: Model, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """The state after SETTLE_TIME_S of the model's own dynamics at constant ``u`` (a
+    pseudo-transient start for Newton; CVODES on the flattened ODE, explicit models only)."""
+    uv, pv = cs.SX.sym("u", m.u.numel()), cs.SX.sym("p", m.p.numel())
+    ode = m.function("ode")(m.x, cs.SX(0, 1), uv, pv)
+    dae = {"x": m.x, "p": cs.vertcat(uv, pv), "ode": ode}
+    opts = {"abstol": 1e-10, "reltol": 1e-6, "max_num_steps": 100_000}
+    opts["disable_internal_warnings"] = True
+    F = cs.integrator("settle", "cvodes", dae, 0.0, SETTLE_TIME_S, opts)
+    try:
+        x = np.array(F(x0=m.x0(), p=np.concatenate([u, p]))["xf"]).ravel()
+    except RuntimeError as exc:
+        raise SolverError(f"settling failed: {str(exc).strip().splitlines()[-1][:200]}") from None
+    if not np.all(np.isfinite(x)):
+        raise SolverError("settling gave a non-finite state")
+    return x
 
 
 def _check_domain(newton: _Newton, w: np.ndarray, u: np.ndarray, p: np.ndarray) -> None:

@@ -1,11 +1,11 @@
 """``sarcomere bench``: numerical studies of the simulation engine.
 
 * ``sarcomere bench work-precision --out DIR [--quick]``: error against wall time for
-  every integration method on three scenarios (:mod:`sarcomere.dynamics.workprecision`);
+  every integration method on three scenarios (:mod:`sarcomere.dynamics.studies.workprecision`);
   writes ``DIR/work_precision.json`` (records), one chart per scenario and
   ``DIR/summary.json``.
 * ``sarcomere bench stability --out DIR [--quick]``: predicted against observed step
-  limits of the explicit fixed-step methods (:mod:`sarcomere.dynamics.stability`);
+  limits of the explicit fixed-step methods (:mod:`sarcomere.dynamics.studies.stability`);
   writes ``DIR/stability.json``, two charts and ``DIR/summary.json``.
 
 ``--quick`` uses fewer tolerances, steps and repeats (under a minute each).
@@ -21,7 +21,7 @@ from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 
-from sarcomere.dynamics import stability, workprecision
+from sarcomere.dynamics.studies import stability, workprecision
 
 from .outdir import check_out_dir, staged
 

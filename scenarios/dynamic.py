@@ -26,9 +26,9 @@ from sarcomere.dynamics.assemblies import FIDELITIES, hanging_load, isometric
 from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SarcomereError
-from sarcomere.dynamics.model import Model
+from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
-from sarcomere.dynamics.simulate import SolverSettings, simulate
+from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.units import to_si
 
 from .output import RunOutput, quantity_tag

@@ -15,13 +15,14 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING
 
+from sarcomere.dynamics.assemblies import FIDELITIES as MODEL_LEVELS
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
 
 if TYPE_CHECKING:
     from .signals import Signal
 
 #: Allowed values of ``[model] fidelity``.
-FIDELITIES = ("paper", "quasi_static", "full", "symmetric", "auto")
+FIDELITIES = ("paper", *MODEL_LEVELS, "auto")
 
 #: SI units of well-known input and sweep variables; other variables state ``unit``.
 KNOWN_UNITS: Mapping[str, str] = MappingProxyType(

@@ -21,10 +21,10 @@ from dataclasses import dataclass, replace
 
 import casadi as cs
 
-from ..component import Builder, Component
 from ..errors import ParameterError
+from ..modeling.component import Builder, Component
+from ..modeling.ports import FLANGE
 from ..params import experimental_geometry, get_material, yeoh_energy
-from ..ports import FLANGE
 from .mechanical import G_STANDARD, Damper, Fixed, Mass, Node, ViscousNode
 from .pneumatic import T_REF, Chamber, Restriction
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import casadi as cs
 
-from ..component import Builder, Component
-from ..ports import FLANGE
+from ..modeling.component import Builder, Component
+from ..modeling.ports import FLANGE
 
 G_STANDARD = 9.80665  # m/s^2, standard gravity (ISO 80000-3)
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import casadi as cs
 
-from ..component import Builder, Component
-from ..ports import FLANGE, PNEUMATIC
+from ..modeling.component import Builder, Component
+from ..modeling.ports import FLANGE, PNEUMATIC
 
 R_AIR = 287.05  # J/(kg K), specific gas constant of dry air
 P_AMB = 101325.0  # Pa, standard atmosphere (ISO 2533)

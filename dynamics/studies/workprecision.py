@@ -37,14 +37,14 @@ from pathlib import Path
 
 import numpy as np
 
-from . import methods  # noqa: F401  (registers the methods)
-from .assemblies import hanging_load
-from .equilibrium import solve_equilibrium
-from .errors import SarcomereError
-from .model import Model
-from .results import Result
-from .signals import Ramp, Step
-from .simulate import SolverSettings, simulate
+from ..assemblies import hanging_load
+from ..equilibrium import solve_equilibrium
+from ..errors import SarcomereError
+from ..modeling.model import Model
+from ..results import Result
+from ..signals import Ramp, Step
+from ..simulation.simulate import SolverSettings, simulate
+from . import pysource  # noqa: F401  (registers the scipy_radau_numpy baseline)
 
 P_CMD = "regulator.p_cmd"
 ATOL_PER_RTOL = 1e-3

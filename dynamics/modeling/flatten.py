@@ -34,9 +34,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, maximum_bipartite_matching
 
-from .component import Collected
-from .errors import ModelError
+from ..errors import ModelError
 from .model import Model
+from .variables import Collected
 
 
 def _connection_equations(c: Collected) -> list[tuple[cs.SX, str]]:

@@ -1,4 +1,4 @@
-"""Tests of sarcomere.dynamics.methods: every method against closed forms and each other."""
+"""Tests of the integration methods: each against closed forms and each other."""
 
 from __future__ import annotations
 
@@ -8,14 +8,15 @@ import warnings
 import numpy as np
 import pytest
 
-import sarcomere.dynamics.methods as methods
+import sarcomere.dynamics.simulation.fixed_step as methods
+import sarcomere.dynamics.simulation.guard as guard
 from sarcomere.dynamics.assemblies import hanging_load
-from sarcomere.dynamics.component import Component, System
 from sarcomere.dynamics.components.mechanical import Damper, Fixed, Mass, Spring
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SolverError
+from sarcomere.dynamics.modeling.component import Component, System
 from sarcomere.dynamics.signals import Ramp, Step
-from sarcomere.dynamics.simulate import SolverSettings, simulate
+from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 ADAPTIVE = ["cvodes", "scipy_rk45", "scipy_radau", "scipy_bdf", "scipy_lsoda"]
 FIXED = {"rk4": 1e-3, "euler": 1e-4, "radau_fixed": 1e-2, "collocation": 1e-2}
@@ -133,14 +134,14 @@ def test_steps_land_on_outputs_and_never_exceed_the_step():
 
 # --- stability guard --------------------------------------------------------------------
 def test_stability_radius_of_known_regions():
-    r = methods.stability_radius(methods.RK4.poly, np.array([np.pi, np.pi / 2]))
+    r = guard.stability_radius(guard.RK4.poly, np.array([np.pi, np.pi / 2]))
     np.testing.assert_allclose(r, [2.785293563, 2 * math.sqrt(2)], rtol=1e-6)
     th = np.array([np.pi, 3 * np.pi / 4])
-    np.testing.assert_allclose(methods.stability_radius(methods.EULER.poly, th), -2 * np.cos(th))
+    np.testing.assert_allclose(guard.stability_radius(guard.EULER.poly, th), -2 * np.cos(th))
 
 
 def test_max_stable_step_ignores_growing_and_zero_modes():
-    h, lam = methods.max_stable_step(np.array([-1000.0, 0.0, 5.0, -1 + 10j]), methods.RK4)
+    h, lam = guard.max_stable_step(np.array([-1000.0, 0.0, 5.0, -1 + 10j]), guard.RK4)
     assert lam == -1000.0
     assert h == pytest.approx(2.785293563e-3, rel=1e-6)
 
@@ -149,11 +150,11 @@ def test_guard_warns_above_the_limit_and_not_below():
     model = lag_model(tau=0.01)  # lambda = -100 1/s: RK4 limit 27.85 ms
     inputs = {"lag.u": Step(final=1.0, time=0.3)}
     with warnings.catch_warnings():
-        warnings.simplefilter("error", methods.StepStabilityWarning)
+        warnings.simplefilter("error", guard.StepStabilityWarning)
         simulate(
             model, 1.2, inputs, settings=SolverSettings("rk4", step=0.025), output_interval=0.3
         )
-    with pytest.warns(methods.StepStabilityWarning, match="stability limit 0.02785"):
+    with pytest.warns(guard.StepStabilityWarning, match="stability limit 0.02785"):
         simulate(model, 1.2, inputs, settings=SolverSettings("rk4", step=0.03), output_interval=0.3)
     refuse = SolverSettings("rk4", step=0.03, options=(("on_unstable", "raise"),))
     with pytest.raises(ParameterError, match="stability limit"):

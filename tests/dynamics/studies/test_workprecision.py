@@ -1,4 +1,4 @@
-"""Tests of sarcomere.dynamics.workprecision: metric, records, interpolation, scenarios."""
+"""Tests of sarcomere.dynamics.studies.workprecision: metric, records, interpolation, scenarios."""
 
 from __future__ import annotations
 
@@ -7,10 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-import sarcomere.dynamics.methods  # noqa: F401  (registers the methods)
-from sarcomere.dynamics import workprecision as wp
 from sarcomere.dynamics.results import Result
-from sarcomere.dynamics.simulate import SolverSettings
+from sarcomere.dynamics.simulation.simulate import SolverSettings
+from sarcomere.dynamics.studies import workprecision as wp
 
 TINY = wp.Plan(
     tolerances=(1e-3, 1e-5, 1e-7),

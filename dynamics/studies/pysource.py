@@ -2,8 +2,10 @@
 
 The baseline a user would write by hand, a numpy/``math`` right-hand side, without a
 second copy of the physics: every instruction of the SX algorithm becomes one line of
-plain Python on floats, compiled once with :func:`compile`. Used by the scipy methods
-with ``options=(("call", "python"),)`` and by the speed benchmarks; not a fast path.
+plain Python on floats, compiled once with :func:`compile`. Importing this module registers
+the baseline method ``scipy_radau_numpy`` (scipy's Radau on this Python right-hand side, with
+scipy's finite-difference Jacobian) used by the studies and the speed benchmarks; not a
+fast path, and the library never imports it.
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ import math
 import casadi as cs
 import numpy as np
 
-from .errors import ModelError
+from ..errors import ModelError
+from ..simulation.scipy_methods import register_scipy_variant
 
 _BINARY = {
     cs.OP_ADD: "{0} + {1}",
@@ -137,3 +140,19 @@ def python_function(F: cs.Function):
     }
     exec(compile(src, f"<sarcomere.pysource {F.name()}>", "exec"), namespace)  # noqa: S102
     return namespace[F.name()]
+
+
+class PythonCall:
+    """A Function of (t, x, p, seg) as generated straight-line Python, called as ``f(t, x)``
+    (the scipy methods' call interface)."""
+
+    def __init__(self, F: cs.Function, p: np.ndarray) -> None:
+        self.f, self.p, self.seg = python_function(F), np.asarray(p, float), np.zeros(2)
+
+    def __call__(self, t: float, x: np.ndarray) -> np.ndarray:
+        return self.f((t,), x, self.p, self.seg)[0]
+
+
+register_scipy_variant(
+    "scipy_radau_numpy", "scipy_radau", "python", PythonCall, {"jacobian": "finite_differences"}
+)

@@ -6,7 +6,6 @@ import casadi as cs
 import numpy as np
 import pytest
 
-from sarcomere.dynamics.component import System
 from sarcomere.dynamics.components.mechanical import Fixed, Mass
 from sarcomere.dynamics.components.pneumatic import (
     P_AMB,
@@ -21,7 +20,8 @@ from sarcomere.dynamics.components.pneumatic import (
     SealedVolume,
     iso6358_flow,
 )
-from sarcomere.dynamics.simulate import SolverSettings, simulate
+from sarcomere.dynamics.modeling.component import System
+from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 C, B, RL = 2e-9, 0.3, 0.999
 

@@ -6,8 +6,8 @@ import pytest
 
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
-from sarcomere.dynamics.pysource import python_function, python_source
-from sarcomere.dynamics.simulate import SolverSettings, simulate
+from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
+from sarcomere.dynamics.studies.pysource import python_function, python_source
 
 
 def test_model_rhs_and_jacobian_agree_with_casadi():

@@ -6,56 +6,23 @@ symbols named by the component's instance path (``"aps1.chamber.p"``); ``b.der``
 ``b.equation`` and ``b.output`` state the physics. Composite components ``b.add``
 children, ``b.connect`` their ports and ``b.expose`` inner ports as their own.
 :class:`System` is the root composite: ``System.flatten()`` returns a
-:class:`~sarcomere.dynamics.model.Model`.
+:class:`~sarcomere.dynamics.modeling.model.Model`.
 """
 
 from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
 
 import casadi as cs
 
-from .errors import ModelError, ParameterError
+from ..errors import ModelError, ParameterError
+from .flatten import flatten
+from .model import Model
 from .ports import Port, PortKind
+from .variables import Collected, Var
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-
-
-@dataclass(frozen=True)
-class Var:
-    """Metadata of one flattened variable.
-
-    ``kind`` is one of "state", "algebraic", "input", "parameter", "output".
-    ``value`` is the default of a parameter; ``start`` the start value of the rest.
-    """
-
-    name: str
-    kind: str
-    unit: str
-    description: str = ""
-    start: float = 0.0
-    low: float = -math.inf
-    high: float = math.inf
-    value: float = math.nan
-    source: str = ""
-
-
-@dataclass
-class Collected:
-    """Everything the builders of one system have declared (filled, then flattened)."""
-
-    variables: dict[str, Var] = field(default_factory=dict)
-    symbols: dict[str, cs.SX] = field(default_factory=dict)
-    ders: dict[str, cs.SX] = field(default_factory=dict)
-    equations: list[tuple[cs.SX, str]] = field(default_factory=list)
-    outputs: dict[str, cs.SX] = field(default_factory=dict)
-    ports: list[Port] = field(default_factory=list)
-    connections: list[tuple[Port, Port]] = field(default_factory=list)
-    energies: dict[str, cs.SX] = field(default_factory=dict)
-    time_derivatives: dict[str, cs.SX] = field(default_factory=dict)
-    dissipations: dict[str, cs.SX] = field(default_factory=dict)
 
 
 class Handle:
@@ -290,8 +257,7 @@ class System:
         """Connect two ports (see :meth:`Builder.connect`)."""
         self._root.connect(a, b)
 
-    def flatten(self):
-        """Flatten into one :class:`~sarcomere.dynamics.model.Model` (explicit ODE if possible)."""
-        from .flatten import flatten
-
+    def flatten(self) -> Model:
+        """Flatten into one :class:`~sarcomere.dynamics.modeling.model.Model` (explicit ODE
+        if possible)."""
         return flatten(self.name, self._c)

@@ -12,7 +12,7 @@ from sarcomere.dynamics.calibration import TARGETS, evaluate
 from sarcomere.dynamics.components.aps import APSParams, Myofibril
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SolverError
-from sarcomere.dynamics.simulate import SolverSettings, simulate
+from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 P = "regulator.p_cmd"
 

@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pytest
 
-from sarcomere.dynamics.component import Component, System
 from sarcomere.dynamics.components.mechanical import (
     Damper,
     Fixed,
@@ -15,7 +14,8 @@ from sarcomere.dynamics.components.mechanical import (
     Spring,
 )
 from sarcomere.dynamics.errors import ModelError, ParameterError
-from sarcomere.dynamics.simulate import SolverSettings, simulate
+from sarcomere.dynamics.modeling.component import Component, System
+from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 
 def oscillator(m=2.0, c=50.0, d=1.5, s0=0.1, g=0.0):

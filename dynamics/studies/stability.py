@@ -5,7 +5,7 @@ the Jacobian ``A = d ode / dx`` is evaluated at every saved point; a scheme with
 stability polynomial ``R`` is linearly stable for step ``h`` when every ``h lambda``
 lies in ``|R(z)| <= 1``, so ``h_max(t) = min_lambda r(arg lambda) / |lambda|`` with
 ``r`` the distance to the boundary of the region along the ray
-(:func:`~sarcomere.dynamics.methods.stability_radius`; RK4: 2.785 on the negative
+(:func:`~sarcomere.dynamics.simulation.guard.stability_radius`; RK4: 2.785 on the negative
 real axis, explicit Euler: ``-2 cos(theta)``). The predicted limit is the minimum
 over the trajectory.
 
@@ -14,7 +14,7 @@ reference on the same grid (every step saved):
 
 * ``blown_up``: the run raised (non-finite state) or its error exceeds 100 %;
 * ``silently_wrong``: finite, but the l2 error (scaled as in
-  :mod:`~sarcomere.dynamics.workprecision`) exceeds 1 %, or a spurious pressure
+  :mod:`~sarcomere.dynamics.studies.workprecision`) exceeds 1 %, or a spurious pressure
   oscillation persists: in the second half of the run the period-2 content of the
   chamber pressure error, ``max |e_k - (e_{k-1} + e_{k+1}) / 2|``, exceeds 1e-4 of the
   largest reference pressure (10 Pa at 0.1 MPa);
@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SolverError
-from .methods import SCHEMES, StepStabilityWarning, jacobian_eigenvalues, max_stable_step
-from .simulate import SolverSettings, simulate
+from ..errors import SolverError
+from ..simulation.guard import SCHEMES, StepStabilityWarning, jacobian_eigenvalues, max_stable_step
+from ..simulation.simulate import SolverSettings, simulate
 from .workprecision import P_CMD, Reference, Scenario, scenarios, state_errors, states
 
 ERROR_TOL = 1e-2

@@ -1,4 +1,4 @@
-"""Time-domain simulation of a flattened :class:`~sarcomere.dynamics.model.Model`.
+"""Time-domain simulation of a flattened :class:`~sarcomere.dynamics.modeling.model.Model`.
 
 One entry point, :func:`simulate`, whatever the method; every method returns a
 :class:`~sarcomere.dynamics.results.Result` of the same form (time plus every named
@@ -8,110 +8,23 @@ The integrator restarts at every breakpoint of an input (a regulator command ste
 discontinuity: stepping across it wastes steps and accuracy).
 
 Methods are registered in :data:`METHODS`; the CasADi SUNDIALS methods are defined
-here, others (fixed-step, collocation, scipy) in :mod:`sarcomere.dynamics.methods`.
+in :mod:`.sundials`, the others in :mod:`.fixed_step` and :mod:`.scipy_methods`.
 """
 
 from __future__ import annotations
 
 import time as _time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
 
 import casadi as cs
 import numpy as np
 
-from .equilibrium import out_of_domain
-from .errors import ParameterError, SolverError
-from .model import Model
-from .results import Result
-
-
-@dataclass(frozen=True)
-class SolverSettings:
-    """How to integrate.
-
-    Attributes
-    ----------
-    method : str
-        A key of :data:`METHODS` ("cvodes", "idas", "scipy_radau", ...).
-    rtol, atol : float
-        Relative and absolute tolerances (variable-step methods).
-    step : float or None
-        Step size [s] for fixed-step methods.
-    max_steps : int
-        Step limit per integration segment before the solver gives up.
-    options : tuple of (str, object)
-        Extra method options, passed through.
-    """
-
-    method: str = "cvodes"
-    rtol: float = 1e-6
-    atol: float = 1e-9
-    step: float | None = None
-    max_steps: int = 100_000
-    options: tuple = ()
-
-    def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ParameterError("solver.method", self.method, f"one of {sorted(METHODS)}")
-        for name in ("rtol", "atol"):
-            v = getattr(self, name)
-            if not (0 < v < 1):
-                raise ParameterError(f"solver.{name}", v, "(0, 1)")
-        if self.step is not None and not self.step > 0:
-            raise ParameterError("solver.step", self.step, "(0, inf) s")
-
-
-@dataclass
-class Problem:
-    """Everything a method needs: model, numeric vectors, input signals, output grid."""
-
-    model: Model
-    p: np.ndarray
-    x0: np.ndarray
-    z0: np.ndarray
-    inputs: list  # one signal per model input, in model.input_names order
-    t_out: np.ndarray
-    breakpoints: list[float]
-    settings: SolverSettings
-    stats: dict = field(default_factory=dict)
-
-    def u_at(self, t: float) -> np.ndarray:
-        """Input vector at time t [s]."""
-        return np.array([float(sig(t)) for sig in self.inputs], dtype=float)
-
-    def u_expr(self, t: cs.SX) -> cs.SX:
-        """Input vector as a CasADi expression of symbolic time."""
-        parts = [sig.casadi(t) for sig in self.inputs]
-        return cs.vertcat(*parts) if parts else cs.SX(0, 1)
-
-    def segments(self) -> list[tuple[float, float, np.ndarray]]:
-        """(t_start, t_end, output times in (t_start, t_end]) between breakpoints."""
-        edges = sorted({float(self.t_out[0]), float(self.t_out[-1]), *self.breakpoints})
-        out = []
-        for a, b in zip(edges[:-1], edges[1:], strict=True):
-            mask = (self.t_out > a) & (self.t_out <= b)
-            out.append((a, b, self.t_out[mask]))
-        return out
-
-    def fail(self, why: str, t: float, x: np.ndarray) -> SolverError:
-        """A SolverError naming the method, time and state."""
-        state = dict(zip(self.model.state_names, np.ravel(x).tolist(), strict=False))
-        return SolverError(f"{self.settings.method}: {why}", time=t, state=state)
-
-
-MethodFn = Callable[[Problem], tuple[np.ndarray, np.ndarray]]
-METHODS: dict[str, MethodFn] = {}
-
-
-def register_method(name: str) -> Callable[[MethodFn], MethodFn]:
-    """Decorator: make ``fn(problem) -> (X, Z)`` at ``problem.t_out`` available by name."""
-
-    def deco(fn: MethodFn) -> MethodFn:
-        METHODS[name] = fn
-        return fn
-
-    return deco
+from ..equilibrium import out_of_domain
+from ..errors import ParameterError
+from ..modeling.model import Model
+from ..results import Result
+from . import fixed_step, scipy_methods, sundials  # noqa: F401  (register the methods)
+from .settings import METHODS, Problem, SolverSettings
 
 
 class _Const:
@@ -280,96 +193,3 @@ def _result(prob: Problem, X: np.ndarray, Z: np.ndarray, wall: float, wanted: li
         **prob.stats,
     }
     return Result("time", "s", prob.t_out, signals, units, meta)
-
-
-# --- CasADi SUNDIALS methods ------------------------------------------------------------
-_CACHE: dict = {}
-
-
-def _dae(prob: Problem) -> dict:
-    """The integrator's DAE dict: the model with the inputs as expressions of time."""
-    m = prob.model
-    t = cs.SX.sym("t")
-    u = prob.u_expr(t)
-    ode = cs.substitute(m.ode, m.u, u) if m.u.numel() else m.ode
-    dae = {"x": m.x, "p": m.p, "t": t, "ode": ode}
-    if m.nz:
-        dae.update(z=m.z, alg=cs.substitute(m.alg, m.u, u) if m.u.numel() else m.alg)
-    return dae
-
-
-def _sundials(prob: Problem, plugin: str) -> tuple[np.ndarray, np.ndarray]:
-    m, s = prob.model, prob.settings
-    if plugin == "cvodes" and m.nz:
-        raise SolverError(
-            f"cvodes needs an explicit ODE but model '{m.name}' keeps {m.nz} algebraic "
-            "unknowns: use method 'idas'"
-        )
-    opts = {
-        "abstol": s.atol,
-        "reltol": s.rtol,
-        "max_num_steps": s.max_steps,
-        "print_stats": False,
-        "disable_internal_warnings": True,  # failures raise SolverError; t + h = t notes are noise
-        **dict(s.options),
-    }
-    X = np.empty((len(prob.t_out), m.nx))
-    Z = np.empty((len(prob.t_out), m.nz))
-    X[0], Z[0] = prob.x0, prob.z0
-    x, z = prob.x0, prob.z0
-    stats = {"n_steps": 0, "n_rhs": 0, "n_jac": 0, "n_segments": 0}
-    for a, b, grid in prob.segments():
-        times = list(grid) if len(grid) and grid[-1] == b else [*grid, b]
-        key = (m, plugin, repr(s), tuple(map(repr, prob.inputs)), a, tuple(times))
-        F = _CACHE.get(key)
-        if F is None:
-            F = cs.integrator("F", plugin, _dae(prob), a, times, opts)
-            if len(_CACHE) > 256:
-                _CACHE.clear()
-            _CACHE[key] = F
-        try:
-            res = F(x0=x, z0=z, p=prob.p)
-        except RuntimeError as exc:
-            raise prob.fail(_cause(str(exc)), a, x) from None
-        xf = np.array(res["xf"])
-        zf = np.array(res["zf"]) if m.nz else np.zeros((0, len(times)))
-        st = F.stats()
-        stats["n_steps"] += int(st.get("nsteps", 0))
-        stats["n_rhs"] += int(st.get("nfevals", 0))
-        stats["n_jac"] += int(st.get("njevals", 0) or st.get("nlinsetups", 0))
-        stats["n_segments"] += 1
-        idx = np.searchsorted(prob.t_out, grid)
-        X[idx] = xf[:, : len(grid)].T
-        Z[idx] = zf[:, : len(grid)].T
-        x, z = xf[:, -1], zf[:, -1]
-    prob.stats.update(stats)
-    return X, Z
-
-
-def _cause(msg: str) -> str:
-    for flag, why in (
-        ("CV_TOO_MUCH_WORK", "too many steps (max_steps reached): stiff or a step is too small"),
-        ("IDA_TOO_MUCH_WORK", "too many steps (max_steps reached)"),
-        ("CV_CONV_FAILURE", "Newton iteration failed to converge repeatedly"),
-        ("IDA_CONV_FAIL", "Newton iteration failed to converge repeatedly"),
-        ("CV_ERR_FAILURE", "error test failed repeatedly (step size became too small)"),
-        ("CV_RHSFUNC_FAIL", "right-hand side evaluation failed (NaN or inf)"),
-        ("IDA_RES_FAIL", "residual evaluation failed (NaN or inf)"),
-        ("IDA_INIT", "initial algebraic state inconsistent (calc_ic failed)"),
-    ):
-        if flag in msg:
-            return f"{why} [{flag}]"
-    return msg.strip().splitlines()[-1][:300]
-
-
-@register_method("cvodes")
-def _cvodes(prob: Problem):
-    return _sundials(prob, "cvodes")
-
-
-@register_method("idas")
-def _idas(prob: Problem):
-    return _sundials(prob, "idas")
-
-
-from . import methods as _methods  # noqa: E402, F401  (registers rk4, euler, collocation, radau_fixed, scipy_*)

@@ -17,9 +17,9 @@ from collections.abc import Mapping, Sequence
 import casadi as cs
 import numpy as np
 
-from .component import Var
-from .errors import ParameterError
-from .units import to_si
+from ..errors import ParameterError
+from ..units import to_si
+from .variables import Var
 
 _ARGS = ["x", "z", "u", "p"]
 

@@ -1,4 +1,4 @@
-"""Tests of sarcomere.dynamics.stability: predicted limits, classification, oscillations."""
+"""Tests of sarcomere.dynamics.studies.stability: predicted limits, classification, oscillations."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sarcomere.dynamics import stability as st
-from sarcomere.dynamics import workprecision as wp
 from sarcomere.dynamics.results import Result
+from sarcomere.dynamics.studies import stability as st
+from sarcomere.dynamics.studies import workprecision as wp
 
 
 @pytest.fixture(scope="module")
