@@ -33,7 +33,7 @@ from sarcomere.dynamics.units import to_si
 
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
-from .spec import Scenario, describe, unknown_key
+from .spec import Scenario, SimulationSpec, describe, unknown_key
 
 P_CMD = "regulator.p_cmd"
 OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
@@ -158,6 +158,43 @@ def _fidelity(sc: Scenario, allow_auto: bool) -> str:
     return fid
 
 
+def command_range(model: Model, overrides: dict) -> tuple[float, float]:
+    """The pressure commands the regulator follows, Pa gauge: ``[0, p_max]``.
+
+    The regulator clamps its command to ``[0, p_max]``; a command outside would run as the
+    clamped value under the requested one's name. The bounds of the input
+    ``regulator.p_cmd`` narrow the range where they are finite.
+    """
+    var = model.variables[P_CMD]
+    p_max = model.parameters(overrides)[model.index("regulator.p_max")[1]]
+    return max(var.low, 0.0), min(var.high, float(p_max))
+
+
+def _range_error(sc: Scenario, path: tuple, value: float, rng: tuple, when: str = ""):
+    low, high = (v / 1e6 for v in rng)
+    return sc.error(
+        path,
+        f"{value / 1e6:g} MPa{when} is outside the pressure regulator's range "
+        f"[{low:g}, {high:g}] MPa (regulator.p_cmd; it would clamp the command)",
+    )
+
+
+def _check_commands(sc: Scenario, model: Model, overrides: dict, inputs: dict, grid) -> None:
+    """Refuse a pressure command outside the regulator's range, at its first time."""
+    if P_CMD not in inputs:
+        return
+    rng = command_range(model, overrides)
+    sig = inputs[P_CMD]
+    bps = sig.breakpoints(grid[0], grid[-1]) if hasattr(sig, "breakpoints") else []
+    t = np.unique(np.concatenate([grid, bps]))
+    values = np.asarray(sig(t), dtype=float) * np.ones_like(t)
+    bad = np.flatnonzero((values < rng[0]) | (values > rng[1]))
+    if bad.size:
+        name = next(k for k, v in sc.inputs.items() if v is sig)
+        when = f" at t = {t[bad[0]]:g} s"
+        raise _range_error(sc, ("inputs", name), float(values[bad[0]]), rng, when)
+
+
 def _solve(sc: Scenario, model: Model, pressure: float, over: dict, guess):
     try:
         return solve_equilibrium(model, {P_CMD: pressure}, over, guess=guess)
@@ -218,6 +255,10 @@ def _equilibrium_case(sc, b: Binding, fid, pressures, n, load, prefix=""):
     and metrics when n is an axis."""
     model = b.build(fid, n)
     over = dict(b.overrides)
+    rng = command_range(model, over)
+    for p in pressures:
+        if not rng[0] <= p <= rng[1]:
+            raise _range_error(sc, ("sweep", "pressure"), float(p), rng)
     if b.setup == "hanging":
         over["load.m"] = model.variables["load.m"].value - b.load_kg + load
     rest = _solve(sc, model, 0.0, {**over, **_no_load(model, b)}, None)
@@ -314,12 +355,23 @@ def _default_signals(model: Model) -> list[str]:
     ]
 
 
+def time_grid(sim: SimulationSpec) -> np.ndarray:
+    """Output times from ``start_time`` to ``stop_time``, s: ``output_interval`` apart
+    (default 500 intervals), both ends included."""
+    span = sim.stop_time - sim.start_time
+    dt = sim.output_interval or span / 500
+    count = math.floor(span / dt * (1 + 1e-12))
+    return np.unique(np.append(sim.start_time + dt * np.arange(count + 1), sim.stop_time))
+
+
 def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
     model = b.build(fid)
     inputs = _inputs(sc, model)
     sim = sc.simulation
     if sim is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
+    grid = time_grid(sim)
+    _check_commands(sc, model, b.overrides, inputs, grid)
     u0 = {k: float(sig(sim.start_time)) for k, sig in inputs.items()}
     start = solve_equilibrium(model, u0, b.overrides)
     res = simulate(
@@ -330,7 +382,7 @@ def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
         x0=start.x,
         z0=start.z,
         settings=_settings(sc, model),
-        output_interval=sim.output_interval,
+        t_out=grid,
     )
     wanted = list(dict.fromkeys(_default_signals(model) + list(sc.outputs.signals)))
     missing = [n for n in wanted if n not in res]
