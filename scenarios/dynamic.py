@@ -396,9 +396,8 @@ def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
 def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     """Simulate from the equilibrium at the inputs' start values (see module docstring).
 
-    ``fidelity = "auto"``: every level runs; the cheapest (measured wall time) whose
-    error against "full" on ``[outputs] signals`` is within ``[outputs] tolerance``
-    is chosen (see :func:`choose_fidelity`).
+    ``fidelity = "auto"``: every level runs and the smallest one within ``[outputs]
+    tolerance`` of "full" is used (see :func:`choose_fidelity`).
     """
     sc.refuse_unused("sweep")
     if sc.model.fidelity != "auto":
@@ -411,9 +410,6 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
         fid, res, report = choose_fidelity(sc, b)
         extra["fidelity_levels"] = report
         metrics["fidelity_error"] = report[fid]["error"]
-        metrics["time_saved_pct"] = 100 * (
-            1 - report[fid]["wall_time_s"] / report["full"]["wall_time_s"]
-        )
     else:
         _, res = _simulate(sc, b, fid)
     metrics.update(transient_metrics(res))
@@ -450,15 +446,12 @@ def _rise_time(t: np.ndarray, y: np.ndarray) -> float:
     return float(t[i90] - t[i10])
 
 
-AUTO_REPEATS = 3
-"""Runs per level in ``fidelity = "auto"``; the median wall time ranks the levels."""
-
-
 def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
-    """Run every level, measure its error against "full" and its wall time; pick the
-    fastest (median of :data:`AUTO_REPEATS` runs) within tolerance. Error: max over the
-    scenario's ``[outputs] signals`` (default ``myofibril.length``) of
-    ``max |y - y_full| / (max y_full - min y_full)``."""
+    """Run every level, measure its error against "full" and pick the smallest level within
+    tolerance: fewest unknowns (states plus algebraic unknowns), ties to the level listed
+    first in :data:`~sarcomere.dynamics.assemblies.FIDELITIES`. The choice depends on the
+    scenario alone, never on timings. Error: max over the scenario's ``[outputs] signals``
+    (default ``myofibril.length``) of ``max |y - y_full| / (max y_full - min y_full)``."""
     tol = sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01
     care = list(sc.outputs.signals) or ["myofibril.length"]
     report, results = {}, {}
@@ -466,13 +459,14 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
         try:
             model, res = _simulate(sc, b, fid)
         except SarcomereError as exc:  # a level that cannot run this scene is skipped
-            report[fid] = {"error": math.inf, "wall_time_s": math.inf, "failed": str(exc)}
+            report[fid] = {"error": math.inf, "unknowns": math.inf, "failed": str(exc)}
             continue
         results[fid] = res
         report[fid] = {
-            "wall_time_s": res.meta["wall_time_s"],
+            "unknowns": model.nx + model.nz,
             "states": model.nx,
             "algebraic": model.nz,
+            "wall_time_s": res.meta["wall_time_s"],
         }
     if "full" not in results:
         raise SarcomereError(f"fidelity auto: the full model failed: {report['full']}")
@@ -485,8 +479,8 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
             span = max(np.ptp(ref[name]), 1e-12 * max(np.max(np.abs(ref[name])), 1e-300))
             errs.append(float(np.max(np.abs(res[name] - ref[name])) / span))
         report[fid]["error"] = max(errs)
-    ok = [f for f in results if report[f]["error"] <= tol]
-    best = min(ok, key=lambda f: report[f]["wall_time_s"])
+    ok = [f for f in FIDELITIES if f in results and report[f]["error"] <= tol]
+    best = min(ok, key=lambda f: (report[f]["unknowns"], FIDELITIES.index(f)))
     return best, results[best], report
 
 

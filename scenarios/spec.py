@@ -81,8 +81,8 @@ class ModelSpec:
     name : str
         The modelled system, e.g. ``"myofibril"`` (a chain of ``n`` APS).
     fidelity : str
-        One of :data:`FIDELITIES`; ``"auto"`` picks the cheapest level meeting
-        ``[outputs] tolerance``.
+        One of :data:`FIDELITIES`; default ``"full"``. ``"auto"`` picks the smallest level
+        meeting ``[outputs] tolerance`` (transients only).
     n : int
         Number of units (APS) in series, >= 1.
     material : str
@@ -95,7 +95,7 @@ class ModelSpec:
     """
 
     name: str = "myofibril"
-    fidelity: str = "auto"
+    fidelity: str = "full"
     n: int = 1
     material: str = "dragonskin_30"
     geometry: str | None = None
