@@ -18,8 +18,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 
+import casadi as cs
 import numpy as np
 
 from sarcomere.dynamics.assemblies import FIDELITIES, hanging_load, isometric
@@ -33,7 +35,7 @@ from sarcomere.dynamics.units import to_si
 
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
-from .spec import Scenario, SimulationSpec, describe, unknown_key
+from .spec import Scenario, SimulationSpec, describe, did_you_mean, unknown_key
 
 P_CMD = "regulator.p_cmd"
 OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
@@ -333,16 +335,51 @@ def _inputs(sc: Scenario, model: Model) -> dict:
     return out
 
 
+#: CasADi's names of settings that ``[solver]`` spells its own way.
+SUNDIALS_ALIASES = {"abstol": "atol", "reltol": "rtol", "max_num_steps": "max_steps"}
+
+
 def _settings(sc: Scenario, model: Model) -> SolverSettings:
+    """``[solver]`` as SolverSettings; every key is checked before anything runs: the
+    settings' own fields (``max_steps``) become fields, the rest must be options the
+    method accepts (CVODES and IDAS options are checked against CasADi's)."""
     s = sc.solver
     method = s.method or "cvodes"
     if method == "cvodes" and model.nz:  # a DAE level (static_chain): same BDF, DAE form
         method = "idas"
     kw = {k: v for k, v in (("rtol", s.rtol), ("atol", s.atol), ("step", s.step)) if v}
+    options = dict(s.options)
+    if "max_steps" in options:
+        steps = options.pop("max_steps")
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise sc.error(("solver", "max_steps"), f"{steps!r}: expected an integer >= 1")
+        kw["max_steps"] = steps
     try:
-        return SolverSettings(method=method, options=tuple(s.options.items()), **kw)
+        settings = SolverSettings(method=method, options=tuple(options.items()), **kw)
     except ParameterError as exc:
         raise sc.error(("solver", exc.name.split(".")[-1]), describe(exc)) from None
+    if method in ("cvodes", "idas"):
+        for key, value in options.items():
+            _check_sundials_option(sc, method, key, value)
+    return settings
+
+
+def _check_sundials_option(sc: Scenario, method: str, key: str, value: object) -> None:
+    """Refuse an option CasADi's ``method`` integrator would reject, in one line."""
+    path = ("solver", key)
+    if key in SUNDIALS_ALIASES:
+        raise sc.error(path, f"set it as [solver] {SUNDIALS_ALIASES[key]}")
+    x = cs.SX.sym("x")
+    try:
+        cs.integrator("probe", method, {"x": x, "ode": -x}, 0.0, [1.0], {key: value})
+    except RuntimeError as exc:
+        text = str(exc)
+        if "Unknown option" in text:
+            close = re.findall(r'> "([^"]+)"', text) + list(SUNDIALS_ALIASES.values())
+            hint = did_you_mean(key, close)
+            raise sc.error(path, f"'{key}' is not a setting or {method} option{hint}") from None
+        lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
+        raise sc.error(path, f"{value!r} refused by {method}: {lines[-1][:200]}") from None
 
 
 def _default_signals(model: Model) -> list[str]:
