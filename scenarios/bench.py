@@ -24,6 +24,7 @@ from pathlib import Path
 from sarcomere.dynamics.studies import stability, workprecision
 
 from .outdir import check_out_dir, staged
+from .progress import progress
 
 STUDIES = {
     "work-precision": (
@@ -49,7 +50,8 @@ def handler(args: argparse.Namespace) -> int:
     folder = check_out_dir(args.out, "--out")
     with staged(folder) as tmp:
         tic = time.perf_counter()
-        out = run(tmp, quick=args.quick)
+        with progress(f"bench {args.study}"):
+            out = run(tmp, quick=args.quick)
         wall = time.perf_counter() - tic
         _write_summary(args, solver, out, wall, tmp)
     for p in ["summary.json", *(p.name for p in out["files"])]:

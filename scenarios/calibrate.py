@@ -9,6 +9,7 @@ import time
 from sarcomere.dynamics.calibration import TARGETS, calibrate
 
 from .outdir import check_out_dir, staged
+from .progress import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,7 +30,8 @@ def handler(args: argparse.Namespace) -> int:
     """
     out = check_out_dir(args.out, "--out")
     tic = time.perf_counter()
-    res = calibrate(verbose=args.verbose)
+    with progress("calibrate", enabled=not args.verbose):
+        res = calibrate(verbose=args.verbose)
     wall = time.perf_counter() - tic
     record = {**res.to_dict(), "wall_time_s": wall}
     with staged(out) as tmp:

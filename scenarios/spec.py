@@ -32,6 +32,9 @@ KNOWN_UNITS: Mapping[str, str] = MappingProxyType(
 #: SI units a signal or sweep axis may declare with ``unit``.
 SI_UNITS = ("1", "Pa", "m", "kg", "N", "s", "rad", "Hz", "K", "m^3", "kg/s", "N/m", "J", "W")
 
+#: Default of ``[outputs] max_values``: 2e7 values are 160 MB in memory, ~420 MB of CSV.
+MAX_VALUES = 2e7
+
 KeyPath = tuple[str, ...]
 
 _BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
@@ -181,11 +184,15 @@ class OutputSpec:
         Relative accuracy needed (``"1 %"`` -> 0.01); guides ``fidelity = "auto"``.
     plots : mapping of str to tuple of str
         Figure name -> signals drawn together (same unit); empty groups signals by unit.
+    max_values : float
+        Largest result a run may keep (points x signals, 8 bytes each in memory); a run
+        estimated above it is refused before computing.
     """
 
     signals: tuple[str, ...] = ()
     tolerance: float | None = None
     plots: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    max_values: float = MAX_VALUES
 
     def __post_init__(self) -> None:
         _freeze(self, "plots")
