@@ -185,7 +185,7 @@ def _start_point(newton: _Newton, u: np.ndarray, p: np.ndarray, tol: float, max_
     """The equilibrium at the start values: Newton from the start values, or, where that
     fails (long chains start far from it), Newton after letting the dynamics settle."""
     m = newton.model
-    w0 = np.concatenate([m.x0(), m.z0()])
+    w0 = np.concatenate([m.x0(p), m.z0(p)])
     try:
         w = newton.solve(w0, u, p, tol, max_iter)[0]
         _check_domain(newton, w, u, p)
@@ -219,7 +219,7 @@ def _settle(m: Model, u: np.ndarray, p: np.ndarray) -> np.ndarray:
     opts["disable_internal_warnings"] = True
     F = cs.integrator("settle", "cvodes", dae, 0.0, SETTLE_TIME_S, opts)
     try:
-        x = np.array(F(x0=m.x0(), p=np.concatenate([u, p]))["xf"]).ravel()
+        x = np.array(F(x0=m.x0(p), p=np.concatenate([u, p]))["xf"]).ravel()
     except RuntimeError as exc:
         raise SolverError(f"settling failed: {str(exc).strip().splitlines()[-1][:200]}") from None
     if not np.all(np.isfinite(x)):

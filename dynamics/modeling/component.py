@@ -97,10 +97,14 @@ class Builder:
             name, Var(name, "parameter", unit, description, value, low, high, value, source)
         )
 
-    def state(self, name: str, start: float, unit: str, description: str, **bounds) -> cs.SX:
+    def state(
+        self, name: str, start: float | cs.SX, unit: str, description: str, **bounds
+    ) -> cs.SX:
         """A state variable [unit]; give its derivative with :meth:`der`.
 
-        ``bounds``: ``low``, ``high`` (its physical range, default unbounded).
+        ``start`` [unit]: a float or an expression of parameter symbols (see
+        :meth:`set_start`). ``bounds``: ``low``, ``high`` (its physical range, default
+        unbounded).
         """
         return self._unknown(name, "state", unit, description, start, **bounds)
 
@@ -113,7 +117,30 @@ class Builder:
         return self._unknown(name, "input", unit, description, start, **bounds)
 
     def _unknown(self, name, kind, unit, description, start, low=-math.inf, high=math.inf) -> cs.SX:
-        return self._new(name, Var(name, kind, unit, description, float(start), low, high))
+        full = f"{self.path}.{name}" if self.path else name
+        start = self._start(full, start)
+        return self._new(name, Var(name, kind, unit, description, start, low, high))
+
+    def _start(self, full: str, start: float | cs.SX) -> float | cs.SX:
+        """A start value as a float, or as an SX expression of declared parameters only."""
+        if not isinstance(start, cs.SX | cs.MX | cs.DM):
+            return float(start)
+        if isinstance(start, cs.MX) or start.numel() != 1:
+            raise ModelError(f"start value of '{full}' must be a scalar SX expression or float")
+        if isinstance(start, cs.DM) or start.is_constant():
+            return float(cs.DM(start))
+        others = [
+            s.name()
+            for s in cs.symvar(start)
+            if self._c.variables.get(s.name(), Var("", "", "")).kind != "parameter"
+            or not cs.is_equal(self._c.symbols[s.name()], s)
+        ]
+        if others:
+            raise ModelError(
+                f"start value of '{full}' depends on {others}, which are not parameters; "
+                "a start value may depend on parameters only"
+            )
+        return start
 
     def port(self, name: str, kind: PortKind) -> Port:
         """A connector with potential and flow unknowns named ``<path>.<name>.<var>``."""
@@ -132,10 +159,13 @@ class Builder:
         self._c.ports.append(p)
         return p
 
-    def set_start(self, sym: cs.SX, value: float) -> None:
-        """Start value (or Newton guess, for an algebraic unknown) of a declared variable."""
-        var = self._c.variables[sym.name()]
-        self._c.variables[sym.name()] = Var(**{**var.__dict__, "start": float(value)})
+    def set_start(self, sym: cs.SX, value: float | cs.SX) -> None:
+        """Start value (or Newton guess, for an algebraic unknown) of a declared variable
+        [its unit]: a float or an SX expression of parameter symbols, so that it follows
+        a parameter change (e.g. an air mass ``V0 p_amb / (R T)``)."""
+        name = sym.name()
+        var = self._c.variables[name]
+        self._c.variables[name] = Var(**{**var.__dict__, "start": self._start(name, value)})
 
     # --- equations -----------------------------------------------------------------
     def der(self, state: cs.SX, rhs: cs.SX) -> None:

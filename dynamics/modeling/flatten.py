@@ -65,8 +65,9 @@ def _connection_equations(c: Collected) -> list[tuple[cs.SX, str]]:
 
 
 def _share_start(c: Collected, names: list[str]) -> None:
-    """Give every potential of a connection set the start value one of them declares."""
-    starts = [c.variables[n].start for n in names if c.variables[n].start != 0.0]
+    """Give every potential of a connection set the start value one of them declares
+    (a nonzero float or a parameter expression)."""
+    starts = [s for s in (c.variables[n].start for n in names) if isinstance(s, cs.SX) or s != 0.0]
     if starts:
         for n in names:
             c.variables[n] = replace(c.variables[n], start=starts[0])

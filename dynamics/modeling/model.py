@@ -90,17 +90,22 @@ class Model:
         """SI unit of a variable."""
         return self.variables[name].unit
 
-    def x0(self) -> np.ndarray:
-        """Start values of the states."""
-        return np.array([self.variables[n].start for n in self.state_names], dtype=float)
+    def x0(self, p: np.ndarray | None = None) -> np.ndarray:
+        """Start values of the states at the parameter vector ``p`` (default: the
+        parameter defaults); start values that are parameter expressions follow ``p``."""
+        return self._start(p, "x0")
 
-    def z0(self) -> np.ndarray:
-        """Start guesses of the algebraic unknowns."""
-        return np.array([self.variables[n].start for n in self.alg_names], dtype=float)
+    def z0(self, p: np.ndarray | None = None) -> np.ndarray:
+        """Start guesses of the algebraic unknowns at ``p`` (default: parameter defaults)."""
+        return self._start(p, "z0")
 
-    def u0(self) -> np.ndarray:
-        """Start values of the inputs."""
-        return np.array([self.variables[n].start for n in self.input_names], dtype=float)
+    def u0(self, p: np.ndarray | None = None) -> np.ndarray:
+        """Start values of the inputs at ``p`` (default: parameter defaults)."""
+        return self._start(p, "u0")
+
+    def _start(self, p: np.ndarray | None, which: str) -> np.ndarray:
+        pv = self.parameters() if p is None else p
+        return np.array(self.function("start")(p=pv)[which], dtype=float).reshape(-1)
 
     def parameters(self, overrides: Mapping[str, object] | None = None) -> np.ndarray:
         """The parameter vector (defaults, then ``overrides`` by name; units allowed).
@@ -150,7 +155,8 @@ class Model:
         named variable, in :attr:`signal_names` order), "energy" (stored energies [J]
         and dissipated powers [W], summed as ``E`` and ``D``), "jac" (the Jacobians
         ``A = d ode/dx``, ``B = d ode/du``, ``C = dy/dx``, ``D = dy/du`` of the explicit
-        ODE, for ``nz == 0``), "dae_jac" (``ode_x, ode_z, alg_x, alg_z``).
+        ODE, for ``nz == 0``), "dae_jac" (``ode_x, ode_z, alg_x, alg_z``), and "start",
+        a Function of ``p`` alone giving the start values ``x0``, ``z0``, ``u0``.
         """
         cache = self.__dict__.setdefault("_functions", {})
         if which not in cache:
@@ -194,8 +200,16 @@ class Model:
                 _ARGS,
                 ["ode_x", "ode_z", "alg_x", "alg_z"],
             )
+        if which == "start":
+            starts = [
+                cs.vertcat(*[cs.SX(self.variables[n].start) for n in names])
+                if names
+                else cs.SX(0, 1)
+                for names in (self.state_names, self.alg_names, self.input_names)
+            ]
+            return cs.Function("start", [self.p], starts, ["p"], ["x0", "z0", "u0"])
         raise ValueError(
-            f"unknown function '{which}'; one of ode, alg, y, signals, energy, jac, dae_jac"
+            f"unknown function '{which}'; one of ode, alg, y, signals, energy, jac, dae_jac, start"
         )
 
     @functools.cached_property

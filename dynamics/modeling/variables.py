@@ -19,14 +19,16 @@ class Var:
     """Metadata of one flattened variable.
 
     ``kind`` is one of "state", "algebraic", "input", "parameter", "output".
-    ``value`` is the default of a parameter; ``start`` the start value of the rest.
+    ``value`` is the default of a parameter; ``start`` the start value of the rest
+    [unit]: a float, or a CasADi expression of parameter symbols (evaluated by
+    :meth:`Model.x0` and friends at the parameter vector in use).
     """
 
     name: str
     kind: str
     unit: str
     description: str = ""
-    start: float = 0.0
+    start: float | cs.SX = 0.0
     low: float = -math.inf
     high: float = math.inf
     value: float = math.nan
