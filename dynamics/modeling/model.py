@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping, Sequence
+from types import MappingProxyType
 
 import casadi as cs
 import numpy as np
@@ -31,8 +32,9 @@ class Model:
     ----------
     state_names, alg_names, input_names, param_names, output_names : list of str
         Variable paths in vector order, e.g. ``"aps1.chamber.m_air"``.
-    variables : dict of str to Var
-        Unit, start value, bounds, description (and default value for parameters).
+    variables : read-only mapping of str to Var
+        Unit, start value, bounds, description (and default value for parameters);
+        the Model's own copy, unaffected by later changes to the System.
     """
 
     def __init__(
@@ -49,7 +51,7 @@ class Model:
         dissipations: dict[str, cs.SX],
     ) -> None:
         self.name = name
-        self.variables = variables
+        self.variables: Mapping[str, Var] = MappingProxyType(dict(variables))
         self.state_names = [v for v, m in variables.items() if m.kind == "state"]
         self.alg_names = list(alg_vars)
         self.input_names = [v for v, m in variables.items() if m.kind == "input"]
