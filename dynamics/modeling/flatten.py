@@ -65,12 +65,12 @@ def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[tuple
 
 
 def _share_start(variables: dict[str, Var], names: list[str]) -> None:
-    """Give every potential of a connection set the start value one of them declares
-    (a nonzero float or a parameter expression)."""
-    starts = [s for s in (variables[n].start for n in names) if isinstance(s, cs.SX) or s != 0.0]
-    if starts:
+    """Give every potential of a connection set the start value (a nonzero float or a
+    parameter expression) and nominal value one of them declares."""
+    given = [v for v in (variables[n] for n in names) if isinstance(v.start, cs.SX) or v.start]
+    if given:
         for n in names:
-            variables[n] = replace(variables[n], start=starts[0])
+            variables[n] = replace(variables[n], start=given[0].start, nominal=given[0].nominal)
 
 
 def _substitute(expr: cs.SX, known: dict[str, cs.SX]) -> cs.SX:

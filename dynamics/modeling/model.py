@@ -109,6 +109,20 @@ class Model:
         pv = self.parameters() if p is None else p
         return np.array(self.function("start")(p=pv)[which], dtype=float).reshape(-1)
 
+    def nominal(self, which: str) -> np.ndarray:
+        """Nominal values (scaling magnitudes, > 0, in each variable's unit) of the vector
+        ``which``: "x", "z", "u", "p" or "y"."""
+        names = {
+            "x": self.state_names,
+            "z": self.alg_names,
+            "u": self.input_names,
+            "p": self.param_names,
+            "y": self.output_names,
+        }
+        if which not in names:
+            raise ParameterError("which", which, "one of 'x', 'z', 'u', 'p', 'y'")
+        return np.array([self.variables[n].nominal for n in names[which]], dtype=float)
+
     def parameters(self, overrides: Mapping[str, object] | None = None) -> np.ndarray:
         """The parameter vector (defaults, then ``overrides`` by name; units allowed).
 
