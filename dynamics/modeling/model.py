@@ -10,6 +10,7 @@ second copy of the physics anywhere.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import math
 from collections.abc import Mapping, Sequence
@@ -134,8 +135,6 @@ class Model:
         values = {n: self.variables[n].value for n in self.param_names}
         for key, raw in (overrides or {}).items():
             if key not in values:
-                import difflib
-
                 close = difflib.get_close_matches(key, self.param_names, n=3)
                 hint = f"did you mean {close}?" if close else f"{len(values)} parameters exist"
                 raise ParameterError(key, raw, f"a parameter of model '{self.name}'", hint)
@@ -169,10 +168,10 @@ class Model:
 
         ``which`` is one of "ode", "alg", "y" (declared outputs), "signals" (every
         named variable, in :attr:`signal_names` order), "energy" (stored energies [J]
-        and dissipated powers [W], summed as ``E`` and ``D``), "jac" (the Jacobians
-        ``A = d ode/dx``, ``B = d ode/du``, ``C = dy/dx``, ``D = dy/du`` of the explicit
-        ODE, for ``nz == 0``), "dae_jac" (``ode_x, ode_z, alg_x, alg_z``), and "start",
-        a Function of ``p`` alone giving the start values ``x0``, ``z0``, ``u0``.
+        and dissipated powers [W], summed as ``E`` and ``D``), "jac" (``A, B, C, D`` of
+        :meth:`linearization` for the declared outputs ``y``, with ``z`` eliminated),
+        "dae_jac" (``ode_x, ode_z, alg_x, alg_z``), and "start", a Function of ``p``
+        alone giving the start values ``x0``, ``z0``, ``u0``.
         """
         cache = self.__dict__.setdefault("_functions", {})
         if which not in cache:
@@ -191,18 +190,7 @@ class Model:
                 "energy", s, [cs.sum1(e), cs.sum1(d), e, d], _ARGS, ["E", "D", "terms", "dterms"]
             )
         if which == "jac":
-            return cs.Function(
-                "jacobians",
-                s,
-                [
-                    cs.jacobian(self.ode, self.x),
-                    cs.jacobian(self.ode, self.u),
-                    cs.jacobian(self.y, self.x),
-                    cs.jacobian(self.y, self.u),
-                ],
-                _ARGS,
-                ["A", "B", "C", "D"],
-            )
+            return self._linear("jacobians", self.y)
         if which == "dae_jac":
             return cs.Function(
                 "dae_jac",
@@ -227,6 +215,51 @@ class Model:
         raise ValueError(
             f"unknown function '{which}'; one of ode, alg, y, signals, energy, jac, dae_jac, start"
         )
+
+    def linearization(self, outputs: Sequence[str]) -> cs.Function:
+        """Exact linearisation ``(x, z, u, p) -> (A, B, C, D)`` of the signals ``outputs``.
+
+        ``dx' = A dx + B du``, ``dy = C dx + D du`` with ``y`` the named signals (any of
+        :attr:`signal_names`: states, algebraic and solved variables, inputs, declared
+        outputs). Where ``nz > 0``, ``z`` is eliminated by the implicit function theorem,
+        ``dz = -g_z^{-1} (g_x dx + g_u du)``; ``z`` must then satisfy ``g(x, z, u, p) = 0``.
+        Cached per output list; generates C.
+
+        Raises
+        ------
+        ParameterError
+            For a name that is not a signal of the model.
+        """
+        key = ("linearization", *outputs)
+        cache = self.__dict__.setdefault("_functions", {})
+        if key not in cache:
+            index = {n: i for i, n in enumerate(self.signal_names)}
+            for n in outputs:
+                if n not in index:
+                    close = difflib.get_close_matches(n, self.signal_names, n=3)
+                    hint = f"did you mean {close}?" if close else "see model.signal_names"
+                    raise ParameterError("outputs", n, f"a signal of model '{self.name}'", hint)
+            rows = [index[n] for n in outputs]
+            cache[key] = self._linear("linearization", self._signals[rows])
+        return cache[key]
+
+    def _linear(self, name: str, h: cs.SX) -> cs.Function:
+        """``A, B, C, D`` of ``(ode, h)`` with ``z`` eliminated (implicit function theorem)."""
+        jac = {
+            (e, v): cs.jacobian(expr, sym)
+            for e, expr in (("f", self.ode), ("h", h))
+            for v, sym in (("x", self.x), ("u", self.u))
+        }
+        if self.nz:
+            # dz/d[x, u] = -g_z^{-1} [g_x, g_u]
+            g_xu = cs.jacobian(self.alg, cs.vertcat(self.x, self.u))
+            dz = -cs.solve(cs.jacobian(self.alg, self.z), g_xu)
+            for e, expr in (("f", self.ode), ("h", h)):
+                through_z = cs.mtimes(cs.jacobian(expr, self.z), dz)
+                jac[e, "x"] += through_z[:, : self.nx]
+                jac[e, "u"] += through_z[:, self.nx :]
+        out = [jac["f", "x"], jac["f", "u"], jac["h", "x"], jac["h", "u"]]
+        return cs.Function(name, self._syms, out, _ARGS, ["A", "B", "C", "D"])
 
     @functools.cached_property
     def bounded_signal_names(self) -> list[str]:
