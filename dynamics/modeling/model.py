@@ -305,3 +305,19 @@ class Model:
         for n, v in zip(names, np.ravel(values), strict=True):
             if not math.isfinite(v):
                 raise ParameterError(n, v, "a finite number")
+
+    def cached(self, key: object, build):
+        """``build()`` memoised on this model by the value of ``key`` (hashable).
+
+        Bounded: at most 256 entries, the least recently used dropped first. The
+        simulation methods keep their integrators and step Functions here, so every
+        simulator and every ``simulate`` call on the model shares them.
+        """
+        memo = self.__dict__.setdefault("_memo", {})
+        if key in memo:
+            memo[key] = value = memo.pop(key)  # most recently used last
+            return value
+        value = memo[key] = build()
+        if len(memo) > 256:
+            del memo[next(iter(memo))]
+        return value
