@@ -54,6 +54,26 @@ class Signal(ABC):
     #: and ``""`` a key that is not a quantity.
     spec_keys: ClassVar[dict[str, str]] = {}
 
+    def __post_init__(self) -> None:
+        """Take every quantity field to SI (numbers or quantity strings), then check it."""
+        for f in fields(self):
+            kind = self.spec_keys.get(f.name, "")
+            if not kind:
+                continue
+            unit = self.unit if kind == "value" else kind
+            value = getattr(self, f.name)
+            if f.name == "levels":
+                if isinstance(value, str) or not hasattr(value, "__iter__"):
+                    raise ParameterError("levels", value, f"a list of values in {unit}")
+                si = tuple(to_si(v, unit, f"levels[{i}]") for i, v in enumerate(value))
+            else:
+                si = to_si(value, unit, f.name)
+            object.__setattr__(self, f.name, si)
+        self._check()
+
+    def _check(self) -> None:  # noqa: B027  (a hook; most types override it)
+        """Check the SI fields against each other (override; default: nothing to check)."""
+
     @classmethod
     def required_keys(cls) -> tuple[str, ...]:
         """Keys a scenario table must give for this type."""
@@ -140,7 +160,7 @@ class Ramp(Signal):
         "start": "s",
     }
 
-    def __post_init__(self) -> None:
+    def _check(self) -> None:
         if not self.duration > 0:
             raise ParameterError("duration", self.duration, "a duration > 0 s")
 
@@ -182,7 +202,7 @@ class Staircase(Signal):
     start: float = 0.0
     spec_keys: ClassVar[dict[str, str]] = {"levels": "value", "dwell": "s", "start": "s"}
 
-    def __post_init__(self) -> None:
+    def _check(self) -> None:
         if not self.levels:
             raise ParameterError("levels", self.levels, "a non-empty list of values")
         if not self.dwell > 0:
@@ -249,7 +269,7 @@ class Sine(Signal):
         "start": "s",
     }
 
-    def __post_init__(self) -> None:
+    def _check(self) -> None:
         if not self.frequency >= 0:
             raise ParameterError("frequency", self.frequency, "a frequency >= 0 Hz")
 
@@ -308,7 +328,7 @@ class Chirp(Signal):
         "start": "s",
     }
 
-    def __post_init__(self) -> None:
+    def _check(self) -> None:
         if not (self.f0 >= 0 and self.f1 >= 0):
             raise ParameterError("f0/f1", (self.f0, self.f1), "frequencies >= 0 Hz")
         if not self.duration > 0:
@@ -353,7 +373,15 @@ class Table(Signal):
     source: str = ""
     spec_keys: ClassVar[dict[str, str]] = {"file": "", "column": ""}
 
-    def __post_init__(self) -> None:
+    def _check(self) -> None:
+        for name in ("times", "values"):
+            unit = "s" if name == "times" else self.unit
+            seq = getattr(self, name)
+            if isinstance(seq, str) or not hasattr(seq, "__iter__"):
+                raise ParameterError(name, seq, f"a list of numbers in {unit}", self.source)
+            object.__setattr__(
+                self, name, tuple(to_si(v, unit, f"{name}[{i}]") for i, v in enumerate(seq))
+            )
         if len(self.times) < 2 or len(self.times) != len(self.values):
             raise ParameterError(
                 "times", self.times, "at least two times, as many as values", self.source
@@ -381,9 +409,11 @@ class Table(Signal):
 
         The first row is a header. The first column is time; the value column is
         ``column`` (by header name) or else the second column. A header cell may state
-        its unit in brackets, e.g. ``time [ms]`` or ``pressure [MPa]``; without one the
-        column is taken as SI (s, or ``unit``). Blank lines and lines starting with ``#``
-        are skipped. This reads the ``timeseries.csv`` files that runs write.
+        its unit in brackets, e.g. ``time [ms]`` or ``pressure [MPa]``. The time column
+        without one is taken as s; a value column of a dimensioned ``unit`` must state its
+        unit (a pressure table in MPa read as Pa would be a million times off, silently).
+        Blank lines and lines starting with ``#`` are skipped. This reads the
+        ``timeseries.csv`` files that runs write.
 
         Parameters
         ----------
@@ -426,6 +456,14 @@ class Table(Signal):
             )
         if col == 0 or len(header) <= col:
             raise ScenarioError(str(path), key, "need a time column and a value column", head_line)
+        if units[col] is None and unit not in ("1", ""):
+            raise ScenarioError(
+                str(path),
+                key,
+                f"column '{names[col]}' states no unit; write it in the header, e.g. "
+                f"'{names[col]} [{unit}]' or '{names[col]} [MPa]' (a value column needs one)",
+                head_line,
+            )
         scales = [_affine(units[0], "s", key, path), _affine(units[col], unit, key, path)]
         times, values = [], []
         for lineno, row in rows[1:]:

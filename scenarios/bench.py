@@ -23,6 +23,8 @@ from pathlib import Path
 
 from sarcomere.dynamics.studies import stability, workprecision
 
+from .outdir import check_out_dir, staged
+
 STUDIES = {
     "work-precision": (
         workprecision.study,
@@ -35,7 +37,7 @@ STUDIES = {
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare ``STUDY --out DIR [--quick]``."""
     parser.add_argument("study", choices=sorted(STUDIES), help="which study to run")
-    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument(
         "--quick", action="store_true", help="fewer points and repeats (under a minute)"
     )
@@ -44,9 +46,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def handler(args: argparse.Namespace) -> int:
     """Run the study, write its files and ``summary.json``; print one line per file."""
     run, solver = STUDIES[args.study]
-    tic = time.perf_counter()
-    out = run(args.out, quick=args.quick)
-    wall = time.perf_counter() - tic
+    folder = check_out_dir(args.out, "--out")
+    with staged(folder) as tmp:
+        tic = time.perf_counter()
+        out = run(tmp, quick=args.quick)
+        wall = time.perf_counter() - tic
+        _write_summary(args, solver, out, wall, tmp)
+    for p in ["summary.json", *(p.name for p in out["files"])]:
+        print(folder / p)
+    for key, value in out["metrics"].items():
+        print(f"  {key} = {value if value is None else f'{value:.4g}'}")
+    return 0
+
+
+def _write_summary(args: argparse.Namespace, solver: str, out: dict, wall: float, tmp: Path):
     summary = {
         "scenario": f"bench {args.study}" + (" --quick" if args.quick else ""),
         "fidelity": "full",
@@ -59,13 +72,7 @@ def handler(args: argparse.Namespace) -> int:
         },
         "files": [p.name for p in out["files"]],
     }
-    path = args.out / "summary.json"
-    path.write_text(json.dumps(summary, indent=1))
-    for p in [path, *out["files"]]:
-        print(p)
-    for key, value in out["metrics"].items():
-        print(f"  {key} = {value if value is None else f'{value:.4g}'}")
-    return 0
+    (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
 
 
 def _version() -> str:

@@ -5,17 +5,17 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from pathlib import Path
 
 from sarcomere.dynamics.calibration import TARGETS, calibrate
+
+from .outdir import check_out_dir, staged
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``--out DIR`` (default out/calibration) and ``--verbose`` (IPOPT's log)."""
     parser.add_argument(
         "--out",
-        type=Path,
-        default=Path("out/calibration"),
+        default="out/calibration",
         metavar="DIR",
         help="output folder for calibration.json (default: out/calibration)",
     )
@@ -23,14 +23,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def handler(args: argparse.Namespace) -> int:
-    """Run the calibration, write ``DIR/calibration.json`` and print a summary."""
+    """Run the calibration, write ``DIR/calibration.json`` and print a summary.
+
+    ``--out`` is checked before the fit starts; the folder is replaced only on success.
+    """
+    out = check_out_dir(args.out, "--out")
     tic = time.perf_counter()
     res = calibrate(verbose=args.verbose)
     wall = time.perf_counter() - tic
-    args.out.mkdir(parents=True, exist_ok=True)
     record = {**res.to_dict(), "wall_time_s": wall}
-    path = args.out / "calibration.json"
-    path.write_text(json.dumps(record, indent=2) + "\n")
+    with staged(out) as tmp:
+        (tmp / "calibration.json").write_text(json.dumps(record, indent=2) + "\n")
+    path = out / "calibration.json"
     print(f"calibration: IPOPT {res.status}, {wall:.1f} s")
     for name, value in res.fitted.items():
         print(f"  {name:<4} = {value:.6g} {record['fitted'][name]['unit']}")

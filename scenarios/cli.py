@@ -11,7 +11,6 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 from sarcomere.dynamics.errors import SarcomereError
 
@@ -56,7 +55,6 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--out",
-        type=Path,
         metavar="DIR",
         help="output folder (default: out/<scenario name>)",
     )
@@ -64,7 +62,7 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    run(args.scenario, args.out, quiet=args.quiet)
+    run(args.scenario, args.out, quiet=args.quiet)  # checks --out before computing
     return 0
 
 

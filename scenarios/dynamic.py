@@ -18,8 +18,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 
+import casadi as cs
 import numpy as np
 
 from sarcomere.dynamics.assemblies import FIDELITIES, hanging_load, isometric
@@ -33,7 +35,7 @@ from sarcomere.dynamics.units import to_si
 
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
-from .spec import Scenario, describe, unknown_key
+from .spec import Scenario, SimulationSpec, describe, did_you_mean, unknown_key
 
 P_CMD = "regulator.p_cmd"
 OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
@@ -44,6 +46,8 @@ OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
     "fixture_gap": ("m", 0.0, True),
 }
 INPUT_ALIASES = {"pressure": P_CMD}
+#: Set-up -> options the other set-up reads and this one would ignore.
+SETUP_ONLY = {"hanging": ("fixture_stiffness", "fixture_gap"), "isometric": ("load",)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +82,12 @@ def bind(sc: Scenario) -> Binding:
     """Read ``[model]`` and ``[parameters]`` (see the module docstring)."""
     if sc.model.name != "myofibril":
         raise sc.error(("model", "name"), f"'{sc.model.name}' is not a model; use 'myofibril'")
+    if sc.model.geometry is not None:
+        raise sc.error(
+            ("model", "geometry"),
+            f"kind '{sc.kind}' does not use a geometry set (the paper model's, kind 'static'); "
+            "set APS dimensions with [parameters] aps.<field>",
+        )
     opts = {}
     for key, raw in sc.model.options.items():
         if key not in OPTIONS:
@@ -93,6 +103,11 @@ def bind(sc: Scenario) -> Binding:
     setup = opts.get("setup", "hanging")
     if setup not in ("hanging", "isometric"):
         raise sc.error(("model", "options", "setup"), f"'{setup}': use 'hanging' or 'isometric'")
+    for key in SETUP_ONLY[setup]:
+        if key in opts:
+            raise sc.error(
+                ("model", "options", key), f"set-up '{setup}' does not use '{key}'; remove it"
+            )
     aps_fields = {f.name for f in dataclasses.fields(APSParams)} - {"material"}  # [model]
     aps_over, model_over = {}, {}
     for key, raw in sc.parameters.items():
@@ -145,6 +160,43 @@ def _fidelity(sc: Scenario, allow_auto: bool) -> str:
     return fid
 
 
+def command_range(model: Model, overrides: dict) -> tuple[float, float]:
+    """The pressure commands the regulator follows, Pa gauge: ``[0, p_max]``.
+
+    The regulator clamps its command to ``[0, p_max]``; a command outside would run as the
+    clamped value under the requested one's name. The bounds of the input
+    ``regulator.p_cmd`` narrow the range where they are finite.
+    """
+    var = model.variables[P_CMD]
+    p_max = model.parameters(overrides)[model.index("regulator.p_max")[1]]
+    return max(var.low, 0.0), min(var.high, float(p_max))
+
+
+def _range_error(sc: Scenario, path: tuple, value: float, rng: tuple, when: str = ""):
+    low, high = (v / 1e6 for v in rng)
+    return sc.error(
+        path,
+        f"{value / 1e6:g} MPa{when} is outside the pressure regulator's range "
+        f"[{low:g}, {high:g}] MPa (regulator.p_cmd; it would clamp the command)",
+    )
+
+
+def _check_commands(sc: Scenario, model: Model, overrides: dict, inputs: dict, grid) -> None:
+    """Refuse a pressure command outside the regulator's range, at its first time."""
+    if P_CMD not in inputs:
+        return
+    rng = command_range(model, overrides)
+    sig = inputs[P_CMD]
+    bps = sig.breakpoints(grid[0], grid[-1]) if hasattr(sig, "breakpoints") else []
+    t = np.unique(np.concatenate([grid, bps]))
+    values = np.asarray(sig(t), dtype=float) * np.ones_like(t)
+    bad = np.flatnonzero((values < rng[0]) | (values > rng[1]))
+    if bad.size:
+        name = next(k for k, v in sc.inputs.items() if v is sig)
+        when = f" at t = {t[bad[0]]:g} s"
+        raise _range_error(sc, ("inputs", name), float(values[bad[0]]), rng, when)
+
+
 def _solve(sc: Scenario, model: Model, pressure: float, over: dict, guess):
     try:
         return solve_equilibrium(model, {P_CMD: pressure}, over, guess=guess)
@@ -160,6 +212,7 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     ``length_ratio`` = L / L' with L' = L(0 MPa, no load, same n) and the paper's
     actuation strain ``strain`` = (L[P, load] - L[0, load]) / L[0, 0].
     """
+    sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=False)
     if not sc.sweep or sc.sweep[0].name != "pressure":
@@ -169,12 +222,17 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     if len(others) > 1 or (others and others[0].name not in ("n", "load")):
         raise sc.error(("sweep",), "at most one more axis, 'n' or 'load'")
     axis = others[0] if others else None
+    if axis is not None and axis.name == "n":
+        _check_n_values(sc, axis.values)
+    if axis is not None and axis.name == "load" and b.setup == "isometric":
+        raise sc.error(("sweep", "load"), "the isometric set-up holds no load; sweep 'n' instead")
     cases = axis.values if axis else (None,)
     results, metrics = {}, {}
     for value in cases:
-        n = int(value) if axis is not None and axis.name == "n" else b.n
+        n = round(value) if axis is not None and axis.name == "n" else b.n
         load = value if axis is not None and axis.name == "load" else b.load_kg
-        key, res, mets = _equilibrium_case(sc, b, fid, pressures, n, load)
+        prefix = f"n{n}_" if axis is not None and axis.name == "n" else ""
+        key, res, mets = _equilibrium_case(sc, b, fid, pressures, n, load, prefix)
         results[key] = res
         metrics.update(mets)
     return RunOutput(
@@ -187,9 +245,22 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     )
 
 
-def _equilibrium_case(sc, b: Binding, fid, pressures, n, load):
+def _check_n_values(sc: Scenario, values) -> None:
+    """Refuse a value of a ``[sweep.n]`` axis that is not a whole number of units >= 1."""
+    for v in values:
+        if v != round(v) or v < 1:
+            raise sc.error(("sweep", "n", "values"), f"{v:g} is not a whole number of units >= 1")
+
+
+def _equilibrium_case(sc, b: Binding, fid, pressures, n, load, prefix=""):
+    """One curve against pressure; ``prefix`` (``"n2_"``) names the swept n in its key
+    and metrics when n is an axis."""
     model = b.build(fid, n)
     over = dict(b.overrides)
+    rng = command_range(model, over)
+    for p in pressures:
+        if not rng[0] <= p <= rng[1]:
+            raise _range_error(sc, ("sweep", "pressure"), float(p), rng)
     if b.setup == "hanging":
         over["load.m"] = model.variables["load.m"].value - b.load_kg + load
     rest = _solve(sc, model, 0.0, {**over, **_no_load(model, b)}, None)
@@ -228,11 +299,11 @@ def _equilibrium_case(sc, b: Binding, fid, pressures, n, load):
     )
     mets = {
         f"rest_length_n{n}_mm": L00 * 1e3,
-        f"length_ratio_{grams}_0MPa": L0 / L00,
-        f"length_ratio_{grams}_{tag_p}": float(L[-1] / L00),
-        f"strain_{grams}_{tag_p}": float((L[-1] - L0) / L00),
+        f"length_ratio_{prefix}{grams}_0MPa": L0 / L00,
+        f"length_ratio_{prefix}{grams}_{tag_p}": float(L[-1] / L00),
+        f"strain_{prefix}{grams}_{tag_p}": float((L[-1] - L0) / L00),
     }
-    return f"load_{grams}", res, mets
+    return f"{prefix}load_{grams}", res, mets
 
 
 def _no_load(model: Model, b: Binding) -> dict:
@@ -254,20 +325,61 @@ def _inputs(sc: Scenario, model: Model) -> dict:
             raise sc.error(
                 ("inputs", name), unknown_key(name, [*INPUT_ALIASES, *model.input_names])
             )
+        unit = model.variables[target].unit
+        if sig.unit != unit:
+            raise sc.error(
+                ("inputs", name, "unit"),
+                f"the signal is in '{sig.unit}' but input '{target}' is in '{unit}'",
+            )
         out[target] = sig
     return out
 
 
+#: CasADi's names of settings that ``[solver]`` spells its own way.
+SUNDIALS_ALIASES = {"abstol": "atol", "reltol": "rtol", "max_num_steps": "max_steps"}
+
+
 def _settings(sc: Scenario, model: Model) -> SolverSettings:
+    """``[solver]`` as SolverSettings; every key is checked before anything runs: the
+    settings' own fields (``max_steps``) become fields, the rest must be options the
+    method accepts (CVODES and IDAS options are checked against CasADi's)."""
     s = sc.solver
     method = s.method or "cvodes"
     if method == "cvodes" and model.nz:  # a DAE level (static_chain): same BDF, DAE form
         method = "idas"
     kw = {k: v for k, v in (("rtol", s.rtol), ("atol", s.atol), ("step", s.step)) if v}
+    options = dict(s.options)
+    if "max_steps" in options:
+        steps = options.pop("max_steps")
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise sc.error(("solver", "max_steps"), f"{steps!r}: expected an integer >= 1")
+        kw["max_steps"] = steps
     try:
-        return SolverSettings(method=method, options=tuple(s.options.items()), **kw)
+        settings = SolverSettings(method=method, options=tuple(options.items()), **kw)
     except ParameterError as exc:
         raise sc.error(("solver", exc.name.split(".")[-1]), describe(exc)) from None
+    if method in ("cvodes", "idas"):
+        for key, value in options.items():
+            _check_sundials_option(sc, method, key, value)
+    return settings
+
+
+def _check_sundials_option(sc: Scenario, method: str, key: str, value: object) -> None:
+    """Refuse an option CasADi's ``method`` integrator would reject, in one line."""
+    path = ("solver", key)
+    if key in SUNDIALS_ALIASES:
+        raise sc.error(path, f"set it as [solver] {SUNDIALS_ALIASES[key]}")
+    x = cs.SX.sym("x")
+    try:
+        cs.integrator("probe", method, {"x": x, "ode": -x}, 0.0, [1.0], {key: value})
+    except RuntimeError as exc:
+        text = str(exc)
+        if "Unknown option" in text:
+            close = re.findall(r'> "([^"]+)"', text) + list(SUNDIALS_ALIASES.values())
+            hint = did_you_mean(key, close)
+            raise sc.error(path, f"'{key}' is not a setting or {method} option{hint}") from None
+        lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
+        raise sc.error(path, f"{value!r} refused by {method}: {lines[-1][:200]}") from None
 
 
 def _default_signals(model: Model) -> list[str]:
@@ -280,12 +392,23 @@ def _default_signals(model: Model) -> list[str]:
     ]
 
 
+def time_grid(sim: SimulationSpec) -> np.ndarray:
+    """Output times from ``start_time`` to ``stop_time``, s: ``output_interval`` apart
+    (default 500 intervals), both ends included."""
+    span = sim.stop_time - sim.start_time
+    dt = sim.output_interval or span / 500
+    count = math.floor(span / dt * (1 + 1e-12))
+    return np.unique(np.append(sim.start_time + dt * np.arange(count + 1), sim.stop_time))
+
+
 def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
     model = b.build(fid)
     inputs = _inputs(sc, model)
     sim = sc.simulation
     if sim is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
+    grid = time_grid(sim)
+    _check_commands(sc, model, b.overrides, inputs, grid)
     u0 = {k: float(sig(sim.start_time)) for k, sig in inputs.items()}
     start = solve_equilibrium(model, u0, b.overrides)
     res = simulate(
@@ -296,7 +419,7 @@ def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
         x0=start.x,
         z0=start.z,
         settings=_settings(sc, model),
-        output_interval=sim.output_interval,
+        t_out=grid,
     )
     wanted = list(dict.fromkeys(_default_signals(model) + list(sc.outputs.signals)))
     missing = [n for n in wanted if n not in res]
@@ -310,10 +433,12 @@ def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
 def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     """Simulate from the equilibrium at the inputs' start values (see module docstring).
 
-    ``fidelity = "auto"``: every level runs; the cheapest (measured wall time) whose
-    error against "full" on ``[outputs] signals`` is within ``[outputs] tolerance``
-    is chosen (see :func:`choose_fidelity`).
+    ``fidelity = "auto"``: every level runs and the smallest one within ``[outputs]
+    tolerance`` of "full" is used (see :func:`choose_fidelity`).
     """
+    sc.refuse_unused("sweep")
+    if sc.model.fidelity != "auto":
+        sc.refuse_unused("outputs.tolerance")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=True)
     extra = {"aps_params": _aps_dict(b.aps), "setup": b.setup}
@@ -322,9 +447,6 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
         fid, res, report = choose_fidelity(sc, b)
         extra["fidelity_levels"] = report
         metrics["fidelity_error"] = report[fid]["error"]
-        metrics["time_saved_pct"] = 100 * (
-            1 - report[fid]["wall_time_s"] / report["full"]["wall_time_s"]
-        )
     else:
         _, res = _simulate(sc, b, fid)
     metrics.update(transient_metrics(res))
@@ -361,15 +483,12 @@ def _rise_time(t: np.ndarray, y: np.ndarray) -> float:
     return float(t[i90] - t[i10])
 
 
-AUTO_REPEATS = 3
-"""Runs per level in ``fidelity = "auto"``; the median wall time ranks the levels."""
-
-
 def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
-    """Run every level, measure its error against "full" and its wall time; pick the
-    fastest (median of :data:`AUTO_REPEATS` runs) within tolerance. Error: max over the
-    scenario's ``[outputs] signals`` (default ``myofibril.length``) of
-    ``max |y - y_full| / (max y_full - min y_full)``."""
+    """Run every level, measure its error against "full" and pick the smallest level within
+    tolerance: fewest unknowns (states plus algebraic unknowns), ties to the level listed
+    first in :data:`~sarcomere.dynamics.assemblies.FIDELITIES`. The choice depends on the
+    scenario alone, never on timings. Error: max over the scenario's ``[outputs] signals``
+    (default ``myofibril.length``) of ``max |y - y_full| / (max y_full - min y_full)``."""
     tol = sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01
     care = list(sc.outputs.signals) or ["myofibril.length"]
     report, results = {}, {}
@@ -377,13 +496,14 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
         try:
             model, res = _simulate(sc, b, fid)
         except SarcomereError as exc:  # a level that cannot run this scene is skipped
-            report[fid] = {"error": math.inf, "wall_time_s": math.inf, "failed": str(exc)}
+            report[fid] = {"error": math.inf, "unknowns": math.inf, "failed": str(exc)}
             continue
         results[fid] = res
         report[fid] = {
-            "wall_time_s": res.meta["wall_time_s"],
+            "unknowns": model.nx + model.nz,
             "states": model.nx,
             "algebraic": model.nz,
+            "wall_time_s": res.meta["wall_time_s"],
         }
     if "full" not in results:
         raise SarcomereError(f"fidelity auto: the full model failed: {report['full']}")
@@ -396,8 +516,8 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
             span = max(np.ptp(ref[name]), 1e-12 * max(np.max(np.abs(ref[name])), 1e-300))
             errs.append(float(np.max(np.abs(res[name] - ref[name])) / span))
         report[fid]["error"] = max(errs)
-    ok = [f for f in results if report[f]["error"] <= tol]
-    best = min(ok, key=lambda f: report[f]["wall_time_s"])
+    ok = [f for f in FIDELITIES if f in results and report[f]["error"] <= tol]
+    best = min(ok, key=lambda f: (report[f]["unknowns"], FIDELITIES.index(f)))
     return best, results[best], report
 
 

@@ -286,8 +286,12 @@ def parse_scenario(text: str, file: str = "<string>") -> Scenario:
     head = r.table(data["scenario"], ("scenario",), ("name", "kind", "description"), ("kind",))
     stem = Path(file).stem if file != "<string>" else "scenario"
     name = r.text(head, ("scenario",), "name", stem)
-    if not _NAME.match(name):
-        raise r.error(("scenario", "name"), "use letters, digits, '_', '-' and '.' only")
+    if not _NAME.match(name) or set(name) == {"."}:
+        raise r.error(
+            ("scenario", "name"),
+            f"'{name}': use letters, digits, '_', '-' and '.' only, not only dots "
+            "(it names the output folder)",
+        )
     return Scenario(
         name=name,
         kind=r.text(head, ("scenario",), "kind"),
@@ -318,7 +322,7 @@ def _model(r: _Reader, value: object) -> ModelSpec:
         fidelity=r.choice(tbl, path, "fidelity", FIDELITIES, default.fidelity),
         n=n,
         material=r.text(tbl, path, "material", default.material),
-        geometry=r.text(tbl, path, "geometry", default.geometry),
+        geometry=r.text(tbl, path, "geometry") if "geometry" in tbl else None,
         options=r.table(tbl.get("options", {}), (*path, "options")),
     )
 

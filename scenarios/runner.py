@@ -15,6 +15,7 @@ from pathlib import Path
 from sarcomere.dynamics.results import Result
 
 from .loader import load_scenario
+from .outdir import check_out_dir, staged
 from .output import RunOutput, check_finite, write_summary, write_timeseries
 from .plots import groups_by_unit, plot_groups
 from .spec import Scenario
@@ -141,7 +142,9 @@ def run(
         A scenario file, the name of a packaged scenario (``"paper-static"``), or a
         loaded :class:`~sarcomere.scenarios.spec.Scenario`.
     out_dir : str or pathlib.Path, optional
-        Output folder, created if needed; default ``out/<scenario name>``.
+        Output folder; default ``out/<scenario name>``. It is checked before anything is
+        computed (see :func:`~sarcomere.scenarios.outdir.check_out_dir`), and replaced
+        whole only when the run succeeds: it holds all of one run or is left untouched.
     quiet : bool
         Do not print the summary.
 
@@ -154,6 +157,8 @@ def run(
     ------
     ScenarioError
         Malformed scenario, unknown kind, or outputs asking for signals the run lacks.
+    ParameterError
+        ``out_dir`` cannot hold the results (a file, under a file, not writable...).
     SolverError
         The run failed or produced a NaN (naming the signal).
 
@@ -167,19 +172,21 @@ def run(
     if sc.kind not in _RUNNERS:
         kinds = ", ".join(runner_kinds()) or "none"
         raise sc.error(("scenario", "kind"), f"unknown kind '{sc.kind}' (registered: {kinds})")
-    out = Path(out_dir) if out_dir is not None else Path("out") / sc.name
-    out.mkdir(parents=True, exist_ok=True)
-    start = time.perf_counter()
-    output = _RUNNERS[sc.kind](sc, out)
-    output.wall_time_s = time.perf_counter() - start
-    check_finite(output)
-    checks = evaluate_checks(sc, output.metrics)
-    results = {key: _selected(sc, key, r) for key, r in output.results.items()}
-    files = write_timeseries(results, out)
-    if results:
-        groups = _plot_groups(sc, next(iter(results.values())))
-        files += plot_groups(results, groups, out, sc.name)
-    files.insert(0, write_summary(output, sc, out, files, checks))
+    out = check_out_dir(Path("out") / sc.name if out_dir is None else out_dir)
+    with staged(out) as tmp:
+        start = time.perf_counter()
+        output = _RUNNERS[sc.kind](sc, tmp)
+        output.wall_time_s = time.perf_counter() - start
+        check_finite(output)
+        checks = evaluate_checks(sc, output.metrics)
+        results = {key: _selected(sc, key, r) for key, r in output.results.items()}
+        files = write_timeseries(results, tmp)
+        if results:
+            groups = _plot_groups(sc, next(iter(results.values())))
+            files += plot_groups(results, groups, tmp, sc.name)
+        extra = sorted(p for p in tmp.iterdir() if p not in files)  # the runner's own files
+        files = [*files, *extra]
+        files.insert(0, write_summary(output, sc, tmp, files, checks))
     if not quiet:
         print(format_summary(output, checks, out, files))
     return output

@@ -81,23 +81,24 @@ class ModelSpec:
     name : str
         The modelled system, e.g. ``"myofibril"`` (a chain of ``n`` APS).
     fidelity : str
-        One of :data:`FIDELITIES`; ``"auto"`` picks the cheapest level meeting
-        ``[outputs] tolerance``.
+        One of :data:`FIDELITIES`; default ``"full"``. ``"auto"`` picks the smallest level
+        meeting ``[outputs] tolerance`` (transients only).
     n : int
         Number of units (APS) in series, >= 1.
     material : str
         Material slug, e.g. ``"dragonskin_30"``.
-    geometry : str
-        Geometry set name, e.g. ``"experimental"``.
+    geometry : str or None
+        Geometry set name of the paper's model (kind "static"), e.g. ``"experimental"``;
+        None if not given (the other kinds take their geometry from ``[parameters]``).
     options : mapping
         Model-specific switches, e.g. the paper model's options; passed through.
     """
 
     name: str = "myofibril"
-    fidelity: str = "auto"
+    fidelity: str = "full"
     n: int = 1
     material: str = "dragonskin_30"
-    geometry: str = "experimental"
+    geometry: str | None = None
     options: Mapping[str, object] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -289,6 +290,26 @@ class Scenario:
         sarcomere.dynamics.errors.ScenarioError: <string>: key 'model.n': must be 1
         """
         return ScenarioError(self.file, dotted(path), message, line_of(self.key_lines, path))
+
+    def refuse_unused(self, *sections: str) -> None:
+        """Refuse any of ``sections`` the file gives: this kind would ignore it.
+
+        ``sections`` are ``"inputs"``, ``"sweep"``, ``"simulation"``, ``"solver"`` and
+        ``"outputs.tolerance"``.
+        """
+        given = {
+            "inputs": bool(self.inputs),
+            "sweep": bool(self.sweep),
+            "simulation": self.simulation is not None,
+            "solver": self.solver != SolverSpec(),
+            "outputs.tolerance": self.outputs.tolerance is not None,
+        }
+        for section in sections:
+            if given[section]:
+                raise self.error(
+                    tuple(section.split(".")),
+                    f"kind '{self.kind}' does not use [{section}]; remove it",
+                )
 
     def parameter_error(self, name: str, message: str) -> ScenarioError:
         """A ScenarioError for the ``[parameters]`` entry ``name`` (a dotted name).

@@ -52,6 +52,9 @@ from .spec import Scenario, describe, unknown_key
 #: ``[model] geometry`` name -> parameter set factory.
 GEOMETRIES = {"experimental": experimental_geometry, "fem": fem_geometry}
 
+#: Geometry used when ``[model] geometry`` is left out.
+DEFAULT_GEOMETRY = "experimental"
+
 #: Materials of the paper's FEM study (Table 1).
 TABLE1_MATERIALS = ("ecoflex_00_30", "elastosil_m4601", "smooth_sil_950")
 
@@ -83,9 +86,10 @@ def _options(scenario: Scenario) -> PaperOptions:
 def _bind(scenario: Scenario) -> tuple[ParameterSet, YeohMaterial]:
     """Geometry and material named by ``[model]``, with ``[parameters]`` applied."""
     model = scenario.model
-    if model.geometry not in GEOMETRIES:
+    geometry_name = model.geometry or DEFAULT_GEOMETRY
+    if geometry_name not in GEOMETRIES:
         raise scenario.error(
-            ("model", "geometry"), f"'{model.geometry}' is not one of {', '.join(GEOMETRIES)}"
+            ("model", "geometry"), f"'{geometry_name}' is not one of {', '.join(GEOMETRIES)}"
         )
     try:
         material = get_material(model.material)
@@ -99,7 +103,7 @@ def _bind(scenario: Scenario) -> tuple[ParameterSet, YeohMaterial]:
                 key, "kind 'static' takes 'geometry.<name>' and 'material.<name>' overrides"
             )
         overrides[group][name] = value
-    geometry = GEOMETRIES[model.geometry]()
+    geometry = GEOMETRIES[geometry_name]()
     for group, values in overrides.items():
         try:
             if group == "geometry":
@@ -134,6 +138,7 @@ def run_static(scenario: Scenario, out_dir: Path) -> RunOutput:
             "kind 'static' evaluates the paper's closed-form model: use fidelity = 'paper' "
             "(other levels need an equilibrium solve)",
         )
+    scenario.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance")
     axis = scenario.axis("pressure")
     if len(scenario.sweep) > 1:
         raise scenario.error(("sweep",), "kind 'static' sweeps 'pressure' only")

@@ -135,7 +135,7 @@ def test_full_file_round_trip(full: Path) -> None:
 def test_defaults_and_name_from_file(tmp_path: Path) -> None:
     sc = load_scenario(write(tmp_path, '[scenario]\nkind = "static"\n', "my-case.toml"))
     assert sc.name == "my-case"
-    assert (sc.model.fidelity, sc.model.n, sc.sweep, sc.simulation) == ("auto", 1, (), None)
+    assert (sc.model.fidelity, sc.model.n, sc.sweep, sc.simulation) == ("full", 1, (), None)
 
 
 def error_of(text: str, tmp_path: Path) -> ScenarioError:

@@ -132,11 +132,12 @@ def test_table_reads_a_run_timeseries(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("text", "line", "needle"),
     [
-        ("time,p\n0,1\n2,2\n1,3\n", 4, "increasing"),
-        ("time,p\n0,1\n1,abc\n", 3, "numbers"),
-        ("time,p\n0,1\n1,nan\n", 3, "non-finite"),
+        ("time,p [Pa]\n0,1\n2,2\n1,3\n", 4, "increasing"),
+        ("time,p [Pa]\n0,1\n1,abc\n", 3, "numbers"),
+        ("time,p [Pa]\n0,1\n1,nan\n", 3, "non-finite"),
         ("time,p\n0,1\n", None, "two data rows"),
-        ("time [kg],p\n0,1\n1,2\n", None, "wrong dimension"),
+        ("time [kg],p [Pa]\n0,1\n1,2\n", None, "wrong dimension"),
+        ("time,p\n0,0.1\n1,0.2\n", 1, "column 'p' states no unit"),
     ],
 )
 def test_table_csv_errors(tmp_path: Path, text: str, line: int | None, needle: str) -> None:

@@ -1,0 +1,30 @@
+"""Scenario tests write only under tmp_path: the checkout is left as it was found."""
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _status() -> str:
+    done = subprocess.run(
+        ["git", "status", "--porcelain", "--ignored", "--untracked-files=all"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    lines = done.stdout.splitlines()
+    noise = ("__pycache__", ".pytest_cache", ".ruff_cache", ".venv", ".egg-info", ".pyc")
+    return "\n".join(ln for ln in lines if not any(n in ln for n in noise))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def checkout_untouched():
+    """Fail the session if the tests left files in (or removed files from) the checkout."""
+    before = _status()
+    yield
+    after = _status()
+    assert after == before, f"the tests changed the checkout:\n{after}"

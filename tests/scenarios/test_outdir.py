@@ -1,0 +1,131 @@
+"""A results folder holds all of one run or is left untouched; bad folders are refused first."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from sarcomere.dynamics.errors import ParameterError, ScenarioError, SolverError
+from sarcomere.scenarios import parse_scenario, run
+from sarcomere.scenarios.cli import main
+
+STATIC = """
+[scenario]
+name = "{name}"
+kind = "static"
+[model]
+fidelity = "paper"
+[sweep.pressure]
+values = ["0.05 MPa", "0.1 MPa"]
+"""
+
+
+def _static(name: str = "s"):
+    return parse_scenario(STATIC.format(name=name), "s.toml")
+
+
+def test_a_failed_run_leaves_the_previous_results_whole(tmp_path, monkeypatch):
+    out = tmp_path / "o"
+    run(_static(), out, quiet=True)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def broken(*args, **kwargs):
+        raise SolverError("disk on fire")
+
+    monkeypatch.setattr("sarcomere.scenarios.runner.write_summary", broken)
+    longer = STATIC.format(name="s").replace('"0.05 MPa", ', '"0.02 MPa", "0.05 MPa", ')
+    with pytest.raises(SolverError):
+        run(parse_scenario(longer, "s.toml"), out, quiet=True)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]  # no temporary left
+
+
+def test_a_run_into_another_runs_folder_leaves_no_stale_file(tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "summary.json").write_text("{}")
+    (out / "timeseries_load_0g.csv").write_text("old")
+    (out / "plot_stretch.png").write_text("old")
+    run(_static(), out, quiet=True)
+    summary = json.loads((out / "summary.json").read_text())
+    assert sorted(p.name for p in out.iterdir()) == sorted([*summary["files"], "summary.json"])
+
+
+def test_a_failed_run_leaves_no_empty_folder(tmp_path):
+    bad = parse_scenario(STATIC.format(name="b").replace('"paper"', '"full"'), "b.toml")
+    with pytest.raises(ScenarioError):
+        run(bad, tmp_path / "new" / "deeper", quiet=True)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", [".", ".."])
+def test_dot_names_are_refused(name):
+    with pytest.raises(ScenarioError, match="scenario.name"):
+        _static(name)
+
+
+def _refused(tmp_path, capsys, out: str, why: str) -> None:
+    path = tmp_path / "s.toml"
+    path.write_text(STATIC.format(name="s"))
+    assert main(["run", str(path), "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and why in err, err
+
+
+def test_out_empty_is_refused(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _refused(tmp_path, capsys, "", "empty path")
+    _refused(tmp_path, capsys, ".", "current folder")
+
+
+def test_out_file_or_under_a_file_is_refused(tmp_path, capsys):
+    (tmp_path / "f").write_text("x")
+    _refused(tmp_path, capsys, str(tmp_path / "f"), "existing file")
+    _refused(tmp_path, capsys, str(tmp_path / "f" / "sub"), "is a file")
+
+
+def test_out_holding_other_files_is_refused(tmp_path, capsys):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "thesis.tex").write_text("x")
+    _refused(tmp_path, capsys, str(tmp_path / "mine"), "no run wrote")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes anywhere")
+def test_out_unwritable_is_refused(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        _refused(tmp_path, capsys, str(ro / "x"), "not writable")
+    finally:
+        ro.chmod(0o700)
+
+
+def test_out_is_checked_before_computing(tmp_path, monkeypatch):
+    (tmp_path / "f").write_text("x")
+    calls = []
+    monkeypatch.setattr(
+        "sarcomere.scenarios.runner._RUNNERS", {"static": lambda sc, o: calls.append(sc)}
+    )
+    with pytest.raises(ParameterError, match="existing file"):
+        run(_static(), tmp_path / "f", quiet=True)
+    assert calls == []
+
+
+def test_calibrate_checks_out_before_fitting(tmp_path, capsys, monkeypatch):
+    (tmp_path / "f").write_text("x")
+
+    def fit(**kwargs):
+        raise AssertionError("fitted before checking --out")
+
+    monkeypatch.setattr("sarcomere.scenarios.calibrate.calibrate", fit)
+    assert main(["calibrate", "--out", str(tmp_path / "f")]) == 2
+    assert "existing file" in capsys.readouterr().err
+
+
+def test_bench_checks_out_before_running(tmp_path, capsys):
+    (tmp_path / "f").write_text("x")
+    assert main(["bench", "stability", "--quick", "--out", str(tmp_path / "f" / "x")]) == 2
+    assert "is a file" in capsys.readouterr().err
