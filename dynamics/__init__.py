@@ -28,6 +28,7 @@ from .results import Result
 from .signals import Chirp, Ramp, Signal, Sine, Staircase, Step, Table
 from .simulation.settings import METHODS, SolverSettings
 from .simulation.simulate import simulate
+from .simulation.simulator import Simulator
 
 __all__ = [
     "FIDELITIES",
@@ -43,6 +44,7 @@ __all__ = [
     "SarcomereError",
     "ScenarioError",
     "Signal",
+    "Simulator",
     "Sine",
     "SolverError",
     "SolverSettings",

@@ -6,6 +6,11 @@ on failure. It never returns silently wrong: a failure raises
 :class:`~sarcomere.dynamics.errors.SolverError` with the residual, the iteration count
 and the continuation fraction reached; a solution that leaves the physical domain (the
 thread pulled straight, a negative air mass) is reported as such.
+
+The same equations are also CasADi Functions, for generated C and for NLPs:
+:func:`residual_function` (the residual and its scaled norm) and :func:`newton_function`
+(a fixed-budget Newton solve without line search, ``fast_newton``). The continuation
+and settling stay here in Python, around them.
 """
 
 from __future__ import annotations
@@ -15,11 +20,12 @@ from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .errors import SolverError
+from .errors import ParameterError, SolverError
 from .modeling.model import Model
+
+_ARGS = ["x", "z", "u", "p"]
 
 
 @dataclass
@@ -38,34 +44,93 @@ class Equilibrium:
         return self.signals[name]
 
 
+def _residual(m: Model) -> tuple[cs.SX, cs.SX, cs.SX]:
+    """``w = [x; z]``, ``r = [ode; alg]`` and its Jacobian in ``w``."""
+    w = cs.vertcat(m.x, m.z)
+    r = cs.vertcat(m.ode, m.alg)
+    return w, r, cs.jacobian(r, w)
+
+
+def _row_scales(J: cs.SX, scale: cs.SX) -> cs.SX:
+    """``1 / max_j |J_ij| scale_j``: each residual compared in its own units."""
+    weighted = cs.mtimes(cs.fabs(J), cs.diag(scale))
+    rows = [cs.mmax(weighted[i, :]) for i in range(J.size1())]
+    return 1.0 / cs.fmax(cs.vertcat(*rows), 1e-300) if rows else cs.SX(0, 1)
+
+
+def residual_function(model: Model) -> cs.Function:
+    """The equilibrium residual as a CasADi Function ``(x, z, u, p) -> (r, norm)``.
+
+    ``r = [ode; alg]`` [units of dx/dt; of the algebraic equations]; ``norm`` [-] its
+    infinity norm with row ``i`` divided by ``max_j |dr_i/dw_j| max(|w_j|, 1e-6)``,
+    ``w = [x; z]``: at a root, the number :func:`solve_equilibrium` compares with ``tol``.
+    """
+    w, r, J = _residual(model)
+    rs = _row_scales(J, cs.fmax(cs.fabs(w), 1e-6))
+    norm = cs.mmax(cs.fabs(r * rs)) if r.numel() else cs.SX(0.0)
+    return cs.Function("residual", model._syms, [r, norm], _ARGS, ["r", "norm"])
+
+
+def newton_function(model: Model, iterations: int = 30) -> cs.Function:
+    """Newton's method on the equilibrium residual as a CasADi Function that generates C:
+    ``(x0, z0, u, p) -> (x, z, residual)``.
+
+    CasADi's ``fast_newton``: full steps, no line search, at most ``iterations`` steps
+    (fewer once a step is exactly zero). It never raises: ``residual`` [-] is the
+    scaled norm of :func:`residual_function` at the result, so compare it with a
+    tolerance (e.g. ``1e-10``). Start it near an equilibrium; from far away use
+    :func:`solve_equilibrium`, whose continuation and settling stay in Python. Build it
+    once and keep it.
+
+    Examples
+    --------
+    >>> from sarcomere.dynamics.assemblies import hanging_load
+    >>> m = hanging_load(2, load_kg=0.05)
+    >>> eq = solve_equilibrium(m, {"regulator.p_cmd": 3e4})
+    >>> out = newton_function(m)(x0=1.001 * eq.x, z0=eq.z, u=eq.u, p=eq.p)
+    >>> bool(out["residual"] < 1e-10)
+    True
+    """
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise ParameterError("iterations", iterations, "an integer >= 1")
+    m = model
+    w, r, _ = _residual(m)
+    up = cs.vertcat(m.u, m.p)
+    g = cs.Function("g", [w, up], [r])
+    opts = {"max_iter": iterations, "abstol": 0.0, "abstolStep": 0.0, "error_on_fail": False}
+    solve = cs.rootfinder("equilibrium_newton", "fast_newton", g, opts)
+    x0, z0 = cs.MX.sym("x0", m.nx), cs.MX.sym("z0", m.nz)
+    u, p = cs.MX.sym("u", m.u.numel()), cs.MX.sym("p", m.p.numel())
+    wf = solve(cs.vertcat(x0, z0), cs.vertcat(u, p))
+    x, z = wf[: m.nx], wf[m.nx :]
+    norm = residual_function(m)(x, z, u, p)[1]
+    return cs.Function(
+        "equilibrium", [x0, z0, u, p], [x, z, norm], ["x0", "z0", "u", "p"], ["x", "z", "residual"]
+    )
+
+
 class _Newton:
     """Cached residual and Jacobian Functions of one model."""
 
     def __init__(self, model: Model) -> None:
         m = model
-        w = cs.vertcat(m.x, m.z)
-        F = cs.vertcat(m.ode, m.alg)
+        w, r, J = _residual(m)
+        scale = cs.SX.sym("scale", w.numel())
         self.model = m
-        self.F = cs.Function("F", [w, m.u, m.p], [F])
-        self.J = cs.Function("J", [w, m.u, m.p], [cs.jacobian(F, w)])
+        self.F = cs.Function("F", [w, m.u, m.p], [r])
+        self.J = cs.Function("J", [w, m.u, m.p, scale], [J, _row_scales(J, scale)])
         self.sig = m.function("signals")
 
     def residual(self, w, u, p) -> np.ndarray:
         return np.array(self.F(w, u, p)).ravel()
-
-    def jacobian(self, w, u, p) -> sp.csc_matrix:
-        return self.J(w, u, p).sparse().tocsc()
 
     def solve(self, w0, u, p, tol, max_iter) -> tuple[np.ndarray, float, int]:
         w = np.array(w0, dtype=float)
         scale = np.maximum(np.abs(w), 1e-6)
         for it in range(1, max_iter + 1):
             r = self.residual(w, u, p)
-            J = self.jacobian(w, u, p)
-            # row scaling so that every residual is compared in its own units
-            rs = 1.0 / np.maximum(
-                abs(J).multiply(scale[None, :]).max(axis=1).toarray().ravel(), 1e-300
-            )
+            Jdm, rsdm = self.J(w, u, p, scale)
+            J, rs = Jdm.sparse().tocsc(), np.array(rsdm).ravel()
             norm = np.linalg.norm(r * rs, np.inf)
             if not np.isfinite(norm):
                 raise _Fail("residual is not finite", norm, it)
@@ -119,6 +184,8 @@ def solve_equilibrium(
 
     Raises
     ------
+    ParameterError
+        For an input name that is not an input of the model, or a bad parameter.
     SolverError
         If no equilibrium is found (with the cause, residual and how far the
         continuation got), or if it leaves the physical domain.
@@ -131,10 +198,9 @@ def solve_equilibrium(
         newton = _SOLVERS[id(m)] = _Newton(m)
     u_target = m.u0()
     for k, v in (inputs or {}).items():
-        kind, i = m.index(k)
-        if kind != "u":
-            raise SolverError(f"'{k}' is not an input of model '{m.name}'")
-        u_target[i] = float(v)
+        if k not in m.input_names:
+            raise ParameterError("inputs", k, f"an input of model '{m.name}': {m.input_names}")
+        u_target[m.input_names.index(k)] = float(v)
     p_target = m.parameters(params)
     if guess is None:  # first the model's own operating point, then continue from it
         u_start, p_start = m.u0(), m.parameters()
@@ -185,7 +251,7 @@ def _start_point(newton: _Newton, u: np.ndarray, p: np.ndarray, tol: float, max_
     """The equilibrium at the start values: Newton from the start values, or, where that
     fails (long chains start far from it), Newton after letting the dynamics settle."""
     m = newton.model
-    w0 = np.concatenate([m.x0(), m.z0()])
+    w0 = np.concatenate([m.x0(p), m.z0(p)])
     try:
         w = newton.solve(w0, u, p, tol, max_iter)[0]
         _check_domain(newton, w, u, p)
@@ -219,7 +285,7 @@ def _settle(m: Model, u: np.ndarray, p: np.ndarray) -> np.ndarray:
     opts["disable_internal_warnings"] = True
     F = cs.integrator("settle", "cvodes", dae, 0.0, SETTLE_TIME_S, opts)
     try:
-        x = np.array(F(x0=m.x0(), p=np.concatenate([u, p]))["xf"]).ravel()
+        x = np.array(F(x0=m.x0(p), p=np.concatenate([u, p]))["xf"]).ravel()
     except RuntimeError as exc:
         raise SolverError(f"settling failed: {str(exc).strip().splitlines()[-1][:200]}") from None
     if not np.all(np.isfinite(x)):

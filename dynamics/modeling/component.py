@@ -20,7 +20,7 @@ from ..errors import ModelError, ParameterError
 from .flatten import flatten
 from .model import Model
 from .ports import Port, PortKind
-from .variables import Collected, Var
+from .variables import Collected, Kind, Var
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -87,33 +87,79 @@ class Builder:
         low: float = -math.inf,
         high: float = math.inf,
         source: str = "",
+        nominal: float | None = None,
     ) -> cs.SX:
-        """A named model parameter [unit] with default ``value`` (checked against the range)."""
+        """A named model parameter [unit] with default ``value`` (checked against the range)
+        and scaling magnitude ``nominal`` [unit] (default ``|value|``, or 1 for 0)."""
         value = float(value)
         full = f"{self.path}.{name}" if self.path else name
         if not (low <= value <= high) or math.isnan(value):
             raise ParameterError(full, value, f"[{low:g}, {high:g}] {unit}")
-        return self._new(
-            name, Var(name, "parameter", unit, description, value, low, high, value, source)
-        )
+        var = Var(name, Kind.PARAMETER, unit, description, value, low, high, value, source, nominal)
+        return self._new(name, var)
 
-    def state(self, name: str, start: float, unit: str, description: str, **bounds) -> cs.SX:
+    def state(
+        self, name: str, start: float | cs.SX, unit: str, description: str, **bounds
+    ) -> cs.SX:
         """A state variable [unit]; give its derivative with :meth:`der`.
 
-        ``bounds``: ``low``, ``high`` (its physical range, default unbounded).
+        ``start`` [unit]: a float or an expression of parameter symbols (see
+        :meth:`set_start`). ``bounds``: ``low``, ``high`` (its physical range, default
+        unbounded) and ``nominal`` (its scaling magnitude [unit], default ``|start|``
+        at the parameter defaults, or 1 for 0).
         """
-        return self._unknown(name, "state", unit, description, start, **bounds)
+        return self._unknown(name, Kind.STATE, unit, description, start, **bounds)
 
     def variable(self, name: str, unit: str, description: str, start=0.0, **bounds) -> cs.SX:
-        """An algebraic unknown [unit], fixed by the equations of the flattened system."""
-        return self._unknown(name, "algebraic", unit, description, start, **bounds)
+        """An algebraic unknown [unit], fixed by the equations of the flattened system
+        (``start``, ``bounds`` as for :meth:`state`)."""
+        return self._unknown(name, Kind.ALGEBRAIC, unit, description, start, **bounds)
 
     def input(self, name: str, unit: str, description: str, start=0.0, **bounds) -> cs.SX:
-        """An external input [unit] (a scenario signal or a controller drives it)."""
-        return self._unknown(name, "input", unit, description, start, **bounds)
+        """An external input [unit] (a scenario signal or a controller drives it;
+        ``start``, ``bounds`` as for :meth:`state`)."""
+        return self._unknown(name, Kind.INPUT, unit, description, start, **bounds)
 
-    def _unknown(self, name, kind, unit, description, start, low=-math.inf, high=math.inf) -> cs.SX:
-        return self._new(name, Var(name, kind, unit, description, float(start), low, high))
+    def _unknown(
+        self, name, kind, unit, description, start, low=-math.inf, high=math.inf, nominal=None
+    ) -> cs.SX:
+        full = f"{self.path}.{name}" if self.path else name
+        start = self._start(full, start)
+        nominal = self._nominal(start) if nominal is None else nominal
+        return self._new(
+            name, Var(name, kind, unit, description, start, low, high, nominal=nominal)
+        )
+
+    def _start(self, full: str, start: float | cs.SX) -> float | cs.SX:
+        """A start value as a float, or as an SX expression of declared parameters only."""
+        if not isinstance(start, cs.SX | cs.MX | cs.DM):
+            return float(start)
+        if isinstance(start, cs.MX) or start.numel() != 1:
+            raise ModelError(f"start value of '{full}' must be a scalar SX expression or float")
+        if isinstance(start, cs.DM) or start.is_constant():
+            return float(cs.DM(start))
+        others = [
+            s.name()
+            for s in cs.symvar(start)
+            if getattr(self._c.variables.get(s.name()), "kind", None) is not Kind.PARAMETER
+            or not cs.is_equal(self._c.symbols[s.name()], s)
+        ]
+        if others:
+            raise ModelError(
+                f"start value of '{full}' depends on {others}, which are not parameters; "
+                "a start value may depend on parameters only"
+            )
+        return start
+
+    def _nominal(self, start: float | cs.SX) -> float | None:
+        """``|start|`` at the parameter defaults (1 if that is 0) for an expression start;
+        None (``Var`` derives it) for a float."""
+        if not isinstance(start, cs.SX):
+            return None
+        pars = cs.symvar(start)
+        vals = [self._c.variables[s.name()].value for s in pars]
+        val = abs(float(cs.evalf(cs.substitute(start, cs.vertcat(*pars), cs.vertcat(*vals)))))
+        return val if 0.0 < val < math.inf else 1.0
 
     def port(self, name: str, kind: PortKind) -> Port:
         """A connector with potential and flow unknowns named ``<path>.<name>.<var>``."""
@@ -121,27 +167,33 @@ class Builder:
             raise ModelError(f"port '{name}' in '{self.path}' is declared twice or misnamed")
         pot = self._declare(
             f"{name}.{kind.potential}",
-            Var("", "algebraic", kind.potential_unit, f"{kind.name} {name}: {kind.potential}"),
+            Var("", Kind.ALGEBRAIC, kind.potential_unit, f"{kind.name} {name}: {kind.potential}"),
         )
         flow = self._declare(
             f"{name}.{kind.flow}",
-            Var("", "algebraic", kind.flow_unit, f"{kind.name} {name}: {kind.flow} (into)"),
+            Var("", Kind.ALGEBRAIC, kind.flow_unit, f"{kind.name} {name}: {kind.flow} (into)"),
         )
         p = Port(kind, f"{self.path}.{name}" if self.path else name, pot, flow)
         self.ports[name] = p
         self._c.ports.append(p)
         return p
 
-    def set_start(self, sym: cs.SX, value: float) -> None:
-        """Start value (or Newton guess, for an algebraic unknown) of a declared variable."""
-        var = self._c.variables[sym.name()]
-        self._c.variables[sym.name()] = Var(**{**var.__dict__, "start": float(value)})
+    def set_start(self, sym: cs.SX, value: float | cs.SX, nominal: float | None = None) -> None:
+        """Start value (or Newton guess, for an algebraic unknown) of a declared variable
+        [its unit]: a float or an SX expression of parameter symbols, so that it follows
+        a parameter change (e.g. an air mass ``V0 p_amb / (R T)``). The nominal value
+        [unit] follows the new start unless given."""
+        name = sym.name()
+        start = self._start(name, value)
+        nominal = self._nominal(start) if nominal is None else nominal
+        var = self._c.variables[name]
+        self._c.variables[name] = Var(**{**var.__dict__, "start": start, "nominal": nominal})
 
     # --- equations -----------------------------------------------------------------
     def der(self, state: cs.SX, rhs: cs.SX) -> None:
         """``d state / dt = rhs``."""
         name = state.name()
-        if self._c.variables.get(name, Var("", "", "")).kind != "state":
+        if getattr(self._c.variables.get(name), "kind", None) is not Kind.STATE:
             raise ModelError(f"der() of '{name}', which is not a state")
         if name in self._c.ders:
             raise ModelError(f"derivative of '{name}' given twice")
@@ -153,7 +205,7 @@ class Builder:
         Used where a transport element needs a velocity (a damper): flattening replaces
         it by ``d expr/dx . dx/dt`` once ``expr`` is known in terms of the states.
         """
-        sym = self._new(name, Var(name, "derivative", unit, description))
+        sym = self._new(name, Var(name, Kind.DERIVATIVE, unit, description))
         self._c.time_derivatives[sym.name()] = cs.SX(expr)
         return sym
 
@@ -169,16 +221,19 @@ class Builder:
         description: str,
         low: float = -math.inf,
         high: float = math.inf,
+        nominal: float = 1.0,
     ) -> None:
         """A named output ``<path>.<name>`` [unit] computed from the other variables.
 
         ``low``/``high`` bound its physical domain: equilibria and simulations that leave
-        it are reported, not returned.
+        it are reported, not returned. ``nominal``: its scaling magnitude [unit].
         """
         full = f"{self.path}.{name}" if self.path else name
         if full in self._c.outputs or full in self._c.variables:
             raise ModelError(f"output '{full}' declared twice")
-        self._c.variables[full] = Var(full, "output", unit, description, low=low, high=high)
+        self._c.variables[full] = Var(
+            full, Kind.OUTPUT, unit, description, low=low, high=high, nominal=nominal
+        )
         self._c.outputs[full] = cs.SX(expr)
 
     def energy(self, name: str, expr: cs.SX) -> None:

@@ -36,10 +36,10 @@ from scipy.sparse.csgraph import connected_components, maximum_bipartite_matchin
 
 from ..errors import ModelError
 from .model import Model
-from .variables import Collected
+from .variables import Collected, Var
 
 
-def _connection_equations(c: Collected) -> list[tuple[cs.SX, str]]:
+def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[tuple[cs.SX, str]]:
     parent: dict[int, int] = {id(p): id(p) for p in c.ports}
 
     def find(i: int) -> int:
@@ -55,7 +55,7 @@ def _connection_equations(c: Collected) -> list[tuple[cs.SX, str]]:
         sets.setdefault(find(id(p)), []).append(p)
     eqs = []
     for members in sets.values():
-        _share_start(c, [p.potential.name() for p in members])
+        _share_start(variables, [p.potential.name() for p in members])
         where = "connect(" + ", ".join(p.path for p in members) + ")"
         first = members[0]
         for other in members[1:]:
@@ -64,12 +64,13 @@ def _connection_equations(c: Collected) -> list[tuple[cs.SX, str]]:
     return eqs
 
 
-def _share_start(c: Collected, names: list[str]) -> None:
-    """Give every potential of a connection set the start value one of them declares."""
-    starts = [c.variables[n].start for n in names if c.variables[n].start != 0.0]
-    if starts:
+def _share_start(variables: dict[str, Var], names: list[str]) -> None:
+    """Give every potential of a connection set the start value (a nonzero float or a
+    parameter expression) and nominal value one of them declares."""
+    given = [v for v in (variables[n] for n in names) if isinstance(v.start, cs.SX) or v.start]
+    if given:
         for n in names:
-            c.variables[n] = replace(c.variables[n], start=starts[0])
+            variables[n] = replace(variables[n], start=given[0].start, nominal=given[0].nominal)
 
 
 def _substitute(expr: cs.SX, known: dict[str, cs.SX]) -> cs.SX:
@@ -216,7 +217,8 @@ def flatten(name: str, c: Collected) -> Model:
     missing = [v for v, var in c.variables.items() if var.kind == "state" and v not in c.ders]
     if missing:
         raise ModelError(f"states without a derivative equation: {missing}")
-    eqs = list(c.equations) + _connection_equations(c)
+    variables = dict(c.variables)  # the Model's own copy: the System stays as declared
+    eqs = list(c.equations) + _connection_equations(c, variables)
     unknown_names = [v for v, var in c.variables.items() if var.kind == "algebraic"]
     if len(eqs) != len(unknown_names):
         raise ModelError(
@@ -260,7 +262,7 @@ def flatten(name: str, c: Collected) -> Model:
     solved = {k: _substitute(e, known) for k, e in known.items()}
     model = Model(
         name=name,
-        variables=c.variables,
+        variables=variables,
         symbols=c.symbols,
         ders=ders,
         alg=kept_eqs,

@@ -10,9 +10,11 @@ second copy of the physics anywhere.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import math
 from collections.abc import Mapping, Sequence
+from types import MappingProxyType
 
 import casadi as cs
 import numpy as np
@@ -31,8 +33,9 @@ class Model:
     ----------
     state_names, alg_names, input_names, param_names, output_names : list of str
         Variable paths in vector order, e.g. ``"aps1.chamber.m_air"``.
-    variables : dict of str to Var
-        Unit, start value, bounds, description (and default value for parameters).
+    variables : read-only mapping of str to Var
+        Unit, start value, bounds, description (and default value for parameters);
+        the Model's own copy, unaffected by later changes to the System.
     """
 
     def __init__(
@@ -49,7 +52,7 @@ class Model:
         dissipations: dict[str, cs.SX],
     ) -> None:
         self.name = name
-        self.variables = variables
+        self.variables: Mapping[str, Var] = MappingProxyType(dict(variables))
         self.state_names = [v for v, m in variables.items() if m.kind == "state"]
         self.alg_names = list(alg_vars)
         self.input_names = [v for v, m in variables.items() if m.kind == "input"]
@@ -90,17 +93,36 @@ class Model:
         """SI unit of a variable."""
         return self.variables[name].unit
 
-    def x0(self) -> np.ndarray:
-        """Start values of the states."""
-        return np.array([self.variables[n].start for n in self.state_names], dtype=float)
+    def x0(self, p: np.ndarray | None = None) -> np.ndarray:
+        """Start values of the states at the parameter vector ``p`` (default: the
+        parameter defaults); start values that are parameter expressions follow ``p``."""
+        return self._start(p, "x0")
 
-    def z0(self) -> np.ndarray:
-        """Start guesses of the algebraic unknowns."""
-        return np.array([self.variables[n].start for n in self.alg_names], dtype=float)
+    def z0(self, p: np.ndarray | None = None) -> np.ndarray:
+        """Start guesses of the algebraic unknowns at ``p`` (default: parameter defaults)."""
+        return self._start(p, "z0")
 
-    def u0(self) -> np.ndarray:
-        """Start values of the inputs."""
-        return np.array([self.variables[n].start for n in self.input_names], dtype=float)
+    def u0(self, p: np.ndarray | None = None) -> np.ndarray:
+        """Start values of the inputs at ``p`` (default: parameter defaults)."""
+        return self._start(p, "u0")
+
+    def _start(self, p: np.ndarray | None, which: str) -> np.ndarray:
+        pv = self.parameters() if p is None else p
+        return np.array(self.function("start")(p=pv)[which], dtype=float).reshape(-1)
+
+    def nominal(self, which: str) -> np.ndarray:
+        """Nominal values (scaling magnitudes, > 0, in each variable's unit) of the vector
+        ``which``: "x", "z", "u", "p" or "y"."""
+        names = {
+            "x": self.state_names,
+            "z": self.alg_names,
+            "u": self.input_names,
+            "p": self.param_names,
+            "y": self.output_names,
+        }
+        if which not in names:
+            raise ParameterError("which", which, "one of 'x', 'z', 'u', 'p', 'y'")
+        return np.array([self.variables[n].nominal for n in names[which]], dtype=float)
 
     def parameters(self, overrides: Mapping[str, object] | None = None) -> np.ndarray:
         """The parameter vector (defaults, then ``overrides`` by name; units allowed).
@@ -113,8 +135,6 @@ class Model:
         values = {n: self.variables[n].value for n in self.param_names}
         for key, raw in (overrides or {}).items():
             if key not in values:
-                import difflib
-
                 close = difflib.get_close_matches(key, self.param_names, n=3)
                 hint = f"did you mean {close}?" if close else f"{len(values)} parameters exist"
                 raise ParameterError(key, raw, f"a parameter of model '{self.name}'", hint)
@@ -148,9 +168,10 @@ class Model:
 
         ``which`` is one of "ode", "alg", "y" (declared outputs), "signals" (every
         named variable, in :attr:`signal_names` order), "energy" (stored energies [J]
-        and dissipated powers [W], summed as ``E`` and ``D``), "jac" (the Jacobians
-        ``A = d ode/dx``, ``B = d ode/du``, ``C = dy/dx``, ``D = dy/du`` of the explicit
-        ODE, for ``nz == 0``), "dae_jac" (``ode_x, ode_z, alg_x, alg_z``).
+        and dissipated powers [W], summed as ``E`` and ``D``), "jac" (``A, B, C, D`` of
+        :meth:`linearization` for the declared outputs ``y``, with ``z`` eliminated),
+        "dae_jac" (``ode_x, ode_z, alg_x, alg_z``), and "start", a Function of ``p``
+        alone giving the start values ``x0``, ``z0``, ``u0``.
         """
         cache = self.__dict__.setdefault("_functions", {})
         if which not in cache:
@@ -169,18 +190,7 @@ class Model:
                 "energy", s, [cs.sum1(e), cs.sum1(d), e, d], _ARGS, ["E", "D", "terms", "dterms"]
             )
         if which == "jac":
-            return cs.Function(
-                "jacobians",
-                s,
-                [
-                    cs.jacobian(self.ode, self.x),
-                    cs.jacobian(self.ode, self.u),
-                    cs.jacobian(self.y, self.x),
-                    cs.jacobian(self.y, self.u),
-                ],
-                _ARGS,
-                ["A", "B", "C", "D"],
-            )
+            return self._linear("jacobians", self.y)
         if which == "dae_jac":
             return cs.Function(
                 "dae_jac",
@@ -194,9 +204,62 @@ class Model:
                 _ARGS,
                 ["ode_x", "ode_z", "alg_x", "alg_z"],
             )
+        if which == "start":
+            starts = [
+                cs.vertcat(*[cs.SX(self.variables[n].start) for n in names])
+                if names
+                else cs.SX(0, 1)
+                for names in (self.state_names, self.alg_names, self.input_names)
+            ]
+            return cs.Function("start", [self.p], starts, ["p"], ["x0", "z0", "u0"])
         raise ValueError(
-            f"unknown function '{which}'; one of ode, alg, y, signals, energy, jac, dae_jac"
+            f"unknown function '{which}'; one of ode, alg, y, signals, energy, jac, dae_jac, start"
         )
+
+    def linearization(self, outputs: Sequence[str]) -> cs.Function:
+        """Exact linearisation ``(x, z, u, p) -> (A, B, C, D)`` of the signals ``outputs``.
+
+        ``dx' = A dx + B du``, ``dy = C dx + D du`` with ``y`` the named signals (any of
+        :attr:`signal_names`: states, algebraic and solved variables, inputs, declared
+        outputs). Where ``nz > 0``, ``z`` is eliminated by the implicit function theorem,
+        ``dz = -g_z^{-1} (g_x dx + g_u du)``; ``z`` must then satisfy ``g(x, z, u, p) = 0``.
+        Cached per output list; generates C.
+
+        Raises
+        ------
+        ParameterError
+            For a name that is not a signal of the model.
+        """
+        key = ("linearization", *outputs)
+        cache = self.__dict__.setdefault("_functions", {})
+        if key not in cache:
+            index = {n: i for i, n in enumerate(self.signal_names)}
+            for n in outputs:
+                if n not in index:
+                    close = difflib.get_close_matches(n, self.signal_names, n=3)
+                    hint = f"did you mean {close}?" if close else "see model.signal_names"
+                    raise ParameterError("outputs", n, f"a signal of model '{self.name}'", hint)
+            rows = [index[n] for n in outputs]
+            cache[key] = self._linear("linearization", self._signals[rows])
+        return cache[key]
+
+    def _linear(self, name: str, h: cs.SX) -> cs.Function:
+        """``A, B, C, D`` of ``(ode, h)`` with ``z`` eliminated (implicit function theorem)."""
+        jac = {
+            (e, v): cs.jacobian(expr, sym)
+            for e, expr in (("f", self.ode), ("h", h))
+            for v, sym in (("x", self.x), ("u", self.u))
+        }
+        if self.nz:
+            # dz/d[x, u] = -g_z^{-1} [g_x, g_u]
+            g_xu = cs.jacobian(self.alg, cs.vertcat(self.x, self.u))
+            dz = -cs.solve(cs.jacobian(self.alg, self.z), g_xu)
+            for e, expr in (("f", self.ode), ("h", h)):
+                through_z = cs.mtimes(cs.jacobian(expr, self.z), dz)
+                jac[e, "x"] += through_z[:, : self.nx]
+                jac[e, "u"] += through_z[:, self.nx :]
+        out = [jac["f", "x"], jac["f", "u"], jac["h", "x"], jac["h", "u"]]
+        return cs.Function(name, self._syms, out, _ARGS, ["A", "B", "C", "D"])
 
     @functools.cached_property
     def bounded_signal_names(self) -> list[str]:
@@ -242,3 +305,19 @@ class Model:
         for n, v in zip(names, np.ravel(values), strict=True):
             if not math.isfinite(v):
                 raise ParameterError(n, v, "a finite number")
+
+    def cached(self, key: object, build):
+        """``build()`` memoised on this model by the value of ``key`` (hashable).
+
+        Bounded: at most 256 entries, the least recently used dropped first. The
+        simulation methods keep their integrators and step Functions here, so every
+        simulator and every ``simulate`` call on the model shares them.
+        """
+        memo = self.__dict__.setdefault("_memo", {})
+        if key in memo:
+            memo[key] = value = memo.pop(key)  # most recently used last
+            return value
+        value = memo[key] = build()
+        if len(memo) > 256:
+            del memo[next(iter(memo))]
+        return value

@@ -1,36 +1,102 @@
 """Variable records of the modelling language: what a flattened variable is.
 
-``Var`` is the metadata of one variable (kind, unit, start, bounds, source);
+``Kind`` names the role of a variable, ``Var`` is the metadata of one variable (kind,
+unit, start, nominal, bounds, source) and its FMI causality and variability;
 ``Collected`` gathers every declaration of one system before flattening.
+
+FMI mapping (``Var.fmi_causality`` / ``Var.fmi_variability``):
+
+========== =========== ============ ==========================================
+kind       causality   variability  note
+========== =========== ============ ==========================================
+state      local       continuous   has a derivative (``Model.ode``, same order)
+algebraic  local       continuous   solved or left as ``0 = g(x, z, u, p)``
+derivative local       continuous   a rate asked for with ``Builder.der_of``
+input      input       continuous
+output     output      continuous
+parameter  parameter   fixed        a change needs a new initialisation
+========== =========== ============ ==========================================
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import casadi as cs
 
+from ..errors import ModelError, ParameterError
 from .ports import Port
+
+
+class Kind(StrEnum):
+    """The role of a variable (a ``str``: ``Kind.STATE == "state"``)."""
+
+    STATE = "state"
+    ALGEBRAIC = "algebraic"
+    INPUT = "input"
+    PARAMETER = "parameter"
+    OUTPUT = "output"
+    DERIVATIVE = "derivative"
+
+
+_FMI = {
+    Kind.STATE: ("local", "continuous"),
+    Kind.ALGEBRAIC: ("local", "continuous"),
+    Kind.DERIVATIVE: ("local", "continuous"),
+    Kind.INPUT: ("input", "continuous"),
+    Kind.OUTPUT: ("output", "continuous"),
+    Kind.PARAMETER: ("parameter", "fixed"),
+}
 
 
 @dataclass(frozen=True)
 class Var:
     """Metadata of one flattened variable.
 
-    ``kind`` is one of "state", "algebraic", "input", "parameter", "output".
-    ``value`` is the default of a parameter; ``start`` the start value of the rest.
+    ``kind`` is a :class:`Kind` (or its string). ``value`` is the default of a
+    parameter; ``start`` the start value of the rest [unit]: a float, or a CasADi
+    expression of parameter symbols (evaluated by :meth:`Model.x0` and friends at the
+    parameter vector in use). ``nominal`` [unit] is the magnitude for solver scaling,
+    > 0; by default ``|value|`` (parameters) or ``|start|`` (the rest) when that is a
+    nonzero float, else 1.
     """
 
     name: str
-    kind: str
+    kind: Kind
     unit: str
     description: str = ""
-    start: float = 0.0
+    start: float | cs.SX = 0.0
     low: float = -math.inf
     high: float = math.inf
     value: float = math.nan
     source: str = ""
+    nominal: float | None = None
+
+    def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "kind", Kind(self.kind))
+        except ValueError:
+            raise ModelError(
+                f"variable '{self.name}' has kind {self.kind!r}; one of {[k.value for k in Kind]}"
+            ) from None
+        if self.nominal is None:
+            base = self.value if self.kind is Kind.PARAMETER else self.start
+            ok = isinstance(base, float | int) and math.isfinite(base) and base != 0.0
+            object.__setattr__(self, "nominal", abs(float(base)) if ok else 1.0)
+        elif not (0.0 < self.nominal < math.inf):
+            raise ParameterError(f"{self.name}.nominal", self.nominal, f"(0, inf) {self.unit}")
+
+    @property
+    def fmi_causality(self) -> str:
+        """FMI causality: "local", "input", "output" or "parameter"."""
+        return _FMI[self.kind][0]
+
+    @property
+    def fmi_variability(self) -> str:
+        """FMI variability: "continuous", or "fixed" for a parameter."""
+        return _FMI[self.kind][1]
 
 
 @dataclass

@@ -1,5 +1,5 @@
-"""What the method families share: the model with its inputs as functions of clamped
-time, and the checks of a problem's settings."""
+"""What the method families share: the input law over a segment, the model's equations
+with that law substituted, and the checks of a method's settings."""
 
 from __future__ import annotations
 
@@ -9,21 +9,81 @@ import casadi as cs
 import numpy as np
 
 from ..errors import ParameterError, SolverError
-from .settings import Problem
+from ..modeling.model import Model
+from .settings import SolverSettings
 
 
-# --- the ODE with the inputs substituted ------------------------------------------------
+class _Identity:
+    """A cache-key element for an unhashable signal: equal only to the same object (the
+    key holds a reference, so the object's id cannot be reused while the entry lives)."""
+
+    def __init__(self, obj: object) -> None:
+        self.obj = obj
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _Identity) and other.obj is self.obj
+
+    def __hash__(self) -> int:
+        return id(self.obj)
+
+
+def _by_value(sig: object) -> object:
+    try:
+        hash(sig)
+    except TypeError:
+        return _Identity(sig)
+    return sig
+
+
 @dataclass(frozen=True)
-class SegmentDAE:
-    """The model's equations with the inputs as functions of clamped time.
+class InputLaw:
+    """How the inputs move over one segment, and what the method's input argument ``w`` is.
+
+    * ``signals is None`` (**held**): every input is constant over the segment and
+      ``w = u`` (one value per input). This is the law of :meth:`Simulator.step` with a
+      constant ``u`` and of piecewise-constant signals (steps, staircases) between their
+      breakpoints: the integrators and step Functions then take ``u`` as an argument.
+    * otherwise (**signals**): one signal per input, evaluated as its CasADi expression
+      of time clamped into ``[a, b_left]`` with ``w = [a, b_left]`` (the segment start
+      and the float just below its end), so a ramp, a sine or a chirp is integrated
+      exactly and a jump at ``b`` never leaks into the segment that ends there.
+    """
+
+    signals: tuple | None = None
+
+    def key(self) -> object:
+        """Value key for caches: None (held) or the signals (by value where hashable)."""
+        return None if self.signals is None else tuple(_by_value(s) for s in self.signals)
+
+    def u_expr(self, t: cs.SX, w: cs.SX) -> cs.SX:
+        if self.signals is None:
+            return w
+        tc = cs.fmin(cs.fmax(t, w[0]), w[1])
+        parts = [cs.SX(sig.casadi(tc)) for sig in self.signals]
+        return cs.vertcat(*parts) if parts else cs.SX(0, 1)
+
+    def size_w(self, nu: int) -> int:
+        return nu if self.signals is None else 2
+
+
+HELD = InputLaw()
+
+
+def segment_w(a: float, b: float) -> np.ndarray:
+    """``w`` of a signals law on ``[a, b)``: ``[a, b_left]``."""
+    return np.array([a, np.nextafter(b, -np.inf)])
+
+
+@dataclass(frozen=True)
+class LawDAE:
+    """The model's equations with the inputs given by an :class:`InputLaw`.
 
     Attributes
     ----------
     t : casadi.SX
         Time [s].
-    seg : casadi.SX
-        ``[a, b_left]``: the segment start and the float just below its end [s];
-        inputs are evaluated at ``min(max(t, a), b_left)``.
+    w : casadi.SX
+        The law's argument (``u`` when held, ``[a, b_left]`` for signals).
     x, z, p : casadi.SX
         States, algebraic unknowns, parameters (the model's symbols).
     ode, alg : casadi.SX
@@ -31,7 +91,7 @@ class SegmentDAE:
     """
 
     t: cs.SX
-    seg: cs.SX
+    w: cs.SX
     x: cs.SX
     z: cs.SX
     p: cs.SX
@@ -39,88 +99,60 @@ class SegmentDAE:
     alg: cs.SX
 
     def rhs(self) -> cs.Function:
-        """``rhs(t, x, p, seg) -> ode`` (explicit ODE only)."""
+        """``rhs(t, x, w, p) -> ode`` (explicit ODE only)."""
         ode = cs.densify(self.ode)
         return cs.Function(
-            "rhs", [self.t, self.x, self.p, self.seg], [ode], ["t", "x", "p", "seg"], ["ode"]
+            "rhs", [self.t, self.x, self.w, self.p], [ode], ["t", "x", "w", "p"], ["ode"]
         )
 
     def jac(self) -> cs.Function:
-        """``jac(t, x, p, seg) -> d ode / dx``, sparse."""
+        """``jac(t, x, w, p) -> d ode / dx``, sparse."""
         J = cs.jacobian(self.ode, self.x)
         return cs.Function(
-            "ode_jac", [self.t, self.x, self.p, self.seg], [J], ["t", "x", "p", "seg"], ["J"]
+            "ode_jac", [self.t, self.x, self.w, self.p], [J], ["t", "x", "w", "p"], ["J"]
         )
 
 
-_T = cs.SX.sym("t")
-_DAE_CACHE: dict = {}
+def law_dae(model: Model, law: InputLaw) -> LawDAE:
+    """The :class:`LawDAE` of ``model`` under ``law`` (memoised on the model)."""
+
+    def build() -> LawDAE:
+        m = model
+        t = cs.SX.sym("t")
+        w = cs.SX.sym("w", law.size_w(m.u.numel()))
+        u = law.u_expr(t, w)
+        ode, alg = (cs.substitute(e, m.u, u) if m.u.numel() else e for e in (m.ode, m.alg))
+        return LawDAE(t, w, m.x, m.z, m.p, ode, alg)
+
+    return model.cached(("law_dae", law.key()), build)
 
 
-def segment_dae(prob: Problem) -> SegmentDAE:
-    """The :class:`SegmentDAE` of a problem (cached per model and input expression)."""
-    m = prob.model
-    key = (m, str(prob.u_expr(_T)))
-    hit = _DAE_CACHE.get(key)
-    if hit is not None:
-        return hit
-    seg = cs.SX.sym("seg", 2)
-    u = prob.u_expr(cs.fmin(cs.fmax(_T, seg[0]), seg[1]))
-    ode = cs.substitute(m.ode, m.u, u) if m.u.numel() else m.ode
-    alg = cs.substitute(m.alg, m.u, u) if m.u.numel() else m.alg
-    dae = SegmentDAE(_T, seg, m.x, m.z, m.p, ode, alg)
-    if len(_DAE_CACHE) > 64:
-        _DAE_CACHE.clear()
-    _DAE_CACHE[key] = dae
-    return dae
-
-
-def seg_bounds(a: float, b: float) -> np.ndarray:
-    return np.array([a, np.nextafter(b, -np.inf)])
-
-
-def require_ode(prob: Problem) -> None:
-    m = prob.model
-    if m.nz:
+def require_ode(model: Model, settings: SolverSettings) -> None:
+    if model.nz:
         raise SolverError(
-            f"{prob.settings.method} needs an explicit ODE but model '{m.name}' keeps "
-            f"{m.nz} algebraic unknowns: use 'idas' or 'collocation'"
+            f"{settings.method} needs an explicit ODE but model '{model.name}' keeps "
+            f"{model.nz} algebraic unknowns: use 'idas' or 'collocation'"
         )
 
 
-def method_options(prob: Problem, defaults: dict) -> dict:
+def method_options(settings: SolverSettings, defaults: dict) -> dict:
     """Method options: ``defaults`` updated by ``settings.options`` (unknown keys raise)."""
     opts = dict(defaults)
-    for key, value in prob.settings.options:
+    for key, value in settings.options:
         if key not in defaults:
             raise ParameterError(
-                "solver.options", key, f"options of '{prob.settings.method}': {sorted(defaults)}"
+                "solver.options", key, f"options of '{settings.method}': {sorted(defaults)}"
             )
         opts[key] = value
     return opts
 
 
-def require_step(prob: Problem) -> float:
-    h = prob.settings.step
+def require_step(settings: SolverSettings) -> float:
+    h = settings.step
     if h is None:
         raise ParameterError(
             "solver.step",
             None,
-            f"a step size (0, inf) s: method '{prob.settings.method}' is fixed-step",
+            f"a step size (0, inf) s: method '{settings.method}' is fixed-step",
         )
     return float(h)
-
-
-_STEP_CACHE: dict = {}
-
-
-def cached_step(prob: Problem, kind: object, build) -> cs.Function:
-    """``build(segment_dae(prob))``, cached per DAE and ``kind``."""
-    dae = segment_dae(prob)
-    key = (id(dae), kind)
-    hit = _STEP_CACHE.get(key)
-    if hit is None or hit[0] is not dae:
-        if len(_STEP_CACHE) > 64:
-            _STEP_CACHE.clear()
-        hit = _STEP_CACHE[key] = (dae, build(dae))
-    return hit[1]

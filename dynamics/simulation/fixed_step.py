@@ -1,4 +1,4 @@
-"""Integration methods beyond SUNDIALS, registered in :data:`~.settings.METHODS`.
+"""Fixed-step methods, registered in :data:`~.settings.METHODS`.
 
 * ``rk4``: classic explicit Runge-Kutta (4 stages, order 4); needs ``step``.
 * ``euler``: explicit Euler (order 1, a stability yardstick); needs ``step``.
@@ -6,30 +6,24 @@
   (Radau points, 3 by default: order 5; ODE or DAE); needs ``step``.
 * ``radau_fixed``: Radau IIA with 3 points (order 5), Newton on SX residuals;
   needs ``step``.
-* ``scipy_rk45``, ``scipy_radau``, ``scipy_bdf``, ``scipy_lsoda``: scipy's solvers
-  (the classes behind ``solve_ivp``) on the model's CasADi right-hand side; the
-  implicit ones get the exact Jacobian (sparse for Radau and BDF, dense for LSODA);
-  ``rtol``, ``atol``.
 
-Conventions shared by every method here:
+Each method is a **core step Function** ``(x, z, w, t, h, p) -> (xf, zf)`` built once per
+model, settings and input law (:class:`~.common.InputLaw`; memoised with
+:meth:`Model.cached`): ``w`` is the input ``u`` itself when the input is held over the
+step, or the segment bounds ``[a, b_left]`` when signals are integrated as expressions
+of time. :func:`step_function` exposes the held form as ``step(x, z, u, h, p)`` for
+optimal control. A segment is marched with ``mapaccum`` chunks of the core.
 
-* **Inputs** are evaluated at each stage time from the signal's CasADi expression,
-  with the time clamped into the current segment ``[a, b)`` between input
-  breakpoints (at ``b`` the left limit is used), so a step command never leaks into
-  the step that ends on it. Every method restarts at every breakpoint.
 * **Fixed steps** land on every output time and breakpoint: each output interval is
   split into ``ceil(interval / step)`` equal steps, so no step exceeds
   ``settings.step`` (an output grid finer than the step makes the steps smaller).
 * **Statistics** ``n_steps``, ``n_rhs``, ``n_jac`` (``None`` where the method does
-  not expose the count), ``n_segments`` and ``max_step_s`` go to ``problem.stats``.
+  not expose the count), ``n_segments`` and ``max_step_s`` go to ``segment.stats``.
 * **Failures** raise :class:`~.errors.SolverError` naming the time and the cause; a
   non-finite state is a failure, never a result.
 
-Before an explicit fixed-step method runs, :func:`stability_limit` estimates the
-largest stable step from the eigenvalues of the Jacobian at the initial state and at
-the equilibrium after the first input step (see :func:`stability_radius`); a larger
-step warns with :class:`StepStabilityWarning`, or raises with
-``options=(("on_unstable", "raise"),)`` (``"ignore"`` skips the check).
+The stability guard of ``rk4`` and ``euler`` (:mod:`.guard`) is run by the simulator
+before the first segment after a reset.
 """
 
 from __future__ import annotations
@@ -40,19 +34,14 @@ import casadi as cs
 import numpy as np
 
 from ..errors import ParameterError, SolverError
-from .common import (
-    SegmentDAE,
-    cached_step,
-    method_options,
-    require_ode,
-    require_step,
-    seg_bounds,
-)
-from .guard import EULER, RK4, ExplicitScheme, check_step
-from .settings import Problem, register_method
+from ..modeling.model import Model
+from .common import HELD, InputLaw, LawDAE, law_dae, method_options, require_ode, require_step
+from .guard import EULER, RK4, ExplicitScheme
+from .settings import Segment, SolverSettings, add_stats, register_method
 
 CHUNK_STEPS = 128
-"""Fixed steps per CasADi call (``mapaccum``); the last chunk is padded with h = 0."""
+"""Most fixed steps per CasADi call (``mapaccum``); a shorter run uses the next power of
+two, and the last chunk is padded with h = 0."""
 
 
 # --- fixed-step marching ----------------------------------------------------------------
@@ -79,92 +68,85 @@ def step_grid(
     return starts, sizes, out_idx
 
 
+def max_substep(edges: np.ndarray, h: float) -> float:
+    """The largest step [s] :func:`step_grid` takes between consecutive ``edges``."""
+    lengths = np.diff(np.unique(edges))
+    return float(np.max(lengths / np.maximum(np.ceil(lengths / h * (1.0 - 1e-12)), 1)))
+
+
 def _march(
-    prob: Problem, step: cs.Function, rhs_per_step: int | None
+    seg: Segment, key: tuple, step: cs.Function, rhs_per_step: int | None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Run a one-step Function ``(x, z, t, h, p, seg) -> (x_next, z_next)`` everywhere."""
-    m, s = prob.model, prob.settings
-    h = require_step(prob)
-    X = np.empty((len(prob.t_out), m.nx))
-    Z = np.empty((len(prob.t_out), m.nz))
-    X[0], Z[0] = prob.x0, prob.z0
-    x, z = prob.x0.copy(), prob.z0.copy()
-    n_steps, h_max, n_seg = 0, 0.0, 0
-    for a, b, grid in prob.segments():
-        starts, sizes, out_idx = step_grid(a, b, grid, h)
-        if len(starts) > s.max_steps:
-            raise prob.fail(
-                f"{len(starts)} steps of {h:.3g} s needed in [{a:.6g}, {b:.6g}] s, more than "
-                f"max_steps = {s.max_steps}",
-                a,
-                x,
-            )
-        xs, zs = _run_chunks(prob, step, (x, z), starts, sizes, seg_bounds(a, b))
-        idx = np.searchsorted(prob.t_out, grid)
-        X[idx], Z[idx] = xs[out_idx], zs[out_idx]
-        x, z = xs[-1], zs[-1]
-        n_steps += len(starts)
-        h_max = max(h_max, float(sizes.max()))
-        n_seg += 1
-    prob.stats.update(
-        n_steps=n_steps,
-        n_rhs=None if rhs_per_step is None else rhs_per_step * n_steps,
-        n_jac=None if rhs_per_step is None else 0,
-        n_segments=n_seg,
-        max_step_s=h_max,
+    """Run a core step Function ``(x, z, w, t, h, p) -> (xf, zf)`` through the segment."""
+    s = seg.settings
+    h = require_step(s)
+    starts, sizes, out_idx = step_grid(seg.t0, float(seg.times[-1]), seg.times, h)
+    if len(starts) > s.max_steps:
+        raise seg.fail(
+            f"{len(starts)} steps of {h:.3g} s needed in [{seg.t0:.6g}, {seg.times[-1]:.6g}] s, "
+            f"more than max_steps = {s.max_steps}",
+            seg.t0,
+            seg.x0,
+        )
+    n_chunk = min(CHUNK_STEPS, 1 << (len(starts) - 1).bit_length())
+    chunk = seg.model.cached(
+        (*key, "chunk", n_chunk), lambda: step.mapaccum("chunk", n_chunk, [0, 1], [0, 1])
     )
-    return X, Z
+    xs, zs = _run_chunks(seg, step, chunk, starts, sizes)
+    add_stats(
+        seg.stats,
+        n_steps=len(starts),
+        n_rhs=None if rhs_per_step is None else rhs_per_step * len(starts),
+        n_jac=None if rhs_per_step is None else 0,
+        n_segments=1,
+        max_step_s=float(sizes.max()),
+    )
+    return xs[out_idx], zs[out_idx]
 
 
 def _run_chunks(
-    prob: Problem,
-    step: cs.Function,
-    xz: tuple[np.ndarray, np.ndarray],
-    starts: np.ndarray,
-    sizes: np.ndarray,
-    seg: np.ndarray,
+    seg: Segment, step: cs.Function, chunk: cs.Function, starts: np.ndarray, sizes: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """States and algebraic unknowns after each step; padding steps have h = 0."""
-    chunk = step.mapaccum("chunk", CHUNK_STEPS, [0, 1], [0, 1])
+    N = chunk.size2_in(3)
     n = len(starts)
-    pad = (-n) % CHUNK_STEPS
+    pad = (-n) % N
     T = np.concatenate([starts, np.full(pad, starts[-1])])
     H = np.concatenate([sizes, np.zeros(pad)])
-    x, z = xz
+    x, z = seg.x0, seg.z0
     xs, zs = np.empty((n + pad, len(x))), np.empty((n + pad, len(z)))
-    for k in range(0, n + pad, CHUNK_STEPS):
-        sl = slice(k, k + CHUNK_STEPS)
+    for k in range(0, n + pad, N):
+        sl = slice(k, k + N)
         try:
-            Xk, Zk = (np.array(v).T for v in chunk(x, z, T[None, sl], H[None, sl], prob.p, seg))
+            Xk, Zk = (np.array(v).T for v in chunk(x, z, seg.w, T[None, sl], H[None, sl], seg.p))
         except RuntimeError:
-            raise _locate_failure(prob, step, (x, z), T[sl], H[sl], seg) from None
+            raise _locate_failure(seg, step, (x, z), T[sl], H[sl]) from None
         bad = ~(np.all(np.isfinite(Xk), axis=1) & np.all(np.isfinite(Zk), axis=1))
         if bad.any():
             i = int(np.argmax(bad))
             before = Xk[i - 1] if i else x
             t_bad = float(T[k + i] + H[k + i])
-            raise prob.fail("the state became non-finite (blew up)", t_bad, before)
+            raise seg.fail("the state became non-finite (blew up)", t_bad, before)
         xs[sl], zs[sl] = Xk, Zk
         x, z = Xk[-1], Zk[-1]
     return xs[:n], zs[:n]
 
 
 def _locate_failure(
-    prob: Problem,
+    seg: Segment,
     step: cs.Function,
     xz: tuple[np.ndarray, np.ndarray],
     T: np.ndarray,
     H: np.ndarray,
-    seg: np.ndarray,
 ) -> SolverError:
     """Replay a failed chunk one step at a time; the error names the failing step."""
     x, z = xz
     for t, h in zip(T, H, strict=True):
         try:
-            x, z = (np.array(v).ravel() for v in step(x, z, t, h, prob.p, seg))
+            x, z = (np.array(v).ravel() for v in step(x, z, seg.w, t, h, seg.p))
         except RuntimeError as exc:
-            return prob.fail(f"{_casadi_cause(str(exc))} (step {h:.3g} s)", float(t), x)
-    return prob.fail("a step failed inside a chunk but not when replayed", float(T[0]), xz[0])
+            return seg.fail(f"{_casadi_cause(str(exc))} (step {h:.3g} s)", float(t), x)
+    return seg.fail("a step failed inside a chunk but not when replayed", float(T[0]), xz[0])
 
 
 def _casadi_cause(msg: str) -> str:
@@ -173,47 +155,25 @@ def _casadi_cause(msg: str) -> str:
     return msg.strip().splitlines()[-1][:300]
 
 
-_STEP_ARGS = ["x", "z", "t", "h", "p", "seg"]
+_CORE_ARGS = ["x", "z", "w", "t", "h", "p"]
 
 
-def _explicit_step(dae: SegmentDAE, scheme: ExplicitScheme) -> cs.Function:
-    """``(x, z, t, h, p, seg) -> (x_next, z)`` for an explicit Runge-Kutta tableau."""
+def _explicit_step(dae: LawDAE, scheme: ExplicitScheme) -> cs.Function:
+    """``(x, z, w, t, h, p) -> (xf, zf)`` for an explicit Runge-Kutta tableau."""
     h = cs.SX.sym("h")
     f = dae.rhs()
     k = []
     for i, ci in enumerate(scheme.c):
         xi = dae.x + h * sum((scheme.A[i][j] * k[j] for j in range(i) if scheme.A[i][j]), 0)
-        k.append(f(dae.t + ci * h, xi, dae.p, dae.seg))
+        k.append(f(dae.t + ci * h, xi, dae.w, dae.p))
     x_next = dae.x + h * sum(bi * ki for bi, ki in zip(scheme.b, k, strict=True))
     return cs.Function(
         scheme.name,
-        [dae.x, dae.z, dae.t, h, dae.p, dae.seg],
+        [dae.x, dae.z, dae.w, dae.t, h, dae.p],
         [x_next, dae.z],
-        _STEP_ARGS,
+        _CORE_ARGS,
         ["xf", "zf"],
     )
-
-
-def _explicit(prob: Problem, scheme: ExplicitScheme) -> tuple[np.ndarray, np.ndarray]:
-    require_ode(prob)
-    h = require_step(prob)
-    opts = method_options(prob, {"on_unstable": "warn"})
-    h_used = max(float(step_grid(a, b, grid, h)[1].max()) for a, b, grid in prob.segments())
-    check_step(prob, scheme, h_used, opts["on_unstable"])
-    step = cached_step(prob, scheme.name, lambda d: _explicit_step(d, scheme))
-    return _march(prob, step, len(scheme.c))
-
-
-@register_method("rk4")
-def _rk4(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """Classic fixed-step RK4 (4 right-hand sides per step)."""
-    return _explicit(prob, RK4)
-
-
-@register_method("euler")
-def _euler(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """Fixed-step explicit Euler (1 right-hand side per step)."""
-    return _explicit(prob, EULER)
 
 
 # --- implicit fixed-step ----------------------------------------------------------------
@@ -239,7 +199,7 @@ class _ScaledStep:
     alg: cs.SX
 
     @classmethod
-    def of(cls, dae: SegmentDAE) -> _ScaledStep:
+    def of(cls, dae: LawDAE) -> _ScaledStep:
         nx, nz = dae.x.numel(), dae.z.numel()
         xi, zeta, tau = cs.SX.sym("xi", nx), cs.SX.sym("zeta", nz), cs.SX.sym("tau")
         tn, h = cs.SX.sym("t_n"), cs.SX.sym("h")
@@ -247,25 +207,25 @@ class _ScaledStep:
         ode, alg = cs.substitute(
             [dae.ode, dae.alg], [dae.t, dae.x, dae.z], [tn + h * tau, wx * xi, wz * zeta]
         )
-        P = cs.vertcat(dae.p, dae.seg, tn, h, wx, wz)
+        P = cs.vertcat(dae.p, dae.w, tn, h, wx, wz)
         return cls(xi, zeta, tau, P, h * ode / wx, alg)
 
 
-def _implicit_step(dae: SegmentDAE, one_step, tol: tuple[float, float]) -> cs.Function:
-    """``(x, z, t, h, p, seg) -> (x_next, z_next)`` around a normalised scaled step.
+def _implicit_step(dae: LawDAE, one_step, tol: tuple[float, float]) -> cs.Function:
+    """``(x, z, w, t, h, p) -> (xf, zf)`` around a normalised scaled step.
 
     ``one_step(xi0, zeta0, P) -> (xi1, zeta1)`` solves the step in scaled unknowns.
     """
     rtol, atol = tol
     nx, nz, n_p = dae.x.numel(), dae.z.numel(), dae.p.numel()
-    x, z = cs.MX.sym("x", nx), cs.MX.sym("z", nz)
-    t, h, p, seg = cs.MX.sym("t"), cs.MX.sym("h"), cs.MX.sym("p", n_p), cs.MX.sym("seg", 2)
-    f = cs.Function("f", [dae.t, dae.x, dae.z, dae.p, dae.seg], [dae.ode])
-    wx = rtol * cs.fmax(cs.fabs(x), cs.fabs(x + h * f(t, x, z, p, seg))) + atol
+    x, z, w = cs.MX.sym("x", nx), cs.MX.sym("z", nz), cs.MX.sym("w", dae.w.numel())
+    t, h, p = cs.MX.sym("t"), cs.MX.sym("h"), cs.MX.sym("p", n_p)
+    f = cs.Function("f", [dae.t, dae.x, dae.z, dae.w, dae.p], [dae.ode])
+    wx = rtol * cs.fmax(cs.fabs(x), cs.fabs(x + h * f(t, x, z, w, p))) + atol
     wz = rtol * cs.fabs(z) + atol
-    xi1, zeta1 = one_step(x / wx, z / wz, cs.vertcat(p, seg, t, h, wx, wz))
+    xi1, zeta1 = one_step(x / wx, z / wz, cs.vertcat(p, w, t, h, wx, wz))
     return cs.Function(
-        "implicit_step", [x, z, t, h, p, seg], [wx * xi1, wz * zeta1], _STEP_ARGS, ["xf", "zf"]
+        "implicit_step", [x, z, w, t, h, p], [wx * xi1, wz * zeta1], _CORE_ARGS, ["xf", "zf"]
     )
 
 
@@ -279,7 +239,7 @@ def _newton_options() -> dict:
     }
 
 
-def _radau_one_step(dae: SegmentDAE, points: int):
+def _radau_one_step(dae: LawDAE, points: int):
     """Radau IIA collocation equations in SX, solved by ``casadi.rootfinder`` (Newton).
 
     Unknowns: the scaled states at the ``points`` Radau points (``casadi.collocation_points``);
@@ -304,7 +264,7 @@ def _radau_one_step(dae: SegmentDAE, points: int):
     return one_step
 
 
-def _collocation_one_step(dae: SegmentDAE, order: int, scheme: str):
+def _collocation_one_step(dae: LawDAE, order: int, scheme: str):
     """One element of CasADi's ``collocation`` integrator (ODE or DAE)."""
     sc = _ScaledStep.of(dae)
     spec = {"x": sc.xi, "p": sc.P, "t": sc.tau, "ode": sc.ode}
@@ -331,43 +291,63 @@ def _collocation_one_step(dae: SegmentDAE, order: int, scheme: str):
     return one_step
 
 
-def _tol(prob: Problem) -> tuple[float, float]:
-    return prob.settings.rtol, prob.settings.atol
+# --- the methods: a core step Function per (model, settings, input law) ----------------
+def _core(
+    model: Model, settings: SolverSettings, law: InputLaw
+) -> tuple[tuple, cs.Function, int | None]:
+    """The core step Function ``(x, z, w, t, h, p) -> (xf, zf)`` of a fixed-step method,
+    its cache key and the right-hand sides per step (None where not counted)."""
+    method = settings.method
+    require_step(settings)
+    if method in ("rk4", "euler"):
+        require_ode(model, settings)
+        method_options(settings, {"on_unstable": "warn"})  # refuse unknown options
+        scheme = {"rk4": RK4, "euler": EULER}[method]
+        key = ("fixed_step", method, law.key())
+        build = lambda: _explicit_step(law_dae(model, law), scheme)  # noqa: E731
+        per_step = len(scheme.c)
+    elif method == "radau_fixed":
+        require_ode(model, settings)
+        points = int(method_options(settings, {"points": 3})["points"])
+        if not 1 <= points <= 9:
+            raise ParameterError("solver.options.points", points, "1..9 Radau points")
+        tol = (settings.rtol, settings.atol)
+        key = ("fixed_step", method, points, tol, law.key())
+
+        def build() -> cs.Function:
+            d = law_dae(model, law)
+            return _implicit_step(d, _radau_one_step(d, points), tol)
+
+        per_step = None
+    else:
+        opts = method_options(settings, {"interpolation_order": 3, "collocation_scheme": "radau"})
+        order, scheme_name = int(opts["interpolation_order"]), str(opts["collocation_scheme"])
+        tol = (settings.rtol, settings.atol)
+        key = ("fixed_step", method, order, scheme_name, tol, law.key())
+
+        def build() -> cs.Function:
+            d = law_dae(model, law)
+            return _implicit_step(d, _collocation_one_step(d, order, scheme_name), tol)
+
+        per_step = None
+    return key, model.cached(key, build), per_step
 
 
-@register_method("radau_fixed")
-def _radau_fixed(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """Fixed-step Radau IIA; option ``points`` (default 3: order 5).
-
-    ``rtol`` and ``atol`` set the Newton tolerance (:data:`NEWTON_TOL`), not the step.
-    """
-    require_ode(prob)
-    require_step(prob)
-    points = int(method_options(prob, {"points": 3})["points"])
-    if not 1 <= points <= 9:
-        raise ParameterError("solver.options.points", points, "1..9 Radau points")
-    tol = _tol(prob)
-    step = cached_step(
-        prob, ("radau", points, tol), lambda d: _implicit_step(d, _radau_one_step(d, points), tol)
-    )
-    return _march(prob, step, None)
+def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
+    key, core, per_step = _core(seg.model, seg.settings, seg.law)
+    return _march(seg, key, core, per_step)
 
 
-@register_method("collocation")
-def _collocation(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """CasADi's ``collocation`` integrator, one element per fixed step (ODE or DAE).
+def step_function(model: Model, settings: SolverSettings) -> cs.Function:
+    """``step(x, z, u, h, p) -> (xf, zf)``: one fixed step of size ``h`` [s] with ``u``
+    held (the core step Function of the held law at ``t = 0``; an MX Function that an
+    optimal-control problem can call and differentiate)."""
+    _, core, _ = _core(model, settings, HELD)
+    x, z = cs.MX.sym("x", model.nx), cs.MX.sym("z", model.nz)
+    u, h, p = cs.MX.sym("u", model.u.numel()), cs.MX.sym("h"), cs.MX.sym("p", model.p.numel())
+    xf, zf = core(x, z, u, 0, h, p)
+    return cs.Function("step", [x, z, u, h, p], [xf, zf], ["x", "z", "u", "h", "p"], ["xf", "zf"])
 
-    Options ``interpolation_order`` (default 3) and ``collocation_scheme`` (default
-    "radau": Radau IIA, order 5 with 3 points). ``rtol`` and ``atol`` set the Newton
-    tolerance (:data:`NEWTON_TOL`), not the step.
-    """
-    require_step(prob)
-    opts = method_options(prob, {"interpolation_order": 3, "collocation_scheme": "radau"})
-    order, scheme = int(opts["interpolation_order"]), str(opts["collocation_scheme"])
-    tol = _tol(prob)
-    step = cached_step(
-        prob,
-        ("collocation", order, scheme, tol),
-        lambda d: _implicit_step(d, _collocation_one_step(d, order, scheme), tol),
-    )
-    return _march(prob, step, None)
+
+for _name in ("rk4", "euler", "radau_fixed", "collocation"):
+    register_method(_name, step_function)(_run)

@@ -13,7 +13,6 @@ import scipy.optimize as so
 from ..equilibrium import solve_equilibrium
 from ..errors import ParameterError, SarcomereError
 from ..modeling.model import Model
-from .settings import Problem
 
 
 class StepStabilityWarning(UserWarning):
@@ -127,50 +126,63 @@ def jacobian_eigenvalues(model: Model, x: np.ndarray, u: np.ndarray, p: np.ndarr
     return np.linalg.eigvals(A)
 
 
-def stability_limit(prob: Problem, scheme: ExplicitScheme) -> tuple[float, complex, str]:
+def stability_limit(
+    model: Model,
+    scheme: ExplicitScheme,
+    x0: np.ndarray,
+    u0: np.ndarray,
+    t_after: float,
+    u_after: np.ndarray,
+    p: np.ndarray,
+) -> tuple[float, complex, str]:
     """Stability limit of ``scheme`` estimated before a run.
 
-    Two points are checked: the initial state (with the input at the start), and the
-    equilibrium that the input just after the first breakpoint leads to (the input at
-    the end if there is no breakpoint; skipped when no equilibrium is found). The
-    second catches models that are stiffest at the new operating point (e.g. a wider
-    laminar region, ``r_lam = 0.995``); points in between are not checked
-    (:mod:`sarcomere.dynamics.studies.stability` scans a whole trajectory).
+    Two points are checked: the initial state ``x0`` with the input ``u0``, and the
+    equilibrium that the input ``u_after`` (the input just after the first breakpoint,
+    at ``t_after``, or at the end if there is none) leads to (skipped when no
+    equilibrium is found). The second catches models that are stiffest at the new
+    operating point (e.g. a wider laminar region, ``r_lam = 0.995``); points in between
+    are not checked (:mod:`sarcomere.dynamics.studies.stability` scans a whole trajectory).
 
     Returns
     -------
     (float, complex, str)
         Limit [s], the eigenvalue [1/s] that sets it, and where it was found.
     """
-    m = prob.model
-    t_after = min(prob.breakpoints, default=float(prob.t_out[-1]))
-    u_after = prob.u_at(t_after)
-    points = [("the initial state", prob.x0, prob.u_at(float(prob.t_out[0])))]
+    m = model
+    points = [("the initial state", x0, u0)]
     try:
         eq = solve_equilibrium(
             m,
-            dict(zip(m.input_names, u_after.tolist(), strict=True)),
-            params=dict(zip(m.param_names, prob.p.tolist(), strict=True)),
+            dict(zip(m.input_names, np.asarray(u_after).tolist(), strict=True)),
+            params=dict(zip(m.param_names, p.tolist(), strict=True)),
         )
         points.append((f"the equilibrium for the input at t = {t_after:.4g} s", eq.x, u_after))
     except SarcomereError:
         pass
     best = (math.inf, complex(0.0), points[0][0])
     for where, x, u in points:
-        h, crit = max_stable_step(jacobian_eigenvalues(m, x, u, prob.p), scheme)
+        h, crit = max_stable_step(jacobian_eigenvalues(m, x, u, p), scheme)
         if h < best[0]:
             best = (h, crit, where)
     return best
 
 
-def check_step(prob: Problem, scheme: ExplicitScheme, h_used: float, action: str) -> None:
+def on_unstable(options: dict) -> str:
+    """The validated ``on_unstable`` action: "warn", "raise" or "ignore"."""
+    action = options["on_unstable"]
     if action not in ("warn", "raise", "ignore"):
         raise ParameterError("solver.options.on_unstable", action, "'warn', 'raise' or 'ignore'")
-    if action == "ignore":
-        return
-    h_max, lam, where = stability_limit(prob, scheme)
-    prob.stats["stability_limit_s"] = h_max
-    if h_used <= h_max:
+    return action
+
+
+def check_step(
+    scheme: ExplicitScheme, h_used: float, action: str, limit: tuple[float, complex, str]
+) -> None:
+    """Warn (or raise, per ``action``) when the step ``h_used`` [s] exceeds ``limit``
+    (from :func:`stability_limit`)."""
+    h_max, lam, where = limit
+    if action == "ignore" or h_used <= h_max:
         return
     theta = float(np.degrees(np.angle(lam)))
     why = (
@@ -181,4 +193,4 @@ def check_step(prob: Problem, scheme: ExplicitScheme, h_used: float, action: str
     )
     if action == "raise":
         raise ParameterError("solver.step", h_used, f"(0, {h_max:.4g}] s", why)
-    warnings.warn(why + " (options=(('on_unstable', 'raise'),) refuses)", StepStabilityWarning, 3)
+    warnings.warn(why + " (options=(('on_unstable', 'raise'),) refuses)", StepStabilityWarning, 4)

@@ -9,27 +9,28 @@ import scipy.integrate as si
 import scipy.sparse as sp
 
 from ..errors import ParameterError
-from .common import SegmentDAE, cached_step, method_options, require_ode, seg_bounds
-from .settings import Problem, register_method
+from .common import LawDAE, law_dae, method_options, require_ode
+from .settings import Segment, add_stats, register_method
 
 
 # --- scipy baselines --------------------------------------------------------------------
 class _Buffered:
-    """Fast repeated calls of a CasADi Function of (t, x, p, seg) through its buffer.
+    """Fast repeated calls of a CasADi Function of (t, x, w, p) through its buffer.
 
     ``Function.buffer`` binds numpy arrays once, so a call costs about 0.1 us of
-    overhead instead of about 30 us for ``F(t, x, p, seg)`` with conversions.
+    overhead instead of about 30 us for ``F(t, x, w, p)`` with conversions. The input
+    law's argument is set in place: ``call.w[:] = ...``.
     """
 
     def __init__(self, F: cs.Function, p: np.ndarray) -> None:
         self.F = F
         self.t = np.zeros(1)
         self.x = np.zeros(F.size1_in(1))
+        self.w = np.zeros(F.size1_in(2))
         self.p = np.ascontiguousarray(p, dtype=float)
-        self.seg = np.zeros(2)
         self.out = np.zeros(F.nnz_out(0))
         self.buf, self.trigger = F.buffer()
-        for i, arr in enumerate((self.t, self.x, self.p, self.seg)):
+        for i, arr in enumerate((self.t, self.x, self.w, self.p)):
             self.buf.set_arg(i, memoryview(arr))
         self.buf.set_res(0, memoryview(self.out))
 
@@ -44,10 +45,10 @@ class _Plain:
     """Calls of the same Function with CasADi's ordinary Python conversions (slow)."""
 
     def __init__(self, F: cs.Function, p: np.ndarray) -> None:
-        self.F, self.p, self.seg = F, p, np.zeros(2)
+        self.F, self.p, self.w = F, p, np.zeros(F.size1_in(2))
 
     def __call__(self, t: float, x: np.ndarray) -> np.ndarray:
-        return np.array(self.F(t, x, self.p, self.seg).nonzeros())
+        return np.array(self.F(t, x, self.w, self.p).nonzeros())
 
 
 _SCIPY = {
@@ -76,12 +77,12 @@ def _jacobian_callable(F: cs.Function, call, kind: str):
     return jac
 
 
-def _scipy(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """Drive a scipy OdeSolver step by step (what ``solve_ivp`` does), segment by segment."""
-    require_ode(prob)
-    s, m = prob.settings, prob.model
+def _scipy(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
+    """Drive a scipy OdeSolver step by step (what ``solve_ivp`` does) through one segment."""
+    s, m = seg.settings, seg.model
+    require_ode(m, s)
     defaults = {"call": "buffer", "jacobian": "exact", "first_step": None, "max_step": np.inf}
-    opts = method_options(prob, {**defaults, **_SCIPY_DEFAULTS.get(s.method, {})})
+    opts = method_options(s, {**defaults, **_SCIPY_DEFAULTS.get(s.method, {})})
     if opts["call"] not in _CALLS:
         raise ParameterError("solver.options.call", opts["call"], sorted(_CALLS))
     if opts["jacobian"] not in _JACOBIANS:
@@ -89,38 +90,33 @@ def _scipy(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
     cls, jac_kind = _SCIPY[s.method]
     if opts["jacobian"] == "finite_differences":
         jac_kind = None  # scipy estimates it by finite differences of the right-hand side
-    fun = _CALLS[opts["call"]](cached_step(prob, "rhs", SegmentDAE.rhs), prob.p)
-    jcall = None
-    if jac_kind:
-        Jf = cached_step(prob, "jac", SegmentDAE.jac)
-        jcall = _CALLS[opts["call"]](Jf, prob.p)
-    X = np.empty((len(prob.t_out), m.nx))
-    X[0] = prob.x0
-    x = prob.x0
-    stats = {"n_steps": 0, "n_rhs": 0, "n_jac": 0, "n_lu": 0, "n_segments": 0}
+    lk = seg.law.key()
+    fun = _CALLS[opts["call"]](m.cached(("rhs", lk), lambda: law_dae(m, seg.law).rhs()), seg.p)
+    fun.w[:] = seg.w
     kwargs = {"rtol": s.rtol, "atol": s.atol, "max_step": opts["max_step"]}
     if opts["first_step"] is not None:
         kwargs["first_step"] = opts["first_step"]
-    for a, b, grid in prob.segments():
-        fun.seg[:] = seg_bounds(a, b)
-        if jcall is not None:
-            jcall.seg[:] = fun.seg
-            kwargs["jac"] = _jacobian_callable(Jf, jcall, jac_kind)
-        solver = cls(fun, a, x, b, **kwargs)
-        x = _scipy_segment(prob, solver, grid, X, stats)
-        stats["n_rhs"] += solver.nfev
-        stats["n_jac"] += int(getattr(solver, "njev", 0))
-        stats["n_lu"] += int(getattr(solver, "nlu", 0))
-        stats["n_segments"] += 1
-    prob.stats.update(stats)
-    return X, np.zeros((len(prob.t_out), 0))
+    if jac_kind:
+        Jf = m.cached(("jac", lk), lambda: LawDAE.jac(law_dae(m, seg.law)))
+        jcall = _CALLS[opts["call"]](Jf, seg.p)
+        jcall.w[:] = seg.w
+        kwargs["jac"] = _jacobian_callable(Jf, jcall, jac_kind)
+    solver = cls(fun, seg.t0, seg.x0, float(seg.times[-1]), **kwargs)
+    X = _scipy_segment(seg, solver)
+    add_stats(
+        seg.stats,
+        n_rhs=solver.nfev,
+        n_jac=int(getattr(solver, "njev", 0)),
+        n_lu=int(getattr(solver, "nlu", 0)),
+        n_segments=1,
+    )
+    return X, np.zeros((len(seg.times), 0))
 
 
-def _scipy_segment(
-    prob: Problem, solver, grid: np.ndarray, X: np.ndarray, stats: dict
-) -> np.ndarray:
-    """Step one segment to its end, filling the output rows of ``grid``; returns x(b)."""
-    pos = np.searchsorted(prob.t_out, grid)
+def _scipy_segment(seg: Segment, solver) -> np.ndarray:
+    """Step the solver to the segment's end; the states at ``seg.times``."""
+    grid = seg.times
+    X = np.empty((len(grid), len(seg.x0)))
     k = 0
     n = 0
     while solver.status == "running":
@@ -128,21 +124,21 @@ def _scipy_segment(
         message = solver.step()
         n += 1
         if solver.status == "failed":
-            raise prob.fail(f"scipy: {message}", t_old, solver.y)
+            raise seg.fail(f"scipy: {message}", t_old, solver.y)
         if not np.all(np.isfinite(solver.y)):
-            raise prob.fail("the state became non-finite", solver.t, solver.y)
-        if n > prob.settings.max_steps:
-            raise prob.fail(
-                f"too many steps (max_steps = {prob.settings.max_steps})", solver.t, solver.y
+            raise seg.fail("the state became non-finite", solver.t, solver.y)
+        if n > seg.settings.max_steps:
+            raise seg.fail(
+                f"too many steps (max_steps = {seg.settings.max_steps})", solver.t, solver.y
             )
         j = k + int(np.searchsorted(grid[k:], solver.t, side="right"))
         if j > k:
             dense = solver.dense_output()
             ts = grid[k:j]
-            X[pos[k:j]] = np.where((ts == solver.t)[:, None], solver.y[None, :], dense(ts).T)
+            X[k:j] = np.where((ts == solver.t)[:, None], solver.y[None, :], dense(ts).T)
             k = j
-    stats["n_steps"] += n
-    return solver.y.copy()
+    add_stats(seg.stats, n_steps=n)
+    return X
 
 
 def register_scipy_variant(

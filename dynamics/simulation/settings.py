@@ -1,19 +1,23 @@
-"""Solver settings, the method registry and the problem every method solves.
+"""Solver settings, the method registry and the segment every method integrates.
 
-A leaf of the simulation package: method modules register themselves here, and
-:func:`~.simulate.simulate` looks them up by name.
+A leaf of the simulation package: method modules register themselves here, and the
+:class:`~.simulator.Simulator` looks them up by name.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import casadi as cs
 import numpy as np
 
 from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
+
+if TYPE_CHECKING:
+    from .common import InputLaw
 
 
 @dataclass(frozen=True)
@@ -51,38 +55,40 @@ class SolverSettings:
         if self.step is not None and not self.step > 0:
             raise ParameterError("solver.step", self.step, "(0, inf) s")
 
+    def key(self) -> tuple:
+        """The settings as a hashable value (option dicts and lists frozen), for caches."""
+        return (self.method, self.rtol, self.atol, self.step, self.max_steps, freeze(self.options))
+
+
+def freeze(value: object) -> object:
+    """``value`` with dicts, lists and tuples turned into (sorted) tuples, recursively."""
+    if isinstance(value, dict):
+        return tuple(sorted((k, freeze(v)) for k, v in value.items()))
+    if isinstance(value, list | tuple):
+        return tuple(freeze(v) for v in value)
+    return value
+
 
 @dataclass
-class Problem:
-    """Everything a method needs: model, numeric vectors, input signals, output grid."""
+class Segment:
+    """One call of a method: integrate from ``(t0, x0, z0)`` through ``times``.
+
+    ``times`` is increasing, ``times[0] > t0``, and its last entry is the end of the
+    segment; no input breakpoint lies inside, so the input ``law`` with argument ``w``
+    is smooth over the whole segment. Methods add their counters to ``stats``.
+    """
 
     model: Model
+    settings: SolverSettings
+    settings_key: tuple
     p: np.ndarray
+    law: InputLaw
+    w: np.ndarray
+    t0: float
     x0: np.ndarray
     z0: np.ndarray
-    inputs: list  # one signal per model input, in model.input_names order
-    t_out: np.ndarray
-    breakpoints: list[float]
-    settings: SolverSettings
-    stats: dict = field(default_factory=dict)
-
-    def u_at(self, t: float) -> np.ndarray:
-        """Input vector at time t [s]."""
-        return np.array([float(sig(t)) for sig in self.inputs], dtype=float)
-
-    def u_expr(self, t: cs.SX) -> cs.SX:
-        """Input vector as a CasADi expression of symbolic time."""
-        parts = [sig.casadi(t) for sig in self.inputs]
-        return cs.vertcat(*parts) if parts else cs.SX(0, 1)
-
-    def segments(self) -> list[tuple[float, float, np.ndarray]]:
-        """(t_start, t_end, output times in (t_start, t_end]) between breakpoints."""
-        edges = sorted({float(self.t_out[0]), float(self.t_out[-1]), *self.breakpoints})
-        out = []
-        for a, b in zip(edges[:-1], edges[1:], strict=True):
-            mask = (self.t_out > a) & (self.t_out <= b)
-            out.append((a, b, self.t_out[mask]))
-        return out
+    times: np.ndarray
+    stats: dict
 
     def fail(self, why: str, t: float, x: np.ndarray) -> SolverError:
         """A SolverError naming the method, time and state."""
@@ -90,15 +96,50 @@ class Problem:
         return SolverError(f"{self.settings.method}: {why}", time=t, state=state)
 
 
-MethodFn = Callable[[Problem], tuple[np.ndarray, np.ndarray]]
-METHODS: dict[str, MethodFn] = {}
+RunFn = Callable[[Segment], tuple[np.ndarray, np.ndarray]]
+StepFn = Callable[[Model, SolverSettings], cs.Function]
 
 
-def register_method(name: str) -> Callable[[MethodFn], MethodFn]:
-    """Decorator: make ``fn(problem) -> (X, Z)`` at ``problem.t_out`` available by name."""
+@dataclass(frozen=True)
+class Method:
+    """A registered method.
 
-    def deco(fn: MethodFn) -> MethodFn:
-        METHODS[name] = fn
+    Attributes
+    ----------
+    run : callable
+        ``run(segment) -> (X, Z)``: states and algebraic unknowns at ``segment.times``
+        (one row per time).
+    step_function : callable or None
+        ``step_function(model, settings)`` -> the CasADi Function
+        ``step(x, z, u, h, p) -> (xf, zf)`` of one step with the input held; None for
+        methods that are not CasADi graphs (scipy's).
+    """
+
+    run: RunFn
+    step_function: StepFn | None = None
+
+
+METHODS: dict[str, Method] = {}
+
+
+def register_method(name: str, step_function: StepFn | None = None) -> Callable[[RunFn], RunFn]:
+    """Decorator: make ``run(segment) -> (X, Z)`` available as method ``name``."""
+
+    def deco(fn: RunFn) -> RunFn:
+        METHODS[name] = Method(fn, step_function)
         return fn
 
     return deco
+
+
+def add_stats(stats: dict, **counts: float | None) -> None:
+    """Accumulate counters into ``stats``: sums, except ``max_step_s`` (a maximum) and
+    ``None`` (a count the method does not expose)."""
+    for key, value in counts.items():
+        old = stats.get(key, 0)
+        if value is None or old is None:
+            stats[key] = None
+        elif key == "max_step_s":
+            stats[key] = max(old, value)
+        else:
+            stats[key] = old + value

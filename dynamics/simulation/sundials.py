@@ -1,75 +1,103 @@
-"""CasADi's SUNDIALS integrators: ``cvodes`` (explicit ODE) and ``idas`` (index-1 DAE)."""
+"""CasADi's SUNDIALS integrators: ``cvodes`` (explicit ODE) and ``idas`` (index-1 DAE).
+
+The integrator runs in normalised time ``tau`` in [0, 1] over a segment ``[t0, t0 + H]``
+(``t = t0 + H tau``, ``dx/dtau = H f``) with ``t0`` and ``H`` appended to the parameters,
+and takes the input law's argument ``w`` as CasADi's piecewise-constant control ``u``
+(constant over the segment, so CVODES integrates through the output points without
+restarting). One integrator therefore serves every segment with the same relative output
+grid: a closed loop of equal steps builds it once, whatever the time and step size.
+"""
 
 from __future__ import annotations
 
 import casadi as cs
 import numpy as np
 
-from ..errors import SolverError
-from .settings import Problem, register_method
-
-# --- CasADi SUNDIALS methods ------------------------------------------------------------
-_CACHE: dict = {}
-
-
-def _dae(prob: Problem) -> dict:
-    """The integrator's DAE dict: the model with the inputs as expressions of time."""
-    m = prob.model
-    t = cs.SX.sym("t")
-    u = prob.u_expr(t)
-    ode = cs.substitute(m.ode, m.u, u) if m.u.numel() else m.ode
-    dae = {"x": m.x, "p": m.p, "t": t, "ode": ode}
-    if m.nz:
-        dae.update(z=m.z, alg=cs.substitute(m.alg, m.u, u) if m.u.numel() else m.alg)
-    return dae
+from ..errors import ParameterError, SolverError
+from ..modeling.model import Model
+from .common import HELD, InputLaw, law_dae
+from .settings import Segment, SolverSettings, add_stats, register_method
 
 
-def _sundials(prob: Problem, plugin: str) -> tuple[np.ndarray, np.ndarray]:
-    m, s = prob.model, prob.settings
-    if plugin == "cvodes" and m.nz:
-        raise SolverError(
-            f"cvodes needs an explicit ODE but model '{m.name}' keeps {m.nz} algebraic "
-            "unknowns: use method 'idas'"
-        )
-    opts = {
-        "abstol": s.atol,
-        "reltol": s.rtol,
-        "max_num_steps": s.max_steps,
-        "print_stats": False,
-        "disable_internal_warnings": True,  # failures raise SolverError; t + h = t notes are noise
-        **dict(s.options),
-    }
-    X = np.empty((len(prob.t_out), m.nx))
-    Z = np.empty((len(prob.t_out), m.nz))
-    X[0], Z[0] = prob.x0, prob.z0
-    x, z = prob.x0, prob.z0
-    stats = {"n_steps": 0, "n_rhs": 0, "n_jac": 0, "n_segments": 0}
-    for a, b, grid in prob.segments():
-        times = list(grid) if len(grid) and grid[-1] == b else [*grid, b]
-        key = (m, plugin, repr(s), tuple(map(repr, prob.inputs)), a, tuple(times))
-        F = _CACHE.get(key)
-        if F is None:
-            F = cs.integrator("F", plugin, _dae(prob), a, times, opts)
-            if len(_CACHE) > 256:
-                _CACHE.clear()
-            _CACHE[key] = F
+def integrator(
+    model: Model, settings: SolverSettings, law: InputLaw, grid: tuple[float, ...]
+) -> cs.Function:
+    """The integrator ``F(x0, z0, p=[p; t0; H], u=w) -> xf, zf`` on the normalised
+    ``grid`` (memoised on the model by plugin, settings, law and grid)."""
+    plugin, s = settings.method, settings
+
+    def build() -> cs.Function:
+        d = law_dae(model, law)
+        tau, t0, H = cs.SX.sym("tau"), cs.SX.sym("t0"), cs.SX.sym("H")
+        ode, alg = cs.substitute([d.ode, d.alg], [d.t], [t0 + H * tau])
+        dae = {"x": d.x, "u": d.w, "p": cs.vertcat(d.p, t0, H), "t": tau, "ode": H * ode}
+        if model.nz:
+            dae.update(z=d.z, alg=alg)
+        opts = {
+            "abstol": s.atol,
+            "reltol": s.rtol,
+            "max_num_steps": s.max_steps,
+            "print_stats": False,
+            "disable_internal_warnings": True,  # failures raise SolverError
+            **dict(s.options),
+        }
         try:
-            res = F(x0=x, z0=z, p=prob.p)
+            return cs.integrator("F", plugin, dae, 0.0, list(grid), opts)
         except RuntimeError as exc:
-            raise prob.fail(_cause(str(exc)), a, x) from None
-        xf = np.array(res["xf"])
-        zf = np.array(res["zf"]) if m.nz else np.zeros((0, len(times)))
-        st = F.stats()
-        stats["n_steps"] += int(st.get("nsteps", 0))
-        stats["n_rhs"] += int(st.get("nfevals", 0))
-        stats["n_jac"] += int(st.get("njevals", 0) or st.get("nlinsetups", 0))
-        stats["n_segments"] += 1
-        idx = np.searchsorted(prob.t_out, grid)
-        X[idx] = xf[:, : len(grid)].T
-        Z[idx] = zf[:, : len(grid)].T
-        x, z = xf[:, -1], zf[:, -1]
-    prob.stats.update(stats)
+            raise ParameterError(
+                "solver.options",
+                dict(s.options),
+                f"options of casadi.integrator('{plugin}')",
+                str(exc).strip().splitlines()[-1][:200],
+            ) from None
+
+    return model.cached(("sundials", settings.key(), law.key(), grid), build)
+
+
+def _check(model: Model, settings: SolverSettings) -> None:
+    if settings.method == "cvodes" and model.nz:
+        raise SolverError(
+            f"cvodes needs an explicit ODE but model '{model.name}' keeps {model.nz} "
+            "algebraic unknowns: use method 'idas'"
+        )
+
+
+def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
+    m = seg.model
+    _check(m, seg.settings)
+    H = float(seg.times[-1] - seg.t0)
+    tau = np.round((seg.times - seg.t0) / H, 12)
+    tau[-1] = 1.0
+    F = integrator(m, seg.settings, seg.law, tuple(tau.tolist()))
+    W = np.repeat(seg.w[:, None], len(tau), axis=1)
+    try:
+        res = F(x0=seg.x0, z0=seg.z0, p=np.append(seg.p, (seg.t0, H)), u=W)
+    except RuntimeError as exc:
+        raise seg.fail(_cause(str(exc)), seg.t0, seg.x0) from None
+    st = F.stats()
+    add_stats(
+        seg.stats,
+        n_steps=int(st.get("nsteps", 0)),
+        n_rhs=int(st.get("nfevals", 0)),
+        n_jac=int(st.get("njevals", 0) or st.get("nlinsetups", 0)),
+        n_segments=1,
+    )
+    X = np.array(res["xf"]).T
+    Z = np.array(res["zf"]).T if m.nz else np.zeros((len(tau), 0))
     return X, Z
+
+
+def step_function(model: Model, settings: SolverSettings) -> cs.Function:
+    """``step(x, z, u, h, p) -> (xf, zf)``: one integrator call over ``h`` [s] with ``u``
+    held (an MX Function; differentiable through CVODES/IDAS sensitivities)."""
+    _check(model, settings)
+    F = integrator(model, settings, HELD, (1.0,))
+    x, z = cs.MX.sym("x", model.nx), cs.MX.sym("z", model.nz)
+    u, h, p = cs.MX.sym("u", model.u.numel()), cs.MX.sym("h"), cs.MX.sym("p", model.p.numel())
+    res = F(x0=x, z0=z, u=u, p=cs.vertcat(p, 0, h))
+    return cs.Function(
+        "step", [x, z, u, h, p], [res["xf"], res["zf"]], ["x", "z", "u", "h", "p"], ["xf", "zf"]
+    )
 
 
 def _cause(msg: str) -> str:
@@ -88,11 +116,5 @@ def _cause(msg: str) -> str:
     return msg.strip().splitlines()[-1][:300]
 
 
-@register_method("cvodes")
-def _cvodes(prob: Problem):
-    return _sundials(prob, "cvodes")
-
-
-@register_method("idas")
-def _idas(prob: Problem):
-    return _sundials(prob, "idas")
+register_method("cvodes", step_function)(_run)
+register_method("idas", step_function)(_run)

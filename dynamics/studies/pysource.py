@@ -143,14 +143,15 @@ def python_function(F: cs.Function):
 
 
 class PythonCall:
-    """A Function of (t, x, p, seg) as generated straight-line Python, called as ``f(t, x)``
-    (the scipy methods' call interface)."""
+    """A Function of (t, x, w, p) as generated straight-line Python, called as ``f(t, x)``
+    (the scipy methods' call interface; the input law's argument is set as ``call.w``)."""
 
     def __init__(self, F: cs.Function, p: np.ndarray) -> None:
-        self.f, self.p, self.seg = python_function(F), np.asarray(p, float), np.zeros(2)
+        self.f, self.p = python_function(F), np.asarray(p, float)
+        self.w = np.zeros(F.size1_in(2))
 
     def __call__(self, t: float, x: np.ndarray) -> np.ndarray:
-        return self.f((t,), x, self.p, self.seg)[0]
+        return self.f((t,), x, self.w, self.p)[0]
 
 
 register_scipy_variant(

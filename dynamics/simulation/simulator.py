@@ -1,0 +1,445 @@
+"""The stepping simulator: one integration path for closed loops and for ``simulate``.
+
+A :class:`Simulator` holds a model, its settings, the parameters and the current point
+``(t, x, z)``. :meth:`Simulator.step` advances it by ``h`` with an input that is either
+held constant (a vector, a mapping by input name, unit strings allowed) or given as
+signals over the step; :meth:`Simulator.advance` does the same through several output
+times at once, which is all :func:`~.simulate.simulate` does. There is no second path:
+``step(u, h)`` is ``advance(u, [t + h])``.
+
+How one path serves both a controller's constant ``u`` and a chirp: ``advance`` splits
+its interval at the breakpoints of the input signals, and over each piece the inputs
+follow an :class:`~.common.InputLaw`:
+
+* **held** - every input is constant over the piece (constants, and the
+  piecewise-constant :class:`~sarcomere.dynamics.signals.Step` and
+  :class:`~sarcomere.dynamics.signals.Staircase` between breakpoints). The method's
+  input argument is ``u`` itself: the CVODES/IDAS integrator takes it as CasADi's
+  piecewise-constant control and the fixed-step core as an argument, so a closed loop
+  with a new ``u`` every step reuses one integrator;
+* **signals** - anything else (ramps, sines, chirps, tables) is integrated exactly as
+  the signal's CasADi expression of time, clamped into the piece (a jump at its end
+  never leaks into it); the argument is then the piece's bounds.
+
+The method (:data:`~.settings.METHODS`) integrates one piece (a
+:class:`~.settings.Segment`); its integrators and step Functions are memoised on the
+model (:meth:`Model.cached`) by value: settings, law and relative output grid.
+
+After each piece the simulator checks that the states are finite and that every
+bounded signal (``low``/``high`` of its variable: the physical domain) holds at the
+output points; a violation is a :class:`~sarcomere.dynamics.errors.SolverError` with the
+time of the first violating output point, the signal named and the state there. After
+an error the simulator stays at the last point that passed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import casadi as cs
+import numpy as np
+
+from ..errors import ParameterError
+from ..modeling.model import Model
+from ..signals import Staircase, Step
+from ..units import to_si
+from . import fixed_step, guard, scipy_methods, sundials  # noqa: F401  (register the methods)
+from .common import HELD, InputLaw, method_options, require_step, segment_w
+from .settings import METHODS, Segment, SolverSettings
+
+CHUNK_POINTS = 1000
+"""Most output points per method call: long runs are integrated in pieces of this many
+points (the method restarts there), so progress can be reported and memory stays flat."""
+
+
+@dataclass(frozen=True)
+class _Const:
+    """A constant input value [SI]."""
+
+    value: float
+    unit = None
+
+    def __call__(self, t):
+        return np.full(np.shape(t), self.value) if np.ndim(t) else self.value
+
+    def casadi(self, t: cs.SX) -> cs.SX:
+        return cs.SX(self.value)
+
+    def breakpoints(self, t0: float, tf: float) -> list[float]:
+        return []
+
+
+_HELD_TYPES = (_Const, Step, Staircase)
+"""Signals constant between their breakpoints (right-continuous): integrated as held."""
+
+
+class Simulator:
+    """Step a model through time; the base of :func:`~.simulate.simulate`.
+
+    Parameters
+    ----------
+    model : Model
+        A flattened model.
+    settings : SolverSettings, optional
+        Method and tolerances; default CVODES at rtol 1e-6.
+
+    Attributes
+    ----------
+    t : float
+        Current time [s].
+    x, z : numpy.ndarray
+        Current states and algebraic unknowns (copies).
+    u : numpy.ndarray
+        Current inputs [SI] (the value at ``t`` of what the last step applied).
+    p : numpy.ndarray
+        Parameters of the current run.
+    stats : dict
+        Solver counters since the last reset (``n_steps``, ``n_rhs``, ``n_segments``...).
+
+    Examples
+    --------
+    >>> from sarcomere.dynamics import Simulator, hanging_load, solve_equilibrium
+    >>> model = hanging_load(n=1, load_kg=0.05)
+    >>> sim = Simulator(model)
+    >>> sim.reset(x0=solve_equilibrium(model, {"regulator.p_cmd": 0.0}).x)
+    >>> for _ in range(20):
+    ...     sim.step({"regulator.p_cmd": "0.1 MPa"}, 0.01)
+    >>> round(sim.t, 6), bool(sim.signal("regulator.p_out") > 9e4)
+    (0.2, True)
+    """
+
+    def __init__(self, model: Model, settings: SolverSettings | None = None) -> None:
+        self.model = model
+        self.settings = settings or SolverSettings()
+        self._settings_key = self.settings.key()
+        self._scheme = guard.SCHEMES.get(self.settings.method)
+        self.reset()
+
+    # --- state ---------------------------------------------------------------------
+    def reset(
+        self,
+        x0: np.ndarray | Mapping[str, float] | None = None,
+        z0: np.ndarray | Mapping[str, float] | None = None,
+        params: Mapping[str, object] | None = None,
+        t0: float = 0.0,
+    ) -> None:
+        """Start again at ``t0`` [s] from ``x0`` (vector, or mapping of state names to
+        values; default the start values), ``z0`` (guess of the algebraic unknowns) and
+        ``params`` (overrides by name, units allowed); inputs return to their start values.
+        """
+        m = self.model
+        self.p = m.parameters(params)
+        self._x = _vector(m, "x0", x0, m.x0(), m.state_names)
+        m.check_finite(self._x, "x")
+        self._z = _vector(m, "z0", z0, m.z0(), m.alg_names)
+        if not math.isfinite(t0):
+            raise ParameterError("t0", t0, "a finite time [s]")
+        self._t = float(t0)
+        self._inputs = [_Const(float(v)) for v in m.u0()]
+        self._u = m.u0()
+        self._limit: tuple | None = None
+        self.stats: dict = {}
+
+    @property
+    def t(self) -> float:
+        return self._t
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._x.copy()
+
+    @property
+    def z(self) -> np.ndarray:
+        return self._z.copy()
+
+    @property
+    def u(self) -> np.ndarray:
+        return self._u.copy()
+
+    def signals(self, names: Sequence[str] | None = None) -> dict[str, float]:
+        """Named signals [SI] at the current point (default: every named signal)."""
+        m = self.model
+        names = list(m.signal_names if names is None else names)
+        unknown = [n for n in names if n not in m.signal_names]
+        if unknown:
+            raise ParameterError("signals", unknown[:5], f"signals of model '{m.name}'")
+        values = np.array(m.signals_function(names)(self._x, self._z, self._u, self.p)).ravel()
+        return dict(zip(names, values.tolist(), strict=True))
+
+    def signal(self, name: str) -> float:
+        """One named signal [SI] at the current point."""
+        return self.signals([name])[name]
+
+    def step_function(self) -> cs.Function:
+        """The method's CasADi ``step(x, z, u, h, p) -> (xf, zf)`` with ``u`` held: the
+        integrator (cvodes, idas) or fixed step the simulator itself uses, callable on MX
+        symbols in an optimal-control problem."""
+        make = METHODS[self.settings.method].step_function
+        if make is None:
+            raise ParameterError(
+                "solver.method",
+                self.settings.method,
+                sorted(k for k, v in METHODS.items() if v.step_function is not None),
+                "scipy's solvers are not CasADi Functions",
+            )
+        return make(self.model, self.settings)
+
+    # --- stepping ------------------------------------------------------------------
+    def step(self, u: object, h: float | str) -> None:
+        """Advance by ``h`` [s] (a float, or a string with a unit such as "10 ms").
+
+        ``u``: the inputs over the step - a vector (one SI value per input, in
+        ``model.input_names`` order), a mapping by input name to an SI float, a string
+        with a unit ("0.1 MPa") or a signal (evaluated over the step as an expression of
+        time); inputs a mapping leaves out, or ``None``, keep what was applied last.
+        Every value is checked against its input's range ``[low, high]``.
+
+        Raises
+        ------
+        ParameterError
+            For a bad input or step size.
+        SolverError
+            When the method fails or the trajectory leaves the physical domain (the
+            time, the state and the cause).
+        """
+        h = to_si(h, "s", "h")
+        if not (math.isfinite(h) and h > 0):
+            raise ParameterError("h", h, "(0, inf) s")
+        self.advance(u, [self._t + h])
+
+    def advance(
+        self,
+        u: object,
+        times: Sequence[float] | np.ndarray,
+        progress: Callable[[float], None] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance through the increasing ``times`` [s] (the first may equal :attr:`t`),
+        ending at the last; ``u`` as in :meth:`step`. ``progress(fraction)`` is called
+        after every piece (breakpoint or :data:`CHUNK_POINTS` output points).
+
+        Returns
+        -------
+        (numpy.ndarray, numpy.ndarray, numpy.ndarray)
+            States, algebraic unknowns and inputs at ``times``, one row per time.
+        """
+        m, t_start = self.model, self._t
+        times = np.asarray(times, dtype=float).reshape(-1)
+        if not len(times) or not np.all(np.isfinite(times)) or times[0] < t_start:
+            raise ParameterError("times", times[:3], f"finite times from t = {t_start:g} s on")
+        if np.any(np.diff(times) <= 0):
+            raise ParameterError("times", times[:3], "strictly increasing times [s]")
+        signals = self._input_signals(u)
+        t_end = float(times[-1])
+        bps = sorted(
+            {float(b) for sig in signals for b in sig.breakpoints(t_start, t_end)}
+            - {t_start, t_end}
+        )
+        self._check_range(signals, np.concatenate([[t_start], times, bps]))
+        if self._scheme is not None:
+            self._guard(signals, times, bps)
+        X = np.empty((len(times), m.nx))
+        Z = np.empty((len(times), m.nz))
+        U = np.empty((len(times), len(signals)))
+        first = 0
+        if times[0] == t_start:
+            X[0], Z[0], U[0] = self._x, self._z, _values(signals, t_start)
+            first = 1
+        edges = [t_start, *bps, t_end]
+        span = t_end - t_start
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            lo = first + int(np.searchsorted(times[first:], a, side="right"))
+            hi = first + int(np.searchsorted(times[first:], b, side="right"))
+            seg_times = times[lo:hi] if hi > lo and times[hi - 1] == b else [*times[lo:hi], b]
+            seg_times = np.asarray(seg_times, dtype=float)
+            law, w = _law(signals, a, b)
+            for k in range(0, len(seg_times), CHUNK_POINTS):
+                piece = seg_times[k : k + CHUNK_POINTS]
+                Xp, Zp, Up = self._piece(law, w, signals, piece)
+                n_out = max(min(len(piece), hi - lo - k), 0)  # b may be a breakpoint only
+                rows = slice(lo + k, lo + k + n_out)
+                X[rows], Z[rows], U[rows] = Xp[:n_out], Zp[:n_out], Up[:n_out]
+                if progress is not None:
+                    progress((self._t - t_start) / span if span > 0 else 1.0)
+        self._inputs = signals
+        self._u = _values(signals, t_end)
+        return X, Z, U
+
+    def _piece(
+        self, law: InputLaw, w: np.ndarray, signals: list, times: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Integrate one piece with the method, check it, move to its end."""
+        m = self.model
+        seg = Segment(
+            m,
+            self.settings,
+            self._settings_key,
+            self.p,
+            law,
+            w,
+            self._t,
+            self._x,
+            self._z,
+            times,
+            self.stats,
+        )
+        X, Z = METHODS[self.settings.method].run(seg)
+        U = np.repeat(w[None, :], len(times), axis=0) if law is HELD else _values(signals, times)
+        bad = ~(np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(Z), axis=1))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise seg.fail(
+                "the state became non-finite", float(times[i]), X[i - 1] if i else seg.x0
+            )
+        self._check_domain(seg, X, Z, U)
+        self._t, self._x, self._z = float(times[-1]), X[-1].copy(), Z[-1].copy()
+        return X, Z, U
+
+    # --- checks --------------------------------------------------------------------
+    def _check_domain(self, seg: Segment, X: np.ndarray, Z: np.ndarray, U: np.ndarray) -> None:
+        """Refuse the first output point where a bounded signal leaves ``[low, high]``."""
+        m = self.model
+        names = m.bounded_signal_names
+        if not names:
+            return
+        n = len(seg.times)
+        f = m.signals_function(names, n)
+        S = np.array(f(X.T, Z.T, U.T, np.repeat(self.p[:, None], n, axis=1))).reshape(len(names), n)
+        low = np.array([m.variables[k].low for k in names])[:, None]
+        high = np.array([m.variables[k].high for k in names])[:, None]
+        out = (S < low) | (S > high) | ~np.isfinite(S)
+        if not out.any():
+            return
+        col = int(np.argmax(out.any(axis=0)))
+        row = int(np.argmax(out[:, col]))
+        name, var = names[row], m.variables[names[row]]
+        raise seg.fail(
+            f"left the physical domain: {name} = {S[row, col]:.4g} {var.unit} is outside "
+            f"[{var.low:.4g}, {var.high:.4g}] ({var.description})",
+            float(seg.times[col]),
+            X[col],
+        )
+
+    def _check_range(self, signals: list, times: np.ndarray) -> None:
+        """Refuse an input outside its variable's range at ``times``."""
+        m = self.model
+        for name, sig in zip(m.input_names, signals, strict=True):
+            var = m.variables[name]
+            values = np.asarray(sig(times), dtype=float) * np.ones_like(times)
+            bad = np.flatnonzero(~((values >= var.low) & (values <= var.high)))
+            if bad.size:
+                raise ParameterError(
+                    name,
+                    f"{values[bad[0]]:g} {var.unit} at t = {times[bad[0]]:g} s",
+                    f"[{var.low:g}, {var.high:g}] {var.unit}",
+                    var.description,
+                )
+
+    def _guard(self, signals: list, times: np.ndarray, bps: list[float]) -> None:
+        """The explicit-step stability guard (:mod:`.guard`); the limit is estimated at the
+        first advance after a reset and kept."""
+        action = guard.on_unstable(method_options(self.settings, {"on_unstable": "warn"}))
+        if action == "ignore":
+            return
+        h_used = fixed_step.max_substep(
+            np.concatenate([[self._t], times, bps]), require_step(self.settings)
+        )
+        if self._limit is None:
+            t_after = bps[0] if bps else float(times[-1])
+            self._limit = guard.stability_limit(
+                self.model,
+                self._scheme,
+                self._x,
+                _values(signals, self._t),
+                t_after,
+                _values(signals, t_after),
+                self.p,
+            )
+            self.stats["stability_limit_s"] = self._limit[0]
+        guard.check_step(self._scheme, h_used, action, self._limit)
+
+    def _input_signals(self, u: object) -> list:
+        """One signal per input from ``u`` (see :meth:`step`)."""
+        m = self.model
+        if u is None:
+            return list(self._inputs)
+        if isinstance(u, Mapping):
+            unknown = set(u) - set(m.input_names)
+            if unknown:
+                raise ParameterError(
+                    "inputs", sorted(unknown), f"inputs of model '{m.name}': {m.input_names}"
+                )
+            out = list(self._inputs)
+            for name, spec in u.items():
+                out[m.input_names.index(name)] = _signal(m, name, spec)
+            return out
+        vec = np.asarray(u, dtype=float).reshape(-1)
+        if len(vec) != len(m.input_names):
+            raise ParameterError(
+                "u", f"{len(vec)} values", f"{len(m.input_names)} values for {m.input_names}"
+            )
+        for name, v in zip(m.input_names, vec, strict=True):
+            if not math.isfinite(v):
+                raise ParameterError(name, float(v), "a finite number")
+        return [_Const(float(v)) for v in vec]
+
+
+def _signal(model: Model, name: str, spec: object):
+    """An input's signal from a constant, a unit string or a signal (unit checked)."""
+    var = model.variables[name]
+    if hasattr(spec, "casadi"):
+        unit = getattr(spec, "unit", None)
+        if unit not in (None, "1", var.unit):
+            raise ParameterError(
+                name,
+                f"a signal in {unit}",
+                f"a signal in {var.unit} (signals hold SI values of the input they drive)",
+            )
+        return spec
+    if callable(spec):
+        raise ParameterError(
+            name,
+            spec,
+            "a constant or a signal with casadi(t) (see sarcomere.dynamics.signals): "
+            "the integrators need the input as an expression of time",
+        )
+    value = to_si(spec, var.unit, name)
+    if not math.isfinite(value):
+        raise ParameterError(name, value, "a finite number")
+    return _Const(value)
+
+
+def _law(signals: list, a: float, b: float) -> tuple[InputLaw, np.ndarray]:
+    """The input law on ``[a, b)`` and its argument ``w``."""
+    if all(isinstance(sig, _HELD_TYPES) for sig in signals):
+        return HELD, _values(signals, a)
+    return InputLaw(tuple(signals)), segment_w(a, b)
+
+
+def _values(signals: list, t: float | np.ndarray) -> np.ndarray:
+    """Input values at a time (vector) or at times (one row per time)."""
+    if np.ndim(t) == 0:
+        return np.array([float(sig(t)) for sig in signals], dtype=float)
+    t = np.asarray(t, dtype=float)
+    cols = [np.asarray(sig(t), dtype=float) * np.ones_like(t) for sig in signals]
+    return np.column_stack(cols) if cols else np.zeros((len(t), 0))
+
+
+def _vector(
+    model: Model, what: str, given: object, default: np.ndarray, names: list[str]
+) -> np.ndarray:
+    """A start vector from a full vector or a mapping by name (others keep ``default``)."""
+    out = default.astype(float).copy()
+    if given is None:
+        return out
+    if isinstance(given, Mapping):
+        for key, value in given.items():
+            if key not in names:
+                raise ParameterError(what, key, f"names of model '{model.name}': {names}")
+            out[names.index(key)] = float(value)
+        return out
+    vec = np.asarray(given, dtype=float).reshape(-1)
+    if len(vec) != len(names):
+        raise ParameterError(what, f"{len(vec)} values", f"{len(names)} values for {names}")
+    return vec.copy()
