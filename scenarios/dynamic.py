@@ -472,6 +472,7 @@ def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
         settings=_settings(sc, model),
         t_out=grid,
         signals=wanted,
+        max_values=sc.outputs.max_values,
     )
     sel = res.select(wanted)
     sel.meta.update(res.meta)

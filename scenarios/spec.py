@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 from sarcomere.dynamics.assemblies import FIDELITIES as MODEL_LEVELS
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
+from sarcomere.dynamics.simulation.simulate import MAX_VALUES
 
 if TYPE_CHECKING:
     from .signals import Signal
@@ -31,9 +32,6 @@ KNOWN_UNITS: Mapping[str, str] = MappingProxyType(
 
 #: SI units a signal or sweep axis may declare with ``unit``.
 SI_UNITS = ("1", "Pa", "m", "kg", "N", "s", "rad", "Hz", "K", "m^3", "kg/s", "N/m", "J", "W")
-
-#: Default of ``[outputs] max_values``: 2e7 values are 160 MB in memory, ~420 MB of CSV.
-MAX_VALUES = 2e7
 
 KeyPath = tuple[str, ...]
 
