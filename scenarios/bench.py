@@ -18,12 +18,12 @@ import argparse
 import json
 import time
 from datetime import UTC, datetime
-from importlib import metadata
 from pathlib import Path
 
 from sarcomere.dynamics.studies import stability, workprecision
 
 from .outdir import check_out_dir, staged
+from .output import version
 from .progress import progress
 
 STUDIES = {
@@ -69,16 +69,9 @@ def _write_summary(args: argparse.Namespace, solver: str, out: dict, wall: float
         "wall_time_s": wall,
         "metrics": out["metrics"],
         "provenance": {
-            "sarcomere_version": _version(),
+            "sarcomere_version": version(),
             "utc": datetime.now(UTC).isoformat(timespec="seconds"),
         },
         "files": [p.name for p in out["files"]],
     }
     (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
-
-
-def _version() -> str:
-    try:
-        return metadata.version("sarcomere")
-    except metadata.PackageNotFoundError:  # pragma: no cover - not installed
-        return "unknown"

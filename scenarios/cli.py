@@ -16,6 +16,7 @@ from sarcomere.dynamics.errors import SarcomereError
 
 from . import bench, calibrate
 from .loader import load_scenario, packaged_scenarios
+from .output import version
 from .runner import run
 
 
@@ -87,6 +88,7 @@ def build_parser(commands: Sequence[Command] = COMMANDS) -> argparse.ArgumentPar
         prog="sarcomere",
         description="Lumped models of artificial pneumatic muscles: run scenarios.",
     )
+    parser.add_argument("--version", action="version", version=f"sarcomere {version()}")
     subs = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for cmd in commands:
         sub = subs.add_parser(cmd.name, help=cmd.help, description=cmd.help)
