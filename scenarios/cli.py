@@ -16,6 +16,7 @@ from sarcomere.dynamics.errors import SarcomereError
 
 from . import bench, calibrate
 from .loader import load_scenario, packaged_scenarios
+from .outdir import check_out_dir
 from .output import version
 from .runner import run
 
@@ -63,7 +64,8 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    run(args.scenario, args.out, quiet=args.quiet)  # checks --out before computing
+    out = None if args.out is None else check_out_dir(args.out, "--out")  # before computing
+    run(args.scenario, out, quiet=args.quiet)
     return 0
 
 
