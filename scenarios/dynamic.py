@@ -239,6 +239,11 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
             check_n(sc, ("sweep", "n", "values"), v, fid)
     if axis is not None and axis.name == "load" and b.setup == "isometric":
         raise sc.error(("sweep", "load"), "the isometric set-up holds no load; sweep 'n' instead")
+    if axis is not None and axis.name == "load" and "load" in sc.model.options:
+        raise sc.error(("model", "options", "load"), "[sweep.load] sets the load; remove it")
+    if axis is not None and axis.name == "load" and min(axis.values) < 0:
+        bad = min(axis.values)
+        raise sc.error(("sweep", "load", "values"), f"{bad * 1e3:g} g: a load is >= 0 kg")
     cases = axis.values if axis else (None,)
     check_output_size(sc, len(pressures) * len(cases), 5, ("sweep", "pressure"))
     results, metrics = {}, {}
