@@ -235,6 +235,8 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
         raise sc.error(("sweep",), "at most one more axis, 'n' or 'load'")
     axis = others[0] if others else None
     if axis is not None and axis.name == "n":
+        if ("model", "n") in sc.key_lines or sc.model.n != 1:
+            raise sc.error(("model", "n"), "[sweep.n] sets n; remove it")
         for v in axis.values:
             check_n(sc, ("sweep", "n", "values"), v, fid)
     if axis is not None and axis.name == "load" and b.setup == "isometric":

@@ -47,3 +47,11 @@ def test_a_load_sweep_refuses_the_load_option_and_negative_loads(tmp_path):
     text = text.replace('load = "50 g"\n', "")
     with pytest.raises(ScenarioError, match=r"sweep.load.values.*-5 g: a load is >= 0 kg"):
         run(parse_scenario(text, "h.toml"), tmp_path, quiet=True)
+
+
+def test_a_sweep_over_n_refuses_model_n(tmp_path):
+    text = HANGING_N.format(ns="[1, 2]").replace(
+        'fidelity = "symmetric"', 'fidelity = "symmetric"\nn = 3'
+    )
+    with pytest.raises(ScenarioError, match=r"key 'model.n': \[sweep.n\] sets n"):
+        run(parse_scenario(text, "h.toml"), tmp_path, quiet=True)
