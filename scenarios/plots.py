@@ -146,7 +146,7 @@ def plot_groups(
                 markersize=4,
             )
         ax.set_xlabel(f"{first.index_name} [{x_unit}]")
-        quantity = QUANTITIES.get(first.units[names[0]], group).replace("_", " ")
+        quantity = re.sub(r"_\d+$", "", group).replace("_", " ")  # length_2 -> length
         ax.set_ylabel(f"{quantity} [{y_unit}]")
         count = len(keys) * len(shown)
         note = f" ({count} of {total} curves)" if count < total else ""
