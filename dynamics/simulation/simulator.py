@@ -270,7 +270,12 @@ class Simulator:
         signals = self._input_signals(u)
         t_end = float(times[-1])
         bps = sorted(
-            {float(b) for sig in signals for b in sig.breakpoints(t_start, t_end)}
+            {
+                float(b)
+                for sig in signals
+                if hasattr(sig, "breakpoints")
+                for b in sig.breakpoints(t_start, t_end)
+            }
             - {t_start, t_end}
         )
         self._check_range(signals, np.concatenate([[t_start], times, bps]))

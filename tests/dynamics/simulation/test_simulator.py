@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
@@ -345,3 +346,33 @@ def test_the_stability_guard_also_guards_steps():
     sim.step([1e5], 0.02)  # 20 ms steps are below the limit
     with pytest.raises(ParameterError, match="stability limit"):
         sim.step([1e5], 0.03)
+
+
+def test_a_misspelled_sundials_option_is_one_line_naming_it():
+    s = SolverSettings("cvodes", options=(("max_steps", 5),))
+    with pytest.raises(ParameterError, match=r"unknown option 'max_steps'.*max_num_steps") as info:
+        simulate(lag_model(), 0.1, settings=s)
+    assert "\n" not in str(info.value)
+
+
+@dataclass
+class _Square:
+    """``gain t^2``: an unhashable signal (eq without frozen) without breakpoints."""
+
+    gain: float
+
+    def __call__(self, t):
+        return self.gain * np.asarray(t, dtype=float) ** 2
+
+    def casadi(self, t):
+        return self.gain * t**2
+
+
+def test_a_user_signal_without_breakpoints_or_hash_is_integrated_exactly():
+    model = lag_model()
+    sig = _Square(1e5)
+    for _ in range(2):  # the second run reuses the integrator cached for this object
+        res = simulate(model, 1.0, {"lag.u": sig}, settings=METHODS["cvodes"], output_interval=0.1)
+    t = res["time"]
+    x = 1e5 * (t**2 - 2 * TAU_S * t + 2 * TAU_S**2 * (1 - np.exp(-t / TAU_S)))
+    np.testing.assert_allclose(res["lag.x"], x, rtol=1e-7, atol=1e-6)
