@@ -133,7 +133,6 @@ class Simulator:
     def __init__(self, model: Model, settings: SolverSettings | None = None) -> None:
         self.model = model
         self.settings = settings or SolverSettings()
-        self._settings_key = self.settings.key()
         self._scheme = guard.SCHEMES.get(self.settings.method)
         self._buffers: dict[tuple, _Buffer] = {}
         self.reset()
@@ -319,7 +318,6 @@ class Simulator:
         seg = Segment(
             m,
             self.settings,
-            self._settings_key,
             self.p,
             law,
             w,

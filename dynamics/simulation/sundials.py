@@ -50,7 +50,7 @@ def integrator(
                 "solver.options", dict(s.options), *_option_hint(str(exc), plugin)
             ) from None
 
-    return model.cached(("sundials", settings.key(), law.key(), grid), build)
+    return model.cached(("sundials", settings.key, law.key(), grid), build)
 
 
 def _check(model: Model, settings: SolverSettings) -> None:
