@@ -6,7 +6,7 @@ Side by side in one run, every variant timed as the median of ``--repeats`` warm
 
 * ``loop_staircase``: ``Simulator.step`` with a new constant command each step, drawn
   beforehand uniformly in [0, 0.2] MPa (seed 0);
-* ``loop_p_law``: the same loop closed by a proportional law on the chain length
+* ``loop_p_law``: the same loop closed by a high-gain proportional law on the chain length
   (``sim.signal("myofibril.length")`` read after each step, command clipped to
   [0, 0.2] MPa): what a controller in the loop costs;
 * ``simulate_staircase``: ``simulate`` given the same levels open-loop as a
