@@ -264,6 +264,8 @@ class Simulator:
         times = np.asarray(times, dtype=float).reshape(-1)
         if not len(times) or not np.all(np.isfinite(times)) or times[0] < t_start:
             raise ParameterError("times", times[:3], f"finite times from t = {t_start:g} s on")
+        if times[-1] <= t_start:
+            raise ParameterError("times", times[-1], f"an end after t = {t_start:g} s")
         if np.any(np.diff(times) <= 0):
             raise ParameterError("times", times[:3], "strictly increasing times [s]")
         signals = self._input_signals(u)

@@ -376,3 +376,16 @@ def test_a_user_signal_without_breakpoints_or_hash_is_integrated_exactly():
     t = res["time"]
     x = 1e5 * (t**2 - 2 * TAU_S * t + 2 * TAU_S**2 * (1 - np.exp(-t / TAU_S)))
     np.testing.assert_allclose(res["lag.x"], x, rtol=1e-7, atol=1e-6)
+
+
+def test_advance_returns_the_states_at_the_times_and_refuses_bad_times():
+    model = lag_model()
+    sim = Simulator(model, METHODS["cvodes"])
+    X, Z, U = sim.advance({"lag.u": Step(final=1e5, time=0.15, unit="Pa")}, [0.0, 0.1, 0.2, 0.3])
+    x = [0.0, 0.0, exact(1e5, 0.05), exact(1e5, 0.15)]
+    np.testing.assert_allclose(X[:, 0], x, rtol=1e-8, atol=1e-9)
+    np.testing.assert_array_equal(U[:, 0], [0.0, 0.0, 1e5, 1e5])
+    assert Z.shape == (4, 0) and sim.t == 0.3
+    for bad in ([0.2], [0.3], [0.4, 0.35], []):
+        with pytest.raises(ParameterError, match="times"):
+            sim.advance(None, bad)
