@@ -389,3 +389,27 @@ def test_advance_returns_the_states_at_the_times_and_refuses_bad_times():
     for bad in ([0.2], [0.3], [0.4, 0.35], []):
         with pytest.raises(ParameterError, match="times"):
             sim.advance(None, bad)
+
+
+def test_a_dae_steps_with_idas_and_agrees_with_simulate_and_collocation():
+    """static_chain keeps one algebraic unknown: IDAS and collocation step it."""
+    from sarcomere.dynamics import hanging_load, solve_equilibrium
+
+    model = hanging_load(n=1, load_kg=0.05, fidelity="static_chain")
+    assert model.nz == 1
+    eq = solve_equilibrium(model, {"regulator.p_cmd": 0.0})
+    idas = SolverSettings("idas", rtol=1e-8, atol=1e-11)
+    cmd = {"regulator.p_cmd": Step(final=1e5, time=0.1, unit="Pa")}
+    kw = {"x0": eq.x, "z0": eq.z, "output_interval": 0.05, "signals": ["myofibril.length"]}
+    ref = simulate(model, 0.5, cmd, settings=idas, **kw)
+    col = simulate(model, 0.5, cmd, settings=SolverSettings("collocation", step=2e-3), **kw)
+    np.testing.assert_allclose(col["myofibril.length"], ref["myofibril.length"], rtol=1e-6)
+    sim = Simulator(model, idas)
+    sim.reset(x0=eq.x, z0=eq.z)
+    lengths = [sim.signal("myofibril.length")]
+    for k in range(10):
+        sim.step([0.0 if k < 2 else 1e5], 0.05)
+        lengths.append(sim.signal("myofibril.length"))
+    np.testing.assert_allclose(lengths, ref["myofibril.length"], rtol=1e-7)
+    assert ref["myofibril.length"][-1] < ref["myofibril.length"][0] - 1e-3  # it contracted
+    assert sim.step_function().size_in("z") == (1, 1)
