@@ -293,7 +293,7 @@ class Simulator:
         span = t_end - t_start
         held = all(isinstance(sig, _HELD_TYPES) for sig in signals)
         law = HELD if held else InputLaw(tuple(signals))
-        W = _values(signals, np.array(edges[:-1])) if held else None  # one vectorised call
+        W = _values(signals, np.array(edges)) if held else None  # one vectorised call
         for i, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
             lo = first + int(np.searchsorted(times[first:], a, side="right"))
             hi = first + int(np.searchsorted(times[first:], b, side="right"))
@@ -306,6 +306,8 @@ class Simulator:
                 n_out = max(min(len(piece), hi - lo - k), 0)  # b may be a breakpoint only
                 rows = slice(lo + k, lo + k + n_out)
                 X[rows], Z[rows], U[rows] = Xp[:n_out], Zp[:n_out], Up[:n_out]
+                if held and n_out == len(piece) and piece[-1] == b:
+                    U[rows.stop - 1] = W[i + 1]  # at b itself the input's value from b on
                 if progress is not None:
                     progress((self._t - t_start) / span if span > 0 else 1.0)
         self._inputs = signals

@@ -381,11 +381,12 @@ def test_a_user_signal_without_breakpoints_or_hash_is_integrated_exactly():
 def test_advance_returns_the_states_at_the_times_and_refuses_bad_times():
     model = lag_model()
     sim = Simulator(model, METHODS["cvodes"])
-    X, Z, U = sim.advance({"lag.u": Step(final=1e5, time=0.15, unit="Pa")}, [0.0, 0.1, 0.2, 0.3])
-    x = [0.0, 0.0, exact(1e5, 0.05), exact(1e5, 0.15)]
+    step = Step(final=1e5, time=0.15, unit="Pa")
+    X, Z, U = sim.advance({"lag.u": step}, [0.0, 0.1, 0.15, 0.2, 0.3])
+    x = [0.0, 0.0, 0.0, exact(1e5, 0.05), exact(1e5, 0.15)]
     np.testing.assert_allclose(X[:, 0], x, rtol=1e-8, atol=1e-9)
-    np.testing.assert_array_equal(U[:, 0], [0.0, 0.0, 1e5, 1e5])
-    assert Z.shape == (4, 0) and sim.t == 0.3
+    np.testing.assert_array_equal(U[:, 0], [0.0, 0.0, 1e5, 1e5, 1e5])  # right-continuous
+    assert Z.shape == (5, 0) and sim.t == 0.3
     for bad in ([0.2], [0.3], [0.4, 0.35], []):
         with pytest.raises(ParameterError, match="times"):
             sim.advance(None, bad)
