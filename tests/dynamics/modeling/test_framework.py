@@ -129,6 +129,10 @@ def test_duplicate_component_names_are_refused():
 
 
 def test_component_name_must_be_identifier():
-    with pytest.raises(ModelError):
-        Fixed("not a name")
-    assert issubclass(Fixed, Component)
+    for bad in ("not a name", "1st", "a.b", "", "a__b"):
+        with pytest.raises(
+            ModelError, match="must be letters, digits and single inner underscores"
+        ):
+            Fixed(bad)
+    with pytest.raises(ModelError, match="must be letters, digits and single inner underscores"):
+        System("my system")
