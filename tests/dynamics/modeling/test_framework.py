@@ -14,7 +14,7 @@ from sarcomere.dynamics.components.mechanical import (
     Spring,
 )
 from sarcomere.dynamics.errors import ModelError, ParameterError
-from sarcomere.dynamics.modeling.component import Component, System
+from sarcomere.dynamics.modeling.component import System
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 
