@@ -68,7 +68,8 @@ def residual_function(model: Model) -> cs.Function:
     w, r, J = _residual(model)
     rs = _row_scales(J, cs.fmax(cs.fabs(w), 1e-6))
     norm = cs.mmax(cs.fabs(r * rs)) if r.numel() else cs.SX(0.0)
-    return cs.Function("residual", model._syms, [r, norm], _ARGS, ["r", "norm"])
+    syms = [model.x, model.z, model.u, model.p]
+    return cs.Function("residual", syms, [r, norm], _ARGS, ["r", "norm"])
 
 
 def newton_function(model: Model, iterations: int = 30) -> cs.Function:

@@ -12,17 +12,15 @@ children, ``b.connect`` their ports and ``b.expose`` inner ports as their own.
 from __future__ import annotations
 
 import math
-import re
 
 import casadi as cs
 
 from ..errors import ModelError, ParameterError
 from .flatten import flatten
+from .labels import NAME, NAME_RULE
 from .model import Model
 from .ports import Port, PortKind
 from .variables import Collected, Kind, Var
-
-_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
 class Handle:
@@ -64,8 +62,8 @@ class Builder:
 
     # --- declarations -------------------------------------------------------------
     def _new(self, local: str, var: Var) -> cs.SX:
-        if not _NAME.match(local):
-            raise ModelError(f"'{local}' in '{self.path}' is not a valid variable name")
+        if not NAME.match(local):
+            raise ModelError(f"variable name '{local}' in '{self.path}' must be {NAME_RULE}")
         return self._declare(local, var)
 
     def _declare(self, local: str, var: Var) -> cs.SX:
@@ -163,8 +161,10 @@ class Builder:
 
     def port(self, name: str, kind: PortKind) -> Port:
         """A connector with potential and flow unknowns named ``<path>.<name>.<var>``."""
-        if name in self.ports or not _NAME.match(name):
-            raise ModelError(f"port '{name}' in '{self.path}' is declared twice or misnamed")
+        if name in self.ports:
+            raise ModelError(f"port '{name}' declared twice in '{self.path}'")
+        if not NAME.match(name):
+            raise ModelError(f"port name '{name}' in '{self.path}' must be {NAME_RULE}")
         pot = self._declare(
             f"{name}.{kind.potential}",
             Var("", Kind.ALGEBRAIC, kind.potential_unit, f"{kind.name} {name}: {kind.potential}"),
@@ -229,6 +229,8 @@ class Builder:
         it are reported, not returned. ``nominal``: its scaling magnitude [unit].
         """
         full = f"{self.path}.{name}" if self.path else name
+        if not NAME.match(name):
+            raise ModelError(f"output name '{name}' in '{self.path}' must be {NAME_RULE}")
         if full in self._c.outputs or full in self._c.variables:
             raise ModelError(f"output '{full}' declared twice")
         self._c.variables[full] = Var(
@@ -271,8 +273,8 @@ class Component:
     """Base class: subclasses store their settings in ``__init__`` and implement ``build``."""
 
     def __init__(self, name: str) -> None:
-        if not _NAME.match(name):
-            raise ModelError(f"component name '{name}' must be a Python identifier")
+        if not NAME.match(name):
+            raise ModelError(f"component name '{name}' must be {NAME_RULE}")
         self.name = name
 
     def build(self, b: Builder) -> None:  # pragma: no cover - abstract
@@ -298,8 +300,8 @@ class System:
     """
 
     def __init__(self, name: str) -> None:
-        if not _NAME.match(name):
-            raise ModelError(f"system name '{name}' must be a Python identifier")
+        if not NAME.match(name):
+            raise ModelError(f"system name '{name}' must be {NAME_RULE}")
         self.name = name
         self._c = Collected()
         self._root = Builder(self._c, "")

@@ -6,6 +6,7 @@ A leaf of the simulation package: method modules register themselves here, and t
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -55,6 +56,7 @@ class SolverSettings:
         if self.step is not None and not self.step > 0:
             raise ParameterError("solver.step", self.step, "(0, inf) s")
 
+    @functools.cached_property
     def key(self) -> tuple:
         """The settings as a hashable value (option dicts and lists frozen), for caches."""
         return (self.method, self.rtol, self.atol, self.step, self.max_steps, freeze(self.options))
@@ -80,7 +82,6 @@ class Segment:
 
     model: Model
     settings: SolverSettings
-    settings_key: tuple
     p: np.ndarray
     law: InputLaw
     w: np.ndarray

@@ -3,8 +3,8 @@
 One entry point, :func:`simulate`, whatever the method; every method returns a
 :class:`~sarcomere.dynamics.results.Result` of the same form (time plus every named
 signal) with solver statistics in ``result.meta``. Inputs are signals (anything with
-``__call__(t)``, ``casadi(t)`` and ``breakpoints(t0, tf)``), constants or strings with
-units. ``simulate`` is a :class:`~.simulator.Simulator` reset at the start state and
+``__call__(t)`` and ``casadi(t)``, and optionally ``breakpoints(t0, tf)``), constants
+or strings with units. ``simulate`` is a :class:`~.simulator.Simulator` reset at the start state and
 advanced once through the output grid: the same path as a closed loop. The integrator
 restarts at every breakpoint of an input (a regulator command step is a discontinuity:
 stepping across it wastes steps and accuracy).

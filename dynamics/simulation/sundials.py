@@ -10,6 +10,8 @@ grid: a closed loop of equal steps builds it once, whatever the time and step si
 
 from __future__ import annotations
 
+import re
+
 import casadi as cs
 import numpy as np
 
@@ -45,13 +47,10 @@ def integrator(
             return cs.integrator("F", plugin, dae, 0.0, list(grid), opts)
         except RuntimeError as exc:
             raise ParameterError(
-                "solver.options",
-                dict(s.options),
-                f"options of casadi.integrator('{plugin}')",
-                str(exc).strip().splitlines()[-1][:200],
+                "solver.options", dict(s.options), *_option_hint(str(exc), plugin)
             ) from None
 
-    return model.cached(("sundials", settings.key(), law.key(), grid), build)
+    return model.cached(("sundials", settings.key, law.key(), grid), build)
 
 
 def _check(model: Model, settings: SolverSettings) -> None:
@@ -98,6 +97,18 @@ def step_function(model: Model, settings: SolverSettings) -> cs.Function:
     return cs.Function(
         "step", [x, z, u, h, p], [res["xf"], res["zf"]], ["x", "z", "u", "h", "p"], ["xf", "zf"]
     )
+
+
+def _option_hint(msg: str, plugin: str) -> tuple[str, str]:
+    """(allowed, reason) from CasADi's refusal of an option: the bad name and the
+    closest valid ones, on one line."""
+    bad = re.search(r"Unknown option: (\S+)", msg)
+    close = re.findall(r'^> "(\w+)"', msg, flags=re.M)
+    allowed = f"options of casadi.integrator('{plugin}')" + (
+        f", e.g. {', '.join(close)}" if close else ""
+    )
+    reason = f"unknown option '{bad[1]}'" if bad else msg.strip().splitlines()[0][:200]
+    return allowed, reason
 
 
 def _cause(msg: str) -> str:

@@ -14,7 +14,7 @@ from sarcomere.dynamics.components.mechanical import (
     Spring,
 )
 from sarcomere.dynamics.errors import ModelError, ParameterError
-from sarcomere.dynamics.modeling.component import Component, System
+from sarcomere.dynamics.modeling.component import System
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 
@@ -129,6 +129,10 @@ def test_duplicate_component_names_are_refused():
 
 
 def test_component_name_must_be_identifier():
-    with pytest.raises(ModelError):
-        Fixed("not a name")
-    assert issubclass(Fixed, Component)
+    for bad in ("not a name", "1st", "a.b", "", "a__b"):
+        with pytest.raises(
+            ModelError, match="must be letters, digits and single inner underscores"
+        ):
+            Fixed(bad)
+    with pytest.raises(ModelError, match="must be letters, digits and single inner underscores"):
+        System("my system")

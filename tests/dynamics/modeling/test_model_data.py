@@ -43,3 +43,4 @@ def test_flattening_does_not_rewrite_the_system():
     model = sys.flatten()
     assert sys._c.variables == declared
     assert model.variables["spring.flange_b.s"].start == 0.01
+    assert model.variables["spring.flange_b.s"].nominal == 0.01  # shared with the start

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
@@ -345,3 +346,71 @@ def test_the_stability_guard_also_guards_steps():
     sim.step([1e5], 0.02)  # 20 ms steps are below the limit
     with pytest.raises(ParameterError, match="stability limit"):
         sim.step([1e5], 0.03)
+
+
+def test_a_misspelled_sundials_option_is_one_line_naming_it():
+    s = SolverSettings("cvodes", options=(("max_steps", 5),))
+    with pytest.raises(ParameterError, match=r"unknown option 'max_steps'.*max_num_steps") as info:
+        simulate(lag_model(), 0.1, settings=s)
+    assert "\n" not in str(info.value)
+
+
+@dataclass
+class _Square:
+    """``gain t^2``: an unhashable signal (eq without frozen) without breakpoints."""
+
+    gain: float
+
+    def __call__(self, t):
+        return self.gain * np.asarray(t, dtype=float) ** 2
+
+    def casadi(self, t):
+        return self.gain * t**2
+
+
+def test_a_user_signal_without_breakpoints_or_hash_is_integrated_exactly():
+    model = lag_model()
+    sig = _Square(1e5)
+    for _ in range(2):  # the second run reuses the integrator cached for this object
+        res = simulate(model, 1.0, {"lag.u": sig}, settings=METHODS["cvodes"], output_interval=0.1)
+    t = res["time"]
+    x = 1e5 * (t**2 - 2 * TAU_S * t + 2 * TAU_S**2 * (1 - np.exp(-t / TAU_S)))
+    np.testing.assert_allclose(res["lag.x"], x, rtol=1e-7, atol=1e-6)
+
+
+def test_advance_returns_the_states_at_the_times_and_refuses_bad_times():
+    model = lag_model()
+    sim = Simulator(model, METHODS["cvodes"])
+    step = Step(final=1e5, time=0.15, unit="Pa")
+    X, Z, U = sim.advance({"lag.u": step}, [0.0, 0.1, 0.15, 0.2, 0.3])
+    x = [0.0, 0.0, 0.0, exact(1e5, 0.05), exact(1e5, 0.15)]
+    np.testing.assert_allclose(X[:, 0], x, rtol=1e-8, atol=1e-9)
+    np.testing.assert_array_equal(U[:, 0], [0.0, 0.0, 1e5, 1e5, 1e5])  # right-continuous
+    assert Z.shape == (5, 0) and sim.t == 0.3
+    for bad in ([0.2], [0.3], [0.4, 0.35], []):
+        with pytest.raises(ParameterError, match="times"):
+            sim.advance(None, bad)
+
+
+def test_a_dae_steps_with_idas_and_agrees_with_simulate_and_collocation():
+    """static_chain keeps one algebraic unknown: IDAS and collocation step it."""
+    from sarcomere.dynamics import hanging_load, solve_equilibrium
+
+    model = hanging_load(n=1, load_kg=0.05, fidelity="static_chain")
+    assert model.nz == 1
+    eq = solve_equilibrium(model, {"regulator.p_cmd": 0.0})
+    idas = SolverSettings("idas", rtol=1e-8, atol=1e-11)
+    cmd = {"regulator.p_cmd": Step(final=1e5, time=0.1, unit="Pa")}
+    kw = {"x0": eq.x, "z0": eq.z, "output_interval": 0.05, "signals": ["myofibril.length"]}
+    ref = simulate(model, 0.5, cmd, settings=idas, **kw)
+    col = simulate(model, 0.5, cmd, settings=SolverSettings("collocation", step=2e-3), **kw)
+    np.testing.assert_allclose(col["myofibril.length"], ref["myofibril.length"], rtol=1e-6)
+    sim = Simulator(model, idas)
+    sim.reset(x0=eq.x, z0=eq.z)
+    lengths = [sim.signal("myofibril.length")]
+    for k in range(10):
+        sim.step([0.0 if k < 2 else 1e5], 0.05)
+        lengths.append(sim.signal("myofibril.length"))
+    np.testing.assert_allclose(lengths, ref["myofibril.length"], rtol=1e-7)
+    assert ref["myofibril.length"][-1] < ref["myofibril.length"][0] - 1e-3  # it contracted
+    assert sim.step_function().size_in("z") == (1, 1)
