@@ -24,11 +24,13 @@ def progress(
     *,
     enabled: bool = True,
     stream: TextIO | None = None,
-    delay: float = DELAY_S,
+    delay: float | None = None,
     every: float = 1.0,
 ) -> Iterator[None]:
-    """Show ``label`` and the elapsed time on ``stream`` (stderr) while the block runs."""
+    """Show ``label`` and the elapsed time on ``stream`` (stderr) while the block runs,
+    from ``delay`` (default :data:`DELAY_S`) seconds on, every ``every`` seconds."""
     out = sys.stderr if stream is None else stream
+    delay = DELAY_S if delay is None else delay
     if not enabled or not out.isatty():
         yield
         return

@@ -78,3 +78,19 @@ def test_progress_is_silent_when_quick_quiet_or_not_a_terminal():
     with progress("x", stream=pipe, delay=0.0, every=0.05):
         time.sleep(0.1)
     assert pipe.getvalue() == ""
+
+
+def test_bench_shows_progress_on_a_terminal(tmp_path, monkeypatch, capsys):
+    from sarcomere.scenarios import bench
+    from sarcomere.scenarios.cli import main
+
+    def study(out_dir, quick=False):
+        time.sleep(0.3)
+        return {"metrics": {}, "files": []}
+
+    monkeypatch.setitem(bench.STUDIES, "stability", (study, "test"))
+    monkeypatch.setattr("sarcomere.scenarios.progress.DELAY_S", 0.05)
+    terminal = _Terminal()
+    monkeypatch.setattr("sys.stderr", terminal)
+    assert main(["bench", "stability", "--out", str(tmp_path / "b")]) == 0
+    assert "bench stability: 0 s" in terminal.getvalue()
