@@ -6,8 +6,14 @@
 
 - ``setup``: ``"hanging"`` (a load hangs from the chain end, default) or ``"isometric"``
   (the chain end is held by a force sensor on a fixture);
-- ``load``: the hanging mass ("50 g"); ``regulator_tau``: the regulator lag ("50 ms");
-- ``fixture_stiffness`` ("2000 N/m", default rigid) and ``fixture_gap`` ("1 mm").
+- ``load``: the hanging mass ("50 g", hanging only); ``regulator_tau``: the regulator lag;
+- ``fixture_stiffness`` ("2000 N/m", default rigid) and ``fixture_gap`` ("1 mm"),
+  isometric only.
+
+Nothing is ignored: an option the set-up does not read, ``[model] geometry``, a section the
+kind does not use, ``n`` above the level's measured limit (:data:`N_LIMITS`), a pressure
+command outside the regulator's ``[0, p_max]`` and an output above ``[outputs]
+max_values`` are refused before anything is solved.
 
 ``[parameters]``: ``aps.<field>`` sets an :class:`~sarcomere.dynamics.components.aps.APSParams`
 field for every unit ("aps.k_s" = "400 N/m"); any other key is a model parameter path
