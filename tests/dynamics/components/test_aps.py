@@ -147,16 +147,19 @@ def test_calibrated_defaults_meet_the_papers_targets_within_1_percent():
         assert achieved[key] == pytest.approx(target, rel=0.01), key
 
 
-def test_isometric_force_cannot_grow_with_n_on_a_rigid_fixture():
-    """Units in series share one tension: F_n <= F_1 (the paper's 0.741/1.033 N are not
-    reproducible; docs/paper.md)."""
+def test_isometric_force_with_the_bodies_weight_stays_near_f1_not_near_n_f1():
+    """With the 8.6 g bodies the upper units are pre-loaded by the lower ones' weight, so
+    the units are no longer identical and their nonlinear force-length relations give a
+    slightly different F_n; but one tension runs through the chain, so F_n stays within a
+    few percent of F_1, nowhere near the paper's 2.35 F_1 and 3.28 F_1 (docs/paper.md)."""
     forces = []
     for n in (1, 2, 3):
         m = isometric(n)
         f0 = solve_equilibrium(m, {P: 0.0})["sensor.f"]
         forces.append(solve_equilibrium(m, {P: 0.1e6})["sensor.f"] - f0)
     assert forces[0] == pytest.approx(0.315, rel=0.01)
-    assert forces[1] < 2 * forces[0] and forces[2] < 3 * forces[0]
+    for f in forces[1:]:
+        assert f == pytest.approx(forces[0], rel=0.05)
 
 
 def test_bad_inputs_name_the_value():
@@ -170,15 +173,17 @@ def test_bad_inputs_name_the_value():
         hanging_load(1, fidelity="coarse")
 
 
-def test_command_below_vacuum_is_refused(hang3):
-    with pytest.raises(ParameterError, match=r"regulator.p_cmd.*-200000 Pa at t = 0.*below vacuum"):
+def test_command_outside_the_regulating_range_is_refused(hang3):
+    with pytest.raises(
+        ParameterError, match=r"regulator.p_cmd.*-200000 Pa at t = 0.*\[0, 600000\]"
+    ):
         simulate(hang3, 0.1, inputs={P: -2e5})
 
 
 def test_equilibrium_reports_thread_pulled_straight():
-    m = hanging_load(1, load_kg=0.0)
+    m = hanging_load(1, APSParams.from_paper(A_p=1e-4), load_kg=0.0)  # 25 x the pneumatic area
     with pytest.raises(SolverError, match=r"theta_b = .* outside its physical domain.*straight"):
-        solve_equilibrium(m, {P: 5.0e6}, {"regulator.p_max": 5.0e6})
+        solve_equilibrium(m, {P: 6.0e5})
 
 
 def test_equilibrium_from_scratch_stays_on_the_physical_branch():
