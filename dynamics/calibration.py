@@ -238,3 +238,62 @@ def sensitivities(p: APSParams, rel_step: float = 1e-4) -> tuple[dict, list[floa
     sv = np.linalg.svd(S[:, [names.index(k) for k in FITTED]], compute_uv=False).tolist()
     weak = [n for n in names if np.max(np.abs(S[:, names.index(n)])) < 1e-6]
     return sens, sv, weak
+
+
+CONCENTRIC_LOADS_KG = (0.0, 0.01, 0.02, 0.05, 0.1)
+"""Loads of the paper's concentric experiment (Results: Concentric Contraction) [kg]."""
+
+CONCENTRIC_PRESSURES_PA = tuple(float(p) for p in np.linspace(0.0, P_TEST, 11))
+"""Its pressures, 0 to 0.1 MPa in 0.01 MPa steps [Pa]."""
+
+FAMILY_L_R = (4e-3, 8e-3, 16e-3, 20e-3, 34e-3)
+"""Restoring-element lengths L_r [m] of the calibration family (docs/paper.md): each
+member is calibrated to the same three targets."""
+
+
+@dataclass
+class Concentric:
+    """The concentric experiment for one parameter set: actuation strain
+    ``(L[P, load] - L[0, load]) / L[0, 0]`` [1] (rows: loads, columns: pressures) and the
+    range of the Yeoh element's stretch over all its equilibria."""
+
+    strain: np.ndarray
+    stretch_min: float
+    stretch_max: float
+
+
+def concentric(p: APSParams, n: int = 3) -> Concentric:
+    """Equilibria of ``n`` APS over :data:`CONCENTRIC_LOADS_KG` x
+    :data:`CONCENTRIC_PRESSURES_PA` (continuation along the pressure)."""
+    lengths, stretches = [], []
+    for load in CONCENTRIC_LOADS_KG:
+        m = hanging_load(n, p, load_kg=load)
+        row, eq = [], None
+        for pc in CONCENTRIC_PRESSURES_PA:
+            eq = solve_equilibrium(m, {"regulator.p_cmd": pc}, guess=eq)
+            row.append(eq["myofibril.length"])
+            stretches += [eq[f"myofibril.aps{i + 1}.yeoh.lambda"] for i in range(n)]
+        lengths.append(row)
+    L = np.array(lengths)
+    return Concentric((L - L[:, :1]) / L[0, 0], float(min(stretches)), float(max(stretches)))
+
+
+@dataclass
+class FamilyMember:
+    """One calibration for a given ``L_r`` [m]: its fit and its concentric prediction."""
+
+    L_r: float
+    result: CalibrationResult
+    concentric: Concentric
+
+
+def family(L_r_values=FAMILY_L_R, start: APSParams | None = None) -> list[FamilyMember]:
+    """Calibrate once per ``L_r``: every member meets the three targets, yet they predict
+    different loaded strains (the passive compliance split between the SPA and the
+    threads is not identified by the targets; docs/paper.md)."""
+    base = start or APSParams.from_paper()
+    out = []
+    for L_r in L_r_values:
+        res = calibrate(replace(base, L_r=float(L_r)))
+        out.append(FamilyMember(float(L_r), res, concentric(res.params)))
+    return out
