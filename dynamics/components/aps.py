@@ -207,6 +207,21 @@ def thread_height(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
     return cs.sqrt(cs.fmax((0.5 * l) ** 2 - r2**2, (1e-4 * l) ** 2))
 
 
+def aps_parameter(b: Builder, p: APSParams, name: str, source: str | None = None) -> cs.SX:
+    """Declare the APSParams field ``name`` as a model parameter with the field's value,
+    unit, range (closed at its bounds) and source: the one place they are written."""
+    m = _field(name).metadata
+    return b.parameter(
+        name,
+        getattr(p, name),
+        m["unit"],
+        m["description"],
+        low=m["low"] if not m["low_open"] else math.nextafter(m["low"], math.inf),
+        high=m["high"],
+        source=source or m["source"],
+    )
+
+
 class YeohSpring(Component):
     """Restoring element of the SPA: energy ``A_r L_r W(1 + d/L_r)`` [J], d = s_b - s_a."""
 
@@ -216,33 +231,16 @@ class YeohSpring(Component):
 
     def build(self, b: Builder) -> None:
         p = self.p
-        A_r = b.parameter(
-            "A_r",
-            p.A_r,
-            "m^2",
-            "effective restoring cross-section",
-            low=0.0,
-            source="calibrated against the paper's concentric experiment",
-        )
-        L_r = b.parameter(
-            "L_r",
-            p.L_r,
-            "m",
-            "stretched length (the anchor span 2 r2')",
-            low=1e-6,
-            source="geometry: the anchor span 2 r2' = 20 mm (docs/model.md)",
-        )
-        src = f"paper, material '{p.material}'"
-        C1 = b.parameter("C1", p.C1, "Pa", "Yeoh C1", low=0.0, source=src)
-        C2 = b.parameter("C2", p.C2, "Pa", "Yeoh C2", source=src)
-        C3 = b.parameter("C3", p.C3, "Pa", "Yeoh C3", source=src)
+        A_r, L_r = aps_parameter(b, p, "A_r"), aps_parameter(b, p, "L_r")
+        src = f"paper, Yeoh fit of material '{p.material}'"
+        C1, C2, C3 = (aps_parameter(b, p, k, source=src) for k in ("C1", "C2", "C3"))
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         lam = 1.0 + (fb.s - fa.s) / L_r
         energy = A_r * L_r * yeoh_energy(lam, C1, C2, C3)
         force = cs.gradient(energy, fb.s)
         b.equation(fb.f, force)
         b.equation(fa.f, -force)
-        b.output("lambda", lam, "1", "junction-zone stretch", low=0.0)
+        b.output("lambda", lam, "1", "stretch of the restoring element", low=0.0)
         b.output("f", force, "N", "restoring force")
         b.energy("elastic", energy)
 
@@ -279,31 +277,8 @@ class Actin(Component):
 
     def build(self, b: Builder) -> None:
         p = self.p
-        l = b.parameter("l", p.l, "m", "thread length", low=1e-6, source="paper: 32 mm")
-        w0 = b.parameter(
-            "w0",
-            p.w0,
-            "m",
-            "anchor spacing at rest 2 r2'",
-            low=0.0,
-            source="paper: h_m - 2 t_w - h_ch = 20 mm",
-        )
-        A = b.parameter(
-            "A_band", p.A_band, "m", "SPA body height (A-band)", low=0.0, source="paper: A = 30 mm"
-        )
-        k_s = b.parameter(
-            "k_s",
-            p.k_s,
-            "N/m",
-            "series stiffness of an I-band of two thread V's",
-            low=1e-9,
-            source=_CAL,
-        )
-        c_s = b.parameter(
-            "c_s", p.c_s, "N*s/m", "damping of an I-band of two V's", low=0.0, source="estimate"
-        )
-        eps = b.parameter(
-            "eps_slack", p.eps_slack, "m", "slack regularisation", low=1e-12, source="numerical"
+        l, w0, A, k_s, c_s, eps = (
+            aps_parameter(b, p, k) for k in ("l", "w0", "A_band", "k_s", "c_s", "eps_slack")
         )
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         L_geo, L_rest = cs.SX(0), cs.SX(0)

@@ -1,5 +1,6 @@
 """The APS myofibril model: Jacobians, dimensions, energy, equilibrium, calibration."""
 
+import dataclasses
 import math
 from fnmatch import fnmatch
 
@@ -246,3 +247,22 @@ def test_spring_fixture_reads_less_than_rigid_and_gap_less_still():
     assert gap < _tared_force(isometric(1, fixture_stiffness=2e3))
     # on a compliant fixture a second unit adds far less than a second 0.315 N
     assert _tared_force(isometric(2, fixture_stiffness=200.0)) < 1.2 * soft
+
+
+def test_aps_parameters_carry_unit_range_and_source_per_field():
+    with pytest.raises(ParameterError, match=r"'C1' = -1000.0.*\(0, inf\) Pa"):
+        APSParams.from_paper(C1=-1e3)
+    with pytest.raises(ParameterError, match=r"'b_tube' = 1.0.*\[0, 1\) 1"):
+        APSParams(b_tube=1.0)
+    with pytest.raises(ParameterError, match=r"'k_s' = '400 N/m'"):
+        APSParams(k_s="400 N/m")
+    with pytest.raises(ParameterError, match=r"thermal.*'isothermal', 'adiabatic'"):
+        APSParams(thermal="polytropic")
+    assert APSParams.unit("k_s") == "N/m" and APSParams.unit("C_tube") == "m^3/(s*Pa)"
+    for name in APSParams.numeric_fields():
+        meta = {f.name: f.metadata for f in dataclasses.fields(APSParams)}[name]
+        assert meta["source"] and meta["description"], name
+    # the model's parameters take their unit from the same field
+    m = hanging_load(1)
+    assert m.unit("myofibril.actin0.k_s") == APSParams.unit("k_s")
+    assert m.unit("myofibril.aps1.chamber.A") == APSParams.unit("A_p")
