@@ -105,6 +105,16 @@ class APSParams:
     r_lam: float = _f(
         0.999, "1", 0.5, 1, "numerical (0.995..0.999 typical)", "laminar threshold", high_open=True
     )
+    tau_heat: float = _f(
+        1.0,
+        "s",
+        0,
+        math.inf,
+        "estimate: small silicone chamber, order 1 s",
+        "heat-exchange time constant of an adiabatic chamber (inf: none)",
+        low_open=True,
+        inf_ok=True,
+    )
     thermal: str = field(
         default="isothermal",
         metadata={"choices": THERMAL, "description": "chamber thermal model"},
@@ -126,7 +136,7 @@ class APSParams:
             ok = (
                 isinstance(v, int | float)
                 and not isinstance(v, bool)
-                and math.isfinite(v)
+                and (math.isfinite(v) or (v == math.inf and m.get("inf_ok", False)))
                 and (v > m["low"] if m["low_open"] else v >= m["low"])
                 and (v < m["high"] if m["high_open"] else v <= m["high"])
             )
@@ -353,7 +363,7 @@ class APS(Component):
     def build(self, b: Builder) -> None:
         p = self.p
         ground = b.add(Fixed("ground"))
-        gas = Chamber("chamber", V0=p.V0, A=p.A_p, thermal=p.thermal)
+        gas = Chamber("chamber", V0=p.V0, A=p.A_p, thermal=p.thermal, tau_heat=p.tau_heat)
         chamber = b.add(gas)
         self.temperature = gas.temperature
         yeoh = b.add(YeohSpring("yeoh", p))

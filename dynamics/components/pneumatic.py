@@ -10,6 +10,8 @@ at room temperature); air leaving it has the chamber's temperature. See docs/mod
 
 from __future__ import annotations
 
+import math
+
 import casadi as cs
 
 from ..errors import ParameterError
@@ -193,9 +195,12 @@ class Chamber(Component):
     temperature.
     Adiabatic (no heat through the wall), the energy balance of the open volume:
     ``d(m c_v T)/dt = c_p T_up m_flow - p dV/dt`` with ``T_up`` the ambient temperature
-    while filling and ``T`` while venting. The wall force is exactly ``(p - p_amb) dV/ds``
-    (virtual work). Starts at ``p_amb + p_start_gauge`` and the ambient temperature (the
-    start mass is an expression of ``V0`` and the environment). After building,
+    while filling and ``T`` while venting, plus the wall heat ``m c_v (T_amb - T)/tau_heat``
+    (default ``tau_heat = inf``: none; a finite value makes the equilibrium unique, at the
+    ambient temperature; the energy function does not count that heat). The wall force
+    is exactly ``(p - p_amb) dV/ds`` (virtual work). Starts at ``p_amb + p_start_gauge``
+    and the ambient temperature (the start mass is an expression of ``V0`` and the
+    environment). After building,
     ``temperature`` is the air temperature (a symbol or expression, for a restriction).
     """
 
@@ -206,11 +211,15 @@ class Chamber(Component):
         A: float,
         p_start_gauge: float = 0.0,
         thermal: str = "isothermal",
+        tau_heat: float = math.inf,
     ) -> None:
         super().__init__(name)
         if thermal not in THERMAL:
             raise ParameterError("thermal", thermal, f"one of {THERMAL}")
+        if not tau_heat > 0:
+            raise ParameterError("tau_heat", tau_heat, "(0, inf] s")
         self.V0, self.A, self.p_start_gauge, self.thermal = V0, A, p_start_gauge, thermal
+        self.tau_heat = tau_heat
 
     def build(self, b: Builder) -> None:
         env = b.outer(ENVIRONMENT)
@@ -241,8 +250,17 @@ class Chamber(Component):
             T = theta * (m / (V * rho_amb)) ** (gamma - 1.0)
             self.temperature = T
             p = m * R * T / V
+            tau = b.parameter(
+                "tau_heat",
+                self.tau_heat,
+                "s",
+                "time constant of the heat exchange with the wall (inf: none)",
+                low=1e-9,
+                source="estimate",
+            )
             mdot_in = cs.fmax(port.m_flow, 0.0)
-            b.der(theta, gamma * theta * mdot_in * (T_amb - T) / (m * T))
+            # the wall heat m c_v (T_amb - T) / tau changes theta by theta/T of dT/dt
+            b.der(theta, theta * (T_amb - T) / T * (gamma * mdot_in / m + 1.0 / tau))
             e_gas = m * R * T / (gamma - 1.0)
             b.output("T", T, "K", "air temperature", low=0.0)
         b.der(m, port.m_flow)
@@ -269,12 +287,21 @@ class SealedVolume(Component):
     """
 
     def __init__(
-        self, name: str, V0: float, A: float, p_start_gauge: float = 0.0, thermal="isothermal"
+        self,
+        name: str,
+        V0: float,
+        A: float,
+        p_start_gauge: float = 0.0,
+        thermal: str = "isothermal",
+        tau_heat: float = math.inf,
     ) -> None:
         super().__init__(name)
         self.V0, self.A, self.p_start_gauge, self.thermal = V0, A, p_start_gauge, thermal
+        self.tau_heat = tau_heat
 
     def build(self, b: Builder) -> None:
-        ch = b.add(Chamber("chamber", self.V0, self.A, self.p_start_gauge, self.thermal))
+        ch = b.add(
+            Chamber("chamber", self.V0, self.A, self.p_start_gauge, self.thermal, self.tau_heat)
+        )
         b.connect(ch.port, b.add(Cap("cap")).port)
         b.expose("flange", ch.flange)

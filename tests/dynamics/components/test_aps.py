@@ -84,13 +84,14 @@ SEALED = ("*.tube*.C",)
 UNDAMPED = ("*.loss.d", "*.actin*.c_s")
 
 
-def _kicked_run(m, patterns, t_final, dt):
+def _kicked_run(m, patterns, t_final, dt, extra=None):
     """From the 0.05 MPa equilibrium, kick the load; parameters matching ``patterns``
-    set to 0. Returns the result and the stored energy E [J] and dissipation D [W]."""
+    set to 0 (and ``extra`` overrides). Returns the result and the stored energy E [J]
+    and dissipation D [W]."""
     eq = solve_equilibrium(m, {P: 0.05e6})
     x0 = eq.x.copy()
     x0[m.state_names.index("load.v")] = 0.05
-    over = _set(m, patterns, 0.0)
+    over = {**_set(m, patterns, 0.0), **(extra or {})}
     res = simulate(
         m,
         t_final,
@@ -110,15 +111,24 @@ def _kicked_run(m, patterns, t_final, dt):
     return res, np.array(E).ravel(), np.array(D).ravel()
 
 
-def test_energy_conserved_with_sealed_chambers_and_no_damping():
-    _, E, D = _kicked_run(hanging_load(2, load_kg=0.02), SEALED + UNDAMPED, 0.3, 1e-3)
+ADIABATIC = ("*.chamber.tau_heat",)  # 1e12 s: no wall heat (the finite default fixes the start)
+
+
+@pytest.mark.parametrize("thermal", ["isothermal", "adiabatic"])
+def test_energy_conserved_with_sealed_chambers_and_no_damping(thermal):
+    p = APSParams.from_paper(thermal=thermal)
+    m = hanging_load(2, p, load_kg=0.02)
+    _, E, D = _kicked_run(m, SEALED + UNDAMPED, 0.3, 1e-3, _set(m, ADIABATIC, 1e12))
     kinetic0 = 0.5 * (0.001 + 0.02) * 0.05**2
     assert np.ptp(E) < 1e-6 * kinetic0
     assert np.max(D) == 0.0
 
 
-def test_dissipation_accounts_for_energy_loss():
-    res, E, D = _kicked_run(hanging_load(2, load_kg=0.02), SEALED, 0.2, 2e-5)
+@pytest.mark.parametrize("thermal", ["isothermal", "adiabatic"])
+def test_dissipation_accounts_for_energy_loss(thermal):
+    p = APSParams.from_paper(thermal=thermal)
+    m = hanging_load(2, p, load_kg=0.02)
+    res, E, D = _kicked_run(m, SEALED, 0.2, 2e-5, _set(m, ADIABATIC, 1e12))
     dissipated = np.sum(0.5 * (D[1:] + D[:-1]) * np.diff(res.index))
     loss = E[0] - E[-1]
     assert loss > 0
@@ -266,3 +276,16 @@ def test_aps_parameters_carry_unit_range_and_source_per_field():
     m = hanging_load(1)
     assert m.unit("myofibril.actin0.k_s") == APSParams.unit("k_s")
     assert m.unit("myofibril.aps1.chamber.A") == APSParams.unit("A_p")
+
+
+def test_adiabatic_chambers_settle_at_ambient_temperature_through_the_wall_heat():
+    """With a finite wall heat exchange the adiabatic APS has one equilibrium, at the
+    ambient temperature, identical to the isothermal one; a step heats the air first."""
+    iso = solve_equilibrium(hanging_load(1, load_kg=0.05), {P: 0.05e6})
+    m = hanging_load(1, APSParams.from_paper(thermal="adiabatic"), load_kg=0.05)
+    eq = solve_equilibrium(m, {P: 0.05e6})
+    assert eq["myofibril.aps1.chamber.T"] == pytest.approx(293.15, rel=1e-9)
+    assert eq["myofibril.length"] == pytest.approx(iso["myofibril.length"], rel=1e-9)
+    e0 = solve_equilibrium(m, {P: 0.0})
+    res = simulate(m, 0.1, inputs={P: 0.05e6}, x0=e0.x, output_interval=1e-3)
+    assert res["myofibril.aps1.chamber.T"].max() > 300.0  # compression heating on filling
