@@ -140,6 +140,10 @@ def isometric(
     else:
         L = _si(length, "m", "length", 0.0, closed=False)
     gap = _si(fixture_gap, "m", "fixture_gap", 0.0)
+    if gap > 0 and fixture_stiffness is None:
+        raise ParameterError(
+            "fixture_gap", fixture_gap, "0 with a rigid fixture", "play needs fixture_stiffness"
+        )
     sys, myo, mf = _frame_regulator_chain(
         "isometric", n, params, fidelity, regulator_tau, g, saturate, flow_law
     )

@@ -162,3 +162,5 @@ def test_set_up_arguments_take_quantities_or_name_the_bad_one():
     with pytest.raises(ParameterError, match=r"regulator_tau"):
         isometric(1, regulator_tau="0 s")
     assert isometric(1, fixture_stiffness="2 kN/m").variables["fixture_spring.c"].value == 2e3
+    with pytest.raises(ParameterError, match=r"fixture_gap.*rigid"):
+        isometric(1, fixture_gap="1 mm")
