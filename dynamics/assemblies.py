@@ -160,8 +160,8 @@ def isometric(
         # the chain has lifted the hook by more than the gap
         spring = sys.add(Spring("fixture_spring", c=k, gap=gap, one_sided=True))
         hook = sys.add(Mass("hook", m=HOOK_MASS_KG, s_start=L))
-        sys.connect(mf.flange_b, sensor.flange_a)
-        sys.connect(sensor.flange_b, hook.flange_a)
-        sys.connect(hook.flange_b, spring.flange_a)
+        sys.connect(mf.flange_b, hook.flange_a)
+        sys.connect(hook.flange_b, sensor.flange_a)
+        sys.connect(sensor.flange_b, spring.flange_a)
         sys.connect(spring.flange_b, fix.flange)
     return sys.flatten()

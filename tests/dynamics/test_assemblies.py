@@ -27,6 +27,8 @@ def test_isometric_sensor_is_attached_to_the_hanging_chain_without_pretension(n)
     no I-band is slack (at the geometric length the bottom band was 0.6-3.4 mm slack)."""
     e0 = solve_equilibrium(isometric(n), {P: 0.0})
     assert abs(e0["sensor.f"]) < 1e-9
+    spring = solve_equilibrium(isometric(n, fixture_stiffness=2e3), {P: 0.0})
+    assert abs(spring["sensor.f"]) < 1e-9
     # the bottom band (one V, 2 k_s) carries the 1 g hook: softplus(e) = T / (2 k_s) > 0
     p = APSParams.from_paper()
     sp = HOOK_MASS_KG * G / (2 * p.k_s)
