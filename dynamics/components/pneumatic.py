@@ -138,8 +138,9 @@ class Restriction(Component):
     """ISO 6358 restriction (orifice, tube, fitting) between ``port_a`` and ``port_b``.
 
     Parameters: sonic conductance ``C`` [m^3/(s Pa)], critical ratio ``b`` [1],
-    laminar threshold ``r_lam`` [1]. The flow is ISO 6358's ``q sqrt(T0/T_up)``, with the
-    upstream temperature ``T_a`` or ``T_b`` [K] (CasADi expressions of the model's
+    laminar threshold ``r_lam`` [1]. The flow is ISO 6358's ``q sqrt(T0/T_up)`` with the
+    upstream temperature: the ambient temperature when ``port_a`` (the supply side) is
+    upstream, ``T_b`` [K] when ``port_b`` is (a CasADi expression of the model's
     variables, e.g. a chamber's temperature; None: the ambient temperature). ``smooth``
     selects the C1 laminar join (see :func:`iso6358_flow`). Output ``m_flow`` [kg/s],
     positive from a to b.
@@ -152,12 +153,10 @@ class Restriction(Component):
         b: float = 0.3,
         r_lam: float = 0.999,
         smooth: bool = False,
-        T_a: cs.SX | None = None,
         T_b: cs.SX | None = None,
     ) -> None:
         super().__init__(name)
-        self.C, self.b, self.r_lam, self.smooth = C, b, r_lam, smooth
-        self.T_a, self.T_b = T_a, T_b
+        self.C, self.b, self.r_lam, self.smooth, self.T_b = C, b, r_lam, smooth, T_b
 
     def build(self, b: Builder) -> None:
         T_amb = b.outer(ENVIRONMENT)["T"]
@@ -178,9 +177,8 @@ class Restriction(Component):
             "T0", T0_ISO, "K", "ISO 6358 reference temperature", 1.0, source="ISO 6358-1"
         )
         pa, pb = b.port("port_a", PNEUMATIC), b.port("port_b", PNEUMATIC)
-        T_a = T_amb if self.T_a is None else self.T_a
         T_b = T_amb if self.T_b is None else self.T_b
-        T_up = cs.if_else(pa.p >= pb.p, T_a, T_b)
+        T_up = cs.if_else(pa.p >= pb.p, T_amb, T_b)
         q = iso6358_flow(pa.p, pb.p, C, bc, rl, rho0, smooth=self.smooth) * cs.sqrt(T0 / T_up)
         b.equation(pa.m_flow, q)
         b.equation(pb.m_flow, -q)
