@@ -3,20 +3,30 @@
 Each function builds a :class:`~sarcomere.dynamics.modeling.component.System`, flattens it and
 returns the :class:`~sarcomere.dynamics.modeling.model.Model`. Stable signal names:
 
-* ``regulator.p_cmd`` (input, Pa gauge), ``regulator.p_out`` (Pa gauge);
+* ``regulator.p_cmd`` (input, Pa gauge, bounds ``[0, p_max]``), ``regulator.p_out`` (Pa gauge);
 * ``myofibril.length`` (m), ``myofibril.apsK.chamber.p_gauge`` (Pa), ``myofibril.actinK.T`` (N);
+* ``ambient.p``, ``ambient.T``, ``ambient.R``, ``ambient.gamma``, ``ambient.g``: the one
+  environment every component shares (parameters);
 * hanging load: ``load.s`` (m), ``load.m`` (parameter, kg);
-* isometric: ``sensor.f`` (N), the force on the fixture.
+* isometric: ``sensor.f`` (N), the force on the fixture; ``fixture.s0`` (m), its position.
+
+Numeric arguments accept numbers in SI or quantity strings ("50 g", "5 ms").
 """
 
 from __future__ import annotations
 
-from .components.aps import CHAIN_LEVELS, APSParams, Myofibril, SymmetricMyofibril
-from .components.mechanical import G_STANDARD, Fixed, ForceSensor, Mass, Spring
+import math
+
+from .components.aps import CHAIN_LEVELS, FLOW_LAWS, APSParams, Myofibril, SymmetricMyofibril
+from .components.environment import Environment
+from .components.mechanical import Fixed, ForceSensor, Mass, Node, Spring
 from .components.pneumatic import Regulator
+from .equilibrium import solve_equilibrium
 from .errors import ParameterError
 from .modeling.component import System
 from .modeling.model import Model
+from .params.ambient import Ambient
+from .units import to_si
 
 HOOK_MASS_KG = 1.0e-3
 """Mass of the load hook and clip [kg] (estimate); the load mass adds to it, so the
@@ -26,21 +36,41 @@ FIDELITIES = (*CHAIN_LEVELS, "symmetric")
 """Dynamic fidelity levels (see :data:`CHAIN_LEVELS` and docs/model.md); "symmetric" is
 one representative unit for n identical units."""
 
+G_DEFAULT = Ambient().g
+"""Default gravity of the set-ups [m/s^2] (the environment's default)."""
 
-def _chain(n: int, p: APSParams, fidelity: str, g: float) -> Myofibril | SymmetricMyofibril:
+
+def _si(value, unit: str, name: str, low: float, closed: bool = True) -> float:
+    """A set-up argument in SI (numbers as given, quantity strings converted), checked
+    against ``[low, inf)`` (``closed``) or ``(low, inf)``."""
+    v = to_si(value, unit, name)
+    if not (math.isfinite(v) and (v >= low if closed else v > low)):
+        raise ParameterError(name, value, f"{'[' if closed else '('}{low:g}, inf) {unit}")
+    return v
+
+
+def _chain(n, p: APSParams, fidelity: str, flow_law: str) -> Myofibril | SymmetricMyofibril:
     if fidelity not in FIDELITIES:
         raise ParameterError("fidelity", fidelity, f"one of {FIDELITIES}")
+    if flow_law not in FLOW_LAWS:
+        raise ParameterError("flow_law", flow_law, f"one of {tuple(FLOW_LAWS)}")
     if fidelity == "symmetric":
-        return SymmetricMyofibril("myofibril", n, p, g=g)
-    return Myofibril("myofibril", n, p, level=fidelity, g=g)
+        return SymmetricMyofibril("myofibril", n, p, flow_law)
+    return Myofibril("myofibril", n, p, level=fidelity, flow_law=flow_law)
 
 
-def _frame_regulator_chain(setup, n, params, fidelity, regulator_tau, g):
-    """The part both set-ups share: the chain hung from the frame, fed by the regulator."""
-    myo = _chain(n, params or APSParams.from_paper(), fidelity, g)
+def _frame_regulator_chain(setup, n, params, fidelity, regulator_tau, g, saturate, flow_law):
+    """The part both set-ups share: the environment, the chain hung from the frame, fed by
+    the regulator."""
+    if params is not None and not isinstance(params, APSParams):
+        raise ParameterError("params", params, "an APSParams or None (the paper's APS)")
+    tau = _si(regulator_tau, "s", "regulator_tau", 0.0, closed=False)
+    g = _si(g, "m/s^2", "g", 0.0, closed=False)
+    myo = _chain(n, params or APSParams.from_paper(), fidelity, flow_law)
     sys = System(f"{setup}_n{n}_{fidelity}")
+    sys.add(Environment(g=g))
     frame = sys.add(Fixed("frame"))
-    reg = sys.add(Regulator("regulator", tau=regulator_tau))
+    reg = sys.add(Regulator("regulator", tau=tau, saturate=saturate))
     mf = sys.add(myo)
     sys.connect(frame.flange, mf.flange_a)
     sys.connect(reg.port, mf.port)
@@ -50,56 +80,88 @@ def _frame_regulator_chain(setup, n, params, fidelity, regulator_tau, g):
 def hanging_load(
     n: int = 3,
     params: APSParams | None = None,
-    load_kg: float = 0.0,
+    load_kg: float | str = 0.0,
     fidelity: str = "full",
-    regulator_tau: float = 0.05,
-    g: float = G_STANDARD,
+    regulator_tau: float | str = 0.05,
+    g: float | str = G_DEFAULT,
+    saturate: bool = True,
+    flow_law: str = "iso6358",
 ) -> Model:
-    """Myofibril of ``n`` APS hanging from the frame, a load mass [kg] at its lower end."""
-    if not load_kg >= 0:
-        raise ParameterError("load_kg", load_kg, "[0, inf) kg")
-    sys, myo, mf = _frame_regulator_chain("hanging", n, params, fidelity, regulator_tau, g)
-    load = sys.add(Mass("load", m=HOOK_MASS_KG + load_kg, g=g, s_start=myo.rest_length))
-    sys.connect(mf.flange_b, load.flange_a)
+    """Myofibril of ``n`` APS hanging from the frame, a load mass [kg] at its lower end.
+
+    ``saturate``: the regulator clamps its command to ``[0, p_max]`` (plants; False for
+    optimisers, which use the input's bounds). ``flow_law``: "iso6358" (exact) or
+    "smooth" (C1, for optimisers).
+    """
+    load = _si(load_kg, "kg", "load_kg", 0.0)
+    sys, myo, mf = _frame_regulator_chain(
+        "hanging", n, params, fidelity, regulator_tau, g, saturate, flow_law
+    )
+    end = sys.add(Mass("load", m=HOOK_MASS_KG + load, s_start=myo.rest_length_expr))
+    sys.connect(mf.flange_b, end.flange_a)
     return sys.flatten()
+
+
+def hanging_rest_position(
+    n: int = 1,
+    params: APSParams | None = None,
+    fidelity: str = "full",
+    g: float | str = G_DEFAULT,
+) -> float:
+    """Position [m] of the chain's hook below the frame when it hangs at rest at 0 MPa with
+    no load (the 1 g hook only): where the isometric experiment attaches its sensor."""
+    model = hanging_load(n, params, 0.0, fidelity, g=g)
+    return solve_equilibrium(model, {"regulator.p_cmd": 0.0})["load.s"]
 
 
 def isometric(
     n: int = 1,
     params: APSParams | None = None,
     fidelity: str = "full",
-    fixture_stiffness: float | None = None,
-    fixture_gap: float = 0.0,
-    length: float | None = None,
-    regulator_tau: float = 0.05,
-    g: float = G_STANDARD,
+    fixture_stiffness: float | str | None = None,
+    fixture_gap: float | str = 0.0,
+    length: float | str | None = None,
+    regulator_tau: float | str = 0.05,
+    g: float | str = G_DEFAULT,
+    saturate: bool = True,
+    flow_law: str = "iso6358",
 ) -> Model:
     """Myofibril between the frame and a force sensor on a fixture.
 
-    ``fixture_stiffness`` None means rigid; otherwise a one-sided spring [N/m] with
-    ``fixture_gap`` [m] of play. ``length`` [m] is the fixture position (default: the
-    geometric rest length of the chain).
+    As in the experiment, the chain first hangs at rest at 0 MPa (with its 1 g hook), and
+    the sensor is attached there without pre-tension: the fixture position ``length``
+    [m] defaults to :func:`hanging_rest_position` (the model's own equilibrium), so the
+    sensor reads zero at 0 MPa. ``fixture_stiffness`` None means rigid; otherwise a
+    one-sided spring [N/m] with ``fixture_gap`` [m] of play. ``saturate`` and
+    ``flow_law`` as :func:`hanging_load`.
     """
-    sys, myo, mf = _frame_regulator_chain("isometric", n, params, fidelity, regulator_tau, g)
-    L = myo.rest_length if length is None else length
-    if not L > 0:
-        raise ParameterError("length", L, "(0, inf) m")
+    if length is None:
+        L = hanging_rest_position(n, params, fidelity, g)
+    else:
+        L = _si(length, "m", "length", 0.0, closed=False)
+    gap = _si(fixture_gap, "m", "fixture_gap", 0.0)
+    if gap > 0 and fixture_stiffness is None:
+        raise ParameterError(
+            "fixture_gap", fixture_gap, "0 with a rigid fixture", "play needs fixture_stiffness"
+        )
+    sys, myo, mf = _frame_regulator_chain(
+        "isometric", n, params, fidelity, regulator_tau, g, saturate, flow_law
+    )
     sensor = sys.add(ForceSensor("sensor"))
-    sys.connect(mf.flange_b, sensor.flange_a)
+    fix = sys.add(Fixed("fixture", s0=L))
     if fixture_stiffness is None:
-        fix = sys.add(Fixed("fixture", s0=L))
+        hook = sys.add(Node("hook", m=HOOK_MASS_KG, s_start=L))
+        sys.connect(mf.flange_b, hook.flange_a)
+        sys.connect(mf.flange_b, sensor.flange_a)
         sys.connect(sensor.flange_b, fix.flange)
     else:
-        if not fixture_stiffness > 0:
-            raise ParameterError("fixture_stiffness", fixture_stiffness, "(0, inf) N/m or None")
-        # a tension spring from the chain end (above) down to the fixture at L: it
-        # engages once the chain has lifted the hook by more than the gap
-        anchor = sys.add(Fixed("fixture", s0=L))
-        spring = sys.add(
-            Spring("fixture_spring", c=fixture_stiffness, gap=fixture_gap, one_sided=True)
-        )
-        end = sys.add(Mass("hook", m=HOOK_MASS_KG, g=g, s_start=L))
-        sys.connect(sensor.flange_b, end.flange_a)
-        sys.connect(end.flange_b, spring.flange_a)
-        sys.connect(spring.flange_b, anchor.flange)
+        k = _si(fixture_stiffness, "N/m", "fixture_stiffness", 0.0, closed=False)
+        # a tension spring from the hook (above) down to the fixture at L: it engages once
+        # the chain has lifted the hook by more than the gap
+        spring = sys.add(Spring("fixture_spring", c=k, gap=gap, one_sided=True))
+        hook = sys.add(Mass("hook", m=HOOK_MASS_KG, s_start=L))
+        sys.connect(mf.flange_b, hook.flange_a)
+        sys.connect(hook.flange_b, sensor.flange_a)
+        sys.connect(sensor.flange_b, spring.flange_a)
+        sys.connect(spring.flange_b, fix.flange)
     return sys.flatten()

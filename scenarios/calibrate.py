@@ -6,14 +6,25 @@ import argparse
 import json
 import time
 
-from sarcomere.dynamics.calibration import TARGETS, calibrate
+import numpy as np
+
+from sarcomere.dynamics.calibration import (
+    CONCENTRIC_LOADS_KG,
+    CONCENTRIC_PRESSURES_PA,
+    FAMILY_L_R,
+    TARGETS,
+    calibrate,
+    family,
+)
+from sarcomere.dynamics.components.aps import APSParams
 
 from .outdir import check_out_dir, staged
 from .progress import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--out DIR`` (default out/calibration) and ``--verbose`` (IPOPT's log)."""
+    """``--out DIR`` (default out/calibration), ``--verbose`` (IPOPT's log) and
+    ``--family`` (also calibrate the L_r family and draw its concentric band)."""
     parser.add_argument(
         "--out",
         default="out/calibration",
@@ -21,6 +32,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="output folder for calibration.json (default: out/calibration)",
     )
     parser.add_argument("--verbose", action="store_true", help="print IPOPT's iterations")
+    parser.add_argument(
+        "--family",
+        action="store_true",
+        help="also calibrate one member per restoring length L_r "
+        f"({', '.join(f'{x * 1e3:g}' for x in FAMILY_L_R)} mm) and write family.json, "
+        "family.csv and concentric-family.png (the concentric strain band)",
+    )
 
 
 def handler(args: argparse.Namespace) -> int:
@@ -51,4 +69,75 @@ def handler(args: argparse.Namespace) -> int:
     )
     print(f"  no influence on these targets: {', '.join(res.not_identifiable)}")
     print(f"wrote {path}")
+    if args.family:
+        _write_family(args.out)
     return 0
+
+
+def _write_family(out: Path) -> None:
+    """Calibrate the L_r family; write its fits, its concentric strains and the band plot."""
+    members = family()
+    default_L_r = APSParams.from_paper().L_r
+    record = [
+        {
+            "L_r_m": m.L_r,
+            "fitted": m.result.fitted,
+            "achieved": m.result.achieved,
+            "stretch_range": [m.concentric.stretch_min, m.concentric.stretch_max],
+            "strain_0p1MPa": dict(
+                zip(
+                    (f"{1e3 * x:g} g" for x in CONCENTRIC_LOADS_KG),
+                    m.concentric.strain[:, -1].tolist(),
+                    strict=True,
+                )
+            ),
+        }
+        for m in members
+    ]
+    (out / "family.json").write_text(json.dumps(record, indent=2) + "\n")
+    rows = ["L_r_m,load_kg,pressure_Pa,strain"]
+    for m in members:
+        for i, load in enumerate(CONCENTRIC_LOADS_KG):
+            for j, pc in enumerate(CONCENTRIC_PRESSURES_PA):
+                rows.append(f"{m.L_r:g},{load:g},{pc:g},{m.concentric.strain[i, j]:.9g}")
+    (out / "family.csv").write_text("\n".join(rows) + "\n")
+    print("calibration family (each meets the three targets):")
+    for r in record:
+        s = r["strain_0p1MPa"]
+        print(
+            f"  L_r = {1e3 * r['L_r_m']:4g} mm: stretch {r['stretch_range'][0]:.2f}.."
+            f"{r['stretch_range'][1]:.2f}, strain at 0.1 MPa 50 g {100 * s['50 g']:+.2f} %, "
+            f"100 g {100 * s['100 g']:+.2f} %"
+        )
+    _plot_family(members, default_L_r, out / "concentric-family.png")
+    print(f"wrote {out / 'family.json'}, family.csv, concentric-family.png")
+
+
+def _plot_family(members, default_L_r: float, path: Path) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 4.5))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    p_kpa = np.array(CONCENTRIC_PRESSURES_PA) * 1e-3
+    strains = np.array([m.concentric.strain for m in members]) * 100  # member, load, pressure
+    for i, load in enumerate(CONCENTRIC_LOADS_KG):
+        color = f"C{i}"
+        ax.fill_between(
+            p_kpa, strains[:, i].min(axis=0), strains[:, i].max(axis=0), color=color, alpha=0.25
+        )
+        k = min(range(len(members)), key=lambda j: abs(members[j].L_r - default_L_r))
+        ax.plot(p_kpa, strains[k, i], color=color, label=f"{1e3 * load:g} g")
+    lo, hi = min(m.L_r for m in members), max(m.L_r for m in members)
+    ax.set_title(
+        f"Concentric strain, 3 APS: default L_r = {1e3 * default_L_r:g} mm (lines), "
+        f"band: L_r = {1e3 * lo:g}..{1e3 * hi:g} mm",
+        fontsize=9,
+    )
+    ax.set_xlabel("pressure [kPa]")
+    ax.set_ylabel("actuation strain [%]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(title="load", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)

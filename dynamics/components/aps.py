@@ -17,7 +17,7 @@ an energy, so ``p dV`` work, elastic energy and gravity balance exactly.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, fields, replace
 
 import casadi as cs
 
@@ -25,99 +25,123 @@ from ..errors import ParameterError
 from ..modeling.component import Builder, Component
 from ..modeling.ports import FLANGE
 from ..params import experimental_geometry, get_material, yeoh_energy
-from .mechanical import G_STANDARD, Damper, Fixed, Mass, Node, ViscousNode
-from .pneumatic import T_REF, Chamber, Restriction
+from ..params.core import format_range
+from .mechanical import Damper, Fixed, Mass, Node, ViscousNode
+from .pneumatic import THERMAL, Chamber, Restriction
+
+
+def _f(default, unit: str, low: float, high: float, source: str, description: str, **kw):
+    """An APSParams field: default [unit], allowed range ``[low, high]`` (``low_open`` /
+    ``high_open`` exclude the bound), source and description."""
+    meta = {"unit": unit, "low": low, "high": high, "source": source, "description": description}
+    return field(default=default, metadata={**meta, "low_open": False, "high_open": False, **kw})
+
+
+_POS = {"low_open": True}  # (0, inf)
+_CAL = "calibrated against the paper's three targets (docs/model.md, Calibration)"
 
 
 @dataclass(frozen=True)
 class APSParams:
     """Effective parameters of one APS (SI). Geometry defaults: the paper's experimental APS.
 
-    Attributes
-    ----------
-    l : float
-        Actin thread length [m] (paper: 32 mm).
-    w0 : float
-        Anchor spacing at rest ``2 r2' = h_m - 2 t_w - h_ch`` [m] (paper: 20 mm).
-    A_band : float
-        SPA body height along the chain, the A-band ``A`` [m] (paper: 30 mm).
-    h_jz : float
-        Junction-zone height [m] (paper: 2 mm); the restoring stretch is ``1 + d/L_r``.
-    L_r : float
-        Length over which the expansion stretches the junction zones [m]
-        (default ``2 h_jz``: two junction zones between the anchors).
-    A_r : float
-        Effective cross-section of the Yeoh restoring element [m^2]
-        (calibrated against the paper's concentric experiment; ``a_hz b_hz`` = 90 mm^2
-        would be the paper's F_r).
-    C1, C2, C3 : float
-        Yeoh constants [Pa] (default DragonSkin 30, paper).
-    A_p : float
-        Effective pneumatic area ``dV/dd`` [m^2] (calibrated against the 0.315 N
-        isometric force; ``a_ch b_ch`` = 95 mm^2 is the geometric bound).
-    k_s : float
-        Series stiffness of one I-band (two hooked thread V's, anchors) [N/m]
-        (calibrated against the 100 g passive stretch).
-    c_s : float
-        Viscous damping along the I-band [N s/m] (estimate).
-    eps_slack : float
-        Regularisation length of the thread slack [m] (numerical; the taut force error
-        at zero stretch is ``k_s eps_slack / 2``).
-    m_e : float
-        Effective mass of the expansion motion [kg] (estimate: the outer chamber walls).
-    c_e : float
-        Viscous damping of the expansion [N s/m] (estimate: silicone loss).
-    m_body : float
-        SPA body mass on the chain axis [kg] (DragonSkin 30, 1080 kg/m^3, estimated
-        solid volume 8 cm^3).
-    V0 : float
-        Chamber volume at rest incl. the tube's dead volume [m^3] (estimate: six
-        chambers ``a_ch b_ch h_ch`` = 2.85 cm^3 plus about 1.2 cm^3 of tube).
-    C_tube : float
-        Sonic conductance of the feed tube and fittings [m^3/(s Pa)] (estimate:
-        0.2 l/(s bar)).
-    b_tube : float
-        Critical pressure ratio of the feed tube [1] (estimate, ISO 6358 typical 0.3).
-    r_lam : float
-        Laminar-region threshold ratio [1] (numerical, 0.995..0.999 typical).
-    n_poly : float
-        Polytropic exponent of the chamber air [1] (1 isothermal, 1.4 adiabatic).
-    material : str
-        Slug of the Yeoh material C1..C3 come from (provenance only).
+    Every numeric field carries its unit, allowed range, source and description in its
+    metadata (:meth:`spec`, :meth:`unit`): the one place they are written. Out-of-range
+    values raise a :class:`ParameterError` naming the field, the value and the range.
     """
 
-    l: float = 32e-3
-    w0: float = 20e-3
-    A_band: float = 30e-3
-    h_jz: float = 2e-3
-    L_r: float = 4e-3
-    A_r: float = 2.6106e-7
-    C1: float = 0.096e6
-    C2: float = 0.0095e6
-    C3: float = 0.0
-    A_p: float = 4.0479e-6
-    k_s: float = 417.72
-    c_s: float = 0.5
-    eps_slack: float = 1e-5
-    m_e: float = 1e-3
-    c_e: float = 2.0
-    m_body: float = 8.6e-3
-    V0: float = 4.0e-6
-    C_tube: float = 2.0e-9
-    b_tube: float = 0.3
-    r_lam: float = 0.999
-    n_poly: float = 1.0
-    material: str = "dragonskin_30"
+    l: float = _f(32e-3, "m", 0, math.inf, "paper: 32 mm", "actin thread length", **_POS)
+    w0: float = _f(
+        20e-3, "m", 0, math.inf, "paper: h_m - 2 t_w - h_ch", "anchor spacing at rest 2 r2'", **_POS
+    )
+    A_band: float = _f(30e-3, "m", 0, math.inf, "paper: A = 30 mm", "SPA body height", **_POS)
+    h_jz: float = _f(2e-3, "m", 0, math.inf, "paper: 2 mm", "junction-zone height", **_POS)
+    L_r: float = _f(
+        20e-3,
+        "m",
+        0,
+        math.inf,
+        "geometry: the anchor span 2 r2' = 20 mm the expansion changes (docs/model.md)",
+        "length the expansion stretches (restoring element)",
+        **_POS,
+    )
+    A_r: float = _f(7.3706e-7, "m^2", 0, math.inf, _CAL, "restoring cross-section", **_POS)
+    C1: float = _f(0.096e6, "Pa", 0, math.inf, "paper, Yeoh fit of the material", "Yeoh C1", **_POS)
+    C2: float = _f(0.0095e6, "Pa", -math.inf, math.inf, "paper, Yeoh fit", "Yeoh C2")
+    C3: float = _f(0.0, "Pa", -math.inf, math.inf, "paper, Yeoh fit", "Yeoh C3")
+    A_p: float = _f(2.6238e-6, "m^2", 0, math.inf, _CAL, "effective pneumatic area dV/dd", **_POS)
+    k_s: float = _f(
+        694.00, "N/m", 0, math.inf, _CAL, "series stiffness of an I-band of two thread V's", **_POS
+    )
+    c_s: float = _f(0.5, "N*s/m", 0, math.inf, "estimate", "damping of a two-V I-band")
+    eps_slack: float = _f(
+        1e-5, "m", 0, math.inf, "numerical", "slack regularisation length", **_POS
+    )
+    m_e: float = _f(1e-3, "kg", 0, math.inf, "estimate: outer chamber walls", "expansion mass")
+    c_e: float = _f(2.0, "N*s/m", 0, math.inf, "estimate: silicone loss", "expansion damping")
+    m_body: float = _f(
+        8.6e-3,
+        "kg",
+        0,
+        math.inf,
+        "estimate: DragonSkin 30, 1080 kg/m^3, about 8 cm^3 of solid",
+        "SPA body mass",
+    )
+    V0: float = _f(
+        4.0e-6,
+        "m^3",
+        0,
+        math.inf,
+        "estimate: six chambers a_ch b_ch h_ch = 2.85 cm^3 plus about 1.2 cm^3 of tube",
+        "chamber volume at rest",
+        **_POS,
+    )
+    C_tube: float = _f(
+        2.0e-9, "m^3/(s*Pa)", 0, math.inf, "estimate: 0.2 l/(s bar)", "tube sonic conductance"
+    )
+    b_tube: float = _f(
+        0.3, "1", 0, 1, "estimate, ISO 6358 typical", "tube critical pressure ratio", high_open=True
+    )
+    r_lam: float = _f(
+        0.999, "1", 0.5, 1, "numerical (0.995..0.999 typical)", "laminar threshold", high_open=True
+    )
+    tau_heat: float = _f(
+        1.0,
+        "s",
+        0,
+        math.inf,
+        "estimate: small silicone chamber, order 1 s",
+        "heat-exchange time constant of an adiabatic chamber (inf: none)",
+        low_open=True,
+        inf_ok=True,
+    )
+    thermal: str = field(
+        default="isothermal",
+        metadata={"choices": THERMAL, "description": "chamber thermal model"},
+    )
+    material: str = field(
+        default="dragonskin_30", metadata={"description": "Yeoh material of C1..C3 (provenance)"}
+    )
 
     def __post_init__(self) -> None:
-        for name in ("l", "w0", "A_band", "h_jz", "L_r", "A_r", "A_p", "V0", "eps_slack"):
-            v = getattr(self, name)
-            if not (v > 0 and math.isfinite(v)):
-                raise ParameterError(name, v, "(0, inf) in SI units")
-        for name in ("k_s", "c_s", "m_e", "c_e", "m_body", "C_tube"):
-            v = getattr(self, name)
-            if not (v >= 0 and math.isfinite(v)):
-                raise ParameterError(name, v, "[0, inf) in SI units")
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if "choices" in f.metadata:
+                if v not in f.metadata["choices"]:
+                    raise ParameterError(f.name, v, f"one of {f.metadata['choices']}")
+                continue
+            if "unit" not in f.metadata:
+                continue
+            m = f.metadata
+            ok = (
+                isinstance(v, int | float)
+                and not isinstance(v, bool)
+                and (math.isfinite(v) or (v == math.inf and m.get("inf_ok", False)))
+                and (v > m["low"] if m["low_open"] else v >= m["low"])
+                and (v < m["high"] if m["high_open"] else v <= m["high"])
+            )
+            if not ok:
+                raise ParameterError(f.name, v, self.spec(f.name))
         if self.w0 >= self.l:
             raise ParameterError(
                 "w0",
@@ -125,8 +149,22 @@ class APSParams:
                 f"(0, l = {self.l:g}) m",
                 "anchors as wide as the thread: 2 r2' >= l, the thread cannot close",
             )
-        if not 1.0 <= self.n_poly <= 1.67:
-            raise ParameterError("n_poly", self.n_poly, "[1, 1.67]")
+
+    @classmethod
+    def unit(cls, name: str) -> str:
+        """SI unit of a numeric field (``"1"``: dimensionless)."""
+        return _field(name).metadata["unit"]
+
+    @classmethod
+    def spec(cls, name: str) -> str:
+        """Allowed range of a numeric field with its unit, e.g. ``"(0, inf) m"``."""
+        m = _field(name).metadata
+        return format_range(m["low"], m["high"], not m["low_open"], not m["high_open"], m["unit"])
+
+    @classmethod
+    def numeric_fields(cls) -> tuple[str, ...]:
+        """Names of the numeric fields (those with a unit)."""
+        return tuple(f.name for f in fields(cls) if "unit" in f.metadata)
 
     @classmethod
     def from_paper(cls, material: str = "dragonskin_30", **overrides) -> APSParams:
@@ -138,7 +176,7 @@ class APSParams:
             w0=g["h_m"] - 2 * g["t_w"] - g["h_ch"],
             A_band=g["A"],
             h_jz=g["h_jz"],
-            L_r=2 * g["h_jz"],
+            L_r=g["h_m"] - 2 * g["t_w"] - g["h_ch"],
             C1=mat.C1,
             C2=mat.C2,
             C3=mat.C3,
@@ -157,6 +195,13 @@ class APSParams:
         return self.A_band + 2 * self.r1_rest
 
 
+def _field(name: str):
+    for f in fields(APSParams):
+        if f.name == name and "unit" in f.metadata:
+            return f
+    raise ParameterError("APSParams field", name, f"one of {APSParams.numeric_fields()}")
+
+
 THETA_MIN_RAD = 1e-2
 """Smallest physical thread angle [rad]: below it the thread is taken as pulled straight
 (the taut height r1 is floored there, see :func:`thread_height`)."""
@@ -172,6 +217,21 @@ def thread_height(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
     return cs.sqrt(cs.fmax((0.5 * l) ** 2 - r2**2, (1e-4 * l) ** 2))
 
 
+def aps_parameter(b: Builder, p: APSParams, name: str, source: str | None = None) -> cs.SX:
+    """Declare the APSParams field ``name`` as a model parameter with the field's value,
+    unit, range (closed at its bounds) and source: the one place they are written."""
+    m = _field(name).metadata
+    return b.parameter(
+        name,
+        getattr(p, name),
+        m["unit"],
+        m["description"],
+        low=m["low"] if not m["low_open"] else math.nextafter(m["low"], math.inf),
+        high=m["high"],
+        source=source or m["source"],
+    )
+
+
 class YeohSpring(Component):
     """Restoring element of the SPA: energy ``A_r L_r W(1 + d/L_r)`` [J], d = s_b - s_a."""
 
@@ -181,35 +241,25 @@ class YeohSpring(Component):
 
     def build(self, b: Builder) -> None:
         p = self.p
-        A_r = b.parameter(
-            "A_r",
-            p.A_r,
-            "m^2",
-            "effective restoring cross-section",
-            low=0.0,
-            source="calibrated against the paper's concentric experiment",
-        )
-        L_r = b.parameter(
-            "L_r",
-            p.L_r,
-            "m",
-            "stretched length (2 h_jz)",
-            low=1e-6,
-            source="paper geometry: two junction zones of h_jz = 2 mm",
-        )
-        src = f"paper, material '{p.material}'"
-        C1 = b.parameter("C1", p.C1, "Pa", "Yeoh C1", source=src)
-        C2 = b.parameter("C2", p.C2, "Pa", "Yeoh C2", source=src)
-        C3 = b.parameter("C3", p.C3, "Pa", "Yeoh C3", source=src)
+        A_r, L_r = aps_parameter(b, p, "A_r"), aps_parameter(b, p, "L_r")
+        src = f"paper, Yeoh fit of material '{p.material}'"
+        C1, C2, C3 = (aps_parameter(b, p, k, source=src) for k in ("C1", "C2", "C3"))
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         lam = 1.0 + (fb.s - fa.s) / L_r
         energy = A_r * L_r * yeoh_energy(lam, C1, C2, C3)
         force = cs.gradient(energy, fb.s)
         b.equation(fb.f, force)
         b.equation(fa.f, -force)
-        b.output("lambda", lam, "1", "junction-zone stretch", low=0.0)
+        b.output("lambda", lam, "1", "stretch of the restoring element", low=0.0)
         b.output("f", force, "N", "restoring force")
         b.energy("elastic", energy)
+
+
+THREAD_DAMPING = ("tension_only", "gated", "none")
+"""Damping of an I-band: ``k softplus(e + c/k de/dt)`` (never pushes; nonlinear in the rate,
+so the band's ends must be states), ``k softplus(e) + c softplus'(e) de/dt`` (the damping
+gated by tautness, linear in the rate: for a massless expansion, whose rate depends on
+the tension; it can pull below zero briefly while a band slackens fast), or none."""
 
 
 class Actin(Component):
@@ -219,48 +269,36 @@ class Actin(Component):
     ``exp_a``/``exp_b``: the expansion flanges of the SPAs whose threads form this
     I-band (present when ``upper``/``lower`` is True). Taut length
     ``L_geo = sum(A/2 + r1(d))`` over those SPAs; stretch ``e = s_b - s_a - L_geo``;
-    tension ``T = k_s softplus(e) + c_s de/dt`` with
-    ``softplus(e) = (e + sqrt(e^2 + eps^2))/2`` (tension only, smooth).
+    tension ``T = k softplus(e + (c/k) de/dt)`` with
+    ``softplus(e) = (e + sqrt(e^2 + eps^2))/2``: tension only and smooth; taut, it is the
+    spring-damper ``k e + c de/dt``; slack, it neither pushes nor damps. ``damping`` is one
+    of :data:`THREAD_DAMPING`. ``k_s``, ``c_s`` are those of a band of two
+    V's in series; a band of one V (a chain end) has twice the stiffness and damping
+    (half the compliance), so a chain of n units has the compliance ``n / k_s``.
     """
 
     def __init__(
-        self, name: str, p: APSParams, upper: bool, lower: bool, damped: bool = True
+        self, name: str, p: APSParams, upper: bool, lower: bool, damping: str = "tension_only"
     ) -> None:
         super().__init__(name)
-        self.p, self.upper, self.lower, self.damped = p, upper, lower, damped
+        if damping not in THREAD_DAMPING:
+            raise ParameterError("damping", damping, f"one of {THREAD_DAMPING}")
+        self.p, self.upper, self.lower, self.damping = p, upper, lower, damping
 
     def build(self, b: Builder) -> None:
         p = self.p
-        l = b.parameter("l", p.l, "m", "thread length", low=1e-6, source="paper: 32 mm")
-        w0 = b.parameter(
-            "w0",
-            p.w0,
-            "m",
-            "anchor spacing at rest 2 r2'",
-            low=0.0,
-            source="paper: h_m - 2 t_w - h_ch = 20 mm",
+        l, w0, A, k_s, c_s, eps = (
+            aps_parameter(b, p, k) for k in ("l", "w0", "A_band", "k_s", "c_s", "eps_slack")
         )
-        A = b.parameter(
-            "A_band", p.A_band, "m", "SPA body height (A-band)", low=0.0, source="paper: A = 30 mm"
-        )
-        k_s = b.parameter(
-            "k_s",
-            p.k_s,
-            "N/m",
-            "series stiffness of the I-band",
-            low=0.0,
-            source="calibrated against the 100 g passive stretch",
-        )
-        c_s = b.parameter("c_s", p.c_s, "N*s/m", "I-band damping", low=0.0, source="estimate")
-        eps = b.parameter("eps_slack", p.eps_slack, "m", "slack regularisation", low=1e-12)
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
-        L_geo = cs.SX(0)
+        L_geo, L_rest = cs.SX(0), cs.SX(0)
         exps = []
         for side, present in (("exp_a", self.upper), ("exp_b", self.lower)):
             if present:
                 fl = b.port(side, FLANGE)
                 exps.append(fl)
                 L_geo = L_geo + 0.5 * A + thread_height(fl.s, l, w0)
+                L_rest = L_rest + 0.5 * A + thread_height(0.0, l, w0)
                 cos_theta = cs.fmin(cs.fmax((w0 + fl.s) / l, -1.0), 1.0)
                 b.output(
                     f"theta_{side[-1]}",
@@ -271,13 +309,25 @@ class Actin(Component):
                     low=THETA_MIN_RAD,
                     high=0.5 * math.pi,
                 )
+        self.rest_length = L_rest  # taut length at zero expansion [m], for start values
+        per_v = 2.0 / len(exps)  # two V's in series: k_s; one V alone: 2 k_s
+        k = per_v * k_s
         e = fb.s - fa.s - L_geo
-        sp = 0.5 * (e + cs.sqrt(e**2 + eps**2))
-        tension = k_s * sp
-        if self.damped:  # needs the stretch rate: the ends must be masses (not quasi-static)
+        r = cs.sqrt(e**2 + eps**2)
+        spring = 0.5 * (e + r)  # softplus(e)
+        if self.damping == "none":
+            tension = k * spring
+        else:  # needs the stretch rate: the band's ends must be masses
             e_rate = b.der_of("e_rate", e, "m/s", "stretch rate of the I-band")
-            tension = tension + c_s * e_rate
-            b.dissipation("damping", c_s * e_rate**2)
+            if self.damping == "tension_only":
+                # a Kelvin-Voigt band that can only pull: T = k softplus(e + (c/k) de/dt):
+                # taut, T = k e + c de/dt; slack, it neither pushes nor damps. The power
+                # T de/dt minus the elastic rate k softplus(e) de/dt is >= 0.
+                ed = e + c_s / k_s * e_rate
+                tension = k * 0.5 * (ed + cs.sqrt(ed**2 + eps**2))
+            else:  # "gated": linear in the rate, damping times the softplus slope
+                tension = k * spring + per_v * c_s * 0.5 * (1.0 + e / r) * e_rate
+            b.dissipation("damping", (tension - k * spring) * e_rate)
         b.equation(fb.f, tension)
         b.equation(fa.f, -tension)
         for fl in exps:  # generalised force on the expansion: T de/dd
@@ -285,9 +335,8 @@ class Actin(Component):
         b.output("T", tension, "N", "thread tension (I-band)")
         b.output("e", e, "m", "stretch beyond the taut length (negative: slack)")
         b.output("L_geo", L_geo, "m", "taut length of the I-band")
-        # energy of k_s * softplus: integral of (e + sqrt(e^2 + eps^2))/2 de
-        r = cs.sqrt(e**2 + eps**2)
-        b.energy("elastic", 0.25 * k_s * (e**2 + e * r + eps**2 * cs.asinh(e / eps)))
+        # energy of k softplus: integral of (e + sqrt(e^2 + eps^2))/2 de
+        b.energy("elastic", 0.25 * k * (e**2 + e * r + eps**2 * cs.asinh(e / eps)))
 
 
 class APS(Component):
@@ -297,26 +346,26 @@ class APS(Component):
     body centre), ``exp`` (the expansion flange the actins hang on).
     ``quasi_static=True`` drops the expansion inertia (the expansion becomes a first-order
     viscous state); ``massless_body=True`` makes the body a weighted massless node (its
-    position an algebraic unknown).
+    position an algebraic unknown). After building, ``temperature`` is the chamber air's
+    temperature and ``position`` the body's position (symbols, for the parent).
     """
 
     def __init__(
         self,
         name: str,
         p: APSParams,
-        s_start: float = 0.0,
         quasi_static: bool = False,
-        g: float = G_STANDARD,
         massless_body: bool = False,
     ) -> None:
         super().__init__(name)
-        self.p, self.s_start, self.quasi_static, self.g = p, s_start, quasi_static, g
-        self.massless_body = massless_body
+        self.p, self.quasi_static, self.massless_body = p, quasi_static, massless_body
 
     def build(self, b: Builder) -> None:
         p = self.p
         ground = b.add(Fixed("ground"))
-        chamber = b.add(Chamber("chamber", V0=p.V0, A=p.A_p, n_poly=p.n_poly, T=T_REF))
+        gas = Chamber("chamber", V0=p.V0, A=p.A_p, thermal=p.thermal, tau_heat=p.tau_heat)
+        chamber = b.add(gas)
+        self.temperature = gas.temperature
         yeoh = b.add(YeohSpring("yeoh", p))
         if self.quasi_static:
             exp = b.add(ViscousNode("expansion", d=p.c_e))
@@ -325,16 +374,20 @@ class APS(Component):
             loss = b.add(Damper("loss", d=p.c_e))
             b.connect(ground.flange, loss.flange_a)
             b.connect(loss.flange_b, exp.flange_a)
-        if self.massless_body:
-            body = b.add(Node("body", weight=p.m_body * self.g, s_start=self.s_start))
-        else:
-            body = b.add(Mass("body", m=p.m_body, g=self.g, s_start=self.s_start))
+        body_c = Node("body", m=p.m_body) if self.massless_body else Mass("body", m=p.m_body)
+        body = b.add(body_c)
+        self.position = body_c.position
         b.connect(ground.flange, yeoh.flange_a)
         b.connect(yeoh.flange_b, exp.flange_a)
         b.connect(chamber.flange, exp.flange_a)
         b.expose("port", chamber.port)
         b.expose("body", body.flange_a)
         b.expose("exp", exp.flange_a)
+
+
+FLOW_LAWS = {"iso6358": False, "smooth": True}
+"""Flow laws of the feed tubes -> ``smooth`` of :func:`~.pneumatic.iso6358_flow`: the exact
+ISO 6358 law with a linear laminar region (plants), or its C1 variant (optimisers)."""
 
 
 CHAIN_LEVELS = {  # level -> (massless SPA expansion, massless bodies)
@@ -346,6 +399,11 @@ CHAIN_LEVELS = {  # level -> (massless SPA expansion, massless bodies)
 order, viscous; explicit ODE); massless SPA and bodies (undamped threads; the body
 positions are algebraic: an index-1 DAE)."""
 
+CHAIN_DAMPING = {"full": "tension_only", "quasi_static": "gated", "static_chain": "none"}
+"""Thread damping of each level (:data:`THREAD_DAMPING`): the massless expansion of
+"quasi_static" puts the band's rate inside the tension, which needs the linear form; the
+massless bodies of "static_chain" have no rates."""
+
 
 class Myofibril(Component):
     """``n`` APS in series, each fed by its own tube from one manifold port.
@@ -353,7 +411,10 @@ class Myofibril(Component):
     Ports: ``port`` (the manifold, pneumatic), ``flange_a`` (top hook, on the frame),
     ``flange_b`` (bottom hook, to the load or the fixture). Output ``length`` [m]:
     ``flange_b.s - flange_a.s``. ``params`` is one APSParams for identical units or a
-    list of ``n``. ``level`` is one of :data:`CHAIN_LEVELS`.
+    list of ``n``. ``level`` is one of :data:`CHAIN_LEVELS`, ``flow_law`` one of
+    :data:`FLOW_LAWS`. The bodies start at their geometric rest positions below
+    ``flange_a`` (expressions of the thread parameters); after building,
+    ``rest_length_expr`` is the geometric length as such an expression.
     """
 
     def __init__(
@@ -362,57 +423,66 @@ class Myofibril(Component):
         n: int,
         params: APSParams | list[APSParams],
         level: str = "full",
-        g: float = G_STANDARD,
-        s_top: float = 0.0,
+        flow_law: str = "iso6358",
     ) -> None:
         super().__init__(name)
-        if not (isinstance(n, int) and 1 <= n <= 10_000):
+        if not (isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 10_000):
             raise ParameterError("n", n, "an integer in [1, 10000]")
         plist = list(params) if isinstance(params, list | tuple) else [params] * n
         if len(plist) != n:
             raise ParameterError("params", len(plist), f"one APSParams or a list of n = {n}")
         if level not in CHAIN_LEVELS:
             raise ParameterError("level", level, f"one of {tuple(CHAIN_LEVELS)}")
-        self.n, self.params, self.level, self.g, self.s_top = n, plist, level, g, s_top
+        if flow_law not in FLOW_LAWS:
+            raise ParameterError("flow_law", flow_law, f"one of {tuple(FLOW_LAWS)}")
+        self.n, self.params, self.level, self.flow_law = n, plist, level, flow_law
 
     def build(self, b: Builder) -> None:
-        units, s = [], self.s_top
+        units = []
+        massless_expansion, massless_body = CHAIN_LEVELS[self.level]
         for i, p in enumerate(self.params):
-            s += (
-                (0.5 * p.A_band + p.r1_rest)
-                if i == 0
-                else (
-                    0.5 * self.params[i - 1].A_band
-                    + self.params[i - 1].r1_rest
-                    + 0.5 * p.A_band
-                    + p.r1_rest
+            aps = APS(f"aps{i + 1}", p, massless_expansion, massless_body)
+            unit = b.add(aps)
+            tube = b.add(
+                Restriction(
+                    f"tube{i + 1}",
+                    C=p.C_tube,
+                    b=p.b_tube,
+                    r_lam=p.r_lam,
+                    smooth=FLOW_LAWS[self.flow_law],
+                    T_b=aps.temperature,
                 )
             )
-            massless_expansion, massless_body = CHAIN_LEVELS[self.level]
-            unit = b.add(APS(f"aps{i + 1}", p, s, massless_expansion, self.g, massless_body))
-            tube = b.add(Restriction(f"tube{i + 1}", C=p.C_tube, b=p.b_tube, r_lam=p.r_lam))
             b.connect(tube.port_b, unit.port)
             if i == 0:
                 b.expose("port", tube.port_a)
             else:
                 b.connect(b.ports["port"], tube.port_a)
-            units.append(unit)
-        damped = not CHAIN_LEVELS[self.level][1]  # thread damping needs body velocities
-        top = b.add(Actin("actin0", self.params[0], upper=False, lower=True, damped=damped))
-        b.connect(top.flange_b, units[0].body)
-        b.connect(top.exp_b, units[0].exp)
+            units.append((aps, unit))
+        damping = CHAIN_DAMPING[self.level]
+        bands = [Actin("actin0", self.params[0], upper=False, lower=True, damping=damping)]
+        top = b.add(bands[0])
+        b.connect(top.flange_b, units[0][1].body)
+        b.connect(top.exp_b, units[0][1].exp)
         b.expose("flange_a", top.flange_a)
         for i in range(1, self.n):
-            a = b.add(Actin(f"actin{i}", self.params[i], True, True, damped=damped))
-            b.connect(a.flange_a, units[i - 1].body)
-            b.connect(a.exp_a, units[i - 1].exp)
-            b.connect(a.flange_b, units[i].body)
-            b.connect(a.exp_b, units[i].exp)
-        end = b.add(Actin(f"actin{self.n}", self.params[-1], True, False, damped=damped))
-        b.connect(end.flange_a, units[-1].body)
-        b.connect(end.exp_a, units[-1].exp)
+            bands.append(Actin(f"actin{i}", self.params[i], True, True, damping=damping))
+            a = b.add(bands[-1])
+            b.connect(a.flange_a, units[i - 1][1].body)
+            b.connect(a.exp_a, units[i - 1][1].exp)
+            b.connect(a.flange_b, units[i][1].body)
+            b.connect(a.exp_b, units[i][1].exp)
+        bands.append(Actin(f"actin{self.n}", self.params[-1], True, False, damping=damping))
+        end = b.add(bands[-1])
+        b.connect(end.flange_a, units[-1][1].body)
+        b.connect(end.exp_a, units[-1][1].exp)
         b.expose("flange_b", end.flange_b)
         b.output("length", end.flange_b.s - top.flange_a.s, "m", "myofibril length")
+        s = cs.SX(0)  # geometric rest positions below the top hook (taut, no expansion)
+        for (aps, _), band in zip(units, bands, strict=False):
+            s = s + band.rest_length
+            b.set_start(aps.position, s)
+        self.rest_length_expr = s + bands[-1].rest_length
 
     @property
     def rest_length(self) -> float:
@@ -443,40 +513,52 @@ class SymmetricMyofibril(Component):
     """``n`` identical APS reduced to one representative unit (the "symmetric" level).
 
     All units share one pressure, one expansion and one tension: the representative
-    APS (full internal dynamics) carries one unit length ``A + 2 r1(d)`` through an I-band
-    of stiffness ``n k_s / (n + 1)`` and damping ``n c_s / (n + 1)`` (the ``n + 1``
-    I-bands of the chain in series, per unit); :class:`SeriesCopies` of ratio ``n`` maps
-    it to the chain end.
-    The bodies are massless; their weight ``n m_body g / 2`` (the mean over the chain)
-    acts at the chain end. Ports and the ``length`` output as :class:`Myofibril`.
+    APS (full internal dynamics) carries one unit length ``A + 2 r1(d)`` through one
+    two-V I-band (``k_s``, ``c_s``: the chain's n - 1 inner bands and two one-V end bands
+    have the compliance ``n / k_s``, one band per unit); :class:`SeriesCopies` of ratio
+    ``n`` maps it to the chain end. The bodies are massless; their weight
+    ``n m_body g / 2`` (the mean over the chain) acts at the chain end. Ports, the
+    ``length`` output and ``flow_law`` as :class:`Myofibril`.
     """
 
-    def __init__(self, name: str, n: int, params: APSParams, g: float = G_STANDARD) -> None:
+    def __init__(self, name: str, n: int, params: APSParams, flow_law: str = "iso6358") -> None:
         super().__init__(name)
-        if not (isinstance(n, int) and 1 <= n <= 10_000):
+        if not (isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 10_000):
             raise ParameterError("n", n, "an integer in [1, 10000]")
-        self.n, self.p, self.g = n, params, g
+        if flow_law not in FLOW_LAWS:
+            raise ParameterError("flow_law", flow_law, f"one of {tuple(FLOW_LAWS)}")
+        self.n, self.p, self.flow_law = n, params, flow_law
 
     def build(self, b: Builder) -> None:
         n, p = self.n, self.p
-        unit = b.add(APS("aps1", replace(p, m_body=0.0), g=self.g, massless_body=True))
-        tube = b.add(Restriction("tube1", C=p.C_tube, b=p.b_tube, r_lam=p.r_lam))
+        aps = APS("aps1", replace(p, m_body=0.0), massless_body=True)
+        unit = b.add(aps)
+        tube = b.add(
+            Restriction(
+                "tube1",
+                C=p.C_tube,
+                b=p.b_tube,
+                r_lam=p.r_lam,
+                smooth=FLOW_LAWS[self.flow_law],
+                T_b=aps.temperature,
+            )
+        )
         b.connect(tube.port_b, unit.port)
         b.expose("port", tube.port_a)
-        per_unit = n / (n + 1)
-        band = b.add(
-            Actin("actin", replace(p, k_s=per_unit * p.k_s, c_s=per_unit * p.c_s), True, True)
-        )
+        band_c = Actin("actin", p, True, True)
+        band = b.add(band_c)
         b.connect(band.flange_b, unit.body)
         b.connect(band.exp_a, unit.exp)
         b.connect(band.exp_b, unit.exp)
+        b.set_start(aps.position, band_c.rest_length)
         lever = b.add(SeriesCopies("chain", ratio=float(n)))
         b.connect(band.flange_b, lever.flange_a)
-        end = b.add(Node("bodies", weight=0.5 * n * p.m_body * self.g))
+        end = b.add(Node("bodies", m=0.5 * n * p.m_body))
         b.connect(lever.flange_b, end.flange_a)
         b.expose("flange_a", band.flange_a)
         b.expose("flange_b", lever.flange_b)
         b.output("length", lever.flange_b.s - band.flange_a.s, "m", "myofibril length")
+        self.rest_length_expr = n * band_c.rest_length
 
     @property
     def rest_length(self) -> float:
@@ -488,6 +570,7 @@ __all__ = [
     "APS",
     "APSParams",
     "Actin",
+    "FLOW_LAWS",
     "Myofibril",
     "SeriesCopies",
     "SymmetricMyofibril",

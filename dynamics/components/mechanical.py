@@ -10,8 +10,7 @@ import casadi as cs
 
 from ..modeling.component import Builder, Component
 from ..modeling.ports import FLANGE
-
-G_STANDARD = 9.80665  # m/s^2, standard gravity (ISO 80000-3)
+from .environment import ENVIRONMENT
 
 
 class Fixed(Component):
@@ -27,19 +26,32 @@ class Fixed(Component):
 
 
 class Mass(Component):
-    """A point mass ``m`` [kg] with gravity ``g`` [m/s^2] along +s; states s [m], v [m/s]."""
+    """A point mass ``m`` [kg] with gravity along +s; states s [m], v [m/s].
+
+    ``g`` None: the environment's gravity (``ambient.g``, one for the whole model); a
+    number [m/s^2]: this mass's own parameter (0 for a motion across gravity).
+    """
 
     def __init__(
-        self, name: str, m: float, g: float = G_STANDARD, s_start: float = 0.0, v_start: float = 0.0
+        self,
+        name: str,
+        m: float,
+        g: float | None = None,
+        s_start: float | cs.SX = 0.0,
+        v_start: float = 0.0,
     ) -> None:
         super().__init__(name)
         self.m, self.g, self.s_start, self.v_start = m, g, s_start, v_start
 
     def build(self, b: Builder) -> None:
         m = b.parameter("m", self.m, "kg", "mass", low=1e-12)
-        g = b.parameter("g", self.g, "m/s^2", "gravitational acceleration along +s")
+        if self.g is None:
+            g = b.outer(ENVIRONMENT)["g"]
+        else:
+            g = b.parameter("g", self.g, "m/s^2", "gravitational acceleration along +s")
         s = b.state("s", self.s_start, "m", "position")
         v = b.state("v", self.v_start, "m/s", "velocity")
+        self.position = s
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         b.equation(fa.s, s)
         b.equation(fb.s, s)
@@ -50,20 +62,32 @@ class Mass(Component):
 
 
 class Node(Component):
-    """A massless point, optionally carrying a weight ``weight`` [N] along +s.
+    """A massless point carrying a weight along +s: ``weight`` [N] (its own parameter), or
+    the weight of a mass ``m`` [kg] under the environment's gravity (``ambient.g``).
 
     Its position is fixed by the forces of what is connected (they must balance), so it
     turns a mass into an algebraic unknown: the quasi-static fidelity level uses it.
     """
 
-    def __init__(self, name: str, weight: float = 0.0, s_start: float = 0.0) -> None:
+    def __init__(
+        self,
+        name: str,
+        weight: float = 0.0,
+        s_start: float | cs.SX = 0.0,
+        m: float | None = None,
+    ) -> None:
         super().__init__(name)
-        self.weight, self.s_start = weight, s_start
+        self.weight, self.s_start, self.m = weight, s_start, m
 
     def build(self, b: Builder) -> None:
-        w = b.parameter("weight", self.weight, "N", "weight carried by the node")
+        if self.m is None:
+            w = b.parameter("weight", self.weight, "N", "weight carried by the node")
+        else:
+            m = b.parameter("m", self.m, "kg", "mass whose weight the node carries", low=0.0)
+            w = m * b.outer(ENVIRONMENT)["g"]
         fl = b.port("flange_a", FLANGE)
         b.set_start(fl.s, self.s_start)
+        self.position = fl.s
         b.equation(fl.f + w, 0.0)
         b.energy("gravity", -w * fl.s)
 
@@ -161,7 +185,6 @@ class PositionSensor(Component):
 
 
 __all__ = [
-    "G_STANDARD",
     "Damper",
     "Fixed",
     "ForceSensor",

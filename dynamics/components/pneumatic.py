@@ -1,62 +1,70 @@
 """Pneumatic components: sources, the regulator, the ISO 6358 restriction, chambers.
 
 Ports carry absolute pressure ``p`` [Pa] and mass flow ``m_flow`` [kg/s], positive into
-the component. Air is an ideal gas (R = 287.05 J/(kg K)); flow temperatures are taken
-at the reference temperature (see docs/model.md for that and the other assumptions).
+the component. Air is an ideal gas; its gas constant, ratio of specific heats and the
+ambient pressure and temperature come from the model's one environment
+(:class:`~sarcomere.dynamics.components.environment.Environment`, ``Builder.outer``).
+Air flowing into a chamber arrives at the ambient temperature (the supply and the tube are
+at room temperature); air leaving it has the chamber's temperature. See docs/model.md.
 """
 
 from __future__ import annotations
 
+import math
+
 import casadi as cs
 
+from ..errors import ParameterError
 from ..modeling.component import Builder, Component
 from ..modeling.ports import FLANGE, PNEUMATIC
+from .environment import ENVIRONMENT
 
-R_AIR = 287.05  # J/(kg K), specific gas constant of dry air
-P_AMB = 101325.0  # Pa, standard atmosphere (ISO 2533)
-T_REF = 293.15  # K, ISO 6358-1 reference temperature (20 degC)
 RHO0_ISO = 1.185  # kg/m^3, ISO 6358-1 reference density (20 degC, 100 kPa, 65 % RH)
+T0_ISO = 293.15  # K, ISO 6358-1 reference temperature (20 degC)
+THERMAL = ("isothermal", "adiabatic")
+"""Chamber thermal models: the air at ambient temperature, or the energy balance of an
+adiabatic (insulated) chamber."""
 
 
 class PressureSource(Component):
-    """An ideal source of absolute pressure ``p_amb + p_gauge`` [Pa].
+    """An ideal source of absolute pressure ``p`` [Pa] (a parameter, or the model input
+    ``p`` with ``as_input=True``)."""
 
-    With ``as_input=True`` the gauge pressure is the model input ``p_gauge`` [Pa];
-    otherwise it is a parameter.
-    """
-
-    def __init__(
-        self, name: str, p_gauge: float = 0.0, p_amb: float = P_AMB, as_input: bool = False
-    ) -> None:
+    def __init__(self, name: str, p: float = 101325.0, as_input: bool = False) -> None:
         super().__init__(name)
-        self.p_gauge, self.p_amb, self.as_input = p_gauge, p_amb, as_input
+        self.p, self.as_input = p, as_input
 
     def build(self, b: Builder) -> None:
-        p_amb = b.parameter("p_amb", self.p_amb, "Pa", "ambient pressure", low=0.0)
         if self.as_input:
-            pg = b.input("p_gauge", "Pa", "gauge pressure", self.p_gauge, low=-self.p_amb)
+            p = b.input("p", "Pa", "absolute pressure", self.p, low=0.0)
         else:
-            pg = b.parameter("p_gauge", self.p_gauge, "Pa", "gauge pressure", low=-self.p_amb)
-        b.equation(b.port("port", PNEUMATIC).p, p_amb + pg)
+            p = b.parameter("p", self.p, "Pa", "absolute pressure", low=0.0)
+        b.equation(b.port("port", PNEUMATIC).p, p)
 
 
 class Regulator(Component):
-    """Proportional pressure regulator: commanded gauge pressure, first-order lag, clamp.
+    """Proportional pressure regulator: commanded gauge pressure, first-order lag.
 
-    Input ``p_cmd`` [Pa gauge]. The set pressure ``p_set`` follows
-    ``tau dp_set/dt = clamp(p_cmd, 0, p_max) - p_set``, and the outlet is an ideal
-    pressure source ``p_amb + p_set`` that also vents (negative flow) to ambient.
+    Input ``p_cmd`` [Pa gauge], published range ``[0, p_max]`` (the regulating range).
+    The set pressure ``p_set`` follows ``tau dp_set/dt = u - p_set`` with
+    ``u = clamp(p_cmd, 0, p_max)`` (``saturate=True``, for plants) or ``u = p_cmd``
+    (``saturate=False``, for optimisers, which need the input's bounds and a non-zero
+    gradient, not a clamp). The outlet is an ideal pressure source ``p_amb + p_set`` that
+    also vents (negative flow) to ambient, ``p_amb`` from the environment.
     Defaults: Festo VPPE-3-1-1/8-6-010-E1, 6 bar variant (data sheet: range 0.06..6 bar,
     800 l/min); the lag ``tau`` is an estimate (the data sheet gives no response time).
     """
 
     def __init__(
-        self, name: str, tau: float = 0.05, p_max: float = 6e5, p_amb: float = P_AMB
+        self, name: str, tau: float = 0.05, p_max: float = 6e5, saturate: bool = True
     ) -> None:
         super().__init__(name)
-        self.tau, self.p_max, self.p_amb = tau, p_max, p_amb
+        if not isinstance(saturate, bool):
+            raise ParameterError("saturate", saturate, "True or False")
+        self.tau, self.p_max, self.saturate = tau, p_max, saturate
 
     def build(self, b: Builder) -> None:
+        p_amb = b.outer(ENVIRONMENT)["p"]
         tau = b.parameter(
             "tau", self.tau, "s", "first-order lag", low=1e-6, source="estimate (50-100 ms)"
         )
@@ -68,16 +76,17 @@ class Regulator(Component):
             low=0.0,
             source="Festo VPPE-3-1-1/8-6-010-E1 data sheet: 6 bar",
         )
-        p_amb = b.parameter("p_amb", self.p_amb, "Pa", "ambient pressure", low=0.0)
         p_cmd = b.input(
             "p_cmd",
             "Pa",
-            "commanded gauge pressure (below -p_amb is below vacuum)",
+            "commanded gauge pressure (the regulating range)",
             0.0,
-            low=-self.p_amb,
+            low=0.0,
+            high=self.p_max,
         )
         p_set = b.state("p_set", 0.0, "Pa", "set gauge pressure after the lag")
-        b.der(p_set, (cs.fmin(cs.fmax(p_cmd, 0.0), p_max) - p_set) / tau)
+        u = cs.fmin(cs.fmax(p_cmd, 0.0), p_max) if self.saturate else p_cmd
+        b.der(p_set, (u - p_set) / tau)
         port = b.port("port", PNEUMATIC)
         b.equation(port.p, p_amb + p_set)
         b.output("p_out", p_set, "Pa", "outlet gauge pressure")
@@ -129,7 +138,12 @@ class Restriction(Component):
     """ISO 6358 restriction (orifice, tube, fitting) between ``port_a`` and ``port_b``.
 
     Parameters: sonic conductance ``C`` [m^3/(s Pa)], critical ratio ``b`` [1],
-    laminar threshold ``r_lam`` [1]. Output ``m_flow`` [kg/s], positive from a to b.
+    laminar threshold ``r_lam`` [1]. The flow is ISO 6358's ``q sqrt(T0/T_up)`` with the
+    upstream temperature: the ambient temperature when ``port_a`` (the supply side) is
+    upstream, ``T_b`` [K] when ``port_b`` is (a CasADi expression of the model's
+    variables, e.g. a chamber's temperature; None: the ambient temperature). ``smooth``
+    selects the C1 laminar join (see :func:`iso6358_flow`). Output ``m_flow`` [kg/s],
+    positive from a to b.
     """
 
     def __init__(
@@ -139,11 +153,13 @@ class Restriction(Component):
         b: float = 0.3,
         r_lam: float = 0.999,
         smooth: bool = False,
+        T_b: cs.SX | None = None,
     ) -> None:
         super().__init__(name)
-        self.C, self.b, self.r_lam, self.smooth = C, b, r_lam, smooth
+        self.C, self.b, self.r_lam, self.smooth, self.T_b = C, b, r_lam, smooth, T_b
 
     def build(self, b: Builder) -> None:
+        T_amb = b.outer(ENVIRONMENT)["T"]
         C = b.parameter(
             "C",
             self.C,
@@ -154,9 +170,16 @@ class Restriction(Component):
         )
         bc = b.parameter("b", self.b, "1", "critical pressure ratio", 0.0, 0.999, "ISO 6358-1")
         rl = b.parameter("r_lam", self.r_lam, "1", "laminar threshold ratio", 0.5, 0.99999)
-        rho0 = b.parameter("rho0", RHO0_ISO, "kg/m^3", "ISO 6358 reference density", low=0.0)
+        rho0 = b.parameter(
+            "rho0", RHO0_ISO, "kg/m^3", "ISO 6358 reference density", 0.0, source="ISO 6358-1"
+        )
+        T0 = b.parameter(
+            "T0", T0_ISO, "K", "ISO 6358 reference temperature", 1.0, source="ISO 6358-1"
+        )
         pa, pb = b.port("port_a", PNEUMATIC), b.port("port_b", PNEUMATIC)
-        q = iso6358_flow(pa.p, pb.p, C, bc, rl, rho0, smooth=self.smooth)
+        T_b = T_amb if self.T_b is None else self.T_b
+        T_up = cs.if_else(pa.p >= pb.p, T_amb, T_b)
+        q = iso6358_flow(pa.p, pb.p, C, bc, rl, rho0, smooth=self.smooth) * cs.sqrt(T0 / T_up)
         b.equation(pa.m_flow, q)
         b.equation(pb.m_flow, -q)
         b.output("m_flow", q, "kg/s", "mass flow from port_a to port_b")
@@ -165,11 +188,18 @@ class Restriction(Component):
 class Chamber(Component):
     """Air in a volume ``V = V0 + A s`` [m^3] whose wall is the flange (position ``s``).
 
-    State: the air mass ``m_air`` [kg]. Pressure from the polytropic law
-    ``p = p_amb (rho / rho_amb)^n_poly`` with ``rho = m_air / V`` and
-    ``rho_amb = p_amb / (R T)``: ``n_poly = 1`` is isothermal, 1.4 isentropic.
-    The wall force is exactly ``(p - p_amb) dV/ds`` (virtual work), so gas, wall and
-    ambient exchange energy without loss.
+    States: the air mass ``m_air`` [kg] and, for ``thermal="adiabatic"``, the potential
+    temperature ``theta`` [K]; ``p = m_air R T / V``. Isothermal: ``T`` is the ambient
+    temperature.
+    Adiabatic (no heat through the wall), the energy balance of the open volume:
+    ``d(m c_v T)/dt = c_p T_up m_flow - p dV/dt`` with ``T_up`` the ambient temperature
+    while filling and ``T`` while venting, plus the wall heat ``m c_v (T_amb - T)/tau_heat``
+    (default ``tau_heat = inf``: none; a finite value makes the equilibrium unique, at the
+    ambient temperature; the energy function does not count that heat). The wall force
+    is exactly ``(p - p_amb) dV/ds`` (virtual work). Starts at ``p_amb + p_start_gauge``
+    and the ambient temperature (the start mass is an expression of ``V0`` and the
+    environment). After building,
+    ``temperature`` is the air temperature (a symbol or expression, for a restriction).
     """
 
     def __init__(
@@ -177,41 +207,60 @@ class Chamber(Component):
         name: str,
         V0: float,
         A: float,
-        p_start: float = P_AMB,
-        n_poly: float = 1.0,
-        T: float = T_REF,
-        p_amb: float = P_AMB,
+        p_start_gauge: float = 0.0,
+        thermal: str = "isothermal",
+        tau_heat: float = math.inf,
     ) -> None:
         super().__init__(name)
-        self.V0, self.A, self.p_start, self.n_poly, self.T, self.p_amb = (
-            V0,
-            A,
-            p_start,
-            n_poly,
-            T,
-            p_amb,
-        )
+        if thermal not in THERMAL:
+            raise ParameterError("thermal", thermal, f"one of {THERMAL}")
+        if not tau_heat > 0:
+            raise ParameterError("tau_heat", tau_heat, "(0, inf] s")
+        self.V0, self.A, self.p_start_gauge, self.thermal = V0, A, p_start_gauge, thermal
+        self.tau_heat = tau_heat
 
     def build(self, b: Builder) -> None:
+        env = b.outer(ENVIRONMENT)
+        p_amb, T_amb, R, gamma = env["p"], env["T"], env["R"], env["gamma"]
         V0 = b.parameter("V0", self.V0, "m^3", "volume at s = 0", low=1e-15)
         A = b.parameter("A", self.A, "m^2", "effective area dV/ds of the moving wall", low=0.0)
-        T = b.parameter("T", self.T, "K", "temperature at the reference state", low=1.0)
-        p_amb = b.parameter("p_amb", self.p_amb, "Pa", "ambient pressure", low=1.0)
-        R = b.parameter("R", R_AIR, "J/(kg*K)", "specific gas constant of air", low=1.0)
-        rho_amb = p_amb / (R * T)
-        # start mass from the start pressure at s = 0 (the same polytropic law)
-        rho0 = self.p_amb / (R_AIR * self.T) * (self.p_start / self.p_amb) ** (1 / self.n_poly)
-        m = b.state("m_air", self.V0 * rho0, "kg", "air mass in the chamber", low=0.0)
+        m = b.state("m_air", 0.0, "kg", "air mass in the chamber", low=0.0)
+        b.set_start(m, V0 * (p_amb + self.p_start_gauge) / (R * T_amb))
         port, wall = b.port("port", PNEUMATIC), b.port("flange", FLANGE)
         V = V0 + A * wall.s
-        rho = m / V
-        if self.n_poly == 1.0:  # isothermal: a structural choice, not a parameter value
-            p = rho * R * T
-            e_gas = m * R * T * (cs.log(rho / rho_amb) - 1.0)
+        if self.thermal == "isothermal":
+            T = T_amb
+            self.temperature = T
+            p = m * R * T / V
+            e_gas = m * R * T * (cs.log(p / p_amb) - 1.0)
         else:
-            n = b.parameter("n_poly", self.n_poly, "1", "polytropic exponent", 1.0001, 1.67)
-            p = p_amb * (rho / rho_amb) ** n
-            e_gas = p * V / (n - 1.0)
+            # state: the potential temperature theta = T (rho_amb / rho)^(gamma - 1) [K], the
+            # temperature at the ambient density after an isentropic change; it is constant
+            # while the air only expands, is compressed or vents, and the energy balance
+            # d(m c_v T)/dt = c_p T_up m_flow - p dV/dt becomes (with T_up = T_amb, filling)
+            # dtheta/dt = gamma theta max(m_flow, 0) (T_amb - T) / (m T): no dV/dt needed.
+            rho_amb = p_amb / (R * T_amb)
+            rho_start = (p_amb + self.p_start_gauge) / (R * T_amb)
+            theta = b.state(
+                "theta", 0.0, "K", "potential temperature (at the ambient density)", low=0.0
+            )
+            b.set_start(theta, T_amb * (rho_amb / rho_start) ** (gamma - 1.0))
+            T = theta * (m / (V * rho_amb)) ** (gamma - 1.0)
+            self.temperature = T
+            p = m * R * T / V
+            tau = b.parameter(
+                "tau_heat",
+                self.tau_heat,
+                "s",
+                "time constant of the heat exchange with the wall (inf: none)",
+                low=1e-9,
+                source="estimate",
+            )
+            mdot_in = cs.fmax(port.m_flow, 0.0)
+            # the wall heat m c_v (T_amb - T) / tau changes theta by theta/T of dT/dt
+            b.der(theta, theta * (T_amb - T) / T * (gamma * mdot_in / m + 1.0 / tau))
+            e_gas = m * R * T / (gamma - 1.0)
+            b.output("T", T, "K", "air temperature", low=0.0)
         b.der(m, port.m_flow)
         b.equation(port.p, p)
         b.equation(wall.f, -(p - p_amb) * A)
@@ -232,16 +281,25 @@ class SealedVolume(Component):
     """A :class:`Chamber` behind a :class:`Cap`: a gas spring on the flange (position s).
 
     Parameters as :class:`Chamber`; the air mass is constant, so an isothermal volume
-    keeps ``p V`` constant and a polytropic one ``p V^n``.
+    keeps ``p V`` constant and an adiabatic one ``p V^gamma``.
     """
 
     def __init__(
-        self, name: str, V0: float, A: float, p_start: float = P_AMB, n_poly: float = 1.0
+        self,
+        name: str,
+        V0: float,
+        A: float,
+        p_start_gauge: float = 0.0,
+        thermal: str = "isothermal",
+        tau_heat: float = math.inf,
     ) -> None:
         super().__init__(name)
-        self.V0, self.A, self.p_start, self.n_poly = V0, A, p_start, n_poly
+        self.V0, self.A, self.p_start_gauge, self.thermal = V0, A, p_start_gauge, thermal
+        self.tau_heat = tau_heat
 
     def build(self, b: Builder) -> None:
-        ch = b.add(Chamber("chamber", self.V0, self.A, self.p_start, self.n_poly))
+        ch = b.add(
+            Chamber("chamber", self.V0, self.A, self.p_start_gauge, self.thermal, self.tau_heat)
+        )
         b.connect(ch.port, b.add(Cap("cap")).port)
         b.expose("flange", ch.flange)

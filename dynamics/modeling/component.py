@@ -189,6 +189,28 @@ class Builder:
         var = self._c.variables[name]
         self._c.variables[name] = Var(**{**var.__dict__, "start": start, "nominal": nominal})
 
+    def outer(self, name: str) -> dict[str, cs.SX]:
+        """The parameter symbols of the top-level environment ``name`` (Modelica ``outer``).
+
+        The environment is a component added once at the top of the System, before the
+        components that use it (e.g. ``Environment("ambient")``); the result maps its local
+        parameter names to their symbols, so every user shares one parameter each.
+        """
+        prefix = f"{name}."
+        found = {
+            full[len(prefix) :]: sym
+            for full, sym in self._c.symbols.items()
+            if full.startswith(prefix)
+            and "." not in full[len(prefix) :]
+            and self._c.variables[full].kind == "parameter"
+        }
+        if not found:
+            raise ModelError(
+                f"'{self.path}' needs the environment '{name}', which is not declared: add it "
+                f"at the top of the System first (e.g. sys.add(Environment('{name}')))"
+            )
+        return found
+
     # --- equations -----------------------------------------------------------------
     def der(self, state: cs.SX, rhs: cs.SX) -> None:
         """``d state / dt = rhs``."""

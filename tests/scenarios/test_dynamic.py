@@ -4,7 +4,10 @@ import json
 
 import pytest
 
+from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ScenarioError
+from sarcomere.dynamics.paper import rest_length
+from sarcomere.dynamics.params import experimental_geometry
 from sarcomere.scenarios import parse_scenario, run
 from sarcomere.scenarios.cli import main
 
@@ -13,9 +16,12 @@ def test_paper_isometric_meets_n1_and_reports_n2_n3_honestly(tmp_path):
     out = run("paper-isometric", tmp_path, quiet=True)
     m = out.metrics
     assert m["force_n1_0p1MPa_N"] == pytest.approx(0.315, rel=0.01)
-    # units in series share one tension: no growth with n (paper: 0.741, 1.033 N)
-    assert m["force_n2_0p1MPa_N"] < m["force_n1_0p1MPa_N"] * 1.01
-    assert m["force_n3_0p1MPa_N"] < m["force_n2_0p1MPa_N"] * 1.01
+    # Units in series share one tension: the force does not scale with n (paper: 0.741 and
+    # 1.033 N, ratios 2.35 and 3.28). What remains is the hanging chain's own weight: the
+    # upper units carry the lower bodies and sit elsewhere on their curves (a few per cent;
+    # with weightless bodies equal to 0.2 %, tests/dynamics/test_assemblies.py).
+    for n in (2, 3):
+        assert abs(m[f"force_n{n}_0p1MPa_N"] / m["force_n1_0p1MPa_N"] - 1) < 0.05
     assert (tmp_path / "plot_force.png").stat().st_size > 1000
 
 
@@ -27,7 +33,14 @@ def test_paper_concentric_meets_both_length_targets(tmp_path):
     # heavier loads contract less (paper Fig. 8F)
     strains = [m[f"strain_{g}g_0p1MPa"] for g in (0, 10, 20, 50, 100)]
     assert strains == sorted(strains)
-    assert 160 < m["rest_length_n3_mm"] < 180
+    # The chain hangs under its own weight: longer than the closed-form geometric length
+    # (164.94 mm, docs/paper.md), within 4 % of the measured 165 mm (an 8.6 g body mass
+    # estimate, docs/model.md), and the value the library's equilibrium gives, in mm.
+    geometric_mm = rest_length(3, experimental_geometry()) * 1e3
+    assert geometric_mm == pytest.approx(164.94, abs=0.01)
+    assert geometric_mm < m["rest_length_n3_mm"] < 165.0 * 1.04
+    rest = solve_equilibrium(hanging_load(3, load_kg=0.0), {"regulator.p_cmd": 0.0})
+    assert m["rest_length_n3_mm"] == pytest.approx(rest.signals["myofibril.length"] * 1e3, 1e-9)
 
 
 def test_step_50g_through_the_cli(tmp_path, capsys):

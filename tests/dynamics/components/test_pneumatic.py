@@ -6,12 +6,10 @@ import casadi as cs
 import numpy as np
 import pytest
 
+from sarcomere.dynamics.components.environment import Environment
 from sarcomere.dynamics.components.mechanical import Fixed, Mass
 from sarcomere.dynamics.components.pneumatic import (
-    P_AMB,
-    R_AIR,
     RHO0_ISO,
-    T_REF,
     Cap,
     Chamber,
     PressureSource,
@@ -20,10 +18,21 @@ from sarcomere.dynamics.components.pneumatic import (
     SealedVolume,
     iso6358_flow,
 )
+from sarcomere.dynamics.errors import ModelError
 from sarcomere.dynamics.modeling.component import System
+from sarcomere.dynamics.params.ambient import Ambient
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 C, B, RL = 2e-9, 0.3, 0.999
+AMB = Ambient()
+P_AMB, R_AIR, T_REF, GAMMA = AMB.p_amb, AMB.R_air, AMB.T_amb, AMB.kappa
+
+
+def system(name):
+    """A System with the shared environment declared first."""
+    sys = System(name)
+    sys.add(Environment())
+    return sys
 
 
 def flow(pa, pb, smooth=False):
@@ -68,11 +77,12 @@ def test_smooth_law_is_c1_and_close_to_exact():
         assert flow(p_up, 1e5, smooth=True) == pytest.approx(flow(p_up, 1e5), rel=1e-12)
 
 
-def filling_system(V=5e-6, p_supply=5e5):
-    sys = System("filling")
-    src = sys.add(PressureSource("src", p_gauge=p_supply - P_AMB))
-    tube = sys.add(Restriction("tube", C=C, b=B, r_lam=RL))
-    ch = sys.add(Chamber("chamber", V0=V, A=0.0))
+def filling_system(V=5e-6, p_supply=5e5, thermal="isothermal", p_start_gauge=0.0):
+    sys = system("filling")
+    src = sys.add(PressureSource("src", p=p_supply))
+    gas = Chamber("chamber", V0=V, A=0.0, p_start_gauge=p_start_gauge, thermal=thermal)
+    ch = sys.add(gas)
+    tube = sys.add(Restriction("tube", C=C, b=B, r_lam=RL, T_b=gas.temperature))
     wall = sys.add(Fixed("wall"))
     sys.connect(src.port, tube.port_a)
     sys.connect(tube.port_b, ch.port)
@@ -95,9 +105,11 @@ def test_isothermal_filling_follows_analytic_curve():
 
 
 def test_gas_spring_frequency_isothermal_and_adiabatic():
-    for n_poly in (1.0, 1.4):
-        sys = System("gas_spring")
-        vol = sys.add(SealedVolume("vol", V0=1e-4, A=1e-3, p_start=2e5, n_poly=n_poly))
+    for thermal, n_poly in (("isothermal", 1.0), ("adiabatic", GAMMA)):
+        sys = system("gas_spring")
+        vol = sys.add(
+            SealedVolume("vol", V0=1e-4, A=1e-3, p_start_gauge=2e5 - P_AMB, thermal=thermal)
+        )
         piston = sys.add(Mass("piston", m=0.5, g=0.0))
         sys.connect(vol.flange, piston.flange_a)
         model = sys.flatten()
@@ -113,8 +125,8 @@ def test_gas_spring_frequency_isothermal_and_adiabatic():
 
 
 def test_isothermal_sealed_volume_keeps_pv_constant_at_large_amplitude():
-    sys = System("gas_spring")
-    vol = sys.add(SealedVolume("vol", V0=1e-4, A=1e-3, p_start=2e5))
+    sys = system("gas_spring")
+    vol = sys.add(SealedVolume("vol", V0=1e-4, A=1e-3, p_start_gauge=2e5 - P_AMB))
     piston = sys.add(Mass("piston", m=0.5, g=0.0, v_start=2.0))
     sys.connect(vol.flange, piston.flange_a)
     res = simulate(sys.flatten(), 0.2, settings=SolverSettings(rtol=1e-10, atol=1e-14))
@@ -124,15 +136,70 @@ def test_isothermal_sealed_volume_keeps_pv_constant_at_large_amplitude():
     assert pv[0] == pytest.approx(2e5 * 1e-4, rel=1e-12)
 
 
-def test_regulator_lag_and_clamp():
-    sys = System("reg")
+def test_regulator_lag_and_published_range():
+    sys = system("reg")
     reg = sys.add(Regulator("regulator", tau=0.05))
     sys.connect(reg.port, sys.add(Cap("cap")).port)
     model = sys.flatten()
+    var = model.variables["regulator.p_cmd"]
+    assert (var.low, var.high) == (0.0, 6e5)  # the regulating range, gauge
     res = simulate(
         model, 0.2, inputs={"regulator.p_cmd": 1e5}, settings=SolverSettings(rtol=1e-10, atol=1e-8)
     )
     t = res.index
     assert np.allclose(res["regulator.p_out"], 1e5 * (1 - np.exp(-t / 0.05)), atol=1e-3)
-    res = simulate(model, 0.5, inputs={"regulator.p_cmd": 9e5})
-    assert res.final("regulator.p_out") == pytest.approx(6e5, rel=1e-4)  # clamped at 6 bar
+
+
+@pytest.mark.parametrize("saturate", [True, False])
+def test_regulator_saturation_is_optional(saturate):
+    """A plant clamps a command beyond p_max; an optimiser's model passes it (and relies on
+    the input's bounds), so its gradient is not zero there."""
+    sys = system("reg")
+    reg = sys.add(Regulator("regulator", tau=0.05, saturate=saturate))
+    sys.connect(reg.port, sys.add(Cap("cap")).port)
+    m = sys.flatten()
+    u = cs.SX.sym("u")
+    rate = m.function("ode")(x=[0.0], z=[], u=u, p=m.parameters())["ode"]
+    f = cs.Function("f", [u], [rate, cs.jacobian(rate, u)])
+    value, slope = (float(v) for v in f(9e5))
+    assert value == pytest.approx((6e5 if saturate else 9e5) / 0.05)
+    assert slope == (0.0 if saturate else pytest.approx(1 / 0.05))
+
+
+def test_components_need_the_environment():
+    with pytest.raises(ModelError, match="environment 'ambient'.*not declared"):
+        System("bare").add(Regulator("regulator"))
+
+
+def test_adiabatic_filling_of_a_rigid_vessel_matches_the_textbook():
+    """Choked inflow at the supply temperature T_s into a rigid adiabatic vessel: the mass
+    flow is constant, so ``dp/dt = gamma R T_s mdot / V`` (p rises linearly), and the
+    energy balance ``d(m c_v T) = c_p T_s dm`` gives
+    ``T = (m0 T_s + gamma T_s (m - m0)) / m``, which tends to ``gamma T_s`` from vacuum.
+    A polytropic law at the chamber's own temperature rises 12-22 % too fast."""
+    V, ps, p0 = 5e-6, 5e5, 1e3
+    model = filling_system(V, ps, "adiabatic", p_start_gauge=p0 - P_AMB)
+    mdot = C * RHO0_ISO * ps  # choked, supply at the ISO reference temperature
+    rate = GAMMA * R_AIR * T_REF * mdot / V
+    t_end = (0.9 * B * ps - p0) / rate  # still choked
+    t = np.linspace(0, t_end, 50)
+    res = simulate(model, t_end, t_out=t, settings=SolverSettings(rtol=1e-11, atol=1e-16))
+    np.testing.assert_allclose(res["chamber.p"], p0 + rate * t, rtol=1e-7)
+    m0 = p0 * V / (R_AIR * T_REF)
+    m = res["chamber.m_air"]
+    np.testing.assert_allclose(m, m0 + mdot * t, rtol=1e-7)
+    exact_T = (m0 * T_REF + GAMMA * T_REF * (m - m0)) / m
+    np.testing.assert_allclose(res["chamber.T"], exact_T, rtol=1e-7)
+    assert res.final("chamber.T") == pytest.approx(GAMMA * T_REF, rel=0.01)  # from near vacuum
+
+
+def test_venting_flow_uses_the_upstream_chamber_temperature():
+    """Choked outflow from a cold chamber: ``q = C rho0 p sqrt(T0 / T_chamber)``."""
+    model = filling_system(5e-6, P_AMB, "adiabatic", p_start_gauge=5e5 - P_AMB)
+    x = model.x0()
+    x[model.state_names.index("chamber.theta")] *= 250.0 / T_REF  # T at x0 is T_REF
+    p_ch = x[model.state_names.index("chamber.m_air")] * R_AIR * 250.0 / 5e-6
+    y = np.array(model.function("y")(x=x, z=[], u=[], p=model.parameters())["y"]).ravel()
+    q = y[model.output_names.index("tube.m_flow")]
+    assert y[model.output_names.index("chamber.T")] == pytest.approx(250.0, rel=1e-12)
+    assert q == pytest.approx(-C * RHO0_ISO * p_ch * math.sqrt(T_REF / 250.0), rel=1e-12)
