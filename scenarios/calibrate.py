@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -47,13 +48,15 @@ def handler(args: argparse.Namespace) -> int:
     ``--out`` is checked before the fit starts; the folder is replaced only on success.
     """
     out = check_out_dir(args.out, "--out")
-    tic = time.perf_counter()
     with progress("calibrate", enabled=not args.verbose):
+        tic = time.perf_counter()
         res = calibrate(verbose=args.verbose)
-    wall = time.perf_counter() - tic
+        wall = time.perf_counter() - tic
+        members = family() if args.family else None
     record = {**res.to_dict(), "wall_time_s": wall}
     with staged(out) as tmp:
         (tmp / "calibration.json").write_text(json.dumps(record, indent=2) + "\n")
+        fits = _write_family(members, tmp) if members is not None else None
     path = out / "calibration.json"
     print(f"calibration: IPOPT {res.status}, {wall:.1f} s")
     for name, value in res.fitted.items():
@@ -69,14 +72,14 @@ def handler(args: argparse.Namespace) -> int:
     )
     print(f"  no influence on these targets: {', '.join(res.not_identifiable)}")
     print(f"wrote {path}")
-    if args.family:
-        _write_family(args.out)
+    if fits is not None:
+        _print_family(fits, out)
     return 0
 
 
-def _write_family(out: Path) -> None:
-    """Calibrate the L_r family; write its fits, its concentric strains and the band plot."""
-    members = family()
+def _write_family(members: list, out: Path) -> list[dict]:
+    """Write the L_r family's fits, its concentric strains and the band plot into ``out``;
+    return the fits."""
     default_L_r = APSParams.from_paper().L_r
     record = [
         {
@@ -101,6 +104,11 @@ def _write_family(out: Path) -> None:
             for j, pc in enumerate(CONCENTRIC_PRESSURES_PA):
                 rows.append(f"{m.L_r:g},{load:g},{pc:g},{m.concentric.strain[i, j]:.9g}")
     (out / "family.csv").write_text("\n".join(rows) + "\n")
+    _plot_family(members, default_L_r, out / "concentric-family.png")
+    return record
+
+
+def _print_family(record: list[dict], out: Path) -> None:
     print("calibration family (each meets the three targets):")
     for r in record:
         s = r["strain_0p1MPa"]
@@ -109,7 +117,6 @@ def _write_family(out: Path) -> None:
             f"{r['stretch_range'][1]:.2f}, strain at 0.1 MPa 50 g {100 * s['50 g']:+.2f} %, "
             f"100 g {100 * s['100 g']:+.2f} %"
         )
-    _plot_family(members, default_L_r, out / "concentric-family.png")
     print(f"wrote {out / 'family.json'}, family.csv, concentric-family.png")
 
 

@@ -129,3 +129,20 @@ def test_bench_checks_out_before_running(tmp_path, capsys):
     (tmp_path / "f").write_text("x")
     assert main(["bench", "stability", "--quick", "--out", str(tmp_path / "f" / "x")]) == 2
     assert "is a file" in capsys.readouterr().err
+
+
+def test_calibrate_family_failure_writes_nothing(tmp_path, capsys, monkeypatch):
+    from sarcomere.scenarios import calibrate as command
+
+    class Fit:
+        def to_dict(self) -> dict:
+            return {"fitted": {}}
+
+    def family_fails():
+        raise SolverError("family did not converge")
+
+    monkeypatch.setattr(command, "calibrate", lambda verbose=False: Fit())
+    monkeypatch.setattr(command, "family", family_fails)
+    assert main(["calibrate", "--family", "--out", str(tmp_path / "c")]) == 2
+    assert "family did not converge" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # no calibration.json without its family
