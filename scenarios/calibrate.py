@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -48,11 +49,13 @@ def handler(args: argparse.Namespace) -> int:
     out = check_out_dir(args.out, "--out")
     tic = time.perf_counter()
     res = calibrate(verbose=args.verbose)
+    members = family() if args.family else None
     wall = time.perf_counter() - tic
     record = {**res.to_dict(), "wall_time_s": wall}
-    with staged(out) as tmp:
+    with staged(out) as tmp:  # every file of this run, or none
         (tmp / "calibration.json").write_text(json.dumps(record, indent=2) + "\n")
-    path = out / "calibration.json"
+        if members is not None:
+            _write_family(members, tmp)
     print(f"calibration: IPOPT {res.status}, {wall:.1f} s")
     for name, value in res.fitted.items():
         print(f"  {name:<4} = {value:.6g} {record['fitted'][name]['unit']}")
@@ -66,15 +69,15 @@ def handler(args: argparse.Namespace) -> int:
         f"{', '.join(f'{s:.3g}' for s in res.singular_values)}"
     )
     print(f"  no influence on these targets: {', '.join(res.not_identifiable)}")
-    print(f"wrote {path}")
-    if args.family:
-        _write_family(args.out)
+    written = "calibration.json" + (
+        ", family.json, family.csv, concentric-family.png" if members else ""
+    )
+    print(f"wrote {out}/: {written}")
     return 0
 
 
-def _write_family(out: Path) -> None:
-    """Calibrate the L_r family; write its fits, its concentric strains and the band plot."""
-    members = family()
+def _write_family(members, out: Path) -> None:
+    """Write the L_r family's fits, its concentric strains and the band plot into ``out``."""
     default_L_r = APSParams.from_paper().L_r
     record = [
         {
@@ -108,7 +111,6 @@ def _write_family(out: Path) -> None:
             f"100 g {100 * s['100 g']:+.2f} %"
         )
     _plot_family(members, default_L_r, out / "concentric-family.png")
-    print(f"wrote {out / 'family.json'}, family.csv, concentric-family.png")
 
 
 def _plot_family(members, default_L_r: float, path: Path) -> None:
