@@ -18,12 +18,13 @@ import argparse
 import json
 import time
 from datetime import UTC, datetime
-from importlib import metadata
 from pathlib import Path
 
 from sarcomere.dynamics.studies import stability, workprecision
 
 from .outdir import check_out_dir, staged
+from .output import version
+from .progress import progress
 
 STUDIES = {
     "work-precision": (
@@ -49,7 +50,8 @@ def handler(args: argparse.Namespace) -> int:
     folder = check_out_dir(args.out, "--out")
     with staged(folder) as tmp:
         tic = time.perf_counter()
-        out = run(tmp, quick=args.quick)
+        with progress(f"bench {args.study}"):
+            out = run(tmp, quick=args.quick)
         wall = time.perf_counter() - tic
         _write_summary(args, solver, out, wall, tmp)
     for p in ["summary.json", *(p.name for p in out["files"])]:
@@ -67,16 +69,9 @@ def _write_summary(args: argparse.Namespace, solver: str, out: dict, wall: float
         "wall_time_s": wall,
         "metrics": out["metrics"],
         "provenance": {
-            "sarcomere_version": _version(),
+            "sarcomere_version": version(),
             "utc": datetime.now(UTC).isoformat(timespec="seconds"),
         },
         "files": [p.name for p in out["files"]],
     }
     (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
-
-
-def _version() -> str:
-    try:
-        return metadata.version("sarcomere")
-    except metadata.PackageNotFoundError:  # pragma: no cover - not installed
-        return "unknown"

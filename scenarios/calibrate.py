@@ -20,6 +20,7 @@ from sarcomere.dynamics.calibration import (
 from sarcomere.dynamics.components.aps import APSParams
 
 from .outdir import check_out_dir, staged
+from .progress import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,8 +49,9 @@ def handler(args: argparse.Namespace) -> int:
     """
     out = check_out_dir(args.out, "--out")
     tic = time.perf_counter()
-    res = calibrate(verbose=args.verbose)
-    members = family() if args.family else None
+    with progress("calibrate", enabled=not args.verbose):
+        res = calibrate(verbose=args.verbose)
+        members = family() if args.family else None
     wall = time.perf_counter() - tic
     record = {**res.to_dict(), "wall_time_s": wall}
     with staged(out) as tmp:  # every file of this run, or none

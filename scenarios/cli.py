@@ -16,6 +16,8 @@ from sarcomere.dynamics.errors import SarcomereError
 
 from . import bench, calibrate
 from .loader import load_scenario, packaged_scenarios
+from .outdir import check_out_dir
+from .output import version
 from .runner import run
 
 
@@ -62,7 +64,8 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    run(args.scenario, args.out, quiet=args.quiet)  # checks --out before computing
+    out = None if args.out is None else check_out_dir(args.out, "--out")  # before computing
+    run(args.scenario, out, quiet=args.quiet)
     return 0
 
 
@@ -87,6 +90,7 @@ def build_parser(commands: Sequence[Command] = COMMANDS) -> argparse.ArgumentPar
         prog="sarcomere",
         description="Lumped models of artificial pneumatic muscles: run scenarios.",
     )
+    parser.add_argument("--version", action="version", version=f"sarcomere {version()}")
     subs = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for cmd in commands:
         sub = subs.add_parser(cmd.name, help=cmd.help, description=cmd.help)

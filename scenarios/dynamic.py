@@ -6,8 +6,14 @@
 
 - ``setup``: ``"hanging"`` (a load hangs from the chain end, default) or ``"isometric"``
   (the chain end is held by a force sensor on a fixture);
-- ``load``: the hanging mass ("50 g"); ``regulator_tau``: the regulator lag ("50 ms");
-- ``fixture_stiffness`` ("2000 N/m", default rigid) and ``fixture_gap`` ("1 mm").
+- ``load``: the hanging mass ("50 g", hanging only); ``regulator_tau``: the regulator lag;
+- ``fixture_stiffness`` ("2000 N/m", default rigid) and ``fixture_gap`` ("1 mm"),
+  isometric only.
+
+Nothing is ignored: an option the set-up does not read, ``[model] geometry``, a section the
+kind does not use, ``n`` above the level's measured limit (:data:`N_LIMITS`), a pressure
+command outside the regulator's ``[0, p_max]`` and an output above ``[outputs]
+max_values`` are refused before anything is solved.
 
 ``[parameters]``: ``aps.<field>`` sets an :class:`~sarcomere.dynamics.components.aps.APSParams`
 field for every unit ("aps.k_s" = "400 N/m"); any other key is a model parameter path
@@ -46,6 +52,17 @@ OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
     "fixture_gap": ("m", 0.0, True),
 }
 INPUT_ALIASES = {"pressure": P_CMD}
+#: Largest n per level: each was measured to build, settle and simulate a 1 s step with
+#: 50 g in well under a minute; one level up (full 300, quasi_static 64, static_chain 30,
+#: symmetric 5000) the equilibrium or the flattening fails, or it takes minutes.
+N_LIMITS = {"full": 200, "quasi_static": 60, "static_chain": 20, "symmetric": 2000}
+_N_WHY = {
+    "full": "its start equilibrium fails at n = 300 and n = 200 takes about 30 s",
+    "quasi_static": "its massless elements form a loop of rates too large to solve past n = 60",
+    "static_chain": "its equilibrium does not converge past about n = 20",
+    "symmetric": "its start equilibrium fails at n = 5000",
+}
+
 #: Set-up -> options the other set-up reads and this one would ignore.
 SETUP_ONLY = {"hanging": ("fixture_stiffness", "fixture_gap"), "isometric": ("load",)}
 
@@ -215,6 +232,7 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=False)
+    check_n(sc, ("model", "n"), b.n, fid)
     if not sc.sweep or sc.sweep[0].name != "pressure":
         raise sc.error(("sweep",), "the first sweep axis must be 'pressure'")
     pressures = np.asarray(sc.sweep[0].values)
@@ -223,10 +241,19 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
         raise sc.error(("sweep",), "at most one more axis, 'n' or 'load'")
     axis = others[0] if others else None
     if axis is not None and axis.name == "n":
-        _check_n_values(sc, axis.values)
+        if ("model", "n") in sc.key_lines or sc.model.n != 1:
+            raise sc.error(("model", "n"), "[sweep.n] sets n; remove it")
+        for v in axis.values:
+            check_n(sc, ("sweep", "n", "values"), v, fid)
     if axis is not None and axis.name == "load" and b.setup == "isometric":
         raise sc.error(("sweep", "load"), "the isometric set-up holds no load; sweep 'n' instead")
+    if axis is not None and axis.name == "load" and "load" in sc.model.options:
+        raise sc.error(("model", "options", "load"), "[sweep.load] sets the load; remove it")
+    if axis is not None and axis.name == "load" and min(axis.values) < 0:
+        bad = min(axis.values)
+        raise sc.error(("sweep", "load", "values"), f"{bad * 1e3:g} g: a load is >= 0 kg")
     cases = axis.values if axis else (None,)
+    check_output_size(sc, len(pressures) * len(cases), 5, ("sweep", "pressure"))
     results, metrics = {}, {}
     for value in cases:
         n = round(value) if axis is not None and axis.name == "n" else b.n
@@ -245,11 +272,18 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     )
 
 
-def _check_n_values(sc: Scenario, values) -> None:
-    """Refuse a value of a ``[sweep.n]`` axis that is not a whole number of units >= 1."""
-    for v in values:
-        if v != round(v) or v < 1:
-            raise sc.error(("sweep", "n", "values"), f"{v:g} is not a whole number of units >= 1")
+def check_n(sc: Scenario, path: tuple, n: float, fidelity: str) -> None:
+    """Refuse an n that is not a whole number >= 1 or above the level's :data:`N_LIMITS`."""
+    if n != round(n) or n < 1:
+        raise sc.error(path, f"{n:g} is not a whole number of units >= 1")
+    level = "full" if fidelity == "auto" else fidelity  # auto runs full as its reference
+    if n > N_LIMITS[level]:
+        others = ", ".join(f"{k} {v}" for k, v in N_LIMITS.items())
+        raise sc.error(
+            path,
+            f"n = {n:g} is above {N_LIMITS[level]}, the longest chain the '{level}' level "
+            f"handles ({_N_WHY[level]}); limits: {others}",
+        )
 
 
 def _equilibrium_case(sc, b: Binding, fid, pressures, n, load, prefix=""):
@@ -392,13 +426,37 @@ def _default_signals(model: Model) -> list[str]:
     ]
 
 
+def _intervals(sim: SimulationSpec) -> tuple[float, int]:
+    """Output spacing, s (default 500 intervals), and whole intervals in the span."""
+    span = sim.stop_time - sim.start_time
+    dt = sim.output_interval or span / 500
+    return dt, math.floor(span / dt * (1 + 1e-12))
+
+
 def time_grid(sim: SimulationSpec) -> np.ndarray:
     """Output times from ``start_time`` to ``stop_time``, s: ``output_interval`` apart
     (default 500 intervals), both ends included."""
-    span = sim.stop_time - sim.start_time
-    dt = sim.output_interval or span / 500
-    count = math.floor(span / dt * (1 + 1e-12))
+    dt, count = _intervals(sim)
     return np.unique(np.append(sim.start_time + dt * np.arange(count + 1), sim.stop_time))
+
+
+#: Bytes per value of a CSV file (``repr`` of a float and a comma), for the estimate.
+CSV_BYTES_PER_VALUE = 21
+
+
+def check_output_size(sc: Scenario, points: int, columns: int, path: tuple) -> None:
+    """Refuse a result above ``[outputs] max_values`` before computing it, with numbers;
+    ``path`` names the key that sets the number of points."""
+    values = points * columns
+    limit = sc.outputs.max_values
+    if values > limit:
+        raise sc.error(
+            path,
+            f"the run would keep up to {points} points x {columns} signals = {values:.3g} values "
+            f"({values * 8 / 1e6:.0f} MB in memory, about "
+            f"{values * CSV_BYTES_PER_VALUE / 1e6:.0f} MB of CSV), above [outputs] max_values "
+            f"= {limit:.3g}; use fewer points or raise max_values",
+        )
 
 
 def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
@@ -407,6 +465,12 @@ def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
     sim = sc.simulation
     if sim is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
+    wanted = list(dict.fromkeys(_default_signals(model) + list(sc.outputs.signals)))
+    missing = [n for n in wanted if n not in model.signal_names]
+    if missing:
+        raise sc.error(("outputs", "signals"), f"unknown signals {missing}")
+    points = _intervals(sim)[1] + 2  # at most: the stop time may add one
+    check_output_size(sc, points, len(wanted) + 1, ("simulation", "output_interval"))
     grid = time_grid(sim)
     _check_commands(sc, model, b.overrides, inputs, grid)
     u0 = {k: float(sig(sim.start_time)) for k, sig in inputs.items()}
@@ -420,11 +484,9 @@ def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
         z0=start.z,
         settings=_settings(sc, model),
         t_out=grid,
+        signals=wanted,
+        max_values=sc.outputs.max_values,
     )
-    wanted = list(dict.fromkeys(_default_signals(model) + list(sc.outputs.signals)))
-    missing = [n for n in wanted if n not in res]
-    if missing:
-        raise sc.error(("outputs", "signals"), f"unknown signals {missing}")
     sel = res.select(wanted)
     sel.meta.update(res.meta)
     return model, sel
@@ -441,6 +503,7 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
         sc.refuse_unused("outputs.tolerance")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=True)
+    check_n(sc, ("model", "n"), b.n, fid)
     extra = {"aps_params": _aps_dict(b.aps), "setup": b.setup}
     metrics = {}
     if fid == "auto":

@@ -23,6 +23,7 @@ from .signals import SIGNAL_TYPES, signal_from_spec
 from .spec import (
     FIDELITIES,
     KNOWN_UNITS,
+    MAX_VALUES,
     SI_UNITS,
     KeyPath,
     MetricCheck,
@@ -417,7 +418,7 @@ def _solver(r: _Reader, value: object) -> SolverSpec:
 
 def _outputs(r: _Reader, value: object) -> OutputSpec:
     path = ("outputs",)
-    tbl = r.table(value, path, ("signals", "tolerance", "plots"))
+    tbl = r.table(value, path, ("signals", "tolerance", "plots", "max_values"))
     signals = r.strings(tbl.get("signals", []), (*path, "signals"))
     tolerance = r.opt_quantity(tbl, path, "tolerance", "1")
     if tolerance is not None and tolerance <= 0:
@@ -426,7 +427,8 @@ def _outputs(r: _Reader, value: object) -> OutputSpec:
         group: r.strings(names, (*path, "plots", group))
         for group, names in r.table(tbl.get("plots", {}), (*path, "plots")).items()
     }
-    return OutputSpec(signals, tolerance, plots)
+    max_values = r.number(tbl.get("max_values", MAX_VALUES), (*path, "max_values"), 1.0)
+    return OutputSpec(signals, tolerance, plots, max_values)
 
 
 def _metrics(r: _Reader, value: object) -> tuple[MetricCheck, ...]:

@@ -115,7 +115,8 @@ def _jsonable(obj: object) -> object:
     return str(obj)
 
 
-def _version() -> str:
+def version() -> str:
+    """The installed sarcomere version, or ``"unknown"``."""
     try:
         return metadata.version("sarcomere")
     except metadata.PackageNotFoundError:
@@ -198,7 +199,7 @@ def write_summary(
         "extra": output.extra,
         "files": sorted(p.name for p in files),
         "scenario_file": scenario.file,
-        "sarcomere_version": _version(),
+        "sarcomere_version": version(),
         "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     path = out_dir / "summary.json"

@@ -1,4 +1,4 @@
-"""PNG figures of run results: one figure per group of signals sharing a unit.
+"""PNG figures of run results: one figure per group of signals sharing a unit and magnitude.
 
 Files hold SI; figures show readable units (kPa, mm, deg, g). Figures are drawn on the
 Agg canvas directly, without pyplot, so no global matplotlib state is touched.
@@ -10,6 +10,8 @@ import math
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+
+import numpy as np
 
 from sarcomere.dynamics.results import Result
 
@@ -43,14 +45,53 @@ def display(unit: str) -> tuple[str, float]:
     return DISPLAY_UNITS.get(unit, (unit, 1.0))
 
 
+#: Most curves one figure draws; more are thinned to evenly spaced ones (first and last kept).
+MAX_CURVES = 8
+
+#: Signals of one unit share an axis only within this ratio of magnitudes.
+MAGNITUDE_RATIO = 20.0
+
+#: Line styles and markers cycled so identical curves stay visible on top of each other.
+STYLES = ("-", "--", ":", "-.")
+MARKERS = ("", "o", "s", "^", "v", "D", "x", "+")
+
+
 def groups_by_unit(result: Result, names: Sequence[str]) -> dict[str, tuple[str, ...]]:
-    """Group ``names`` of ``result`` by unit; a group is named after its quantity."""
-    groups: dict[str, list[str]] = {}
+    """Group ``names`` of ``result`` by unit and magnitude; a group is named after its
+    quantity (``length``), further groups of the same unit at a smaller magnitude get a
+    number (``length_2``): 110 mm and 1 mm signals do not share an axis."""
+    by_unit: dict[str, list[str]] = {}
     for name in names:
-        unit = result.units[name]
-        group = QUANTITIES.get(unit, re.sub(r"[^A-Za-z0-9]+", "_", unit))
-        groups.setdefault(group, []).append(name)
-    return {g: tuple(n) for g, n in groups.items()}
+        by_unit.setdefault(result.units[name], []).append(name)
+    groups: dict[str, tuple[str, ...]] = {}
+    for unit, members in by_unit.items():
+        quantity = QUANTITIES.get(unit, re.sub(r"[^A-Za-z0-9]+", "_", unit))
+        size = {n: float(np.max(np.abs(result[n]), initial=0.0)) for n in members}
+        ordered = sorted(members, key=lambda n: -size[n])
+        bands: list[list[str]] = []
+        for name in ordered:
+            if bands and size[name] * MAGNITUDE_RATIO >= size[bands[-1][0]]:
+                bands[-1].append(name)
+            else:
+                bands.append([name])
+        for k, band in enumerate(bands):
+            keep = tuple(n for n in members if n in band)  # in the caller's order
+            groups[quantity if k == 0 else f"{quantity}_{k + 1}"] = keep
+    return groups
+
+
+def thin(items: Sequence, count: int) -> list:
+    """At most ``count`` of ``items``, evenly spaced, the first and the last kept.
+
+    Examples
+    --------
+    >>> thin(list(range(10)), 3)
+    [0, 4, 9]
+    """
+    if len(items) <= count:
+        return list(items)
+    picks = np.unique(np.round(np.linspace(0, len(items) - 1, count)).astype(int))
+    return [items[i] for i in picks]
 
 
 def plot_groups(
@@ -60,6 +101,9 @@ def plot_groups(
     title: str,
 ) -> list[Path]:
     """Draw one figure per group into ``out_dir/plot_<group>.png``.
+
+    A figure draws at most :data:`MAX_CURVES` curves: with more signals or results, evenly
+    spaced ones (first, middle, last, ...) and its title says how many of how many.
 
     Parameters
     ----------
@@ -86,16 +130,30 @@ def plot_groups(
         fig = Figure(figsize=(6.4, 4.4), layout="constrained")
         FigureCanvasAgg(fig)
         ax = fig.add_subplot()
-        for key, result in results.items():
-            for name in names:
-                label = name if len(results) == 1 else f"{key}: {name}" if len(names) > 1 else key
-                ax.plot(result.index * x_scale, result[name] * y_scale, label=label)
+        keys = thin(list(results), max(1, MAX_CURVES // len(names)))
+        shown = thin(list(names), max(1, MAX_CURVES // len(keys)))
+        total = len(results) * len(names)
+        for k, (key, name) in enumerate((key, name) for key in keys for name in shown):
+            result = results[key]
+            label = name if len(results) == 1 else f"{key}: {name}" if len(names) > 1 else key
+            ax.plot(
+                result.index * x_scale,
+                result[name] * y_scale,
+                label=label,
+                linestyle=STYLES[k % len(STYLES)],
+                marker=MARKERS[k % len(MARKERS)],
+                markevery=max(1, len(result.index) // 12),
+                markersize=4,
+            )
         ax.set_xlabel(f"{first.index_name} [{x_unit}]")
-        ax.set_ylabel(f"{group.replace('_', ' ')} [{y_unit}]")
-        ax.set_title(f"{title}: {group.replace('_', ' ')}")
+        quantity = re.sub(r"_\d+$", "", group).replace("_", " ")  # length_2 -> length
+        ax.set_ylabel(f"{quantity} [{y_unit}]")
+        count = len(keys) * len(shown)
+        note = f" ({count} of {total} curves)" if count < total else ""
+        ax.set_title(f"{title}: {group.replace('_', ' ')}{note}")
         ax.grid(True, alpha=0.3)
-        if len(results) * len(names) > 1:
-            ax.legend()
+        if count > 1:
+            ax.legend(fontsize="small")
         path = out_dir / f"plot_{group}.png"
         fig.savefig(path, dpi=120)
         paths.append(path)

@@ -18,6 +18,7 @@ from .loader import load_scenario
 from .outdir import check_out_dir, staged
 from .output import RunOutput, check_finite, write_summary, write_timeseries
 from .plots import groups_by_unit, plot_groups
+from .progress import progress
 from .spec import Scenario
 
 Runner = Callable[[Scenario, Path], RunOutput]
@@ -146,7 +147,8 @@ def run(
         computed (see :func:`~sarcomere.scenarios.outdir.check_out_dir`), and replaced
         whole only when the run succeeds: it holds all of one run or is left untouched.
     quiet : bool
-        Do not print the summary.
+        Do not print the summary, nor the progress line a run longer than 2 s shows on a
+        terminal's stderr.
 
     Returns
     -------
@@ -175,7 +177,8 @@ def run(
     out = check_out_dir(Path("out") / sc.name if out_dir is None else out_dir)
     with staged(out) as tmp:
         start = time.perf_counter()
-        output = _RUNNERS[sc.kind](sc, tmp)
+        with progress(f"running {sc.name}", enabled=not quiet):
+            output = _RUNNERS[sc.kind](sc, tmp)
         output.wall_time_s = time.perf_counter() - start
         check_finite(output)
         checks = evaluate_checks(sc, output.metrics)

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 from sarcomere.dynamics.assemblies import FIDELITIES as MODEL_LEVELS
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
+from sarcomere.dynamics.simulation.simulate import MAX_VALUES
 
 if TYPE_CHECKING:
     from .signals import Signal
@@ -181,11 +182,15 @@ class OutputSpec:
         Relative accuracy needed (``"1 %"`` -> 0.01); guides ``fidelity = "auto"``.
     plots : mapping of str to tuple of str
         Figure name -> signals drawn together (same unit); empty groups signals by unit.
+    max_values : float
+        Largest result a run may keep (points x signals, 8 bytes each in memory); a run
+        estimated above it is refused before computing.
     """
 
     signals: tuple[str, ...] = ()
     tolerance: float | None = None
     plots: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    max_values: float = MAX_VALUES
 
     def __post_init__(self) -> None:
         _freeze(self, "plots")

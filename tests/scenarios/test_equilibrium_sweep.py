@@ -37,3 +37,21 @@ def test_a_fractional_n_is_refused(tmp_path):
     sc = parse_scenario(HANGING_N.format(ns="[1, 2.5]"), "h.toml")
     with pytest.raises(ScenarioError, match=r"sweep.n.values.*2.5 is not a whole number"):
         run(sc, tmp_path, quiet=True)
+
+
+def test_a_load_sweep_refuses_the_load_option_and_negative_loads(tmp_path):
+    sweep = '[sweep.load]\nunit = "kg"\nvalues = ["-5 g", "10 g"]\n'
+    text = HANGING_N.split("[sweep.n]")[0] + sweep
+    with pytest.raises(ScenarioError, match=r"options.load.*\[sweep.load\] sets the load"):
+        run(parse_scenario(text, "h.toml"), tmp_path, quiet=True)
+    text = text.replace('load = "50 g"\n', "")
+    with pytest.raises(ScenarioError, match=r"sweep.load.values.*-5 g: a load is >= 0 kg"):
+        run(parse_scenario(text, "h.toml"), tmp_path, quiet=True)
+
+
+def test_a_sweep_over_n_refuses_model_n(tmp_path):
+    text = HANGING_N.format(ns="[1, 2]").replace(
+        'fidelity = "symmetric"', 'fidelity = "symmetric"\nn = 3'
+    )
+    with pytest.raises(ScenarioError, match=r"key 'model.n': \[sweep.n\] sets n"):
+        run(parse_scenario(text, "h.toml"), tmp_path, quiet=True)

@@ -72,7 +72,7 @@ def _refused(tmp_path, capsys, out: str, why: str) -> None:
     path.write_text(STATIC.format(name="s"))
     assert main(["run", str(path), "--out", out]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and why in err, err
+    assert err.count("\n") == 1 and why in err and "'--out'" in err, err
 
 
 def test_out_empty_is_refused(tmp_path, capsys, monkeypatch):

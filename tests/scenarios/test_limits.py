@@ -1,0 +1,96 @@
+"""Limits are checked at once, with the numbers; long runs show progress on a terminal."""
+
+import io
+import time
+
+import pytest
+
+from sarcomere.dynamics.errors import ScenarioError
+from sarcomere.scenarios import parse_scenario, run
+from sarcomere.scenarios.progress import progress
+
+SCENE = """
+[scenario]
+kind = "transient"
+[model]
+fidelity = "{fid}"
+n = {n}
+[inputs.pressure]
+type = "step"
+final = "0.1 MPa"
+[simulation]
+stop_time = "{stop}"
+output_interval = "{dt}"
+{extra}
+"""
+
+
+def _scene(fid="symmetric", n=1, stop="1000 s", dt="0.1 ms", extra=""):
+    return parse_scenario(SCENE.format(fid=fid, n=n, stop=stop, dt=dt, extra=extra), "l.toml")
+
+
+def test_an_oversized_output_is_refused_before_running(tmp_path):
+    tic = time.perf_counter()
+    with pytest.raises(ScenarioError) as info:
+        run(_scene(), tmp_path, quiet=True)
+    assert time.perf_counter() - tic < 5
+    msg = str(info.value)
+    assert "simulation.output_interval" in msg and "up to 10000002 points x" in msg
+    assert "MB of CSV" in msg and "max_values = 2e+07" in msg
+
+
+def test_max_values_is_configurable(tmp_path):
+    with pytest.raises(ScenarioError, match=r"max_values = 100"):
+        run(_scene(stop="1 s", dt="1 ms", extra="[outputs]\nmax_values = 100"), tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("fid", "n", "limit"),
+    [("full", 201, 200), ("auto", 1000, 200), ("symmetric", 10000, 2000)],
+)
+def test_n_above_the_measured_limit_is_refused_at_once(tmp_path, fid, n, limit):
+    extra = '[outputs]\ntolerance = "1 %"' if fid == "auto" else ""
+    tic = time.perf_counter()
+    with pytest.raises(ScenarioError, match=rf"model.n.*n = {n} is above {limit}"):
+        run(_scene(fid, n, "1 s", "10 ms", extra), tmp_path, quiet=True)
+    assert time.perf_counter() - tic < 2
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_shows_on_a_terminal_after_the_delay():
+    out = _Terminal()
+    with progress("running x", stream=out, delay=0.05, every=0.05):
+        time.sleep(0.3)
+    text = out.getvalue()
+    assert "\rrunning x: 0 s" in text and text.endswith("s\n") and "done in" in text
+
+
+def test_progress_is_silent_when_quick_quiet_or_not_a_terminal():
+    for stream, enabled, nap in ((_Terminal(), True, 0.0), (_Terminal(), False, 0.2)):
+        with progress("x", stream=stream, enabled=enabled, delay=0.05, every=0.05):
+            time.sleep(nap)
+        assert stream.getvalue() == ""
+    pipe = io.StringIO()
+    with progress("x", stream=pipe, delay=0.0, every=0.05):
+        time.sleep(0.1)
+    assert pipe.getvalue() == ""
+
+
+def test_bench_shows_progress_on_a_terminal(tmp_path, monkeypatch, capsys):
+    from sarcomere.scenarios import bench
+    from sarcomere.scenarios.cli import main
+
+    def study(out_dir, quick=False):
+        time.sleep(0.3)
+        return {"metrics": {}, "files": []}
+
+    monkeypatch.setitem(bench.STUDIES, "stability", (study, "test"))
+    monkeypatch.setattr("sarcomere.scenarios.progress.DELAY_S", 0.05)
+    terminal = _Terminal()
+    monkeypatch.setattr("sys.stderr", terminal)
+    assert main(["bench", "stability", "--out", str(tmp_path / "b")]) == 0
+    assert "bench stability: 0 s" in terminal.getvalue()
