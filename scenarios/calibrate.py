@@ -48,16 +48,16 @@ def handler(args: argparse.Namespace) -> int:
     ``--out`` is checked before the fit starts; the folder is replaced only on success.
     """
     out = check_out_dir(args.out, "--out")
+    tic = time.perf_counter()
     with progress("calibrate", enabled=not args.verbose):
-        tic = time.perf_counter()
         res = calibrate(verbose=args.verbose)
-        wall = time.perf_counter() - tic
         members = family() if args.family else None
+    wall = time.perf_counter() - tic
     record = {**res.to_dict(), "wall_time_s": wall}
-    with staged(out) as tmp:
+    with staged(out) as tmp:  # every file of this run, or none
         (tmp / "calibration.json").write_text(json.dumps(record, indent=2) + "\n")
-        fits = _write_family(members, tmp) if members is not None else None
-    path = out / "calibration.json"
+        if members is not None:
+            _write_family(members, tmp)
     print(f"calibration: IPOPT {res.status}, {wall:.1f} s")
     for name, value in res.fitted.items():
         print(f"  {name:<4} = {value:.6g} {record['fitted'][name]['unit']}")
@@ -71,15 +71,15 @@ def handler(args: argparse.Namespace) -> int:
         f"{', '.join(f'{s:.3g}' for s in res.singular_values)}"
     )
     print(f"  no influence on these targets: {', '.join(res.not_identifiable)}")
-    print(f"wrote {path}")
-    if fits is not None:
-        _print_family(fits, out)
+    written = "calibration.json" + (
+        ", family.json, family.csv, concentric-family.png" if members else ""
+    )
+    print(f"wrote {out}/: {written}")
     return 0
 
 
-def _write_family(members: list, out: Path) -> list[dict]:
-    """Write the L_r family's fits, its concentric strains and the band plot into ``out``;
-    return the fits."""
+def _write_family(members, out: Path) -> None:
+    """Write the L_r family's fits, its concentric strains and the band plot into ``out``."""
     default_L_r = APSParams.from_paper().L_r
     record = [
         {
@@ -104,11 +104,6 @@ def _write_family(members: list, out: Path) -> list[dict]:
             for j, pc in enumerate(CONCENTRIC_PRESSURES_PA):
                 rows.append(f"{m.L_r:g},{load:g},{pc:g},{m.concentric.strain[i, j]:.9g}")
     (out / "family.csv").write_text("\n".join(rows) + "\n")
-    _plot_family(members, default_L_r, out / "concentric-family.png")
-    return record
-
-
-def _print_family(record: list[dict], out: Path) -> None:
     print("calibration family (each meets the three targets):")
     for r in record:
         s = r["strain_0p1MPa"]
@@ -117,7 +112,7 @@ def _print_family(record: list[dict], out: Path) -> None:
             f"{r['stretch_range'][1]:.2f}, strain at 0.1 MPa 50 g {100 * s['50 g']:+.2f} %, "
             f"100 g {100 * s['100 g']:+.2f} %"
         )
-    print(f"wrote {out / 'family.json'}, family.csv, concentric-family.png")
+    _plot_family(members, default_L_r, out / "concentric-family.png")
 
 
 def _plot_family(members, default_L_r: float, path: Path) -> None:

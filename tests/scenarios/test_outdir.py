@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 
@@ -146,3 +147,23 @@ def test_calibrate_family_failure_writes_nothing(tmp_path, capsys, monkeypatch):
     assert main(["calibrate", "--family", "--out", str(tmp_path / "c")]) == 2
     assert "family did not converge" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []  # no calibration.json without its family
+
+
+def test_calibrate_family_writes_every_file_of_one_run(tmp_path, monkeypatch):
+    """The CLI end to end on a two-member family (the full family takes a minute)."""
+    from sarcomere.dynamics import calibration
+
+    two = functools.partial(calibration.family, (8e-3, 20e-3))
+    monkeypatch.setattr("sarcomere.scenarios.calibrate.family", two)
+    out = tmp_path / "cal"
+    assert main(["calibrate", "--family", "--out", str(out)]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert names == {"calibration.json", "family.json", "family.csv", "concentric-family.png"}
+    record = json.loads((out / "family.json").read_text())
+    assert [r["L_r_m"] for r in record] == [8e-3, 20e-3]
+    for r in record:  # every member meets the isometric target, yet they differ under load
+        assert r["achieved"]["force_n1_0p1MPa_N"] == pytest.approx(0.315, rel=1e-6)
+    assert record[0]["strain_0p1MPa"]["50 g"] != pytest.approx(record[1]["strain_0p1MPa"]["50 g"])
+    rows = (out / "family.csv").read_text().splitlines()
+    assert rows[0] == "L_r_m,load_kg,pressure_Pa,strain" and len(rows) == 1 + 2 * 5 * 11
+    assert list(tmp_path.iterdir()) == [out]  # no staging folder left behind
