@@ -9,6 +9,9 @@ half decades, every point timed as the median of ``--repeats`` warm calls of
 
 Then the CVODES path is taken apart (cold call, integrator, output evaluation,
 restart) and a compiled right-hand side (CasADi ``jit`` with gcc -O2) is measured.
+Last, why BDF needs more steps than Radau (:func:`bdf_steps`): CVODES steps at error 1e-6
+per maximum BDF order, with the exact flow law and its C1 variant, and the angles of the
+model's oscillatory eigenvalues against the stability sectors of BDF of each order.
 
 Usage::
 
@@ -26,8 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from sarcomere.dynamics import hanging_load
+from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.simulation.common import HELD
-from sarcomere.dynamics.simulation.simulate import SolverSettings
+from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.sundials import integrator
 from sarcomere.dynamics.studies import workprecision as wp
 
@@ -194,12 +198,106 @@ def _direct_integrators(sc: wp.Scenario, model, rtol: float, extra: dict):
     return pre_run, post_run
 
 
+#: Stability sector A(alpha) of the BDF methods of order 1..5 [deg]: the method is stable
+#: for every h lambda with |arg(-lambda)| < alpha (Hairer & Wanner, Solving ODEs II, V.2).
+BDF_ALPHA_DEG = {1: 90.0, 2: 90.0, 3: 86.03, 4: 73.35, 5: 51.84}
+
+
+def bdf_steps(sc: wp.Scenario) -> dict:
+    """CVODES steps at error 1e-6 per maximum BDF order (``max_order``) and flow law
+    ("iso6358": linear laminar join with a 2x slope jump; "smooth": the C1 cubic join),
+    each against its own CVODES reference at rtol 1e-12; the l2/max difference between
+    the two laws' references (what the C1 join changes in the physics); and the
+    oscillatory eigenvalues at the start and end equilibria with their angle from the
+    negative real axis, against :data:`BDF_ALPHA_DEG`."""
+    out: dict = {"laws": {}}
+    refs = {}
+    for law in ("iso6358", "smooth"):
+        model = hanging_load(sc.n, load_kg=sc.load_kg, flow_law=law)
+        x0 = solve_equilibrium(model, {wp.P_CMD: sc.p_start}).x
+
+        def run(settings, model=model, x0=x0):
+            res = simulate(
+                model,
+                sc.t_final,
+                {wp.P_CMD: sc.command},
+                x0=x0,
+                settings=settings,
+                t_out=sc.t_out,
+                signals=model.state_names,
+            )
+            return wp.states(res, model), res.meta["n_steps"]
+
+        X_ref, _ = run(SolverSettings("cvodes", 1e-12, 1e-15))
+        refs[law] = X_ref
+        scale = np.where(np.abs(X_ref).max(axis=0) > 0, np.abs(X_ref).max(axis=0), 1.0)
+        per_order = {}
+        for order in (2, 3, 4, 5):
+            pts = []
+            for tol in TOLERANCES:
+                s = SolverSettings(
+                    "cvodes", tol, tol * wp.ATOL_PER_RTOL, options=(("max_order", order),)
+                )
+                X, steps = run(s)
+                err = float(np.sqrt(np.mean(((X - X_ref) / scale) ** 2)))
+                pts.append({"rtol": tol, "error_l2": err, "n_steps": steps})
+                if err < TARGET / 10:
+                    break
+            per_order[order] = {"steps_at_1em6": _steps_at(pts, TARGET), "points": pts}
+            print(f"{law:8s} max_order {order}: steps at 1e-6 {per_order[order]['steps_at_1em6']}")
+        out["laws"][law] = per_order
+    scale = np.where(
+        np.abs(refs["iso6358"]).max(axis=0) > 0, np.abs(refs["iso6358"]).max(axis=0), 1
+    )
+    E = (refs["smooth"] - refs["iso6358"]) / scale
+    out["smooth_vs_exact"] = {
+        "error_l2": float(np.sqrt(np.mean(E**2))),
+        "error_max": float(np.abs(E).max()),
+    }
+    model = hanging_load(sc.n, load_kg=sc.load_kg)
+    lin = model.linearization(["load.s"])
+    out["eigenvalues"] = {}
+    for p_cmd in (sc.p_start, float(sc.command(sc.t_final))):
+        eq = solve_equilibrium(model, {wp.P_CMD: p_cmd})
+        A = np.array(lin(eq.x, eq.z, eq.u, eq.p)[0])
+        ev = [complex(e) for e in np.linalg.eigvals(A) if e.imag > 0]
+        out["eigenvalues"][f"{p_cmd:g} Pa"] = [
+            {
+                "re": e.real,
+                "im": e.imag,
+                "angle_deg": float(np.degrees(np.arctan2(e.imag, -e.real))),
+            }
+            for e in sorted(ev, key=abs)
+        ]
+    out["bdf_alpha_deg"] = BDF_ALPHA_DEG
+    return out
+
+
+def _steps_at(points: list[dict], target: float) -> float | None:
+    """Steps at error ``target``, interpolated log-log between the bracketing points."""
+    for a, b in zip(points[:-1], points[1:], strict=False):
+        ea, eb = a["error_l2"], b["error_l2"]
+        if min(ea, eb) <= target <= max(ea, eb) and ea != eb:
+            w = (np.log(target) - np.log(ea)) / (np.log(eb) - np.log(ea))
+            return float(np.exp(np.log(a["n_steps"]) + w * np.log(b["n_steps"] / a["n_steps"])))
+    return None
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench/speed.json"))
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument(
+        "--bdf-only", action="store_true", help="only the BDF step study (10 s), no timings"
+    )
     args = parser.parse_args()
     sc = wp.scenarios(3)["step"]
+    if args.bdf_only:
+        bdf = bdf_steps(sc)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({"scenario": sc.description, "bdf_steps": bdf}, indent=1))
+        print(json.dumps({k: bdf[k] for k in ("smooth_vs_exact", "eigenvalues")}, indent=1))
+        return
     ref = wp.reference(sc, 1e-8)
     acc = equal_accuracy(sc, ref, args.repeats)
     cv = acc["cvodes"]["wall_at_1em6_s"]
@@ -208,12 +306,14 @@ def main() -> None:
         for k, v in acc.items()
     }
     dis = dissect_cvodes(sc, 1e-6, args.repeats)
+    bdf = bdf_steps(sc)
     result = {
         "scenario": sc.description,
         "target_error_l2": TARGET,
         "equal_accuracy": acc,
         "ratio_to_cvodes": ratios,
         "cvodes_dissection": dis,
+        "bdf_steps": bdf,
         "reference_crosscheck": ref.crosscheck,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
