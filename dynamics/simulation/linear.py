@@ -1,0 +1,137 @@
+"""The exact discrete LTI level: the model linearised at an operating point, simulated
+without an integrator.
+
+About an equilibrium ``(x_op, u_op)`` the model is ``dx' = A dx + B du``,
+``dy = C dx + D du`` (:meth:`~sarcomere.dynamics.modeling.model.Model.linearization`, exact
+CasADi Jacobians, ``z`` eliminated). Between two consecutive times ``a < b`` of the output
+grid joined with the inputs' breakpoints the input is taken linear from its value just
+after ``a`` to its value just before ``b`` (first-order hold), and the state is advanced
+exactly by one matrix exponential of the augmented system (Franklin, Powell & Workman,
+Digital Control of Dynamic Systems, 3rd ed., section 6.3.2)::
+
+    d/dt [dx; du; w] = [[A, B, 0], [0, 0, I], [0, 0, 0]] [dx; du; w],  w = (u_b- - u_a+)/h
+
+so piecewise-linear inputs whose breakpoints lie on that grid (steps, ramps, staircases,
+tables) are simulated exactly, and smooth inputs (sines, chirps) with the error of linear
+interpolation between the grid points. The start state is the linear model's own
+equilibrium at the first input value, ``dx0 = -A^-1 B du0``. What this level leaves out is
+everything nonlinear: it is valid only for small deviations from the operating point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from scipy.linalg import expm
+
+from ..errors import SarcomereError
+from ..modeling.model import Model
+from ..results import Result
+
+
+def foh_matrices(
+    A: np.ndarray, B: np.ndarray, h: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(Phi, G1, G2)`` with ``x(h) = Phi x(0) + G1 u(0) + G2 (u(h) - u(0))`` for
+    ``x' = A x + B u`` and ``u`` linear over ``[0, h]`` (exact)."""
+    n, m = B.shape
+    M = np.zeros((n + 2 * m, n + 2 * m))
+    M[:n, :n], M[:n, n : n + m] = A, B
+    M[n : n + m, n + m :] = np.eye(m) / h  # w is the slope times h: columns of G2 per du
+    E = expm(M * h)
+    return E[:n, :n], E[:n, n : n + m], E[:n, n + m :]
+
+
+def static_gain(model: Model, operating_point, signals: Sequence[str]) -> np.ndarray:
+    """The linearisation's steady-state gain ``K = D - C A^-1 B`` of ``signals`` per input
+    at ``operating_point``: ``dy = K du`` once the linear model has settled."""
+    op = operating_point
+    A, B, C, D = (np.array(v) for v in model.linearization(list(signals))(op.x, op.z, op.u, op.p))
+    return D - C @ np.linalg.solve(A, B)
+
+
+def simulate_linear(
+    model: Model,
+    operating_point,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals: Sequence[str],
+) -> Result:
+    """Simulate the linearisation of ``model`` at ``operating_point`` on ``t_out``.
+
+    Parameters
+    ----------
+    model : Model
+        The flattened model.
+    operating_point : Equilibrium
+        An equilibrium of ``model`` (``x``, ``z``, ``u``, ``p``): where it is linearised.
+    inputs : mapping
+        Input name to a signal (``__call__(t)``, optionally ``breakpoints(t0, tf)``); the
+        inputs not named are held at the operating point.
+    t_out : numpy.ndarray
+        Output times [s], increasing; the simulation starts at ``t_out[0]``.
+    signals : sequence of str
+        Signals to return (any :attr:`~Model.signal_names`), as ``y_op + C dx + D du``.
+
+    Returns
+    -------
+    Result
+        Time and the signals; ``meta`` holds ``method = "linear"`` and the eigenvalues'
+        slowest and fastest rates [1/s].
+    """
+    op = operating_point
+    lin = model.linearization(list(signals))
+    A, B, C, D = (np.array(v) for v in lin(op.x, op.z, op.u, op.p))
+    names = model.input_names
+    unknown = [k for k in inputs if k not in names]
+    if unknown:
+        raise SarcomereError(f"linear: {unknown} are not inputs of model '{model.name}'")
+    t_out = np.asarray(t_out, float)
+    t0, tf = float(t_out[0]), float(t_out[-1])
+    bps = [b for s in inputs.values() if hasattr(s, "breakpoints") for b in s.breakpoints(t0, tf)]
+    times = np.unique(np.concatenate([t_out, np.asarray(bps, float)]))
+
+    def u_at(t: np.ndarray) -> np.ndarray:
+        U = np.repeat(np.asarray(op.u, float)[None, :], len(t), axis=0)
+        for k, sig in inputs.items():
+            U[:, names.index(k)] = np.asarray(sig(t), float) * np.ones(len(t))
+        return U - np.asarray(op.u, float)
+
+    du_right = u_at(times)  # just after each time (signals are right-continuous)
+    du_left = u_at(np.nextafter(times, -np.inf))  # just before
+    y_op = np.array(model.signals_function(list(signals))(op.x, op.z, op.u, op.p)).ravel()
+    try:
+        dx = -np.linalg.solve(A, B @ du_right[0])
+    except np.linalg.LinAlgError:
+        raise SarcomereError("linear: A is singular at the operating point") from None
+    h = np.diff(times)
+    keys = np.round(h, 15)
+    F = np.empty((len(h), A.shape[0]))  # the input's part of each step, all steps at once
+    Phis = {}
+    for key in np.unique(keys):
+        Phi, G1, G2 = foh_matrices(A, B, float(key))
+        Phis[key] = Phi
+        sel = keys == key
+        ua, ub = du_right[:-1][sel], du_left[1:][sel]
+        F[sel] = ua @ G1.T + (ub - ua) @ G2.T
+    X = np.empty((len(times), A.shape[0]))
+    X[0] = dx
+    for i in range(len(h)):
+        X[i + 1] = Phis[keys[i]] @ X[i] + F[i]
+    keep = np.searchsorted(times, t_out)
+    Y = y_op[None, :] + X[keep] @ C.T + du_right[keep] @ D.T
+    rates = np.abs(np.linalg.eigvals(A).real)
+    return Result(
+        "time",
+        "s",
+        t_out,
+        {n: Y[:, j] for j, n in enumerate(signals)},
+        {n: model.unit(n) for n in signals},
+        meta={
+            "method": "linear (exact FOH matrix exponential)",
+            "n_steps": len(times) - 1,
+            "slowest_rate_per_s": float(rates.min()),
+            "fastest_rate_per_s": float(rates.max()),
+        },
+    )
