@@ -49,9 +49,25 @@ def _si(value, unit: str, name: str, low: float, closed: bool = True) -> float:
     return v
 
 
+N_LIMITS = {"full": 200, "quasi_static": 60, "static_chain": 20, "symmetric": 2000}
+"""Longest chain each level handles, measured on a 50 g step (each well under a minute;
+see ``N_WHY`` for what fails one step up). Set-ups refuse a longer chain at once."""
+
+N_WHY = {
+    "full": "its start equilibrium fails at n = 300 and n = 200 takes about 30 s",
+    "quasi_static": "its massless elements form a loop of rates too large to solve past n = 60",
+    "static_chain": "its equilibrium does not converge past about n = 20",
+    "symmetric": "its start equilibrium fails at n = 5000",
+}
+
+
 def _chain(n, p: APSParams, fidelity: str, flow_law: str) -> Myofibril | SymmetricMyofibril:
     if fidelity not in FIDELITIES:
         raise ParameterError("fidelity", fidelity, f"one of {FIDELITIES}")
+    if isinstance(n, int) and n > N_LIMITS[fidelity]:
+        raise ParameterError(
+            "n", n, f"[1, {N_LIMITS[fidelity]}] for the '{fidelity}' level", N_WHY[fidelity]
+        )
     if flow_law not in FLOW_LAWS:
         raise ParameterError("flow_law", flow_law, f"one of {tuple(FLOW_LAWS)}")
     if fidelity == "symmetric":

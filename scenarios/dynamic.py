@@ -30,7 +30,7 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 
-from sarcomere.dynamics.assemblies import FIDELITIES, hanging_load, isometric
+from sarcomere.dynamics.assemblies import FIDELITIES, N_LIMITS, N_WHY, hanging_load, isometric
 from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SarcomereError
@@ -55,14 +55,6 @@ INPUT_ALIASES = {"pressure": P_CMD}
 #: Largest n per level: each was measured to build, settle and simulate a 1 s step with
 #: 50 g in well under a minute; one level up (full 300, quasi_static 64, static_chain 30,
 #: symmetric 5000) the equilibrium or the flattening fails, or it takes minutes.
-N_LIMITS = {"full": 200, "quasi_static": 60, "static_chain": 20, "symmetric": 2000}
-_N_WHY = {
-    "full": "its start equilibrium fails at n = 300 and n = 200 takes about 30 s",
-    "quasi_static": "its massless elements form a loop of rates too large to solve past n = 60",
-    "static_chain": "its equilibrium does not converge past about n = 20",
-    "symmetric": "its start equilibrium fails at n = 5000",
-}
-
 #: Set-up -> options the other set-up reads and this one would ignore.
 SETUP_ONLY = {"hanging": ("fixture_stiffness", "fixture_gap"), "isometric": ("load",)}
 
@@ -125,14 +117,14 @@ def bind(sc: Scenario) -> Binding:
             raise sc.error(
                 ("model", "options", key), f"set-up '{setup}' does not use '{key}'; remove it"
             )
-    aps_fields = {f.name for f in dataclasses.fields(APSParams)} - {"material"}  # [model]
+    aps_fields = set(APSParams.numeric_fields())  # material and options: [model]
     aps_over, model_over = {}, {}
     for key, raw in sc.parameters.items():
         group, _, name = key.partition(".")
         if group == "aps":
             if name not in aps_fields:
                 raise sc.parameter_error(key, unknown_key(name, sorted(aps_fields)))
-            unit = _APS_UNITS.get(name, "1")
+            unit = APSParams.unit(name)
             try:
                 aps_over[name] = to_si(raw, unit, key)
             except ParameterError as exc:
@@ -153,20 +145,6 @@ def bind(sc: Scenario) -> Binding:
         opts.get("fixture_gap", 0.0),
         model_over,
     )
-
-
-_APS_UNITS = {
-    **dict.fromkeys(("l", "w0", "A_band", "h_jz", "L_r", "eps_slack"), "m"),
-    **dict.fromkeys(("A_r", "A_p"), "m^2"),
-    **dict.fromkeys(("C1", "C2", "C3"), "Pa"),
-    "k_s": "N/m",
-    "c_s": "N*s/m",
-    "c_e": "N*s/m",
-    "m_e": "kg",
-    "m_body": "kg",
-    "V0": "m^3",
-    "C_tube": "m^3/(s*Pa)",
-}
 
 
 def _fidelity(sc: Scenario, allow_auto: bool) -> str:
@@ -282,7 +260,7 @@ def check_n(sc: Scenario, path: tuple, n: float, fidelity: str) -> None:
         raise sc.error(
             path,
             f"n = {n:g} is above {N_LIMITS[level]}, the longest chain the '{level}' level "
-            f"handles ({_N_WHY[level]}); limits: {others}",
+            f"handles ({N_WHY[level]}); limits: {others}",
         )
 
 

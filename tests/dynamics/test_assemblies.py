@@ -166,3 +166,16 @@ def test_set_up_arguments_take_quantities_or_name_the_bad_one():
     assert isometric(1, fixture_stiffness="2 kN/m").variables["fixture_spring.c"].value == 2e3
     with pytest.raises(ParameterError, match=r"fixture_gap.*rigid"):
         isometric(1, fixture_gap="1 mm")
+
+
+def test_chain_longer_than_the_level_handles_is_refused_at_once():
+    """The measured per-level limits (assemblies.N_LIMITS) hold at the API, before building."""
+    import time
+
+    from sarcomere.dynamics.assemblies import N_LIMITS
+
+    tic = time.perf_counter()
+    for level, limit in N_LIMITS.items():
+        with pytest.raises(ParameterError, match=rf"'n' = {limit + 1} .*\[1, {limit}\]"):
+            hanging_load(limit + 1, fidelity=level)
+    assert time.perf_counter() - tic < 5.0  # refused, not built (a 200-unit build takes longer)

@@ -1,11 +1,12 @@
-"""Scenario tests write only under tmp_path: the checkout is left as it was found."""
+"""Tests write only under tmp_path: the checkout is left as it was found (checked for the
+whole session)."""
 
 import subprocess
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _status() -> str:
