@@ -17,7 +17,14 @@ from __future__ import annotations
 
 import math
 
-from .components.aps import CHAIN_LEVELS, FLOW_LAWS, APSParams, Myofibril, SymmetricMyofibril
+from .components.aps import (
+    CHAIN_LEVELS,
+    FLOW_LAWS,
+    APSParams,
+    GroupedMyofibril,
+    Myofibril,
+    SymmetricMyofibril,
+)
 from .components.environment import Environment
 from .components.mechanical import Fixed, ForceSensor, Mass, Node, Spring
 from .components.pneumatic import Regulator
@@ -32,9 +39,14 @@ HOOK_MASS_KG = 1.0e-3
 """Mass of the load hook and clip [kg] (estimate); the load mass adds to it, so the
 "0 g" experiment still has a defined bottom end."""
 
-FIDELITIES = (*CHAIN_LEVELS, "symmetric")
-"""Dynamic fidelity levels (see :data:`CHAIN_LEVELS` and docs/model.md); "symmetric" is
+FIDELITIES = (*CHAIN_LEVELS, "grouped", "symmetric")
+"""Dynamic fidelity levels (see :data:`CHAIN_LEVELS` and docs/model.md); "grouped" is
+:data:`GROUPS` representative units in series with the bodies' inertia
+(:class:`~.components.aps.GroupedMyofibril`, all n units when n <= GROUPS), "symmetric"
 one representative unit for n identical units."""
+
+GROUPS = 3
+"""Groups of the "grouped" level: its cost is that of a chain of 3 whatever n."""
 
 G_DEFAULT = Ambient().g
 """Default gravity of the set-ups [m/s^2] (the environment's default)."""
@@ -49,7 +61,13 @@ def _si(value, unit: str, name: str, low: float, closed: bool = True) -> float:
     return v
 
 
-N_LIMITS = {"full": 200, "quasi_static": 60, "static_chain": 20, "symmetric": 2000}
+N_LIMITS = {
+    "full": 200,
+    "quasi_static": 60,
+    "static_chain": 20,
+    "grouped": 2000,
+    "symmetric": 2000,
+}
 """Longest chain each level handles, measured on a 50 g step (each well under a minute;
 see ``N_WHY`` for what fails one step up). Set-ups refuse a longer chain at once."""
 
@@ -57,11 +75,12 @@ N_WHY = {
     "full": "its start equilibrium fails at n = 300 and n = 200 takes about 30 s",
     "quasi_static": "its massless elements form a loop of rates too large to solve past n = 60",
     "static_chain": "its equilibrium does not converge past about n = 20",
+    "grouped": "its groups are symmetric chains; n = 2000 measured like 'symmetric'",
     "symmetric": "its start equilibrium fails at n = 5000",
 }
 
 
-def _chain(n, p: APSParams, fidelity: str, flow_law: str) -> Myofibril | SymmetricMyofibril:
+def _chain(n, p: APSParams, fidelity: str, flow_law: str):
     if fidelity not in FIDELITIES:
         raise ParameterError("fidelity", fidelity, f"one of {FIDELITIES}")
     if isinstance(n, int) and n > N_LIMITS[fidelity]:
@@ -70,9 +89,16 @@ def _chain(n, p: APSParams, fidelity: str, flow_law: str) -> Myofibril | Symmetr
         )
     if flow_law not in FLOW_LAWS:
         raise ParameterError("flow_law", flow_law, f"one of {tuple(FLOW_LAWS)}")
+    if fidelity == "grouped":
+        return GroupedMyofibril("myofibril", n, p, min(GROUPS, n), flow_law)
     if fidelity == "symmetric":
         return SymmetricMyofibril("myofibril", n, p, flow_law)
     return Myofibril("myofibril", n, p, level=fidelity, flow_law=flow_law)
+
+
+def _end_mass(myo) -> float:
+    """Chain body mass [kg] that rides on the mass at the chain end ("grouped" level)."""
+    return myo.end_mass if isinstance(myo, GroupedMyofibril) else 0.0
 
 
 def _frame_regulator_chain(setup, n, params, fidelity, regulator_tau, g, saturate, flow_law):
@@ -113,7 +139,9 @@ def hanging_load(
     sys, myo, mf = _frame_regulator_chain(
         "hanging", n, params, fidelity, regulator_tau, g, saturate, flow_law
     )
-    end = sys.add(Mass("load", m=HOOK_MASS_KG + load, s_start=myo.rest_length_expr))
+    end = sys.add(
+        Mass("load", m=HOOK_MASS_KG + load + _end_mass(myo), s_start=myo.rest_length_expr)
+    )
     sys.connect(mf.flange_b, end.flange_a)
     return sys.flatten()
 
@@ -166,7 +194,7 @@ def isometric(
     sensor = sys.add(ForceSensor("sensor"))
     fix = sys.add(Fixed("fixture", s0=L))
     if fixture_stiffness is None:
-        hook = sys.add(Node("hook", m=HOOK_MASS_KG, s_start=L))
+        hook = sys.add(Node("hook", m=HOOK_MASS_KG + _end_mass(myo), s_start=L))
         sys.connect(mf.flange_b, hook.flange_a)
         sys.connect(mf.flange_b, sensor.flange_a)
         sys.connect(sensor.flange_b, fix.flange)
@@ -175,7 +203,7 @@ def isometric(
         # a tension spring from the hook (above) down to the fixture at L: it engages once
         # the chain has lifted the hook by more than the gap
         spring = sys.add(Spring("fixture_spring", c=k, gap=gap, one_sided=True))
-        hook = sys.add(Mass("hook", m=HOOK_MASS_KG, s_start=L))
+        hook = sys.add(Mass("hook", m=HOOK_MASS_KG + _end_mass(myo), s_start=L))
         sys.connect(mf.flange_b, hook.flange_a)
         sys.connect(hook.flange_b, sensor.flange_a)
         sys.connect(sensor.flange_b, spring.flange_a)

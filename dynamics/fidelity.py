@@ -160,3 +160,35 @@ def predict(
     }
     e_path = np.where(d <= QUASI_STATIC_FRACTION, d * spread["lag"], d * spread["gain"])
     return {"linear": float(e_lin.max()), "equilibrium_path": float(e_path.max())}
+
+
+def predict_reduced(
+    reduced: Model,
+    full: Model,
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals: Sequence[str],
+    params: Mapping[str, object] | None = None,
+) -> float:
+    """Predicted error of a reduced chain level (``symmetric``, ``grouped``) against
+    ``full``: its static error on the full model's equilibrium path plus the difference
+    of the two linearised dynamic parts (:func:`run_equilibrium_path`), both relative to
+    the span of the full model's static response; the nonlinear interplay of the two is
+    left out."""
+    name, sig = _single_input(inputs)
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    red = equilibrium_path(reduced, name, u, params, nodes=len(path.nodes))
+    y_full = path.static(signals, u)
+    span = np.maximum(np.ptp(y_full, axis=0), 1e-300)
+    e_static = np.max(np.abs(red.static(signals, u) - y_full), axis=0) / span
+
+    def dynamic(model: Model, p: Path) -> np.ndarray:
+        op, i = p.operating_point, model.input_names.index(name)
+        K = static_gain(model, op, signals)[:, i]
+        lin = simulate_linear(model, op, inputs, t_out, signals)
+        y_op = np.array([op[n] for n in signals])
+        return np.column_stack([lin[n] for n in signals]) - (y_op + np.outer(u - op.u[i], K))
+
+    e_dyn = np.max(np.abs(dynamic(reduced, red) - dynamic(full, path)), axis=0) / span
+    return float(np.max(e_static + e_dyn))

@@ -25,15 +25,17 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import time
 from pathlib import Path
 
 import casadi as cs
 import numpy as np
 
+from sarcomere.dynamics import fidelity as ladder
 from sarcomere.dynamics.assemblies import FIDELITIES, N_LIMITS, N_WHY, hanging_load, isometric
 from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.equilibrium import solve_equilibrium
-from sarcomere.dynamics.errors import ParameterError, SarcomereError
+from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
@@ -437,8 +439,8 @@ def check_output_size(sc: Scenario, points: int, columns: int, path: tuple) -> N
         )
 
 
-def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
-    model = b.build(fid)
+def _prepare(sc: Scenario, b: Binding, model: Model) -> tuple[dict, list[str], np.ndarray]:
+    """The inputs, the signals to keep and the output grid of a transient, checked."""
     inputs = _inputs(sc, model)
     sim = sc.simulation
     if sim is None:
@@ -451,6 +453,13 @@ def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
     check_output_size(sc, points, len(wanted) + 1, ("simulation", "output_interval"))
     grid = time_grid(sim)
     _check_commands(sc, model, b.overrides, inputs, grid)
+    return inputs, wanted, grid
+
+
+def _simulate(sc: Scenario, b: Binding, fid: str, model: Model | None = None):
+    model = b.build(fid) if model is None else model
+    inputs, wanted, grid = _prepare(sc, b, model)
+    sim = sc.simulation
     u0 = {k: float(sig(sim.start_time)) for k, sig in inputs.items()}
     start = solve_equilibrium(model, u0, b.overrides)
     res = simulate(
@@ -473,8 +482,8 @@ def _simulate(sc: Scenario, b: Binding, fid: str) -> tuple[Model, Result]:
 def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     """Simulate from the equilibrium at the inputs' start values (see module docstring).
 
-    ``fidelity = "auto"``: every level runs and the smallest one within ``[outputs]
-    tolerance`` of "full" is used (see :func:`choose_fidelity`).
+    ``fidelity = "auto"``: the cheapest level predicted within ``[outputs] tolerance``
+    of "full" runs, and only that one (see :func:`choose_fidelity`).
     """
     sc.refuse_unused("sweep")
     if sc.model.fidelity != "auto":
@@ -486,8 +495,8 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     metrics = {}
     if fid == "auto":
         fid, res, report = choose_fidelity(sc, b)
-        extra["fidelity_levels"] = report
-        metrics["fidelity_error"] = report[fid]["error"]
+        extra["fidelity_auto"] = report
+        metrics["fidelity_predicted_error"] = report["predicted_error"][fid]
     else:
         _, res = _simulate(sc, b, fid)
     metrics.update(transient_metrics(res))
@@ -504,7 +513,8 @@ def transient_metrics(res: Result) -> dict[str, float]:
         m["length_initial_mm"] = float(L[0] * 1e3)
         m["length_final_mm"] = float(L[-1] * 1e3)
         m["rise_time_10_90_s"] = _rise_time(res.index, L)
-    m["pressure_final_kPa"] = res.final("myofibril.aps1.chamber.p_gauge") / 1e3
+    chamber = next(n for n in res.names if n.endswith(".chamber.p_gauge"))  # the top unit
+    m["pressure_final_kPa"] = res.final(chamber) / 1e3
     if "sensor.f" in res:
         m["force_final_N"] = res.final("sensor.f")
     stretches = [n for n in res.names if n.endswith(".e") and ".actin" in n]
@@ -524,42 +534,72 @@ def _rise_time(t: np.ndarray, y: np.ndarray) -> float:
     return float(t[i90] - t[i10])
 
 
+#: The levels "auto" considers, cheapest first (docs/numerics.md, scene x level table).
+AUTO_LADDER = ("linear", "equilibrium_path", "symmetric", "grouped", "full")
+
+
 def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
-    """Run every level, measure its error against "full" and pick the smallest level within
-    tolerance: fewest unknowns (states plus algebraic unknowns), ties to the level listed
-    first in :data:`~sarcomere.dynamics.assemblies.FIDELITIES`. The choice depends on the
-    scenario alone, never on timings. Error: max over the scenario's ``[outputs] signals``
-    (default ``myofibril.length``) of ``max |y - y_full| / (max y_full - min y_full)``."""
+    """Predict each level's error from the scene and run only the cheapest predicted
+    within ``[outputs] tolerance`` (default 1 %) of "full" (:data:`AUTO_LADDER`).
+
+    Error: max over the scenario's ``[outputs] signals`` (default ``myofibril.length``)
+    of ``max |y - y_full| / span(y_full)``. Predictions (:mod:`sarcomere.dynamics.fidelity`,
+    before any nonlinear simulation): from the full model's equilibria along the
+    command's range and its exact linearisation, ``linear`` by its static nonlinearity,
+    ``equilibrium_path`` by how the lag changes along the path, ``symmetric`` and
+    ``grouped`` by their static and linearised dynamic difference to ``full``. A scene
+    with more than one varying input, or a level without a signal the scene cares
+    about, is predicted invalid. The choice depends on the scene alone, never on timings.
+    """
+    tic = time.perf_counter()
     tol = sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01
     care = list(sc.outputs.signals) or ["myofibril.length"]
-    report, results = {}, {}
-    for fid in FIDELITIES:
-        try:
-            model, res = _simulate(sc, b, fid)
-        except SarcomereError as exc:  # a level that cannot run this scene is skipped
-            report[fid] = {"error": math.inf, "unknowns": math.inf, "failed": str(exc)}
+    named = {*care, *(n for names in sc.outputs.plots.values() for n in names)}
+    full = b.build("full")
+    inputs, wanted, grid = _prepare(sc, b, full)
+    predicted: dict[str, float] = {}
+    why: dict[str, str] = {}
+    path = None
+    if list(inputs) != [P_CMD]:
+        why["linear"] = why["equilibrium_path"] = "needs the pressure command as only input"
+    for level in AUTO_LADDER:  # cheapest first; stop at the first predicted within tol
+        if level == "full":
+            predicted[level] = 0.0
+        elif level in why:
             continue
-        results[fid] = res
-        report[fid] = {
-            "unknowns": model.nx + model.nz,
-            "states": model.nx,
-            "algebraic": model.nz,
-            "wall_time_s": res.meta["wall_time_s"],
-        }
-    if "full" not in results:
-        raise SarcomereError(f"fidelity auto: the full model failed: {report['full']}")
-    ref = results["full"]
-    for fid, res in results.items():
-        errs = []
-        for name in care:
-            if name not in res:
-                raise sc.error(("outputs", "signals"), f"'{name}' is not in level '{fid}'")
-            span = max(np.ptp(ref[name]), 1e-12 * max(np.max(np.abs(ref[name])), 1e-300))
-            errs.append(float(np.max(np.abs(res[name] - ref[name])) / span))
-        report[fid]["error"] = max(errs)
-    ok = [f for f in FIDELITIES if f in results and report[f]["error"] <= tol]
-    best = min(ok, key=lambda f: (report[f]["unknowns"], FIDELITIES.index(f)))
-    return best, results[best], report
+        elif level in ("linear", "equilibrium_path"):
+            if path is None:
+                u = inputs[P_CMD](grid)
+                path = ladder.equilibrium_path(full, P_CMD, u, b.overrides)
+                predicted.update(ladder.predict(full, path, inputs, grid, care))
+        elif path is None:
+            why[level] = "its prediction needs the pressure command as only input"
+        else:
+            model = b.build(level)
+            lacking = sorted(n for n in named if n not in model.signal_names)
+            if lacking:
+                why[level] = f"has no signal {lacking}"
+                continue
+            predicted[level] = ladder.predict_reduced(
+                model, full, path, inputs, grid, care, b.overrides
+            )
+        if predicted.get(level, math.inf) <= tol:
+            chosen = level
+            break
+    if chosen in ("linear", "equilibrium_path"):
+        run = ladder.run_linear if chosen == "linear" else ladder.run_equilibrium_path
+        res = run(full, path, inputs, grid, wanted)
+    else:
+        res = _simulate(sc, b, chosen, full if chosen == "full" else None)[1]
+    report = {
+        "chosen": chosen,
+        "tolerance": tol,
+        "signals": care,
+        "predicted_error": {f: predicted.get(f) for f in AUTO_LADDER},
+        "not_predicted": why,
+        "wall_time_s": time.perf_counter() - tic,
+    }
+    return chosen, res, report
 
 
 register_runner("equilibrium", run_equilibrium)

@@ -491,11 +491,12 @@ class Myofibril(Component):
 
 
 class SeriesCopies(Component):
-    """``ratio`` identical copies in series of what hangs on ``flange_a``.
+    """``ratio`` identical copies in series of what hangs between ``flange_ref`` and
+    ``flange_a``.
 
-    ``s_b = ratio s_a`` and ``f_a = -f_b``: every copy carries the same force and adds
-    its own stretch. Not passive on its own (the other copies do work); the energy
-    function of a model using it counts one copy.
+    ``s_b - s_ref = ratio (s_a - s_ref)``, ``f_a = -f_b`` and ``f_ref = 0``: every copy
+    carries the same force and adds its own stretch. Not passive on its own (the other
+    copies do work); the energy function of a model using it counts one copy.
     """
 
     def __init__(self, name: str, ratio: float) -> None:
@@ -505,8 +506,10 @@ class SeriesCopies(Component):
     def build(self, b: Builder) -> None:
         r = b.parameter("ratio", self.ratio, "1", "number of copies in series", low=1.0)
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
-        b.equation(fb.s, r * fa.s)
+        ref = b.port("flange_ref", FLANGE)
+        b.equation(fb.s, ref.s + r * (fa.s - ref.s))
         b.equation(fa.f, -fb.f)
+        b.equation(ref.f, 0.0)
 
 
 class SymmetricMyofibril(Component):
@@ -519,15 +522,28 @@ class SymmetricMyofibril(Component):
     ``n`` maps it to the chain end. The bodies are massless; their weight
     ``n m_body g / 2`` (the mean over the chain) acts at the chain end. Ports, the
     ``length`` output and ``flow_law`` as :class:`Myofibril`.
+
+    As a group of :class:`GroupedMyofibril`: ``s_top`` is the start position of
+    ``flange_a`` [m] (an expression), and ``end_mass`` [kg] replaces the end's weight by
+    a :class:`~.mechanical.Mass` (weight and inertia) of that many kg, or by nothing (0).
     """
 
-    def __init__(self, name: str, n: int, params: APSParams, flow_law: str = "iso6358") -> None:
+    def __init__(
+        self,
+        name: str,
+        n: int,
+        params: APSParams,
+        flow_law: str = "iso6358",
+        s_top: float | cs.SX = 0.0,
+        end_mass: float | None = None,
+    ) -> None:
         super().__init__(name)
         if not (isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 10_000):
             raise ParameterError("n", n, "an integer in [1, 10000]")
         if flow_law not in FLOW_LAWS:
             raise ParameterError("flow_law", flow_law, f"one of {tuple(FLOW_LAWS)}")
         self.n, self.p, self.flow_law = n, params, flow_law
+        self.s_top, self.end_mass = s_top, end_mass
 
     def build(self, b: Builder) -> None:
         n, p = self.n, self.p
@@ -550,15 +566,83 @@ class SymmetricMyofibril(Component):
         b.connect(band.flange_b, unit.body)
         b.connect(band.exp_a, unit.exp)
         b.connect(band.exp_b, unit.exp)
-        b.set_start(aps.position, band_c.rest_length)
+        b.set_start(aps.position, self.s_top + band_c.rest_length)
         lever = b.add(SeriesCopies("chain", ratio=float(n)))
         b.connect(band.flange_b, lever.flange_a)
-        end = b.add(Node("bodies", m=0.5 * n * p.m_body))
-        b.connect(lever.flange_b, end.flange_a)
+        b.connect(band.flange_a, lever.flange_ref)
+        self.rest_length_expr = n * band_c.rest_length
+        bottom = self.s_top + self.rest_length_expr
+        if self.end_mass is None:
+            end = b.add(Node("bodies", m=0.5 * n * p.m_body, s_start=bottom))
+            b.connect(lever.flange_b, end.flange_a)
+        elif self.end_mass > 0:
+            end = b.add(Mass("bodies", m=self.end_mass, s_start=bottom))
+            b.connect(lever.flange_b, end.flange_a)
         b.expose("flange_a", band.flange_a)
         b.expose("flange_b", lever.flange_b)
         b.output("length", lever.flange_b.s - band.flange_a.s, "m", "myofibril length")
-        self.rest_length_expr = n * band_c.rest_length
+
+    @property
+    def rest_length(self) -> float:
+        """Geometric rest length ``n (A + 2 r1')`` [m]."""
+        return self.n * self.p.unit_length_rest
+
+
+class GroupedMyofibril(Component):
+    """``n`` identical APS as ``groups`` representative units in series (the "grouped"
+    level): each group of ``n_g`` units is a :class:`SymmetricMyofibril` (one pressure,
+    expansion and tension per group), so the tension steps down the chain group by group
+    with the bodies' weight, and the bodies keep their inertia: half of each group's body
+    mass sits at each end of the group (lumped masses of a linear displacement profile),
+    as :class:`~.mechanical.Mass` at the joints between groups. The bottom half of the
+    last group, :attr:`end_mass` [kg], is left to the set-up: it rides on the mass that
+    hangs at the chain end (a second mass there would be rigidly joined to it). Every
+    group has its own tube from the manifold ``port``. Ports, the ``length`` output and
+    ``flow_law`` as :class:`Myofibril`; cost grows with ``groups``, not with ``n``.
+    """
+
+    def __init__(
+        self, name: str, n: int, params: APSParams, groups: int, flow_law: str = "iso6358"
+    ) -> None:
+        super().__init__(name)
+        if not (isinstance(groups, int) and 1 <= groups <= n):
+            raise ParameterError("groups", groups, f"an integer in [1, n = {n}]")
+        self.n, self.p, self.groups, self.flow_law = n, params, groups, flow_law
+
+    @property
+    def end_mass(self) -> float:
+        """Body mass [kg] the set-up must add to the mass at the chain end."""
+        return 0.5 * self.sizes[-1] * self.p.m_body
+
+    @property
+    def sizes(self) -> list[int]:
+        """Units per group, top first (as equal as possible, the larger groups on top)."""
+        q, r = divmod(self.n, self.groups)
+        return [q + 1] * r + [q] * (self.groups - r)
+
+    def build(self, b: Builder) -> None:
+        sizes, m_b = self.sizes, self.p.m_body
+        s_top: float | cs.SX = 0.0
+        prev = None
+        for g, n_g in enumerate(sizes):
+            last = g == len(sizes) - 1
+            end_mass = 0.0 if last else 0.5 * (n_g + sizes[g + 1]) * m_b
+            sub = SymmetricMyofibril(
+                f"group{g + 1}", n_g, self.p, self.flow_law, s_top=s_top, end_mass=end_mass
+            )
+            grp = b.add(sub)
+            if prev is None:
+                b.expose("port", grp.port)
+                b.expose("flange_a", grp.flange_a)
+                top = grp.flange_a
+            else:
+                b.connect(b.ports["port"], grp.port)
+                b.connect(prev.flange_b, grp.flange_a)
+            prev = grp
+            s_top = s_top + sub.rest_length_expr
+        b.expose("flange_b", prev.flange_b)
+        b.output("length", prev.flange_b.s - top.s, "m", "myofibril length")
+        self.rest_length_expr = s_top
 
     @property
     def rest_length(self) -> float:
@@ -567,6 +651,7 @@ class SymmetricMyofibril(Component):
 
 
 __all__ = [
+    "GroupedMyofibril",
     "APS",
     "APSParams",
     "Actin",

@@ -62,30 +62,6 @@ def test_venting_makes_threads_slack(tmp_path):
     assert out.metrics["pressure_final_kPa"] == pytest.approx(0.0, abs=0.1)
 
 
-def test_auto_fidelity_picks_the_smallest_level_within_tolerance(tmp_path):
-    out = run("step-50g-auto", tmp_path, quiet=True)
-    levels = out.extra["fidelity_levels"]
-    assert set(levels) == {"full", "quasi_static", "static_chain", "symmetric"}
-    # quasi_static is within 1 % of full; static_chain and symmetric are not (measured)
-    assert levels["quasi_static"]["error"] < 0.01 < levels["static_chain"]["error"]
-    assert out.fidelity == "quasi_static"
-    assert out.metrics["fidelity_error"] == levels["quasi_static"]["error"]
-
-
-def test_auto_fidelity_does_not_depend_on_timings(tmp_path, monkeypatch):
-    from sarcomere.scenarios import dynamic
-
-    def timed(model, *args, **kwargs):  # the full model looks fastest, the others slow
-        res = simulate(model, *args, **kwargs)
-        res.meta["wall_time_s"] = 1e-6 if model.nx == 18 else 10.0
-        return res
-
-    simulate = dynamic.simulate
-    monkeypatch.setattr(dynamic, "simulate", timed)
-    picks = {run("step-50g-auto", tmp_path / str(k), quiet=True).fidelity for k in range(2)}
-    assert picks == {"quasi_static"}
-
-
 def test_fidelity_defaults_to_full():
     text = '[scenario]\nkind = "transient"\n[simulation]\nstop_time = "1 s"\n'
     assert parse_scenario(text).model.fidelity == "full"

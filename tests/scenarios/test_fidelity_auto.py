@@ -1,0 +1,91 @@
+"""``fidelity = "auto"``: the cheapest level predicted within tolerance runs, alone; the
+choice is checked against the full model here, not in the run."""
+
+import numpy as np
+import pytest
+
+from sarcomere.scenarios import dynamic, parse_scenario, run
+
+SCENE = """
+[scenario]
+kind = "transient"
+[model]
+fidelity = "{fidelity}"
+n = 3
+[model.options]
+setup = "hanging"
+load = "50 g"
+[inputs.pressure]
+{command}
+[simulation]
+stop_time = "{stop}"
+output_interval = "5 ms"
+[outputs]
+signals = ["myofibril.length"]
+{tolerance}"""
+RAMP = 'type = "ramp"\nfinal = "0.1 MPa"\nduration = "2 s"\nstart = "0.1 s"'
+SMALL_CHIRP = (
+    'type = "chirp"\noffset = "0.05 MPa"\namplitude = "3 kPa"\nf0 = "0.5 Hz"\nf1 = "10 Hz"\n'
+    'duration = "4 s"'
+)
+STEP = 'type = "step"\nfinal = "0.1 MPa"\ntime = "0.1 s"'
+
+
+def _scene(fidelity: str, command: str, stop: str) -> str:
+    tolerance = 'tolerance = "1 %"\n' if fidelity == "auto" else ""
+    return SCENE.format(fidelity=fidelity, command=command, stop=stop, tolerance=tolerance)
+
+
+def _both(tmp_path, command, stop):
+    """(auto run, full run, measured error of the auto run's length against full)."""
+    out = {}
+    for fid in ("auto", "full"):
+        text = _scene(fid, command, stop)
+        out[fid] = run(parse_scenario(text, f"{fid}.toml"), tmp_path / fid, quiet=True)
+    a, f = (out[k].results["main"]["myofibril.length"] for k in ("auto", "full"))
+    return out["auto"], out["full"], float(np.max(np.abs(a - f)) / np.ptp(f))
+
+
+def test_slow_ramp_runs_the_equilibrium_path_alone_within_tolerance(tmp_path, monkeypatch):
+    calls = []
+    simulate = dynamic.simulate
+    monkeypatch.setattr(dynamic, "simulate", lambda *a, **k: calls.append(1) or simulate(*a, **k))
+    auto, _, error = _both(tmp_path, RAMP, "2.5 s")
+    assert auto.fidelity == "equilibrium_path"
+    assert len(calls) == 1  # the full run of _both only: auto integrated nothing
+    report = auto.extra["fidelity_auto"]
+    assert report["chosen"] == "equilibrium_path" and report["wall_time_s"] > 0
+    assert auto.metrics["fidelity_predicted_error"] == report["predicted_error"]["equilibrium_path"]
+    assert error < 0.01  # measured 0.31 %, predicted 0.43 %
+    assert report["predicted_error"]["linear"] > 0.05  # the ramp spans the nonlinear range
+
+
+def test_small_sweep_runs_the_linear_level_within_tolerance(tmp_path):
+    auto, _, error = _both(tmp_path, SMALL_CHIRP, "4 s")
+    assert auto.fidelity == "linear"
+    assert error < 0.01  # measured 0.59 %, predicted 0.53 %
+
+
+def test_step_runs_the_grouped_level_and_rules_out_the_others_by_prediction(tmp_path):
+    auto, _, error = _both(tmp_path, STEP, "2 s")
+    assert auto.fidelity == "grouped"  # predicted 0.48 %: the bodies keep their inertia
+    assert error < 0.01  # measured 0.40 %
+    pred = auto.extra["fidelity_auto"]["predicted_error"]
+    assert pred["linear"] > 0.05 and pred["equilibrium_path"] > 0.1 and pred["symmetric"] > 0.05
+
+
+def test_a_cared_signal_the_level_lacks_rules_it_out(tmp_path):
+    text = _scene("auto", STEP, "2 s").replace(
+        '["myofibril.length"]', '["myofibril.length", "myofibril.aps3.chamber.p_gauge"]'
+    )
+    out = run(parse_scenario(text, "t.toml"), tmp_path, quiet=True)
+    assert out.fidelity == "full"
+    why = out.extra["fidelity_auto"]["not_predicted"]
+    assert "aps3" in why["grouped"] and "aps3" in why["symmetric"]
+
+
+@pytest.mark.parametrize("level", ["grouped", "symmetric"])
+def test_reduced_levels_run_as_fixed_fidelity(tmp_path, level):
+    text = _scene(level, STEP, "0.5 s")
+    out = run(parse_scenario(text, "t.toml"), tmp_path, quiet=True)
+    assert out.metrics["pressure_final_kPa"] == pytest.approx(100.0, rel=0.02)
