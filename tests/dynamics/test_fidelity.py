@@ -70,7 +70,7 @@ def test_linear_level_valid_for_a_small_sweep_invalid_for_the_large_step(model):
     small, pred_small = _errors(model, "small chirp")
     step, pred_step = _errors(model, "step-50g")
     assert small["linear"] < 0.01  # measured 0.59 %
-    assert step["linear"] > 0.05  # measured 15 %: the static map is 10 % off a line
+    assert step["linear"] > 0.05  # measured 15 %: the static map is 9.5 % off a line
     # the prediction (static nonlinearity over the input's range) decides the same way
     assert pred_small["linear"] < 0.01 < pred_step["linear"]
     assert 0.5 < pred_small["linear"] / small["linear"] < 2
@@ -79,9 +79,19 @@ def test_linear_level_valid_for_a_small_sweep_invalid_for_the_large_step(model):
 def test_equilibrium_path_valid_for_the_slow_ramp_invalid_for_the_step(model):
     ramp, pred_ramp = _errors(model, "ramp-50g")
     step, pred_step = _errors(model, "step-50g")
-    assert ramp["equilibrium_path"] < 0.01  # measured 0.31 %
+    assert ramp["equilibrium_path"] < 0.001  # measured 0.094 %
     assert ramp["linear"] > 0.05  # the ramp crosses the whole nonlinear range
-    assert step["equilibrium_path"] > 0.1  # measured 36 %
+    assert step["equilibrium_path"] > 0.1  # measured 31 %: a step is not a slow scene
     assert pred_ramp["equilibrium_path"] < 0.01 < pred_step["equilibrium_path"]
-    # predicted from the spread of the lag time along the path: conservative, same order
-    assert 1 <= pred_ramp["equilibrium_path"] / ramp["equilibrium_path"] < 3
+    # conservative: 0.78 % predicted (node-spacing estimate plus e_lin d)
+    assert pred_ramp["equilibrium_path"] > ramp["equilibrium_path"]
+
+
+def test_equilibrium_path_follows_the_ringing_of_a_long_chain():
+    """n = 10, 50 g: the load mode rings at 2.9 Hz with damping ratio 0.06 after the
+    ramp's corners; the deviation scheduled on the path's nodes follows it (a single
+    linearisation at mid-range is 1 % off here)."""
+    model = hanging_load(10, load_kg=0.05)
+    measured, predicted = _errors(model, "ramp-50g")
+    assert measured["equilibrium_path"] < 0.002  # measured 0.063 %
+    assert measured["equilibrium_path"] < predicted["equilibrium_path"] < 0.01
