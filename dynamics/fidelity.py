@@ -155,11 +155,10 @@ def _path_response(
     cache: dict[tuple[int, float], tuple[np.ndarray, np.ndarray]] = {}
     for k in range(len(h)):
         key = (int(which[k]), round(float(h[k]), 15))
-        if key not in cache:
-            M = np.zeros((2 * nx, 2 * nx))
-            M[:nx, :nx], M[:nx, nx:] = mats[key[0]][0], np.eye(nx)
-            E = expm(M * key[1])
-            cache[key] = (E[:nx, :nx], E[:nx, nx:])
+        if key not in cache:  # Phi = e^(A h), Psi = int_0^h e^(A s) ds = A^-1 (Phi - I)
+            A = mats[key[0]][0]
+            Phi = expm(A * key[1])
+            cache[key] = (Phi, np.linalg.solve(A, Phi - np.eye(nx)))
         Phi, Psi = cache[key]
         xi[k + 1] = Phi @ xi[k] + Psi @ drive[k]
         xi[k + 1] -= jumps[k + 1]  # the state is continuous where the equilibrium jumps
