@@ -29,9 +29,9 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 
-from ..dynamics.equilibrium import newton_function
-from ..dynamics.errors import ParameterError
-from ..dynamics.modeling.model import Model
+from sarcomere.dynamics.equilibrium import newton_function
+from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.model import Model
 
 RADAU_POINTS = 3
 """Radau IIA points of the Co-Simulation step (3: order 5, stiffly accurate, L-stable)."""

@@ -15,7 +15,7 @@ from importlib import metadata
 import casadi as cs
 import pint
 
-from ..dynamics.errors import ParameterError
+from sarcomere.dynamics.errors import ParameterError
 
 _BASE = {
     "[mass]": "kg",

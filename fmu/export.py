@@ -28,9 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dynamics.equilibrium import solve_equilibrium
-from ..dynamics.errors import ParameterError, SarcomereError
-from ..dynamics.modeling.model import Model
+from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError, SarcomereError
+from sarcomere.dynamics.modeling.model import Model
+
 from . import codegen, description
 
 FMI_VERSIONS = (2, 3)
@@ -308,7 +309,7 @@ def export_fmu(
             raise ParameterError(
                 "params/inputs/experiment", "given", "None with a scenario (it sets its own)"
             )
-        from ..scenarios.export_fmu import scenario_setup  # scenarios sit downstream
+        from sarcomere.scenarios.export_fmu import scenario_setup  # scenarios sit downstream
 
         model, params, inputs, experiment = scenario_setup(model_or_scenario)
     codegen.require_ode(model)

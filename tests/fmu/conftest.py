@@ -123,3 +123,8 @@ def step_native(tmp_path_factory):
 @pytest.fixture(scope="session")
 def iso_native(tmp_path_factory, iso_scene):
     return native(iso_scene, tmp_path_factory.mktemp("native"))
+
+
+@pytest.fixture
+def step_loaded(load, step_fmu) -> Loaded:
+    return load(step_fmu)
