@@ -64,12 +64,13 @@ def _num(v: float) -> str:
     return repr(float(v))
 
 
-def _dependencies(lay, expr: cs.SX) -> list[str]:
-    """For each row of ``expr``: the 1-based indices of the states and inputs it uses."""
+def _dependencies(lay, expr: cs.SX, base: int) -> list[str]:
+    """For each row of ``expr``: the states and inputs it uses, as value references plus
+    ``base`` (1: FMI 2.0 ScalarVariable indices; 0: FMI 3.0 value references)."""
     m = lay.model
     known = cs.vertcat(m.x, m.u)
-    columns = list(range(1, m.nx + 1))
-    first_u = lay.first("u") + 1
+    columns = list(range(base, m.nx + base))
+    first_u = lay.first("u") + base
     columns += list(range(first_u, first_u + len(m.input_names)))
     sp = cs.jacobian(expr, known).sparsity()
     rows: list[list[int]] = [[] for _ in range(expr.numel())]
@@ -78,14 +79,26 @@ def _dependencies(lay, expr: cs.SX) -> list[str]:
     return [" ".join(str(i) for i in sorted(r)) for r in rows]
 
 
+def _text(root: ET.Element) -> str:
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode")
+
+
 def model_description(lay, fmi_version: int, ident: str, guid: str, sources, experiment) -> str:
     """The model description of the FMU (FMI 2.0 or 3.0) as a string."""
     if fmi_version == 2:
-        root = _fmi2(lay, ident, guid, sources, experiment)
-    else:
-        root = _fmi3(lay, ident, guid, experiment)
-    ET.indent(root)
-    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode")
+        return _text(_fmi2(lay, ident, guid, sources, experiment))
+    return _text(_fmi3(lay, ident, guid, experiment))
+
+
+def build_description(ident: str, sources) -> str:
+    """FMI 3.0 ``sources/buildDescription.xml``: the C files to compile."""
+    root = ET.Element("fmiBuildDescription", {"fmiVersion": "3.0"})
+    config = ET.SubElement(root, "BuildConfiguration", {"modelIdentifier": ident})
+    files = ET.SubElement(config, "SourceFileSet", {"language": "C11"})
+    for f in sources:
+        ET.SubElement(files, "SourceFile", {"name": f})
+    return _text(root)
 
 
 def _header(lay, version_attrs: dict, guid_key: str, guid: str) -> ET.Element:
@@ -101,9 +114,9 @@ def _header(lay, version_attrs: dict, guid_key: str, guid: str) -> ET.Element:
     return ET.Element("fmiModelDescription", attrs)
 
 
-def _units(root: ET.Element, lay) -> None:
+def _units(root: ET.Element, lay, extra: tuple[str, ...] = ()) -> None:
     units = ET.SubElement(root, "UnitDefinitions")
-    for unit in sorted({v[2] for v in lay.variables}):
+    for unit in sorted({v[2] for v in lay.variables} | set(extra)):
         el = ET.SubElement(units, "Unit", {"name": unit})
         ET.SubElement(el, "BaseUnit", base_units(unit))
 
@@ -180,8 +193,8 @@ def _fmi2(lay, ident: str, guid: str, sources, experiment) -> ET.Element:
         ET.SubElement(sv, "Real", _type_attrs(lay, i, row, 2))
     ms = ET.SubElement(root, "ModelStructure")
     nothing = cs.SX(0, 1)
-    y_dep = _dependencies(lay, m.function("y")(m.x, nothing, m.u, m.p))
-    f_dep = _dependencies(lay, m.function("ode")(m.x, nothing, m.u, m.p))
+    y_dep = _dependencies(lay, m.function("y")(m.x, nothing, m.u, m.p), 1)
+    f_dep = _dependencies(lay, m.function("ode")(m.x, nothing, m.u, m.p), 1)
     first_y, first_der = lay.first("y"), lay.first("der")
     outs = ET.SubElement(ms, "Outputs")
     for k, dep in enumerate(y_dep):
@@ -197,4 +210,38 @@ def _fmi2(lay, ident: str, guid: str, sources, experiment) -> ET.Element:
 
 
 def _fmi3(lay, ident: str, guid: str, experiment) -> ET.Element:
-    raise ParameterError("fmi_version", 3, "2 (FMI 3.0 is not exported yet)")
+    m = lay.model
+    root = _header(lay, {"fmiVersion": "3.0"}, "instantiationToken", guid)
+    caps = {
+        "modelIdentifier": ident,
+        "providesDirectionalDerivatives": "true",
+        "canGetAndSetFMUState": "true",
+        "canSerializeFMUState": "true",
+    }
+    ET.SubElement(root, "ModelExchange", {**caps, "needsCompletedIntegratorStep": "true"})
+    ET.SubElement(root, "CoSimulation", {**caps, "canHandleVariableCommunicationStepSize": "true"})
+    _units(root, lay, ("s",))
+    _log_categories(root)
+    _experiment(root, experiment)
+    mv = ET.SubElement(root, "ModelVariables")
+    for i, row in enumerate(lay.variables):
+        attrs = _var_attrs(i, row, "valueReference")
+        attrs.update(_type_attrs(lay, i, row, 3))
+        ET.SubElement(mv, "Float64", attrs)
+    time = {"name": "time", "valueReference": str(len(lay.variables))}
+    time.update(causality="independent", variability="continuous", unit="s")
+    ET.SubElement(mv, "Float64", {**time, "description": "simulation time"})
+    ms = ET.SubElement(root, "ModelStructure")
+    nothing = cs.SX(0, 1)
+    y_dep = _dependencies(lay, m.function("y")(m.x, nothing, m.u, m.p), 0)
+    f_dep = _dependencies(lay, m.function("ode")(m.x, nothing, m.u, m.p), 0)
+    first_y, first_der = lay.first("y"), lay.first("der")
+    for k, dep in enumerate(y_dep):
+        ET.SubElement(ms, "Output", {"valueReference": str(first_y + k), "dependencies": dep})
+    for k, dep in enumerate(f_dep):
+        attrs = {"valueReference": str(first_der + k), "dependencies": dep}
+        ET.SubElement(ms, "ContinuousStateDerivative", attrs)
+    for i, row in enumerate(lay.variables):
+        if row[1] in ("x", "der", "y"):
+            ET.SubElement(ms, "InitialUnknown", {"valueReference": str(i)})
+    return root

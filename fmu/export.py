@@ -135,8 +135,11 @@ def _c_array(ctype: str, name: str, values: list[str]) -> str:
     return f"const {ctype} {name}[{len(values)}] = {{\n    {body}\n}};\n"
 
 
-def model_data(lay: Layout, gen: codegen.Generated, guid: str) -> tuple[str, str]:
-    """``model_data.h`` and ``model_data.c``: sizes, value references, tables, tolerances."""
+def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int) -> tuple[str, str]:
+    """``model_data.h`` and ``model_data.c``: sizes, value references, tables, tolerances.
+
+    The tables have one row more than the variables: ``time``, value reference
+    ``SM_VR_TIME``, a variable of the FMI 3.0 description only (``SM_HAS_TIME_VR``)."""
     m = lay.model
     nx, nu, ny, np_ = m.nx, len(m.input_names), len(m.output_names), len(m.param_names)
     defines = {
@@ -150,6 +153,8 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str) -> tuple[str, str
         "SM_VR_Y": 2 * nx + nu,
         "SM_VR_P": 2 * nx + nu + ny,
         "SM_NVARS": len(lay.variables),
+        "SM_VR_TIME": len(lay.variables),
+        "SM_HAS_TIME_VR": int(fmi_version == 3),
         "SM_SZ_ARG": gen.sz_arg,
         "SM_SZ_RES": gen.sz_res,
         "SM_SZ_IW": gen.sz_iw,
@@ -171,9 +176,9 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str) -> tuple[str, str
     h += [f"#define {k} {v}" for k, v in defines.items()]
     h += [
         "",
-        "extern const char* const sm_names[SM_NVARS];",
-        "extern const double sm_min[SM_NVARS];",
-        "extern const double sm_max[SM_NVARS];",
+        "extern const char* const sm_names[SM_NVARS + 1];",
+        "extern const double sm_min[SM_NVARS + 1];",
+        "extern const double sm_max[SM_NVARS + 1];",
         "extern const double sm_x_start[SM_NX]; /* the equilibrium at the start point */",
         "extern const double sm_u_start[SM_NU];",
         "extern const double sm_p_start[SM_NP];",
@@ -190,9 +195,9 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str) -> tuple[str, str
         "",
         '#include "model_data.h"',
         "",
-        _c_array("char* const", "sm_names", [_c_string(r[0]) for r in rows]),
-        _c_array("double", "sm_min", [_c_double(r[4]) for r in rows]),
-        _c_array("double", "sm_max", [_c_double(r[5]) for r in rows]),
+        _c_array("char* const", "sm_names", [_c_string(r[0]) for r in rows] + ['"time"']),
+        _c_array("double", "sm_min", [_c_double(r[4]) for r in rows] + ["-INFINITY"]),
+        _c_array("double", "sm_max", [_c_double(r[5]) for r in rows] + ["INFINITY"]),
         _c_array("double", "sm_x_start", [_c_double(r[3]) for r in group["x"]]),
         _c_array("double", "sm_u_start", [_c_double(r[3]) for r in group["u"]]),
         _c_array("double", "sm_p_start", [_c_double(r[3]) for r in group["p"]]),
@@ -325,7 +330,7 @@ def export_fmu(
         src = root / "sources"
         src.mkdir()
         gen = codegen.generate(model, src)
-        header, data = model_data(lay, gen, guid)
+        header, data = model_data(lay, gen, guid, fmi_version)
         (src / "model_data.h").write_text(header)
         (src / "model_data.c").write_text(data)
         templates = resources.files("sarcomere.fmu") / "c"
@@ -336,6 +341,8 @@ def export_fmu(
             lay, fmi_version, ident, guid, sources, experiment or Experiment()
         )
         (root / "modelDescription.xml").write_text(xml)
+        if fmi_version == 3:
+            (src / "buildDescription.xml").write_text(description.build_description(ident, sources))
         platform = "linux64" if fmi_version == 2 else "x86_64-linux"
         binaries = root / "binaries" / platform
         binaries.mkdir(parents=True)

@@ -250,10 +250,10 @@ static int check_vrs(SmInstance* inst, const unsigned* vr, size_t n, const void*
         return 0;
     }
     for (size_t i = 0; i < n; i++) {
-        if (vr[i] >= SM_NVARS) {
+        if (vr[i] >= SM_NVARS + SM_HAS_TIME_VR) {
             sm_log(inst, SM_ERROR, SM_LOG_ERROR,
                    "%s: unknown value reference %u (this FMU has Float64/Real variables 0 to %d)",
-                   function, vr[i], SM_NVARS - 1);
+                   function, vr[i], SM_NVARS - 1 + SM_HAS_TIME_VR);
             return 0;
         }
     }
@@ -269,7 +269,12 @@ SmStatus sm_set_reals(SmInstance* inst, const unsigned* vr, size_t n, const doub
     for (size_t i = 0; i < n; i++) { /* check all first: a refused call changes nothing */
         unsigned r = vr[i];
         const char* name = sm_names[r];
-        int is_x = r < SM_VR_DER, is_u = r >= SM_VR_U && r < SM_VR_Y, is_p = r >= SM_VR_P;
+        int is_x = r < SM_VR_DER, is_u = r >= SM_VR_U && r < SM_VR_Y;
+        int is_p = r >= SM_VR_P && r < SM_VR_TIME;
+        if (r == SM_VR_TIME) {
+            sm_log(inst, SM_ERROR, SM_LOG_ERROR, "set real: time is the independent variable");
+            return SM_ERROR;
+        }
         if (!(is_x || is_u || is_p)) {
             sm_log(inst, SM_ERROR, SM_LOG_ERROR, "set real: %s is %s and cannot be set", name,
                    r < SM_VR_U ? "a state derivative" : "an output");
@@ -329,8 +334,10 @@ SmStatus sm_get_reals(SmInstance* inst, const unsigned* vr, size_t n, double* va
             }
             have_y = 1;
             value[i] = y[r - SM_VR_Y];
-        } else {
+        } else if (r < SM_VR_TIME) {
             value[i] = inst->v.p[r - SM_VR_P];
+        } else {
+            value[i] = inst->v.t;
         }
     }
     return SM_OK;

@@ -128,3 +128,11 @@ def iso_native(tmp_path_factory, iso_scene):
 @pytest.fixture
 def step_loaded(load, step_fmu) -> Loaded:
     return load(step_fmu)
+
+
+@pytest.fixture(scope="session")
+def iso_fmu3(tmp_path_factory, iso_scene) -> Path:
+    """The isometric scene's model (n = 1) as an FMI 3.0 FMU, exported through the CLI."""
+    out = tmp_path_factory.mktemp("fmu") / "iso3.fmu"
+    assert main(["export-fmu", str(iso_scene), "--fmi", "3", "--out", str(out)]) == 0
+    return out

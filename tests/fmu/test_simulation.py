@@ -84,11 +84,16 @@ def test_isometric_matches_native(iso_fmu, iso_native, fmi_type, options):
     assert iso_native["sensor.f"][-1] > iso_native["sensor.f"][0] + 0.1
 
 
-def test_rebuild_from_the_archive_sources(iso_fmu, tmp_path):
+@pytest.mark.parametrize(
+    ("which", "platform"), [("iso_fmu", "linux64"), ("iso_fmu3", "x86_64-linux")]
+)
+def test_rebuild_from_the_archive_sources(which, platform, tmp_path, request):
+    """fmpy's cmake build from the FMI 2.0 SourceFiles and the FMI 3.0 buildDescription."""
+    iso_fmu = request.getfixturevalue(which)
     folder = tmp_path / "unzipped"
     with zipfile.ZipFile(iso_fmu) as zf:
         zf.extractall(folder)
-    binary = folder / "binaries" / "linux64" / "isometric_n1_full.so"
+    binary = folder / "binaries" / platform / "isometric_n1_full.so"
     original = binary.read_bytes()
     binary.unlink()
     (tmp_path / "build").mkdir()
