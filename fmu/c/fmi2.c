@@ -329,7 +329,7 @@ fmi2Status fmi2CancelStep(fmi2Component c) {
 
 static fmi2Status status_query(fmi2Component c, const char* function) {
     CALL(c, function, SM_STEP | SM_TERMINATED | SM_FAILED);
-    sm_log(inst, SM_ERROR, SM_LOG_ERROR, "%s: doStep never returns fmi2Pending", function);
+    sm_log(inst, SM_DISCARD, SM_LOG_WARNING, "%s: doStep never returns fmi2Pending", function);
     return fmi2Discard;
 }
 

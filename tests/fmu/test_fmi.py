@@ -267,6 +267,26 @@ def test_misuse_is_an_error_with_a_message(step_loaded, misuse, message):
     fmu.freeInstance()
 
 
+def test_leaving_the_domain_in_a_step_is_an_error_until_reset(step_loaded):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.setReal([fmi.vr["myofibril.aps1.chamber.m_air"]], [1e-3])  # 200 times the air at rest
+    fmu.exitInitializationMode()
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, 0.01)
+    assert "doStep to t = 0.01 s: myofibril.actin0.theta_b = 0 is outside" in fmi.errors()[-1]
+    length = _get(fmu, fmi, LENGTH)  # values stay readable at the last good point
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, 0.01)
+    assert "doStep is not allowed in error state" in fmi.errors()[-1]
+    fmu.reset()
+    _start(fmu, None, fmi)
+    assert _get(fmu, fmi, LENGTH) == length  # the start again
+    fmu.freeInstance()
+
+
 def test_freeing_twice_is_logged_not_a_crash(step_loaded):
     fmi = step_loaded
     fmu = fmi.instance(name="twice")
@@ -277,3 +297,19 @@ def test_freeing_twice_is_logged_not_a_crash(step_loaded):
     with pytest.raises(FMICallException):
         fmu.doStep(0.0, 0.001)
     assert fmi.errors()[-1] == "fmi2DoStep: this instance was freed already"
+
+
+def test_a_state_of_another_fmu_is_refused(step_loaded, load, iso_fmu):
+    other = load(iso_fmu)
+    iso = other.instance(name="iso")
+    _start(iso, None, other)
+    foreign = iso.getFMUstate()
+    fmu = step_loaded.instance()
+    _start(fmu, None, step_loaded)
+    with pytest.raises(FMICallException):
+        fmu.setFMUstate(foreign)
+    assert step_loaded.errors()[-1] == "setFMUstate: not a state of this FMU"
+    assert _get(fmu, step_loaded, LENGTH) > 0.17  # unchanged: still the 3-APS chain
+    iso.freeFMUstate(foreign)
+    iso.freeInstance()
+    fmu.freeInstance()
