@@ -1,4 +1,5 @@
-"""The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``calibrate``, ``bench``.
+"""The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``calibrate``, ``bench``,
+``export-fmu``.
 
 Subcommands are rows of :data:`COMMANDS` (name, help, handler, add_arguments); add one by
 appending a :class:`Command`. A :class:`~sarcomere.dynamics.errors.SarcomereError` prints
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 
 from sarcomere.dynamics.errors import SarcomereError
 
-from . import bench, calibrate
+from . import bench, calibrate, export_fmu
 from .loader import load_scenario, packaged_scenarios
 from .outdir import check_out_dir
 from .output import version
@@ -80,6 +81,12 @@ COMMANDS: list[Command] = [
     ),
     Command(
         "bench", "numerical studies: work-precision, stability", bench.handler, bench.add_arguments
+    ),
+    Command(
+        "export-fmu",
+        "export a transient scenario's model as an FMU (FMI 2.0 or 3.0, ME and CS)",
+        export_fmu.handler,
+        export_fmu.add_arguments,
     ),
 ]
 

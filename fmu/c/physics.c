@@ -1,0 +1,154 @@
+/* The physics interface (physics.h) on top of the CasADi-generated functions. Numerics
+ * only: the continuation of the equilibrium and the substeps of the Radau step. */
+#include "physics.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "sm_casadi.h"
+
+typedef int (*SmFunction)(const casadi_real** arg, casadi_real** res, casadi_int* iw,
+                          casadi_real* w, int mem);
+
+static int all_finite(const double* v, int n) {
+    for (int i = 0; i < n; i++) {
+        if (!isfinite(v[i])) return 0;
+    }
+    return 1;
+}
+
+static int call(SmWork* wk, SmFunction f, int n_arg, const double** arg, int n_res, double** res) {
+    for (int i = 0; i < n_arg; i++) wk->arg[i] = arg[i];
+    for (int i = 0; i < n_res; i++) wk->res[i] = res[i];
+    return f(wk->arg, wk->res, wk->iw, wk->w, 0);
+}
+
+int sm_derivatives(SmWork* wk, const double* x, const double* u, const double* p, double* xdot) {
+    const double* arg[] = {x, u, p};
+    double* res[] = {xdot};
+    return call(wk, sm_ode, 3, arg, 1, res) || !all_finite(xdot, SM_NX);
+}
+
+int sm_outputs(SmWork* wk, const double* x, const double* u, const double* p, double* y) {
+    const double* arg[] = {x, u, p};
+    double* res[] = {y};
+    return call(wk, sm_out, 3, arg, 1, res) || !all_finite(y, SM_NY);
+}
+
+int sm_directional(SmWork* wk, const double* x, const double* u, const double* p,
+                   const double* dx, const double* du, double* dxdot, double* dy) {
+    const double* arg[] = {x, u, p, dx, du};
+    double* res[] = {dxdot, dy};
+    return call(wk, sm_fwd, 5, arg, 2, res) || !all_finite(dxdot, SM_NX) ||
+           !all_finite(dy, SM_NY);
+}
+
+int sm_check_domain(SmWork* wk, const double* x, const double* u, const double* p, char* msg) {
+    double y[SM_NY];
+    if (sm_outputs(wk, x, u, p, y)) {
+        snprintf(msg, SM_MSG, "the outputs are not finite");
+        return 1;
+    }
+    for (int i = 0; i < SM_NY; i++) {
+        int vr = SM_VR_Y + i;
+        if (y[i] < sm_min[vr] || y[i] > sm_max[vr]) {
+            snprintf(msg, SM_MSG, "%s = %.6g is outside its physical domain [%.6g, %.6g]",
+                     sm_names[vr], y[i], sm_min[vr], sm_max[vr]);
+            return 1;
+        }
+    }
+    for (int i = 0; i < SM_NX; i++) {
+        if (x[i] < sm_min[SM_VR_X + i] || x[i] > sm_max[SM_VR_X + i]) {
+            snprintf(msg, SM_MSG, "%s = %.6g is outside its physical domain [%.6g, %.6g]",
+                     sm_names[SM_VR_X + i], x[i], sm_min[SM_VR_X + i], sm_max[SM_VR_X + i]);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* One Newton solve of the equilibrium at (u, p) from x; 0 and x updated on success. */
+static int newton(SmWork* wk, double* x, const double* u, const double* p, double* residual,
+                  char* msg) {
+    double xn[SM_NX];
+    const double* arg[] = {x, u, p};
+    double* res[] = {xn, residual};
+    if (call(wk, sm_eq, 3, arg, 2, res) || !all_finite(xn, SM_NX) || !(*residual < SM_EQ_TOL)) {
+        return 1;
+    }
+    if (sm_check_domain(wk, xn, u, p, msg)) return 1;
+    memcpy(x, xn, sizeof xn);
+    return 0;
+}
+
+int sm_equilibrium(SmWork* wk, double* x, const double* u0, const double* p0, const double* u,
+                   const double* p, char* msg) {
+    double xw[SM_NX], uc[SM_NU], pc[SM_NP], residual = NAN;
+    double frac = 0.0, step = 1.0;
+    char why[SM_MSG] = "";
+    memcpy(xw, x, sizeof xw);
+    while (frac < 1.0) {
+        double next = frac + step < 1.0 ? frac + step : 1.0;
+        for (int i = 0; i < SM_NU; i++) uc[i] = u0[i] + next * (u[i] - u0[i]);
+        for (int i = 0; i < SM_NP; i++) pc[i] = p0[i] + next * (p[i] - p0[i]);
+        why[0] = '\0';
+        if (newton(wk, xw, uc, pc, &residual, why)) {
+            step /= 2;
+            if (step < SM_EQ_MIN_FRACTION) {
+                snprintf(msg, SM_MSG,
+                         "equilibrium not found: scaled residual %.3g after %d Newton iterations "
+                         "(tolerance %.3g)%s%s; the continuation from the exported operating "
+                         "point reached %.3g %% of the way to the inputs and parameters set",
+                         residual, SM_EQ_ITERATIONS, SM_EQ_TOL, why[0] ? "; " : "", why,
+                         100 * frac);
+                return 1;
+            }
+            continue;
+        }
+        frac = next;
+        step = 2 * step < 1.0 ? 2 * step : 1.0;
+    }
+    memcpy(x, xw, sizeof xw);
+    return 0;
+}
+
+/* One Radau step; 0 on success (Newton converged, result finite). */
+static int radau(SmWork* wk, const double* x, const double* u, const double* p, double h,
+                 double* xf, double* residual) {
+    const double* arg[] = {x, u, p, &h};
+    double* res[] = {xf, residual};
+    return call(wk, sm_step, 4, arg, 2, res) || !all_finite(xf, SM_NX) ||
+           !(*residual < SM_STEP_TOL);
+}
+
+int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double h, long* substeps,
+               char* msg) {
+    double xw[SM_NX], xn[SM_NX], residual = NAN;
+    double done = 0.0;
+    long n = (long)ceil(h / SM_MAX_SUBSTEP * (1.0 - 1e-12));
+    double hs = h / (n > 0 ? n : 1);
+    memcpy(xw, x, sizeof xw);
+    *substeps = 0;
+    while (done < h) {
+        double hk = hs < h - done ? hs : h - done;
+        if (h - done - hk < 1e-12 * h) hk = h - done; /* land exactly on the end */
+        if (radau(wk, xw, u, p, hk, xn, &residual)) {
+            if (hk / 2 < SM_MIN_SUBSTEP) {
+                snprintf(msg, SM_MSG,
+                         "the Radau IIA Newton iteration did not converge (scaled residual "
+                         "%.3g, tolerance %.3g) even with a substep of %.3g s, at %.6g s into "
+                         "the step",
+                         residual, SM_STEP_TOL, hk, done);
+                return 1;
+            }
+            hs = hk / 2;
+            continue;
+        }
+        memcpy(xw, xn, sizeof xw);
+        done += hk;
+        (*substeps)++;
+    }
+    memcpy(x, xw, sizeof xw);
+    return 0;
+}

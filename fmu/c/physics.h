@@ -1,0 +1,42 @@
+/* The physics of the FMU behind one small interface: every function calls CasADi-generated
+ * code (sm_casadi.c) built from the model's own Functions; nothing here knows FMI.
+ * model_data.h (generated at export) gives the sizes, tables and tolerances. */
+#ifndef SM_PHYSICS_H
+#define SM_PHYSICS_H
+
+#include "model_data.h"
+
+/* Work memory of the generated functions: one per instance, so instances are independent. */
+typedef struct {
+    const double* arg[SM_SZ_ARG];
+    double* res[SM_SZ_RES];
+    long long int iw[SM_SZ_IW + 1];
+    double w[SM_SZ_W];
+} SmWork;
+
+/* Each returns 0 on success, nonzero if the generated code failed or a result is not
+ * finite; msg (size SM_MSG) then says why. */
+#define SM_MSG 512
+
+int sm_derivatives(SmWork* wk, const double* x, const double* u, const double* p, double* xdot);
+int sm_outputs(SmWork* wk, const double* x, const double* u, const double* p, double* y);
+int sm_directional(SmWork* wk, const double* x, const double* u, const double* p,
+                   const double* dx, const double* du, double* dxdot, double* dy);
+
+/* Equilibrium at (u, p): Newton from x (the equilibrium at (u0, p0)), continuing from
+ * (u0, p0) to (u, p) in steps that halve on failure; each step's scaled residual must be
+ * below SM_EQ_TOL and every bounded output inside its range. x is updated only on
+ * success. */
+int sm_equilibrium(SmWork* wk, double* x, const double* u0, const double* p0, const double* u,
+                   const double* p, char* msg);
+
+/* Advance x by h with u held: Radau IIA substeps of at most SM_MAX_SUBSTEP, each halved
+ * (down to SM_MIN_SUBSTEP) until its Newton residual is below SM_STEP_TOL. x is updated
+ * only on success; *substeps counts the steps taken. */
+int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double h, long* substeps,
+               char* msg);
+
+/* "" if every bounded output is inside its range, else a message naming the first one. */
+int sm_check_domain(SmWork* wk, const double* x, const double* u, const double* p, char* msg);
+
+#endif

@@ -1,0 +1,247 @@
+"""``modelDescription.xml`` from the model's names, units and bounds (FMI 2.0 and 3.0).
+
+Units become FMI unit definitions with SI base-unit exponents (through pint); the
+structure (outputs' and derivatives' dependencies) comes from the sparsity of the exact
+Jacobians, so it lists what each one really depends on.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import xml.etree.ElementTree as ET
+from importlib import metadata
+
+import casadi as cs
+import pint
+
+from sarcomere.dynamics.errors import ParameterError
+
+_BASE = {
+    "[mass]": "kg",
+    "[length]": "m",
+    "[time]": "s",
+    "[current]": "A",
+    "[temperature]": "K",
+    "[substance]": "mol",
+    "[luminosity]": "cd",
+}
+
+LOG_CATEGORIES = {
+    "logStatusError": "errors: refused calls, failed Newton iterations, left physical domains",
+    "logStatusWarning": "warnings",
+    "logSolver": "equilibrium at initialisation and Radau substeps of each doStep",
+    "logCalls": "every FMI call",
+}
+"""The log categories of the C wrapper (``instance.c``), in its order."""
+
+
+@functools.cache
+def _ureg() -> pint.UnitRegistry:
+    return pint.UnitRegistry()
+
+
+def base_units(unit: str) -> dict[str, str]:
+    """The attributes of an FMI ``BaseUnit`` for an SI unit string ("Pa" ->
+    ``{"kg": "1", "m": "-1", "s": "-2"}``); "rad" counts as the base unit rad."""
+    if unit == "rad":
+        return {"rad": "1"}
+    try:
+        q = _ureg().Quantity(1.0, "dimensionless" if unit == "1" else unit).to_base_units()
+    except pint.PintError as exc:
+        raise ParameterError("unit", unit, "a unit pint knows", str(exc)) from None
+    out = {}
+    for dim, exp in q.dimensionality.items():
+        if dim not in _BASE or exp != int(exp):
+            raise ParameterError("unit", unit, "a product of integer powers of SI base units")
+        out[_BASE[dim]] = str(int(exp))
+    if not math.isclose(q.magnitude, 1.0, rel_tol=1e-12):
+        out["factor"] = repr(q.magnitude)
+    return out
+
+
+def _num(v: float) -> str:
+    return repr(float(v))
+
+
+def _dependencies(lay, expr: cs.SX, base: int) -> list[str]:
+    """For each row of ``expr``: the states and inputs it uses, as value references plus
+    ``base`` (1: FMI 2.0 ScalarVariable indices; 0: FMI 3.0 value references)."""
+    m = lay.model
+    known = cs.vertcat(m.x, m.u)
+    columns = list(range(base, m.nx + base))
+    first_u = lay.first("u") + base
+    columns += list(range(first_u, first_u + len(m.input_names)))
+    sp = cs.jacobian(expr, known).sparsity()
+    rows: list[list[int]] = [[] for _ in range(expr.numel())]
+    for r, c in zip(sp.row(), sp.get_col(), strict=True):
+        rows[r].append(columns[c])
+    return [" ".join(str(i) for i in sorted(r)) for r in rows]
+
+
+def _text(root: ET.Element) -> str:
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode")
+
+
+def model_description(lay, fmi_version: int, ident: str, guid: str, sources, experiment) -> str:
+    """The model description of the FMU (FMI 2.0 or 3.0) as a string."""
+    if fmi_version == 2:
+        return _text(_fmi2(lay, ident, guid, sources, experiment))
+    return _text(_fmi3(lay, ident, guid, experiment))
+
+
+def build_description(ident: str, sources) -> str:
+    """FMI 3.0 ``sources/buildDescription.xml``: the C files to compile."""
+    root = ET.Element("fmiBuildDescription", {"fmiVersion": "3.0"})
+    config = ET.SubElement(root, "BuildConfiguration", {"modelIdentifier": ident})
+    files = ET.SubElement(config, "SourceFileSet", {"language": "C11"})
+    for f in sources:
+        ET.SubElement(files, "SourceFile", {"name": f})
+    return _text(root)
+
+
+def _header(lay, version_attrs: dict, guid_key: str, guid: str) -> ET.Element:
+    m = lay.model
+    attrs = {
+        **version_attrs,
+        "modelName": m.name,
+        guid_key: guid,
+        "description": m.describe(),
+        "generationTool": f"sarcomere {metadata.version('sarcomere')}",
+        "variableNamingConvention": "structured",
+    }
+    return ET.Element("fmiModelDescription", attrs)
+
+
+def _units(root: ET.Element, lay, extra: tuple[str, ...] = ()) -> None:
+    units = ET.SubElement(root, "UnitDefinitions")
+    for unit in sorted({v[2] for v in lay.variables} | set(extra)):
+        el = ET.SubElement(units, "Unit", {"name": unit})
+        ET.SubElement(el, "BaseUnit", base_units(unit))
+
+
+def _log_categories(root: ET.Element) -> None:
+    cats = ET.SubElement(root, "LogCategories")
+    for name, text in LOG_CATEGORIES.items():
+        ET.SubElement(cats, "Category", {"name": name, "description": text})
+
+
+def _experiment(root: ET.Element, experiment) -> None:
+    attrs = {"startTime": _num(experiment.start_time), "stepSize": _num(experiment.step_size)}
+    if experiment.stop_time is not None:
+        attrs["stopTime"] = _num(experiment.stop_time)
+    ET.SubElement(root, "DefaultExperiment", attrs)
+
+
+_CAUSALITY = {"x": "local", "der": "local", "u": "input", "y": "output", "p": "parameter"}
+
+
+def _type_attrs(lay, i: int, row: tuple, fmi_version: int) -> dict:
+    name, group, unit, start, low, high, nominal, _ = row
+    attrs = {"unit": unit}
+    if group == "der":
+        nx = lay.model.nx
+        attrs["derivative"] = str(i - nx + (1 if fmi_version == 2 else 0))
+    if math.isfinite(low):
+        attrs["min"] = _num(low)
+    if math.isfinite(high):
+        attrs["max"] = _num(high)
+    if nominal is not None and group in ("x", "u", "p"):
+        attrs["nominal"] = _num(nominal)
+    if start is not None:
+        attrs["start"] = _num(start)
+    return attrs
+
+
+def _var_attrs(i: int, row: tuple, vr_key: str) -> dict:
+    name, group, *_, text = row
+    attrs = {"name": name, vr_key: str(i), "description": text, "causality": _CAUSALITY[group]}
+    attrs["variability"] = "fixed" if group == "p" else "continuous"
+    if group == "x":
+        attrs["initial"] = "approx"
+    elif group == "p":
+        attrs["initial"] = "exact"
+    return attrs
+
+
+def _fmi2(lay, ident: str, guid: str, sources, experiment) -> ET.Element:
+    m = lay.model
+    root = _header(lay, {"fmiVersion": "2.0"}, "guid", guid)
+    root.set("numberOfEventIndicators", "0")
+    caps = {
+        "modelIdentifier": ident,
+        "providesDirectionalDerivative": "true",
+        "canGetAndSetFMUstate": "true",
+        "canSerializeFMUstate": "true",
+        "canNotUseMemoryManagementFunctions": "true",
+    }
+    for kind, extra in (
+        ("ModelExchange", {}),
+        ("CoSimulation", {"canHandleVariableCommunicationStepSize": "true"}),
+    ):
+        el = ET.SubElement(root, kind, {**caps, **extra})
+        files = ET.SubElement(el, "SourceFiles")
+        for f in sources:
+            ET.SubElement(files, "File", {"name": f})
+    _units(root, lay)
+    _log_categories(root)
+    _experiment(root, experiment)
+    mv = ET.SubElement(root, "ModelVariables")
+    for i, row in enumerate(lay.variables):
+        sv = ET.SubElement(mv, "ScalarVariable", _var_attrs(i, row, "valueReference"))
+        ET.SubElement(sv, "Real", _type_attrs(lay, i, row, 2))
+    ms = ET.SubElement(root, "ModelStructure")
+    nothing = cs.SX(0, 1)
+    y_dep = _dependencies(lay, m.function("y")(m.x, nothing, m.u, m.p), 1)
+    f_dep = _dependencies(lay, m.function("ode")(m.x, nothing, m.u, m.p), 1)
+    first_y, first_der = lay.first("y"), lay.first("der")
+    outs = ET.SubElement(ms, "Outputs")
+    for k, dep in enumerate(y_dep):
+        ET.SubElement(outs, "Unknown", {"index": str(first_y + k + 1), "dependencies": dep})
+    ders = ET.SubElement(ms, "Derivatives")
+    for k, dep in enumerate(f_dep):
+        ET.SubElement(ders, "Unknown", {"index": str(first_der + k + 1), "dependencies": dep})
+    init = ET.SubElement(ms, "InitialUnknowns")
+    for i, row in enumerate(lay.variables):
+        if row[1] in ("x", "der", "y"):
+            ET.SubElement(init, "Unknown", {"index": str(i + 1)})
+    return root
+
+
+def _fmi3(lay, ident: str, guid: str, experiment) -> ET.Element:
+    m = lay.model
+    root = _header(lay, {"fmiVersion": "3.0"}, "instantiationToken", guid)
+    caps = {
+        "modelIdentifier": ident,
+        "providesDirectionalDerivatives": "true",
+        "canGetAndSetFMUState": "true",
+        "canSerializeFMUState": "true",
+    }
+    ET.SubElement(root, "ModelExchange", {**caps, "needsCompletedIntegratorStep": "true"})
+    ET.SubElement(root, "CoSimulation", {**caps, "canHandleVariableCommunicationStepSize": "true"})
+    _units(root, lay, ("s",))
+    _log_categories(root)
+    _experiment(root, experiment)
+    mv = ET.SubElement(root, "ModelVariables")
+    for i, row in enumerate(lay.variables):
+        attrs = _var_attrs(i, row, "valueReference")
+        attrs.update(_type_attrs(lay, i, row, 3))
+        ET.SubElement(mv, "Float64", attrs)
+    time = {"name": "time", "valueReference": str(len(lay.variables))}
+    time.update(causality="independent", variability="continuous", unit="s")
+    ET.SubElement(mv, "Float64", {**time, "description": "simulation time"})
+    ms = ET.SubElement(root, "ModelStructure")
+    nothing = cs.SX(0, 1)
+    y_dep = _dependencies(lay, m.function("y")(m.x, nothing, m.u, m.p), 0)
+    f_dep = _dependencies(lay, m.function("ode")(m.x, nothing, m.u, m.p), 0)
+    first_y, first_der = lay.first("y"), lay.first("der")
+    for k, dep in enumerate(y_dep):
+        ET.SubElement(ms, "Output", {"valueReference": str(first_y + k), "dependencies": dep})
+    for k, dep in enumerate(f_dep):
+        attrs = {"valueReference": str(first_der + k), "dependencies": dep}
+        ET.SubElement(ms, "ContinuousStateDerivative", attrs)
+    for i, row in enumerate(lay.variables):
+        if row[1] in ("x", "der", "y"):
+            ET.SubElement(ms, "InitialUnknown", {"valueReference": str(i)})
+    return root

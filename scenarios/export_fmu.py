@@ -1,0 +1,60 @@
+"""``sarcomere export-fmu SCENARIO --fmi 2|3 --out X.fmu``: a transient scenario's model as
+an FMU (Model Exchange and Co-Simulation in one archive; see docs/fmu.md).
+
+The FMU carries the scenario's model (set-up, n, fidelity, ``[parameters]``) with its
+start inputs (the input signals at ``start_time``) and ``[simulation]`` as the default
+experiment; its states start at the equilibrium there. The input signals themselves stay
+with the importer.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from sarcomere.dynamics.assemblies import FIDELITIES
+from sarcomere.dynamics.modeling.model import Model
+from sarcomere.fmu.export import MAX_SUBSTEP_S, Experiment, export_fmu
+
+from .dynamic import _inputs, bind, check_n  # _inputs: the same name and unit checks as a run
+from .loader import load_scenario
+from .spec import Scenario
+
+
+def scenario_setup(source: str | Path | Scenario) -> tuple[Model, dict, dict, Experiment]:
+    """The model, parameter overrides, start inputs and default experiment of a transient
+    scenario (file, packaged name or loaded :class:`Scenario`)."""
+    sc = source if isinstance(source, Scenario) else load_scenario(source)
+    if sc.kind != "transient":
+        raise sc.error(("scenario", "kind"), f"'{sc.kind}': an FMU is exported from a transient")
+    fid = sc.model.fidelity
+    if fid not in FIDELITIES:
+        raise sc.error(
+            ("model", "fidelity"), f"'{fid}': an FMU needs one level, one of {FIDELITIES}"
+        )
+    b = bind(sc)
+    check_n(sc, ("model", "n"), b.n, fid)
+    model = b.build(fid)
+    sim = sc.simulation
+    if sim is None:
+        raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
+    inputs = {k: float(sig(sim.start_time)) for k, sig in _inputs(sc, model).items()}
+    experiment = Experiment(sim.start_time, sim.stop_time, sim.output_interval or MAX_SUBSTEP_S)
+    return model, dict(b.overrides), inputs, experiment
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """``SCENARIO``, ``--fmi 2|3`` (default 2) and ``--out X.fmu`` (default <model>.fmu)."""
+    parser.add_argument("scenario", help="scenario file (path/to/file.toml) or packaged name")
+    parser.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version")
+    parser.add_argument("--out", metavar="X.fmu", help="the FMU to write (default <name>.fmu)")
+
+
+def handler(args: argparse.Namespace) -> int:
+    """Export and print the path written."""
+    sc = load_scenario(args.scenario)
+    out = Path(args.out) if args.out else Path(f"{sc.name}.fmu")
+    model, params, inputs, experiment = scenario_setup(sc)
+    export_fmu(model, out, args.fmi, params, inputs, experiment)
+    print(f"wrote {out} ({model.describe()}; FMI {args.fmi}.0, Model Exchange and Co-Simulation)")
+    return 0

@@ -1,0 +1,315 @@
+"""The FMI 2.0 calls one by one (fmpy's low-level classes): directional derivatives,
+initialisation, saved states, several instances, reset, logging and misuse."""
+
+from __future__ import annotations
+
+import ctypes
+import math
+
+import numpy as np
+import pytest
+from fmpy.fmi1 import FMICallException
+
+from sarcomere.dynamics.assemblies import hanging_load
+from sarcomere.dynamics.equilibrium import solve_equilibrium
+
+P_CMD = "regulator.p_cmd"
+LENGTH = "myofibril.length"
+
+
+@pytest.fixture(scope="module")
+def model():
+    return hanging_load(3, load_kg=0.05)
+
+
+def _start(fmu, values: dict | None = None, loaded=None):
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    if values:
+        fmu.setReal([loaded.vr[k] for k in values], list(values.values()))
+    fmu.exitInitializationMode()
+
+
+def _command(fmu, loaded, value: float) -> None:
+    """A new pressure command after initialisation (a step from the equilibrium at 0)."""
+    fmu.setReal([loaded.vr[P_CMD]], [value])
+
+
+def _get(fmu, loaded, name: str) -> float:
+    return fmu.getReal([loaded.vr[name]])[0]
+
+
+def test_directional_derivatives_equal_casadi_jacobians(step_loaded, model):
+    fmi = step_loaded
+    fmu = fmi.instance(cosim=False)
+    _start(fmu)
+    fmu.enterContinuousTimeMode()
+    p = model.parameters()
+    x0 = fmu.getReal([fmi.vr[n] for n in model.state_names])
+    x = np.array(x0) * (1 + 0.01 * np.sin(np.arange(model.nx)))
+    u = np.array([3e4])
+    fmu.setContinuousStates((ctypes.c_double * model.nx)(*x), model.nx)
+    fmu.setReal([fmi.vr[P_CMD]], u.tolist())
+    knowns = [fmi.vr[n] for n in model.state_names + model.input_names]
+    ders = [fmi.vr[f"der({n})"] for n in model.state_names]
+    outs = [fmi.vr[n] for n in model.output_names]
+    J = np.array(
+        [fmu.getDirectionalDerivative(ders + outs, [k], [1.0]) for k in knowns]
+    ).T  # column per known
+    A, B, C, D = (np.array(v) for v in model.function("jac")(x, [], u, p))
+    expected = np.block([[A, B], [C, D]])
+    scale = np.maximum(np.abs(expected).max(axis=1, keepdims=True), 1e-300)
+    np.testing.assert_allclose(J / scale, expected / scale, rtol=0, atol=1e-12)
+    assert np.count_nonzero(A) > model.nx  # a real Jacobian, not a trivial one
+    fmu.terminate()
+    fmu.freeInstance()
+
+
+def test_initial_equilibrium_follows_parameters(step_loaded, model):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    _start(fmu, {"load.m": 0.101, P_CMD: 5e4}, fmi)
+    eq = solve_equilibrium(model, {P_CMD: 5e4}, {"load.m": 0.101})
+    assert _get(fmu, fmi, LENGTH) == pytest.approx(eq[LENGTH], rel=1e-9)
+    fmu.doStep(0.0, 0.01)
+    assert _get(fmu, fmi, LENGTH) == pytest.approx(eq[LENGTH], rel=1e-9)  # stays at rest
+    fmu.freeInstance()
+
+
+def test_states_set_by_the_importer_are_kept(step_loaded):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    s0 = _get(fmu, fmi, "load.s")
+    fmu.setReal([fmi.vr["load.s"]], [s0 + 1e-3])
+    fmu.exitInitializationMode()
+    assert _get(fmu, fmi, "load.s") == s0 + 1e-3
+    fmu.doStep(0.0, 0.002)
+    assert _get(fmu, fmi, "load.v") < -1e-3  # released from 1 mm below rest, it rises
+    fmu.freeInstance()
+
+
+def test_saved_state_restores_and_serializes(step_loaded):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    _start(fmu, None, fmi)
+    _command(fmu, fmi, 1e5)
+    t = 0.0
+    for _ in range(20):
+        fmu.doStep(t, 0.002)
+        t += 0.002
+    state = fmu.getFMUstate()
+    raw = fmu.serializeFMUstate(state)
+    fmu.freeFMUstate(state)
+    after = []
+    for _ in range(20):
+        fmu.doStep(t + 0.002 * len(after), 0.002)
+        after.append(_get(fmu, fmi, LENGTH))
+    other = fmi.instance(name="other")
+    _start(other, None, fmi)
+    restored = other.deSerializeFMUstate(raw)
+    other.setFMUstate(restored)
+    other.freeFMUstate(restored)
+    again = []
+    for _ in range(20):
+        other.doStep(t + 0.002 * len(again), 0.002)
+        again.append(_get(other, fmi, LENGTH))
+    assert again == after
+    assert after[-1] < after[0]  # moving: the comparison is not of constants
+    fmu.freeInstance()
+    other.fmi2FreeInstance(other.component)
+
+
+def test_instances_are_independent_and_reset(step_loaded):
+    fmi = step_loaded
+    a, b = fmi.instance(name="a"), fmi.instance(name="b")
+    _start(a, None, fmi)
+    _command(a, fmi, 1e5)
+    _start(b, None, fmi)
+    rest = _get(b, fmi, LENGTH)
+    for k in range(50):
+        a.doStep(k * 0.002, 0.002)
+        b.doStep(k * 0.002, 0.002)
+    assert _get(a, fmi, LENGTH) < rest - 1e-3
+    assert _get(b, fmi, LENGTH) == pytest.approx(rest, rel=1e-12)
+    a.reset()
+    _start(a, None, fmi)
+    assert _get(a, fmi, LENGTH) == rest
+    a.fmi2FreeInstance(a.component)
+    b.freeInstance()
+
+
+def test_variable_communication_steps(step_loaded):
+    fmi = step_loaded
+    fixed, varying = fmi.instance(name="fixed"), fmi.instance(name="varying")
+    for fmu in (fixed, varying):
+        _start(fmu, None, fmi)
+        _command(fmu, fmi, 1e5)
+    rest = _get(fixed, fmi, LENGTH)
+    for k in range(10):
+        fixed.doStep(k * 0.01, 0.01)
+    t = 0.0
+    for h in (0.0005, 0.0235, 0.001, 0.075):
+        varying.doStep(t, h)
+        t += h
+    assert t == pytest.approx(0.1, abs=1e-15)
+    a, b = _get(fixed, fmi, LENGTH), _get(varying, fmi, LENGTH)
+    assert a == pytest.approx(b, rel=1e-6)
+    assert a < rest - 1e-3  # it moved: the comparison is not of two resting states
+    fixed.freeInstance()
+    varying.fmi2FreeInstance(varying.component)
+
+
+def test_logging_categories(step_loaded):
+    fmi = step_loaded
+    fmu = fmi.instance(logging_on=True)
+    _start(fmu, None, fmi)
+    fmu.doStep(0.0, 0.002)
+    assert not [m for m in fmi.messages if m[1] == "logSolver"]
+    fmu.setDebugLogging(True, ["logSolver"])
+    fmu.doStep(0.002, 0.0025)
+    assert any(c == "logSolver" and "3 Radau substeps" in m for _, c, m in fmi.messages)
+    with pytest.raises(FMICallException):
+        fmu.setDebugLogging(True, ["logEverything"])
+    assert "unknown log category 'logEverything'" in fmi.errors()[-1]
+    fmu.freeInstance()
+
+
+# --- misuse: an error status and a log message, never a crash -------------------------
+def _before_init(fmu, fmi):
+    fmu.doStep(0.0, 0.001)
+
+
+def _nan_input(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.setReal([fmi.vr[P_CMD]], [math.nan])
+
+
+def _input_above_range(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.setReal([fmi.vr[P_CMD]], [7e5])
+
+
+def _parameter_below_range(fmu, fmi):
+    fmu.setupExperiment(startTime=0.0)
+    fmu.setReal([fmi.vr["load.m"]], [-0.01])
+
+
+def _unknown_value_reference(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.getReal([len(fmi.vr) + 5])
+
+
+def _fixed_parameter_after_init(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.setReal([fmi.vr["load.m"]], [0.06])
+
+
+def _set_an_output(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.setReal([fmi.vr[LENGTH]], [0.1])
+
+
+def _wrong_communication_point(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.doStep(0.5, 0.001)
+
+
+def _bad_step_size(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.doStep(0.0, -0.001)
+
+
+def _garbage_state(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.deSerializeFMUstate(b"\x00" * 64)
+
+
+def _states_outside_the_domain(fmu, fmi):
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.setReal([fmi.vr["myofibril.aps1.expansion.s"]], [-0.05])  # stretch 1 - 5 cm / 2 cm
+    fmu.exitInitializationMode()
+
+
+def _no_equilibrium(fmu, fmi):
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.setReal([fmi.vr["myofibril.actin0.l"]], [0.001])  # a thread shorter than its anchors
+    fmu.exitInitializationMode()
+
+
+@pytest.mark.parametrize(
+    ("misuse", "message"),
+    [
+        (_before_init, "doStep is not allowed in instantiated"),
+        (_nan_input, "regulator.p_cmd = nan is outside"),
+        (_input_above_range, "regulator.p_cmd = 700000 is outside [0, 600000]"),
+        (_parameter_below_range, "load.m = -0.01"),
+        (_unknown_value_reference, "unknown value reference"),
+        (_fixed_parameter_after_init, "load.m is a fixed parameter"),
+        (_set_an_output, "myofibril.length is an output and cannot be set"),
+        (_wrong_communication_point, "is not the FMU's time"),
+        (_bad_step_size, "step size -0.001 is not a finite number > 0"),
+        (_garbage_state, "refused (wrong size)"),
+        (_states_outside_the_domain, "myofibril.aps1.yeoh.lambda = -1.5 is outside"),
+        (_no_equilibrium, "equilibrium not found: scaled residual"),
+    ],
+)
+def test_misuse_is_an_error_with_a_message(step_loaded, misuse, message):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    with pytest.raises(FMICallException) as info:
+        misuse(fmu, fmi)
+    assert info.value.status == 3
+    assert any(message in m for m in fmi.errors()), fmi.errors()
+    fmu.freeInstance()
+
+
+def test_leaving_the_domain_in_a_step_is_an_error_until_reset(step_loaded):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.setReal([fmi.vr["myofibril.aps1.chamber.m_air"]], [1e-3])  # 200 times the air at rest
+    fmu.exitInitializationMode()
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, 0.01)
+    assert "doStep to t = 0.01 s: myofibril.actin0.theta_b = 0 is outside" in fmi.errors()[-1]
+    length = _get(fmu, fmi, LENGTH)  # values stay readable at the last good point
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, 0.01)
+    assert "doStep is not allowed in error state" in fmi.errors()[-1]
+    fmu.reset()
+    _start(fmu, None, fmi)
+    assert _get(fmu, fmi, LENGTH) == length  # the start again
+    fmu.freeInstance()
+
+
+def test_freeing_twice_is_logged_not_a_crash(step_loaded):
+    fmi = step_loaded
+    fmu = fmi.instance(name="twice")
+    _start(fmu, None, fmi)
+    fmu.fmi2FreeInstance(fmu.component)
+    fmu.fmi2FreeInstance(fmu.component)
+    assert fmi.errors() == ["fmi2FreeInstance: this instance was freed already"]
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, 0.001)
+    assert fmi.errors()[-1] == "fmi2DoStep: this instance was freed already"
+
+
+def test_a_state_of_another_fmu_is_refused(step_loaded, load, iso_fmu):
+    other = load(iso_fmu)
+    iso = other.instance(name="iso")
+    _start(iso, None, other)
+    foreign = iso.getFMUstate()
+    fmu = step_loaded.instance()
+    _start(fmu, None, step_loaded)
+    with pytest.raises(FMICallException):
+        fmu.setFMUstate(foreign)
+    assert step_loaded.errors()[-1] == "setFMUstate: not a state of this FMU"
+    assert _get(fmu, step_loaded, LENGTH) > 0.17  # unchanged: still the 3-APS chain
+    iso.freeFMUstate(foreign)
+    iso.freeInstance()
+    fmu.freeInstance()
