@@ -50,7 +50,8 @@ class Path:
     equilibria : list of Equilibrium
         One per node, found by continuation from the first.
     operating_point : Equilibrium
-        The equilibrium at the middle of the input's range (where it is linearised).
+        The middle node's equilibrium (mid-range for an odd number of nodes): where the
+        ``linear`` level linearises.
     """
 
     input_name: str
@@ -65,13 +66,12 @@ class Path:
             return np.zeros((len(u), X.shape[1]))
         return CubicSpline(self.nodes, X, axis=0)(u, 1)
 
-    def static(self, signals: Sequence[str], u: np.ndarray, slope: bool = False) -> np.ndarray:
-        """``y_eq(u)`` of ``signals`` at the input values ``u`` (or its slope
-        ``dy_eq/du``), shape (len(u), ny)."""
+    def static(self, signals: Sequence[str], u: np.ndarray) -> np.ndarray:
+        """``y_eq(u)`` of ``signals`` at the input values ``u``, shape (len(u), ny)."""
         Y = np.array([[e[n] for n in signals] for e in self.equilibria])
         if len(self.nodes) == 1:
-            return np.zeros((len(u), len(signals))) if slope else np.repeat(Y, len(u), axis=0)
-        return CubicSpline(self.nodes, Y, axis=0)(u, 1 if slope else 0)
+            return np.repeat(Y, len(u), axis=0)
+        return CubicSpline(self.nodes, Y, axis=0)(u)
 
 
 def equilibrium_path(
@@ -88,8 +88,7 @@ def equilibrium_path(
     for v in values:
         guess = solve_equilibrium(model, {input_name: float(v)}, params, guess=guess)
         eqs.append(guess)
-    mid = solve_equilibrium(model, {input_name: 0.5 * (lo + hi)}, params, guess=eqs[0])
-    return Path(input_name, values, eqs, mid)
+    return Path(input_name, values, eqs, eqs[len(eqs) // 2])
 
 
 def _single_input(inputs: Mapping[str, object]) -> tuple[str, object]:
