@@ -180,8 +180,9 @@ def linearize(
 def classify_poles(model: Model, sys: ct.StateSpace) -> list[dict]:
     """Each pole of a continuous linearisation with the physical mode it belongs to.
 
-    The eigenvector is scaled by the states' nominal values; its largest entry names the
-    dominant state, and that state's component names the mode (:data:`MODE_OF_COMPONENT`:
+    The dominant state of a pole is the one with the largest participation factor
+    ``|v_i w_i|`` (right and left eigenvector entries: independent of the states' units
+    and scaling); that state's component names the mode (:data:`MODE_OF_COMPONENT`:
     pressure, expansion, body, load; otherwise the component's own name). Complex pairs
     are listed once (positive imaginary part).
 
@@ -190,15 +191,15 @@ def classify_poles(model: Model, sys: ct.StateSpace) -> list[dict]:
     list of dict
         ``{"real_1_s", "imag_1_s", "frequency_Hz", "damping", "mode", "dominant_state",
         "share"}`` sorted from slowest to fastest; ``share`` is the dominant state's part
-        of the scaled eigenvector's squared norm.
+        of the pole's participation (they sum to 1 over the states).
     """
-    vals, vecs = np.linalg.eig(sys.A)
-    scaled = vecs / model.nominal("x")[:, None]
+    vals, right = np.linalg.eig(sys.A)
+    left = np.linalg.inv(right)  # rows: left eigenvectors, normalised so left @ right = I
     rows = []
-    for lam, v in zip(vals, scaled.T, strict=True):
+    for k, lam in enumerate(vals):
         if lam.imag < 0:
             continue
-        w = np.abs(v) ** 2
+        w = np.abs(right[:, k] * left[k, :])
         i = int(np.argmax(w))
         state = model.state_names[i]
         component = state.split(".")[-2] if "." in state else state
