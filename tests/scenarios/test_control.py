@@ -3,10 +3,13 @@
 import json
 import re
 
+import numpy as np
 import pytest
 
+from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ScenarioError
 from sarcomere.scenarios import load_scenario, parse_scenario, resolve_scenario, run
+from sarcomere.scenarios.cli import main
 
 SUFFIXES = (
     "overshoot_pct",
@@ -95,3 +98,39 @@ def test_other_kinds_refuse_a_control_section(tmp_path):
     text = _text("step-50g") + '\n[control]\noutput = "myofibril.length"\n'
     with pytest.raises(ScenarioError, match=r"does not use \[control\]"):
         run(parse_scenario(text, "x.toml"), tmp_path / "out", quiet=True)
+
+
+def test_linearize_command_writes_named_matrices_and_modes(tmp_path, capsys):
+    out = tmp_path / "lin"
+    assert main(["linearize", "control-length", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "load (load.s)" in printed
+    record = json.loads((out / "linearization.json").read_text())
+    npz = np.load(out / "matrices.npz")
+    # an independent evaluation: the model's own Jacobian Function at a fresh equilibrium
+    model = hanging_load(3, load_kg=0.02)
+    eq = solve_equilibrium(model, {"regulator.p_cmd": 5e4})
+    A = np.array(model.linearization(["myofibril.length"])(eq.x, eq.z, eq.u, eq.p)[0])
+    np.testing.assert_allclose(npz["A"], A, rtol=1e-9, atol=1e-9)
+    assert list(npz["states"]) == model.state_names == record["states"]
+    assert record["labels"]["myofibril.length"] == "myofibril__length"
+    assert {p["mode"] for p in record["poles"]} == {"pressure", "expansion", "body", "load"}
+    assert sum(2 if p["imag_1_s"] else 1 for p in record["poles"]) == model.nx
+    assert (out / "bode.png").stat().st_size > 1000
+    assert json.loads((out / "summary.json").read_text())["metrics"]["states"] == 18
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["paper-static"],
+        ["control-length", "--output", "myofibril.lenght"],
+        ["step-50g", "--pressure", "0.1 kg"],
+    ],
+)
+def test_linearize_command_refuses_in_one_line_and_writes_nothing(tmp_path, capsys, args):
+    out = tmp_path / "lin"
+    assert main(["linearize", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and "\n" not in err
+    assert not out.exists()
