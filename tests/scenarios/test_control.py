@@ -86,6 +86,8 @@ def test_force_scene_shortened(tmp_path):
         ("[control.controllers.pid]", "[control.controllers.pid]\nkq = 1.0", "pid.kq"),
         ('pressure_max = "0.3 MPa"', 'pressure_max = "0.01 MPa"', "control.pressure_max"),
         ('output = "myofibril.length"', 'output = "myofibril.lenght"', "control.output"),
+        ('sample_time = "10 ms"', 'sample_time = "0.1 ms"', "control.sample_time"),
+        ('sample_time = "10 ms"', 'sample_time = "0.2 s"', "control.sample_time"),
     ],
 )
 def test_bad_control_settings_are_refused_by_key(tmp_path, old, new, key):
