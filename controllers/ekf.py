@@ -139,19 +139,19 @@ def make_ekf(
     model: Model,
     op: Equilibrium,
     dt: float,
-    measured: Sequence[str] | None,
+    measured: Sequence[str],
     noise_std: Mapping[str, float] | None,
     settings: Mapping[str, object],
 ) -> EKF:
-    """An EKF from the loop's ``measured`` and ``noise_std`` (defaults: the length and the
-    regulator pressure; :data:`DEFAULT_STD` by unit) and its own ``settings``:
+    """An EKF from the loop's ``measured`` and ``noise_std`` (default :data:`DEFAULT_STD`
+    by unit) and its own ``settings``:
     ``input_std`` [SI], ``disturbance_std`` (parameter -> std; default 20 g on
     ``load.m`` where the model has one) and ``substeps``."""
     if not isinstance(settings, Mapping):
         raise ParameterError("ekf", settings, "a table of EKF settings")
     dist = {"load.m": 0.02} if "load.m" in model.param_names else {}
     own = own_settings("ekf", settings, {"input_std": 2e3, "disturbance_std": dist, "substeps": 2})
-    meas = list(measured or ["myofibril.length", "regulator.p_out"])
+    meas = list(measured)
     given = dict(noise_std or {})
     std = {n: given.get(n) or DEFAULT_STD.get(model.unit(n), 1e-6) for n in meas}
     return EKF(model, op, dt, meas, std, own["input_std"], own["disturbance_std"], own["substeps"])

@@ -254,9 +254,8 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     weights = LQIWeights(**{k: float(own[k]) for k in defaults})
     est = None
     if own["estimator"] == "ekf":
-        est = make_ekf(
-            model, op, dt, settings.get("measured"), settings.get("noise_std"), own["ekf"]
-        )
+        measured = settings.get("measured") or [out, "regulator.p_out"]
+        est = make_ekf(model, op, dt, measured, settings.get("noise_std"), own["ekf"])
     u_min, u_max = float(settings["u_min"]), float(settings["u_max"])
     return LQI(dt, model, op, out, inp, u_min, u_max, weights, est, own["feedforward"])
 
