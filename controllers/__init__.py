@@ -8,9 +8,10 @@ checked by :meth:`~.base.Controller.checked`) and is built by a factory register
     factory(model, operating_point, dt, settings: dict) -> Controller
     register_controller("lmpc", make_lmpc)
 
-``settings`` holds the common keys the loop sets (:data:`~.registry.COMMON_KEYS`:
-``output``, ``input``, ``u_min``, ``u_max``, ``measured``, ``noise_std``) and the
-controller's own keys (the scene's ``[control.controllers.<key>]`` table), checked with
+``settings`` holds the common keys the scene sets (:data:`~.registry.COMMON_KEYS`:
+``output``, ``input``, ``u_min``, ``u_max``, ``measured``, ``noise_std``,
+``tension_min``) and the controller's own keys (the scene's
+``[control.controllers.<key>]`` table, SI numbers or text), checked with
 :func:`~.registry.own_settings`. A module that registers a controller is imported here, so
 ``import sarcomere.controllers`` makes every slug available to the loop
 (:func:`~.loop.run_closed_loop`) and to the ``closed_loop`` scene kind.

@@ -33,6 +33,7 @@ COMMON_KEYS = {
     "u_max": "upper bound of the input [SI]",
     "measured": "signals a realistic sensor set gives (list), for estimators",
     "noise_std": "measurement noise standard deviation by signal [SI] (dict), for estimators",
+    "tension_min": "the thread tension constraint [N] (for controllers that can state it)",
 }
 """Keys the loop puts in every factory's ``settings``."""
 

@@ -215,6 +215,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
             "u_max": p_max,
             "measured": list(measured),
             "noise_std": dict(noise),
+            "tension_min": t_min,
             **own,
         }
         try:
