@@ -6,7 +6,8 @@ A factory is ``factory(model, operating_point, dt, settings) -> Controller``:
 * ``model``: the *plant* model the loop drives (a factory may build its own prediction
   model from it, e.g. a smooth flow law);
 * ``operating_point``: the :class:`~sarcomere.dynamics.Equilibrium` the loop starts from;
-* ``dt``: the sample time [s];
+* ``dt``: the sample time [s], checked by :func:`make_controller` against the plant
+  (:func:`check_sample_time`);
 * ``settings``: a plain dict. The loop sets the :data:`COMMON_KEYS`; every other key is the
   controller's own (the scene's ``[control.controllers.<key>]`` table, values in SI), and
   a factory refuses keys it does not know with a ParameterError naming ``<slug>.<key>``
@@ -18,11 +19,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 
+import numpy as np
+
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
+from .linearize import linearize
 
 Factory = Callable[[Model, Equilibrium, float, dict], Controller]
 
@@ -63,14 +67,45 @@ def make_controller(
     Raises
     ------
     ParameterError
-        For an unknown slug or missing common settings.
+        For an unknown slug, missing common settings or a sample time outside what the
+        plant allows (:func:`check_sample_time`).
     """
     if slug not in CONTROLLERS:
         raise ParameterError("controller", slug, f"one of {sorted(CONTROLLERS)}")
     missing = [k for k in ("output", "input", "u_min", "u_max") if k not in settings]
     if missing:
         raise ParameterError(f"{slug}.settings", sorted(settings), f"keys {missing} set")
+    check_sample_time(slug, model, op, dt)
     return CONTROLLERS[slug](model, op, dt, dict(settings))
+
+
+MIN_SAMPLE_S = 1e-3
+"""Shortest sample time [s]: about the time one update of the slowest controller here
+takes (the EKF, 1-2 ms), and a fiftieth of the regulator's lag."""
+
+
+def check_sample_time(slug: str, model: Model, op: Equilibrium, dt: float) -> None:
+    """Refuse a sample time below :data:`MIN_SAMPLE_S` or above the slowest time constant
+    of the plant at ``op`` (the regulator's 50 ms lag here): sampled slower, the loop
+    would not see the actuator it commands.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``<slug>.dt``, the value and the range.
+    """
+    if not (isinstance(dt, int | float) and math.isfinite(dt)):
+        raise ParameterError(f"{slug}.dt", dt, "a finite sample time [s]")
+    poles = np.linalg.eigvals(linearize(model, op, []).A)
+    slowest = float(np.min(np.abs(poles.real))) if len(poles) else 0.0
+    high = 1.0 / slowest if slowest > 0 else math.inf
+    if not MIN_SAMPLE_S <= dt <= high:
+        raise ParameterError(
+            f"{slug}.dt",
+            dt,
+            f"[{MIN_SAMPLE_S:g}, {high:.3g}] s",
+            "the upper end is the plant's slowest time constant at the operating point",
+        )
 
 
 def own_settings(slug: str, settings: Mapping[str, object], defaults: Mapping[str, object]):

@@ -117,3 +117,14 @@ def test_as_iosystem_closes_the_loop_with_the_linear_plant():
         assert du == pytest.approx(u_io[k], rel=1e-9, abs=1e-6)
         x = plant.A @ x + plant.B[:, 0] * du
     assert y_io[-1] == pytest.approx(dr, rel=1e-3)
+
+
+@pytest.mark.parametrize("dt", [1e-4, 0.2])
+def test_sample_time_outside_what_the_plant_allows_is_refused(dt):
+    """Below 1 ms, or slower than the regulator's 50 ms lag (the slowest time constant)."""
+    m = hanging_load(1, load_kg=0.02)
+    op = operating_point(m, {"regulator.p_cmd": 5e4})
+    task = {"output": "myofibril.length", "input": "regulator.p_cmd", "u_min": 0, "u_max": 1e5}
+    with pytest.raises(ParameterError, match=r"'pid\.dt'.*0\.05\] s"):
+        make_controller("pid", m, op, dt, task)
+    make_controller("pid", m, op, 0.04, task)  # just inside
