@@ -1,5 +1,5 @@
 """The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``calibrate``, ``bench``,
-``export-fmu``.
+``export-fmu``, ``linearize SCENARIO``.
 
 Subcommands are rows of :data:`COMMANDS` (name, help, handler, add_arguments); add one by
 appending a :class:`Command`. A :class:`~sarcomere.dynamics.errors.SarcomereError` prints
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from sarcomere.dynamics.errors import SarcomereError
 
-from . import bench, calibrate, export_fmu
+from . import bench, calibrate, export_fmu, linearize
 from .loader import load_scenario, packaged_scenarios
 from .outdir import check_out_dir
 from .output import version
@@ -87,6 +87,12 @@ COMMANDS: list[Command] = [
         "export a transient scenario's model as an FMU (FMI 2.0 or 3.0, ME and CS)",
         export_fmu.handler,
         export_fmu.add_arguments,
+    ),
+    Command(
+        "linearize",
+        "exact linearisation of a scene's model: poles by mode, Bode plot, named matrices",
+        linearize.handler,
+        linearize.add_arguments,
     ),
 ]
 
