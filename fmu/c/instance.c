@@ -8,6 +8,9 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* The owner tag of this FMU's saved states: one object, compared by address. */
+static const char sm_owner[] = SM_GUID;
+
 const char* const sm_category_names[SM_N_CATEGORIES] = {"logStatusError", "logStatusWarning",
                                                         "logSolver", "logCalls"};
 
@@ -159,7 +162,7 @@ SmStatus sm_set_logging(SmInstance* inst, int on, size_t n, const char* const* c
 
 /* --- life cycle ----------------------------------------------------------------------- */
 void sm_reset(SmInstance* inst) {
-    inst->v.owner = SM_GUID;
+    inst->v.owner = sm_owner;
     inst->v.t = 0.0;
     memcpy(inst->v.x, sm_x_start, sizeof inst->v.x);
     memcpy(inst->v.u, sm_u_start, sizeof inst->v.u);
@@ -496,7 +499,7 @@ SmValues* sm_get_state(SmInstance* inst, SmValues* reuse) {
 }
 
 SmStatus sm_set_state(SmInstance* inst, const SmValues* state) {
-    if (state->owner != SM_GUID) {
+    if (state->owner != sm_owner) {
         sm_log(inst, SM_ERROR, SM_LOG_ERROR, "setFMUstate: not a state of this FMU");
         return SM_ERROR;
     }
@@ -568,7 +571,7 @@ SmValues* sm_deserialize(SmInstance* inst, const char* bytes, size_t size) {
         sm_log(inst, SM_ERROR, SM_LOG_ERROR, "deSerializeFMUstate: out of memory");
         return NULL;
     }
-    s->owner = SM_GUID;
+    s->owner = sm_owner;
     s->t = d[0];
     memcpy(s->x, d + 1, sizeof s->x);
     memcpy(s->u, d + 1 + SM_NX, sizeof s->u);

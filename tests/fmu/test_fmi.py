@@ -313,3 +313,25 @@ def test_a_state_of_another_fmu_is_refused(step_loaded, load, iso_fmu):
     iso.freeFMUstate(foreign)
     iso.freeInstance()
     fmu.freeInstance()
+
+
+@pytest.mark.parametrize(
+    ("tamper", "why"),
+    [
+        (lambda b, head: b[:30] + b"X" + b[31:], "not a state of this FMU"),
+        (lambda b, head: b[:head] + np.float64(np.nan).tobytes() + b[head + 8 :], "not finite"),
+        (lambda b, head: b[:-24] + np.float64(3.0).tobytes() + b[-16:], "unknown mode"),
+    ],
+)
+def test_a_tampered_serialized_state_is_refused(step_loaded, tamper, why):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    _start(fmu, None, fmi)
+    state = fmu.getFMUstate()
+    raw = fmu.serializeFMUstate(state)
+    head = len(b"sarcomere-fmu-state-1\0") + len(fmi.md.guid) + 1  # then t, x, u, p, flags
+    assert fmu.deSerializeFMUstate(raw)  # the untouched bytes load
+    with pytest.raises(FMICallException):
+        fmu.deSerializeFMUstate(tamper(raw, head))
+    assert why in fmi.errors()[-1]
+    fmu.freeInstance()
