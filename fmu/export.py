@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
+import casadi as cs
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import solve_equilibrium
@@ -79,10 +80,12 @@ class Layout:
     Each row of ``variables`` is ``(name, group, unit, start, low, high, nominal,
     description)``; ``group`` is "x" (state), "der" (its derivative), "u", "y" or "p".
     ``start`` is None where the variable has no start value (derivatives, outputs).
+    ``tunable``: the parameters no start value depends on (see :func:`tunable`).
     """
 
     model: Model
     variables: list[tuple] = field(default_factory=list)
+    tunable: frozenset[str] = frozenset()
 
     def first(self, group: str) -> int:
         """Value reference of the first variable of ``group``."""
@@ -95,6 +98,15 @@ def _derivative_unit(unit: str) -> str:
     if unit.endswith("/s"):
         return unit + "^2"
     return f"{unit}/s"
+
+
+def tunable(model: Model) -> frozenset[str]:
+    """The parameters that are safe to change after initialisation: those no start value
+    depends on (a change of the others would leave the states inconsistent with the
+    geometry they were computed from: thread lengths, volumes, ambient state)."""
+    starts = cs.vertcat(*model.function("start")(model.p))
+    used = set(cs.jacobian(starts, model.p).sparsity().get_col())
+    return frozenset(n for i, n in enumerate(model.param_names) if i not in used)
 
 
 def layout(model: Model, x0: np.ndarray, u0: np.ndarray, p: np.ndarray) -> Layout:
@@ -117,7 +129,7 @@ def layout(model: Model, x0: np.ndarray, u0: np.ndarray, p: np.ndarray) -> Layou
     for i, n in enumerate(m.param_names):
         v = m.variables[n]
         rows.append((n, "p", v.unit, p[i], v.low, v.high, v.nominal, v.description))
-    return Layout(m, rows)
+    return Layout(m, rows, tunable(m))
 
 
 def _c_double(v: float) -> str:
@@ -183,6 +195,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         "extern const double sm_u_start[SM_NU];",
         "extern const double sm_p_start[SM_NP];",
         "extern const double sm_x_nominal[SM_NX];",
+        "extern const int sm_tunable[SM_NP]; /* settable in step and event mode */",
         "",
         "#endif",
         "",
@@ -202,6 +215,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         _c_array("double", "sm_u_start", [_c_double(r[3]) for r in group["u"]]),
         _c_array("double", "sm_p_start", [_c_double(r[3]) for r in group["p"]]),
         _c_array("double", "sm_x_nominal", [_c_double(r[6]) for r in group["x"]]),
+        _c_array("int", "sm_tunable", [str(int(r[0] in lay.tunable)) for r in group["p"]]),
     ]
     return "\n".join(h), "\n".join(c)
 

@@ -284,10 +284,20 @@ SmStatus sm_set_reals(SmInstance* inst, const unsigned* vr, size_t n, const doub
                    r < SM_VR_U ? "a state derivative" : "an output");
             return SM_ERROR;
         }
-        if ((is_x || is_p) && !(inst->v.mode & before_run)) {
+        if (is_x && !(inst->v.mode & before_run)) {
             sm_log(inst, SM_ERROR, SM_LOG_ERROR,
-                   "set real: %s is %s; it can be set only before the end of initialisation",
-                   name, is_p ? "a fixed parameter" : "a state (use the continuous states)");
+                   "set real: %s is a state; after initialisation set the continuous states",
+                   name);
+            return SM_ERROR;
+        }
+        if (is_p && !(inst->v.mode & before_run) &&
+            !(sm_tunable[r - SM_VR_P] && (inst->v.mode & (SM_STEP | SM_EVENT)))) {
+            sm_log(inst, SM_ERROR, SM_LOG_ERROR, "set real: %s is %s", name,
+                   sm_tunable[r - SM_VR_P]
+                       ? "a tunable parameter; after initialisation it can be set in step mode "
+                         "(Co-Simulation) or event mode (Model Exchange)"
+                       : "a fixed parameter; it can be set only before the end of "
+                         "initialisation");
             return SM_ERROR;
         }
         if (!isfinite(value[i]) || value[i] < sm_min[r] || value[i] > sm_max[r]) {

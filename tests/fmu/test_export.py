@@ -41,7 +41,9 @@ def test_variables_follow_the_model(step_fmu):
     p_cmd = by_name["regulator.p_cmd"]
     assert (p_cmd.causality, float(p_cmd.min), float(p_cmd.max)) == ("input", 0.0, 6e5)
     load = by_name["load.m"]
-    assert (load.causality, load.variability) == ("parameter", "fixed")
+    assert (load.causality, load.variability) == ("parameter", "tunable")
+    thread = by_name["myofibril.actin0.l"]  # the start positions depend on it
+    assert (thread.variability, thread.initial) == ("fixed", "exact")
     assert float(load.start) == pytest.approx(0.051, rel=1e-15)
     assert by_name["myofibril.length"].causality == "output"
     assert float(by_name["myofibril.aps1.chamber.p"].min) == 0.0

@@ -76,6 +76,34 @@ def test_initial_equilibrium_follows_parameters(step_loaded, model):
     fmu.freeInstance()
 
 
+def test_a_tunable_parameter_changes_in_step_mode(step_loaded, model):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    _start(fmu, None, fmi)
+    rest = _get(fmu, fmi, LENGTH)
+    fmu.setReal([fmi.vr["load.m"]], [0.101])  # 50 g more hung on at t = 0
+    for k in range(1000):
+        fmu.doStep(k * 0.005, 0.005)
+    eq = solve_equilibrium(model, {P_CMD: 0.0}, {"load.m": 0.101})
+    assert _get(fmu, fmi, LENGTH) == pytest.approx(eq[LENGTH], rel=1e-6)  # settled there
+    assert eq[LENGTH] > rest + 1e-3
+    fmu.freeInstance()
+
+
+def test_a_tunable_parameter_waits_for_event_mode_in_model_exchange(step_loaded):
+    fmi = step_loaded
+    fmu = fmi.instance(cosim=False)
+    _start(fmu, None, fmi)
+    fmu.enterContinuousTimeMode()
+    with pytest.raises(FMICallException):
+        fmu.setReal([fmi.vr["load.m"]], [0.06])
+    assert "load.m is a tunable parameter; after initialisation" in fmi.errors()[-1]
+    fmu.enterEventMode()
+    fmu.setReal([fmi.vr["load.m"]], [0.06])
+    assert fmu.getReal([fmi.vr["load.m"]]) == [0.06]
+    fmu.freeInstance()
+
+
 def test_states_set_by_the_importer_are_kept(step_loaded):
     fmi = step_loaded
     fmu = fmi.instance()
@@ -203,7 +231,7 @@ def _unknown_value_reference(fmu, fmi):
 
 def _fixed_parameter_after_init(fmu, fmi):
     _start(fmu, None, fmi)
-    fmu.setReal([fmi.vr["load.m"]], [0.06])
+    fmu.setReal([fmi.vr["myofibril.actin0.l"]], [0.033])
 
 
 def _set_an_output(fmu, fmi):
@@ -248,7 +276,7 @@ def _no_equilibrium(fmu, fmi):
         (_input_above_range, "regulator.p_cmd = 700000 is outside [0, 600000]"),
         (_parameter_below_range, "load.m = -0.01"),
         (_unknown_value_reference, "unknown value reference"),
-        (_fixed_parameter_after_init, "load.m is a fixed parameter"),
+        (_fixed_parameter_after_init, "myofibril.actin0.l is a fixed parameter"),
         (_set_an_output, "myofibril.length is an output and cannot be set"),
         (_wrong_communication_point, "is not the FMU's time"),
         (_bad_step_size, "step size -0.001 is not a finite number > 0"),
