@@ -12,7 +12,7 @@ from fmpy.validation import validate_fmu
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.fmu import export_fmu
+from sarcomere.fmu import FmuError, export_fmu
 from sarcomere.fmu.description import base_units
 from sarcomere.scenarios.cli import main
 
@@ -109,3 +109,14 @@ def test_cli_refuses_a_scene_without_one_model_level(tmp_path, capsys):
     assert main(["export-fmu", "step-50g-auto", "--out", str(out)]) == 2
     assert "one level" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_failing_compiler_is_an_error_and_writes_nothing(tmp_path, monkeypatch):
+    model = hanging_load(1)
+    monkeypatch.setenv("CC", "false")  # a "compiler" that always fails
+    with pytest.raises(FmuError, match="the C compiler failed"):
+        export_fmu(model, tmp_path / "a.fmu")
+    monkeypatch.setenv("CC", "no-such-compiler-here")
+    with pytest.raises(FmuError, match="no C compiler"):
+        export_fmu(model, tmp_path / "a.fmu")
+    assert not list(tmp_path.iterdir())
