@@ -284,9 +284,12 @@ SmStatus sm_set_reals(SmInstance* inst, const unsigned* vr, size_t n, const doub
                    r < SM_VR_U ? "a state derivative" : "an output");
             return SM_ERROR;
         }
-        if (is_x && !(inst->v.mode & before_run)) {
+        /* Model Exchange: setting a state by value reference is setting the continuous
+         * states (importers such as CasADi's do so) */
+        if (is_x && !(inst->v.mode & (before_run | SM_EVENT | SM_CONT))) {
             sm_log(inst, SM_ERROR, SM_LOG_ERROR,
-                   "set real: %s is a state; after initialisation set the continuous states",
+                   "set real: %s is a state; it can be set only before the end of "
+                   "initialisation (Co-Simulation)",
                    name);
             return SM_ERROR;
         }
@@ -310,7 +313,7 @@ SmStatus sm_set_reals(SmInstance* inst, const unsigned* vr, size_t n, const doub
         unsigned r = vr[i];
         if (r < SM_VR_DER) {
             inst->v.x[r - SM_VR_X] = value[i];
-            inst->v.x_given = 1;
+            inst->v.x_given |= (inst->v.mode & before_run) != 0;
         } else if (r < SM_VR_Y) {
             if (inst->v.u[r - SM_VR_U] != value[i]) inst->v.x_solved = 0;
             inst->v.u[r - SM_VR_U] = value[i];

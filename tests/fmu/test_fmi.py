@@ -234,6 +234,11 @@ def _fixed_parameter_after_init(fmu, fmi):
     fmu.setReal([fmi.vr["myofibril.actin0.l"]], [0.033])
 
 
+def _set_a_state_in_step_mode(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.setReal([fmi.vr["load.s"]], [0.2])
+
+
 def _set_an_output(fmu, fmi):
     _start(fmu, None, fmi)
     fmu.setReal([fmi.vr[LENGTH]], [0.1])
@@ -277,6 +282,7 @@ def _no_equilibrium(fmu, fmi):
         (_parameter_below_range, "load.m = -0.01"),
         (_unknown_value_reference, "unknown value reference"),
         (_fixed_parameter_after_init, "myofibril.actin0.l is a fixed parameter"),
+        (_set_a_state_in_step_mode, "load.s is a state; it can be set only before the end"),
         (_set_an_output, "myofibril.length is an output and cannot be set"),
         (_wrong_communication_point, "is not the FMU's time"),
         (_bad_step_size, "step size -0.001 is not a finite number > 0"),
