@@ -12,6 +12,7 @@ from fmpy.fmi1 import FMICallException
 
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.fmu import export as export_module
 
 P_CMD = "regulator.p_cmd"
 LENGTH = "myofibril.length"
@@ -368,4 +369,20 @@ def test_a_tampered_serialized_state_is_refused(step_loaded, tamper, why):
     with pytest.raises(FMICallException):
         fmu.deSerializeFMUstate(tamper(raw, head))
     assert why in fmi.errors()[-1]
+    fmu.freeInstance()
+
+
+def test_a_newton_failure_in_do_step_is_reported(tmp_path, monkeypatch, load):
+    """An FMU built with an unreachable Radau tolerance: each substep is halved down to the
+    shortest substep, then doStep fails with the residual named."""
+    monkeypatch.setattr(export_module, "STEP_TOL", 1e-300)
+    monkeypatch.setattr(export_module, "MIN_SUBSTEP_S", 1e-4)
+    fmi = load(export_module.export_fmu(hanging_load(1), tmp_path / "strict.fmu"))
+    fmu = fmi.instance(logging_on=True)
+    _start(fmu, None, fmi)
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, 0.001)
+    message = fmi.errors()[-1]
+    assert "Radau IIA Newton iteration did not converge" in message
+    assert "tolerance 1e-300" in message and "substep of 0.000125 s" in message
     fmu.freeInstance()
