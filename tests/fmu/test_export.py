@@ -107,7 +107,7 @@ def test_cli_refuses_a_scene_without_one_model_level(tmp_path, capsys):
     assert main(["export-fmu", "paper-isometric", "--out", str(out)]) == 2
     assert "transient" in capsys.readouterr().err
     assert main(["export-fmu", "step-50g-auto", "--out", str(out)]) == 2
-    assert "one level" in capsys.readouterr().err
+    assert "exported at one level" in capsys.readouterr().err
     assert not out.exists()
 
 
