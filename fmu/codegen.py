@@ -49,10 +49,8 @@ EQ_NEWTON_ITERATIONS = 30
 
 @dataclass(frozen=True)
 class Generated:
-    """The generated C file and the work sizes the wrapper allocates."""
+    """The work sizes the wrapper allocates for the generated functions (the largest)."""
 
-    source: Path
-    header: Path
     sz_arg: int
     sz_res: int
     sz_iw: int
@@ -142,8 +140,6 @@ def generate(model: Model, folder: Path) -> Generated:
     folder = Path(folder)
     gen.generate(f"{folder}/")
     return Generated(
-        folder / "sm_casadi.c",
-        folder / "sm_casadi.h",
         max(f.sz_arg() for f in funcs),
         max(f.sz_res() for f in funcs),
         max(f.sz_iw() for f in funcs),

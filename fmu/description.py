@@ -154,10 +154,13 @@ def _type_attrs(lay, i: int, row: tuple, fmi_version: int) -> dict:
     return attrs
 
 
-def _var_attrs(i: int, row: tuple, vr_key: str) -> dict:
+def _var_attrs(lay, i: int, row: tuple, vr_key: str) -> dict:
     name, group, *_, text = row
     attrs = {"name": name, vr_key: str(i), "description": text, "causality": _CAUSALITY[group]}
-    attrs["variability"] = "fixed" if group == "p" else "continuous"
+    if group == "p":
+        attrs["variability"] = "tunable" if name in lay.tunable else "fixed"
+    else:
+        attrs["variability"] = "continuous"
     if group == "x":
         attrs["initial"] = "approx"
     elif group == "p":
@@ -189,7 +192,7 @@ def _fmi2(lay, ident: str, guid: str, sources, experiment) -> ET.Element:
     _experiment(root, experiment)
     mv = ET.SubElement(root, "ModelVariables")
     for i, row in enumerate(lay.variables):
-        sv = ET.SubElement(mv, "ScalarVariable", _var_attrs(i, row, "valueReference"))
+        sv = ET.SubElement(mv, "ScalarVariable", _var_attrs(lay, i, row, "valueReference"))
         ET.SubElement(sv, "Real", _type_attrs(lay, i, row, 2))
     ms = ET.SubElement(root, "ModelStructure")
     nothing = cs.SX(0, 1)
@@ -225,7 +228,7 @@ def _fmi3(lay, ident: str, guid: str, experiment) -> ET.Element:
     _experiment(root, experiment)
     mv = ET.SubElement(root, "ModelVariables")
     for i, row in enumerate(lay.variables):
-        attrs = _var_attrs(i, row, "valueReference")
+        attrs = _var_attrs(lay, i, row, "valueReference")
         attrs.update(_type_attrs(lay, i, row, 3))
         ET.SubElement(mv, "Float64", attrs)
     time = {"name": "time", "valueReference": str(len(lay.variables))}

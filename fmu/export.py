@@ -4,7 +4,8 @@ The pipeline: the model's CasADi Functions are generated to C (:mod:`.codegen`),
 variable tables and sizes are written as ``model_data.h``/``model_data.c``, the model
 description is written from the model's names (:mod:`.description`), the project's FMI
 wrapper (``fmu/c/``: ``fmi2.c`` or ``fmi3.c`` over ``instance.c`` over ``physics.c``) is
-compiled with the system C compiler into ``binaries/linux64/<model>.so``, and everything,
+compiled with the system C compiler into ``binaries/<platform>/<model>.so`` (this
+machine's platform: linux64, or x86_64-linux for FMI 3.0), and everything,
 sources included, is zipped into the ``.fmu``.
 
 Value references are the variables' positions in one list: states, state derivatives,
@@ -26,6 +27,8 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
+import casadi as cs
+import fmpy
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import solve_equilibrium
@@ -38,8 +41,8 @@ FMI_VERSIONS = (2, 3)
 
 MAX_SUBSTEP_S = 1e-3
 """Longest Radau IIA substep of a Co-Simulation ``doStep`` [s]; longer steps are split
-into equal substeps. At 1 ms the step-50g scene matches CVODES (rtol 1e-6) within 4e-6
-of its range (measured, tests/fmu)."""
+into equal substeps. At 1 ms the step-50g scene matches CVODES (rtol 1e-6) within 3e-5
+of each signal's largest value (measured, tests/fmu)."""
 
 MIN_SUBSTEP_S = 1e-9
 """Shortest substep [s]: a substep whose Newton iteration fails is halved down to this."""
@@ -79,10 +82,12 @@ class Layout:
     Each row of ``variables`` is ``(name, group, unit, start, low, high, nominal,
     description)``; ``group`` is "x" (state), "der" (its derivative), "u", "y" or "p".
     ``start`` is None where the variable has no start value (derivatives, outputs).
+    ``tunable``: the parameters no start value depends on (see :func:`tunable`).
     """
 
     model: Model
     variables: list[tuple] = field(default_factory=list)
+    tunable: frozenset[str] = frozenset()
 
     def first(self, group: str) -> int:
         """Value reference of the first variable of ``group``."""
@@ -95,6 +100,15 @@ def _derivative_unit(unit: str) -> str:
     if unit.endswith("/s"):
         return unit + "^2"
     return f"{unit}/s"
+
+
+def tunable(model: Model) -> frozenset[str]:
+    """The parameters that are safe to change after initialisation: those no start value
+    depends on (a change of the others would leave the states inconsistent with the
+    geometry they were computed from: thread lengths, volumes, ambient state)."""
+    starts = cs.vertcat(*model.function("start")(model.p))
+    used = set(cs.jacobian(starts, model.p).sparsity().get_col())
+    return frozenset(n for i, n in enumerate(model.param_names) if i not in used)
 
 
 def layout(model: Model, x0: np.ndarray, u0: np.ndarray, p: np.ndarray) -> Layout:
@@ -117,7 +131,7 @@ def layout(model: Model, x0: np.ndarray, u0: np.ndarray, p: np.ndarray) -> Layou
     for i, n in enumerate(m.param_names):
         v = m.variables[n]
         rows.append((n, "p", v.unit, p[i], v.low, v.high, v.nominal, v.description))
-    return Layout(m, rows)
+    return Layout(m, rows, tunable(m))
 
 
 def _c_double(v: float) -> str:
@@ -183,6 +197,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         "extern const double sm_u_start[SM_NU];",
         "extern const double sm_p_start[SM_NP];",
         "extern const double sm_x_nominal[SM_NX];",
+        "extern const int sm_tunable[SM_NP]; /* settable in step and event mode */",
         "",
         "#endif",
         "",
@@ -202,6 +217,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         _c_array("double", "sm_u_start", [_c_double(r[3]) for r in group["u"]]),
         _c_array("double", "sm_p_start", [_c_double(r[3]) for r in group["p"]]),
         _c_array("double", "sm_x_nominal", [_c_double(r[6]) for r in group["x"]]),
+        _c_array("int", "sm_tunable", [str(int(r[0] in lay.tunable)) for r in group["p"]]),
     ]
     return "\n".join(h), "\n".join(c)
 
@@ -213,8 +229,6 @@ def _guid(lay: Layout, fmi_version: int) -> str:
 
 def fmi_headers() -> Path:
     """The folder of the official FMI headers (shipped inside fmpy, ``c-code/``)."""
-    import fmpy
-
     folder = Path(fmpy.__file__).parent / "c-code"
     if not (folder / "fmi2Functions.h").is_file():
         raise FmuError(f"the FMI headers are not in {folder}; reinstall fmpy")
@@ -343,10 +357,11 @@ def export_fmu(
         (root / "modelDescription.xml").write_text(xml)
         if fmi_version == 3:
             (src / "buildDescription.xml").write_text(description.build_description(ident, sources))
-        platform = "linux64" if fmi_version == 2 else "x86_64-linux"
+        # this machine's binary folder and library suffix, as importers look them up
+        platform = fmpy.platform if fmi_version == 2 else fmpy.platform_tuple
         binaries = root / "binaries" / platform
         binaries.mkdir(parents=True)
-        compile_binary(src, binaries / f"{ident}.so", fmi_version)
+        compile_binary(src, binaries / f"{ident}{fmpy.sharedLibraryExtension}", fmi_version)
         with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
             for f in sorted(root.rglob("*")):
                 if f.is_file():

@@ -29,9 +29,7 @@ def scenario_setup(source: str | Path | Scenario) -> tuple[Model, dict, dict, Ex
         raise sc.error(("scenario", "kind"), f"'{sc.kind}': an FMU is exported from a transient")
     fid = sc.model.fidelity
     if fid not in FIDELITIES:
-        raise sc.error(
-            ("model", "fidelity"), f"'{fid}': an FMU needs one level, one of {FIDELITIES}"
-        )
+        raise sc.error(("model", "fidelity"), f"'{fid}': an FMU is exported at one level")
     b = bind(sc)
     check_n(sc, ("model", "n"), b.n, fid)
     model = b.build(fid)

@@ -8,6 +8,9 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* The owner tag of this FMU's saved states: one object, compared by address. */
+static const char sm_owner[] = SM_GUID;
+
 const char* const sm_category_names[SM_N_CATEGORIES] = {"logStatusError", "logStatusWarning",
                                                         "logSolver", "logCalls"};
 
@@ -159,7 +162,7 @@ SmStatus sm_set_logging(SmInstance* inst, int on, size_t n, const char* const* c
 
 /* --- life cycle ----------------------------------------------------------------------- */
 void sm_reset(SmInstance* inst) {
-    inst->v.owner = SM_GUID;
+    inst->v.owner = sm_owner;
     inst->v.t = 0.0;
     memcpy(inst->v.x, sm_x_start, sizeof inst->v.x);
     memcpy(inst->v.u, sm_u_start, sizeof inst->v.u);
@@ -281,10 +284,23 @@ SmStatus sm_set_reals(SmInstance* inst, const unsigned* vr, size_t n, const doub
                    r < SM_VR_U ? "a state derivative" : "an output");
             return SM_ERROR;
         }
-        if ((is_x || is_p) && !(inst->v.mode & before_run)) {
+        /* Model Exchange: setting a state by value reference is setting the continuous
+         * states (importers such as CasADi's do so) */
+        if (is_x && !(inst->v.mode & (before_run | SM_EVENT | SM_CONT))) {
             sm_log(inst, SM_ERROR, SM_LOG_ERROR,
-                   "set real: %s is %s; it can be set only before the end of initialisation",
-                   name, is_p ? "a fixed parameter" : "a state (use the continuous states)");
+                   "set real: %s is a state; it can be set only before the end of "
+                   "initialisation (Co-Simulation)",
+                   name);
+            return SM_ERROR;
+        }
+        if (is_p && !(inst->v.mode & before_run) &&
+            !(sm_tunable[r - SM_VR_P] && (inst->v.mode & (SM_STEP | SM_EVENT)))) {
+            sm_log(inst, SM_ERROR, SM_LOG_ERROR, "set real: %s is %s", name,
+                   sm_tunable[r - SM_VR_P]
+                       ? "a tunable parameter; after initialisation it can be set in step mode "
+                         "(Co-Simulation) or event mode (Model Exchange)"
+                       : "a fixed parameter; it can be set only before the end of "
+                         "initialisation");
             return SM_ERROR;
         }
         if (!isfinite(value[i]) || value[i] < sm_min[r] || value[i] > sm_max[r]) {
@@ -297,7 +313,7 @@ SmStatus sm_set_reals(SmInstance* inst, const unsigned* vr, size_t n, const doub
         unsigned r = vr[i];
         if (r < SM_VR_DER) {
             inst->v.x[r - SM_VR_X] = value[i];
-            inst->v.x_given = 1;
+            inst->v.x_given |= (inst->v.mode & before_run) != 0;
         } else if (r < SM_VR_Y) {
             if (inst->v.u[r - SM_VR_U] != value[i]) inst->v.x_solved = 0;
             inst->v.u[r - SM_VR_U] = value[i];
@@ -496,7 +512,7 @@ SmValues* sm_get_state(SmInstance* inst, SmValues* reuse) {
 }
 
 SmStatus sm_set_state(SmInstance* inst, const SmValues* state) {
-    if (state->owner != SM_GUID) {
+    if (state->owner != sm_owner) {
         sm_log(inst, SM_ERROR, SM_LOG_ERROR, "setFMUstate: not a state of this FMU");
         return SM_ERROR;
     }
@@ -568,7 +584,7 @@ SmValues* sm_deserialize(SmInstance* inst, const char* bytes, size_t size) {
         sm_log(inst, SM_ERROR, SM_LOG_ERROR, "deSerializeFMUstate: out of memory");
         return NULL;
     }
-    s->owner = SM_GUID;
+    s->owner = sm_owner;
     s->t = d[0];
     memcpy(s->x, d + 1, sizeof s->x);
     memcpy(s->u, d + 1 + SM_NX, sizeof s->u);

@@ -35,7 +35,7 @@ typedef void (*SmLogger)(SmCallback callback, void* env, const char* instance, S
 
 /* Everything a saved FMU state holds. */
 typedef struct {
-    const char* owner; /* SM_GUID of the FMU that made it: a foreign state is refused */
+    const char* owner; /* the tag of the FMU that made it: a foreign state is refused */
     double t;
     double x[SM_NX];
     double u[SM_NU];

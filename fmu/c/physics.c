@@ -126,8 +126,8 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double h
                char* msg) {
     double xw[SM_NX], xn[SM_NX], residual = NAN;
     double done = 0.0;
-    long n = (long)ceil(h / SM_MAX_SUBSTEP * (1.0 - 1e-12));
-    double hs = h / (n > 0 ? n : 1);
+    double n = ceil(h / SM_MAX_SUBSTEP * (1.0 - 1e-12));
+    double hs = h / (n > 1.0 ? n : 1.0);
     memcpy(xw, x, sizeof xw);
     *substeps = 0;
     while (done < h) {

@@ -12,7 +12,7 @@ from fmpy.validation import validate_fmu
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.fmu import export_fmu
+from sarcomere.fmu import FmuError, export_fmu
 from sarcomere.fmu.description import base_units
 from sarcomere.scenarios.cli import main
 
@@ -41,7 +41,9 @@ def test_variables_follow_the_model(step_fmu):
     p_cmd = by_name["regulator.p_cmd"]
     assert (p_cmd.causality, float(p_cmd.min), float(p_cmd.max)) == ("input", 0.0, 6e5)
     load = by_name["load.m"]
-    assert (load.causality, load.variability) == ("parameter", "fixed")
+    assert (load.causality, load.variability) == ("parameter", "tunable")
+    thread = by_name["myofibril.actin0.l"]  # the start positions depend on it
+    assert (thread.variability, thread.initial) == ("fixed", "exact")
     assert float(load.start) == pytest.approx(0.051, rel=1e-15)
     assert by_name["myofibril.length"].causality == "output"
     assert float(by_name["myofibril.aps1.chamber.p"].min) == 0.0
@@ -105,5 +107,16 @@ def test_cli_refuses_a_scene_without_one_model_level(tmp_path, capsys):
     assert main(["export-fmu", "paper-isometric", "--out", str(out)]) == 2
     assert "transient" in capsys.readouterr().err
     assert main(["export-fmu", "step-50g-auto", "--out", str(out)]) == 2
-    assert "one level" in capsys.readouterr().err
+    assert "exported at one level" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_failing_compiler_is_an_error_and_writes_nothing(tmp_path, monkeypatch):
+    model = hanging_load(1)
+    monkeypatch.setenv("CC", "false")  # a "compiler" that always fails
+    with pytest.raises(FmuError, match="the C compiler failed"):
+        export_fmu(model, tmp_path / "a.fmu")
+    monkeypatch.setenv("CC", "no-such-compiler-here")
+    with pytest.raises(FmuError, match="no C compiler"):
+        export_fmu(model, tmp_path / "a.fmu")
+    assert not list(tmp_path.iterdir())

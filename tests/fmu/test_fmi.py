@@ -12,6 +12,7 @@ from fmpy.fmi1 import FMICallException
 
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.fmu import export as export_module
 
 P_CMD = "regulator.p_cmd"
 LENGTH = "myofibril.length"
@@ -73,6 +74,34 @@ def test_initial_equilibrium_follows_parameters(step_loaded, model):
     assert _get(fmu, fmi, LENGTH) == pytest.approx(eq[LENGTH], rel=1e-9)
     fmu.doStep(0.0, 0.01)
     assert _get(fmu, fmi, LENGTH) == pytest.approx(eq[LENGTH], rel=1e-9)  # stays at rest
+    fmu.freeInstance()
+
+
+def test_a_tunable_parameter_changes_in_step_mode(step_loaded, model):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    _start(fmu, None, fmi)
+    rest = _get(fmu, fmi, LENGTH)
+    fmu.setReal([fmi.vr["load.m"]], [0.101])  # 50 g more hung on at t = 0
+    for k in range(1000):
+        fmu.doStep(k * 0.005, 0.005)
+    eq = solve_equilibrium(model, {P_CMD: 0.0}, {"load.m": 0.101})
+    assert _get(fmu, fmi, LENGTH) == pytest.approx(eq[LENGTH], rel=1e-6)  # settled there
+    assert eq[LENGTH] > rest + 1e-3
+    fmu.freeInstance()
+
+
+def test_a_tunable_parameter_waits_for_event_mode_in_model_exchange(step_loaded):
+    fmi = step_loaded
+    fmu = fmi.instance(cosim=False)
+    _start(fmu, None, fmi)
+    fmu.enterContinuousTimeMode()
+    with pytest.raises(FMICallException):
+        fmu.setReal([fmi.vr["load.m"]], [0.06])
+    assert "load.m is a tunable parameter; after initialisation" in fmi.errors()[-1]
+    fmu.enterEventMode()
+    fmu.setReal([fmi.vr["load.m"]], [0.06])
+    assert fmu.getReal([fmi.vr["load.m"]]) == [0.06]
     fmu.freeInstance()
 
 
@@ -203,7 +232,12 @@ def _unknown_value_reference(fmu, fmi):
 
 def _fixed_parameter_after_init(fmu, fmi):
     _start(fmu, None, fmi)
-    fmu.setReal([fmi.vr["load.m"]], [0.06])
+    fmu.setReal([fmi.vr["myofibril.actin0.l"]], [0.033])
+
+
+def _set_a_state_in_step_mode(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.setReal([fmi.vr["load.s"]], [0.2])
 
 
 def _set_an_output(fmu, fmi):
@@ -248,7 +282,8 @@ def _no_equilibrium(fmu, fmi):
         (_input_above_range, "regulator.p_cmd = 700000 is outside [0, 600000]"),
         (_parameter_below_range, "load.m = -0.01"),
         (_unknown_value_reference, "unknown value reference"),
-        (_fixed_parameter_after_init, "load.m is a fixed parameter"),
+        (_fixed_parameter_after_init, "myofibril.actin0.l is a fixed parameter"),
+        (_set_a_state_in_step_mode, "load.s is a state; it can be set only before the end"),
         (_set_an_output, "myofibril.length is an output and cannot be set"),
         (_wrong_communication_point, "is not the FMU's time"),
         (_bad_step_size, "step size -0.001 is not a finite number > 0"),
@@ -312,4 +347,42 @@ def test_a_state_of_another_fmu_is_refused(step_loaded, load, iso_fmu):
     assert _get(fmu, step_loaded, LENGTH) > 0.17  # unchanged: still the 3-APS chain
     iso.freeFMUstate(foreign)
     iso.freeInstance()
+    fmu.freeInstance()
+
+
+@pytest.mark.parametrize(
+    ("tamper", "why"),
+    [
+        (lambda b, head: b[:30] + b"X" + b[31:], "not a state of this FMU"),
+        (lambda b, head: b[:head] + np.float64(np.nan).tobytes() + b[head + 8 :], "not finite"),
+        (lambda b, head: b[:-24] + np.float64(3.0).tobytes() + b[-16:], "unknown mode"),
+    ],
+)
+def test_a_tampered_serialized_state_is_refused(step_loaded, tamper, why):
+    fmi = step_loaded
+    fmu = fmi.instance()
+    _start(fmu, None, fmi)
+    state = fmu.getFMUstate()
+    raw = fmu.serializeFMUstate(state)
+    head = len(b"sarcomere-fmu-state-1\0") + len(fmi.md.guid) + 1  # then t, x, u, p, flags
+    assert fmu.deSerializeFMUstate(raw)  # the untouched bytes load
+    with pytest.raises(FMICallException):
+        fmu.deSerializeFMUstate(tamper(raw, head))
+    assert why in fmi.errors()[-1]
+    fmu.freeInstance()
+
+
+def test_a_newton_failure_in_do_step_is_reported(tmp_path, monkeypatch, load):
+    """An FMU built with an unreachable Radau tolerance: each substep is halved down to the
+    shortest substep, then doStep fails with the residual named."""
+    monkeypatch.setattr(export_module, "STEP_TOL", 1e-300)
+    monkeypatch.setattr(export_module, "MIN_SUBSTEP_S", 1e-4)
+    fmi = load(export_module.export_fmu(hanging_load(1), tmp_path / "strict.fmu"))
+    fmu = fmi.instance(logging_on=True)
+    _start(fmu, None, fmi)
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, 0.001)
+    message = fmi.errors()[-1]
+    assert "Radau IIA Newton iteration did not converge" in message
+    assert "tolerance 1e-300" in message and "substep of 0.000125 s" in message
     fmu.freeInstance()
