@@ -477,7 +477,7 @@ class Myofibril(Component):
         b.connect(end.flange_a, units[-1][1].body)
         b.connect(end.exp_a, units[-1][1].exp)
         b.expose("flange_b", end.flange_b)
-        b.output("length", end.flange_b.s - top.flange_a.s, "m", "myofibril length")
+        b.output("length", end.flange_b.s - top.flange_a.s, "m", "myofibril length", low=0.0)
         s = cs.SX(0)  # geometric rest positions below the top hook (taut, no expansion)
         for (aps, _), band in zip(units, bands, strict=False):
             s = s + band.rest_length
@@ -580,7 +580,7 @@ class SymmetricMyofibril(Component):
             b.connect(lever.flange_b, end.flange_a)
         b.expose("flange_a", band.flange_a)
         b.expose("flange_b", lever.flange_b)
-        b.output("length", lever.flange_b.s - band.flange_a.s, "m", "myofibril length")
+        b.output("length", lever.flange_b.s - band.flange_a.s, "m", "myofibril length", low=0.0)
 
     @property
     def rest_length(self) -> float:
@@ -641,7 +641,7 @@ class GroupedMyofibril(Component):
             prev = grp
             s_top = s_top + sub.rest_length_expr
         b.expose("flange_b", prev.flange_b)
-        b.output("length", prev.flange_b.s - top.s, "m", "myofibril length")
+        b.output("length", prev.flange_b.s - top.s, "m", "myofibril length", low=0.0)
         self.rest_length_expr = s_top
 
     @property

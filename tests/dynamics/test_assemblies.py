@@ -179,3 +179,17 @@ def test_chain_longer_than_the_level_handles_is_refused_at_once():
         with pytest.raises(ParameterError, match=rf"'n' = {limit + 1} .*\[1, {limit}\]"):
             hanging_load(limit + 1, fidelity=level)
     assert time.perf_counter() - tic < 5.0  # refused, not built (a 200-unit build takes longer)
+
+
+@pytest.mark.parametrize("fidelity", ["full", "grouped", "symmetric"])
+def test_a_chain_that_would_invert_leaves_the_physical_domain(fidelity):
+    """The length is bounded below by 0: a load thrown up at 1000 m/s is reported with the
+    signal named, not integrated through a chain of negative length."""
+    from sarcomere.dynamics.errors import SolverError
+
+    model = hanging_load(3, load_kg=0.05, fidelity=fidelity)
+    rest = solve_equilibrium(model, {"regulator.p_cmd": 0.0})
+    x0 = dict(zip(model.state_names, rest.x, strict=True))
+    x0["load.v"] = -1000.0
+    with pytest.raises(SolverError, match="myofibril.length"):
+        simulate(model, 0.01, x0=x0)
