@@ -1,0 +1,114 @@
+"""Small pieces both MPCs share: setting checks, the exact zero-order-hold discretisation,
+the reachable output range (reference clipping) and the QP solvers through ``casadi.conic``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping
+
+import casadi as cs
+import numpy as np
+import scipy.linalg
+
+from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.model import Model
+
+QP_SOLVERS = {
+    "qpoases": {"printLevel": "none", "error_on_fail": False},
+    "daqp": {"error_on_fail": False},
+    # HPIPM's default inf (1e8) is inside the range of our scaled bounds: it then treats
+    # them as finite and stops at max_iter (issue 9); 1e6 is far outside every bound here.
+    "hpipm": {"error_on_fail": False, "hpipm": {"iter_max": 100, "warm_start": 1}, "inf": 1e6},
+}
+"""``casadi.conic`` plugins the MPCs accept, with the options they are built with."""
+
+
+def check_positive(name: str, value: object, allow_zero: bool = False) -> float:
+    """``value`` as a float that is finite and > 0 (or >= 0); a ParameterError naming
+    ``name`` otherwise."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or not (value >= 0 if allow_zero else value > 0):
+        raise ParameterError(name, value, "[0, inf)" if allow_zero else "(0, inf)")
+    return float(value)
+
+
+def check_horizon(name: str, value: object) -> int:
+    """A horizon: an integer >= 1."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ParameterError(name, value, "an integer >= 1")
+    return value
+
+
+def check_dt(slug: str, model: Model, dt: float, horizon: int) -> None:
+    """Refuse a sample time whose horizon cannot see the input act: ``horizon * dt`` must
+    cover the regulator lag (``regulator.tau``) at least once."""
+    if "regulator.tau" not in model.param_names:
+        return
+    tau = float(model.parameters()[model.param_names.index("regulator.tau")])
+    if horizon * dt < tau:
+        raise ParameterError(
+            f"{slug}.dt",
+            dt,
+            f"[{tau / horizon:g}, inf) s with horizon {horizon}",
+            f"horizon * dt = {horizon * dt:g} s is shorter than the regulator lag {tau:g} s",
+        )
+
+
+def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation: ``expm([[A, B], [0, 0]] dt)``."""
+    nx, nu = B.shape
+    M = np.zeros((nx + nu, nx + nu))
+    M[:nx, :nx], M[:nx, nx:] = A, B
+    E = scipy.linalg.expm(M * dt)
+    return E[:nx, :nx], E[:nx, nx:]
+
+
+def qp_solver(name: str, H: cs.Sparsity, A: cs.Sparsity) -> cs.Function:
+    """A ``casadi.conic`` QP solver built once for the sparsities ``H`` and ``A``."""
+    if name not in QP_SOLVERS:
+        raise ParameterError("qp_solver", name, f"one of {sorted(QP_SOLVERS)}")
+    return cs.conic("qp", name, {"h": H, "a": A}, dict(QP_SOLVERS[name]))
+
+
+class ReferenceClip:
+    """The steady-state range of an output over the input's range; a reference outside it
+    is clipped with one warning per run.
+
+    Parameters
+    ----------
+    model : Model
+        The prediction model.
+    output : str
+        The tracked signal, e.g. ``"myofibril.length"``.
+    u_name : str
+        The input that moves it.
+    u_range : (float, float)
+        The input's allowed range [SI].
+    """
+
+    def __init__(
+        self, model: Model, output: str, u_name: str, u_range: tuple[float, float]
+    ) -> None:
+        ends = [solve_equilibrium(model, {u_name: u})[output] for u in u_range]
+        self.low, self.high = min(ends), max(ends)
+        self.output = output
+        self.warned = False
+
+    def __call__(self, r: Mapping[str, float]) -> float:
+        if self.output not in r:
+            raise ParameterError("reference", sorted(r), f"a value for '{self.output}'")
+        value = float(r[self.output])
+        if not math.isfinite(value):
+            raise ParameterError(f"reference.{self.output}", value, "a finite number")
+        clipped = min(max(value, self.low), self.high)
+        if clipped != value and not self.warned:
+            warnings.warn(
+                f"reference {self.output} = {value:.6g} is unreachable at steady state "
+                f"within the input bounds; clipped to [{self.low:.6g}, {self.high:.6g}]",
+                stacklevel=4,
+            )
+            self.warned = True
+        return clipped

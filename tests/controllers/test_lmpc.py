@@ -1,0 +1,134 @@
+"""Linear MPC: the steady input at a matched equilibrium, active bounds and rate limits,
+the condensed QP against the closed-form finite-horizon LQ solution, fallbacks and bad
+settings."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP
+from sarcomere.controllers.qp import qp_solver, zoh
+from sarcomere.dynamics import hanging_load, solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError
+
+P = "regulator.p_cmd"
+L = "myofibril.length"
+
+
+@pytest.fixture(scope="module")
+def plant():
+    model = hanging_load(1, load_kg=0.02)
+    return model, solve_equilibrium(model, {P: 4e4})
+
+
+def measure(mpc, eq):
+    return {n: eq[n] for n in mpc.outputs}
+
+
+@pytest.mark.parametrize("solver", ["daqp", "qpoases"])
+def test_matched_equilibrium_gives_the_steady_input(plant, solver):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(qp_solver=solver))
+    u = mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})
+    assert u[P] == pytest.approx(4e4, abs=1e-6)
+    assert np.allclose(mpc._plan, 4e4, atol=1e-6)  # the whole plan holds it
+    # a shorter reference asks for more pressure (the sign of the loop)
+    mpc.reset(eq.u)
+    assert mpc.checked(0.0, measure(mpc, eq), {L: eq[L] - 1e-3})[P] > 4e4 + 100
+
+
+def test_rate_limit_and_bound_are_active(plant):
+    model, eq = plant
+    s = LMPCSettings(rate_max=5e5, u_max=5e4)
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, s)
+    y = measure(mpc, eq)
+    with pytest.warns(UserWarning, match="unreachable"):  # beyond L(u_max): clipped
+        u = mpc.checked(0.0, y, {L: eq[L] - 5e-3})[P]
+    assert u == pytest.approx(4e4 + 5e3, rel=1e-9)  # the largest move: rate_max * dt
+    for k in range(1, 5):  # the same measurement: the command climbs to u_max, not past
+        u = mpc.checked(0.01 * k, y, {L: eq[L] - 5e-3})[P]
+    assert u == pytest.approx(5e4, rel=1e-12)
+    assert np.all(np.abs(np.diff(mpc._plan[:, 0])) <= 5e3 + 1e-6)
+
+
+def test_relinearized_when_the_output_moved_far(plant):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(relinearize_m=1e-4))
+    mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})
+    assert mpc.relinearizations == 1
+    far = solve_equilibrium(model, {P: 8e4})  # 0.5 mm shorter
+    mpc.checked(0.01, measure(mpc, far), {L: far[L]})
+    assert mpc.relinearizations == 2 and mpc._y_lin == pytest.approx(far[L], rel=1e-12)
+    mpc.checked(0.02, measure(mpc, far), {L: far[L]})
+    assert mpc.relinearizations == 2  # near the new point: kept
+
+
+def riccati_first_gain(Phi, Gam, Q, R, N):
+    """Gain of the first move of the finite-horizon LQ problem (cost on xi_1..xi_N)."""
+    P = Q
+    for _ in range(N):
+        K = np.linalg.solve(R + Gam.T @ P @ Gam, Gam.T @ P @ Phi)
+        P = Q + Phi.T @ P @ (Phi - Gam @ K)
+    return K
+
+
+def test_condensed_qp_equals_closed_form_lq():
+    rng = np.random.default_rng(3)
+    A = np.array([[-2.0, 1.0, 0.0], [0.0, -1.0, 0.5], [0.3, 0.0, -4.0]])
+    B = np.array([[0.0], [1.0], [0.5]])
+    C = np.array([[1.0, 0.0, 2.0]])
+    Ad, Bd = zoh(A, B, 0.1)
+    N, q, r = 12, 3.0, 0.2
+    qp = VelocityQP(Ad, Bd, C, np.zeros((0, 3)), N, q, r, 1.0, np.ones(1), None)
+    qp.solver = qp_solver("daqp", *qp.sparsities())
+    xi0 = rng.normal(size=4)
+    big = np.full(1, 1e9)
+    du, ok = qp.solve(xi0, np.zeros(1), -big, big, big, np.zeros(0))
+    assert ok
+    Phi = np.block([[Ad, np.zeros((3, 1))], [C @ Ad, np.eye(1)]])
+    Gam = np.vstack([Bd, C @ Bd])
+    Q = np.diag([0, 0, 0, q])
+    K = riccati_first_gain(Phi, Gam, Q, np.array([[r]]), N)
+    assert du[0] == pytest.approx(-K @ xi0, rel=1e-8)
+
+
+def test_failed_qp_falls_back_to_the_shifted_plan(plant, monkeypatch):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01)
+    y = measure(mpc, eq)
+    mpc.checked(0.0, y, {L: eq[L] - 2e-3})
+    plan = mpc._plan.copy()
+    monkeypatch.setattr(mpc._qp, "solve", lambda *a: (None, False))
+    u = mpc.checked(0.01, y, {L: eq[L] - 2e-3})
+    assert u[P] == plan[1, 0] and mpc.stats.fallbacks == 1
+
+
+def test_unreachable_reference_is_clipped_with_a_warning(plant):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01)
+    with pytest.warns(UserWarning, match="unreachable"):
+        mpc.checked(0.0, measure(mpc, eq), {L: 1.0})
+    assert mpc.clip.high < 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once per run
+        mpc.checked(0.01, measure(mpc, eq), {L: 1.0})
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"weight_du": -1.0}, "lmpc.weight_du"),
+        ({"horizon": 0}, "lmpc.horizon"),
+        ({"rate_max": 0.0}, "lmpc.rate_max"),
+    ],
+)
+def test_bad_settings_name_the_setting(kwargs, name):
+    with pytest.raises(ParameterError, match=name):
+        LMPCSettings(**kwargs)
+
+
+def test_too_short_sample_time_is_refused(plant):
+    model, eq = plant
+    with pytest.raises(ParameterError, match="lmpc.dt"):
+        LinearMPC(model, eq.x, eq.u, 1e-3)  # 20 samples of 1 ms < the 50 ms regulator lag
