@@ -87,13 +87,19 @@ class ReferenceClip:
         The input that moves it.
     u_range : (float, float)
         The input's allowed range [SI].
+
+    Attributes
+    ----------
+    ends : list of Equilibrium
+        The equilibria at the two ends of the input range.
     """
 
     def __init__(
         self, model: Model, output: str, u_name: str, u_range: tuple[float, float]
     ) -> None:
-        ends = [solve_equilibrium(model, {u_name: u})[output] for u in u_range]
-        self.low, self.high = min(ends), max(ends)
+        self.ends = [solve_equilibrium(model, {u_name: u}) for u in u_range]
+        values = [e[output] for e in self.ends]
+        self.low, self.high = min(values), max(values)
         self.output = output
         self.warned = False
 
