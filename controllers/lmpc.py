@@ -203,6 +203,8 @@ class LinearMPC(Controller):
     dt : float
         Sample time [s].
     settings : LMPCSettings, optional
+    params : mapping of str to float, optional
+        Parameter overrides of ``model`` by name (SI), e.g. the plant's load.
 
     Examples
     --------
@@ -225,6 +227,7 @@ class LinearMPC(Controller):
         u_op: np.ndarray,
         dt: float,
         settings: LMPCSettings | None = None,
+        params: Mapping[str, float] | None = None,
     ) -> None:
         s = settings or LMPCSettings()
         names = model.input_names
@@ -236,7 +239,7 @@ class LinearMPC(Controller):
             dict.fromkeys(names, s.u_max),
         )
         check_dt(self.slug, model, self.dt, s.horizon)
-        self.model, self.settings, self.p = model, s, model.parameters()
+        self.model, self.settings, self.p = model, s, model.parameters(params)
         self._soft = [name for name, _ in s.soft_min]
         self._soft_min = np.array([float(v) for _, v in s.soft_min])
         self._lin = model.linearization([s.output, *self._soft])
@@ -244,7 +247,7 @@ class LinearMPC(Controller):
         self._u_hi = np.full(len(names), s.u_max)
         self._du_max = np.full(len(names), s.rate_max * self.dt)
         self._u_scale = self._u_hi - self._u_lo
-        self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max))
+        self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max), params)
         n_v = s.horizon * len(names) + len(self._soft)
         n_a = s.horizon * (len(names) + len(self._soft))
         self._solver = qp_solver(
@@ -299,3 +302,15 @@ class LinearMPC(Controller):
                 self._plan = np.tile(self._u, (s.horizon, 1))
         self._u = np.clip(self._plan[0], self._u_lo, self._u_hi)
         return dict(zip(self.inputs, self._u.tolist(), strict=True))
+
+
+def from_plant(
+    model: Model, operating_point, dt: float, settings: Mapping[str, object] | None = None
+) -> LinearMPC:
+    """A linear MPC linearised on ``model`` itself at ``operating_point`` (an
+    :class:`~sarcomere.dynamics.equilibrium.Equilibrium`): the factory of the controller
+    registry. ``settings`` are :class:`LMPCSettings` fields (an unknown key is a
+    TypeError)."""
+    given = dict(zip(model.param_names, np.asarray(operating_point.p, float), strict=True))
+    s = LMPCSettings(**dict(settings or {}))
+    return LinearMPC(model, operating_point.x, operating_point.u, dt, s, given)

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
+from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 
@@ -129,11 +130,12 @@ def radau_residual(f: cs.Function, nx: int, nu: int, degree: int) -> cs.Function
 class _Problem:
     """The prediction model in scaled variables: ``x = xs * xi``, ``u = us * v``."""
 
-    def __init__(self, model: Model, s: NMPCSettings, dt: float, xs: np.ndarray) -> None:
+    def __init__(
+        self, model: Model, s: NMPCSettings, dt: float, xs: np.ndarray, p: np.ndarray
+    ) -> None:
         m = model
         self.nx, self.nu = m.nx, len(m.input_names)
         self.xs, self.us = xs, np.full(self.nu, s.u_max - s.u_min)
-        p = model.parameters()
         xi, v = cs.SX.sym("xi", self.nx), cs.SX.sym("v", self.nu)
         x, u = xi * xs, v * self.us
         ode = m.function("ode")(x, cs.SX(0, 1), u, p) / xs
@@ -404,6 +406,8 @@ class NonlinearMPC(Controller):
     dt : float
         Sample time [s].
     settings : NMPCSettings, optional
+    params : mapping of str to float, optional
+        Parameter overrides of ``model`` by name (SI), e.g. the plant's load.
 
     Examples
     --------
@@ -425,6 +429,7 @@ class NonlinearMPC(Controller):
         u_op: np.ndarray,
         dt: float,
         settings: NMPCSettings | None = None,
+        params: Mapping[str, float] | None = None,
     ) -> None:
         s = settings or NMPCSettings()
         names = model.input_names
@@ -439,11 +444,11 @@ class NonlinearMPC(Controller):
         if model.nz:
             raise ParameterError("nmpc.model", model.name, "an ODE model (no algebraic unknowns)")
         self.model, self.settings = model, s
-        self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max))
+        self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max), params)
         # state scales: the largest magnitude at the ends of the input range; states that
         # are zero there (velocities) get 1 cm/s
         big = np.abs(np.vstack([e.x for e in self.clip.ends])).max(axis=0)
-        pb = _Problem(model, s, self.dt, np.where(big > 1e-12, big, 1e-2))
+        pb = _Problem(model, s, self.dt, np.where(big > 1e-12, big, 1e-2), model.parameters(params))
         self.problem = pb
         self.engine = _RealTimeIteration(pb) if s.solver == "rti" else _CollocationNLP(pb, s.solver)
         self._lo = np.full(len(names), s.u_min)
@@ -474,3 +479,36 @@ class NonlinearMPC(Controller):
                 self._plan = np.tile(self._u, (self.settings.horizon, 1))
         self._u = np.clip(self._plan[0], self._lo, self._hi)
         return dict(zip(self.inputs, self._u.tolist(), strict=True))
+
+
+DEFAULT_FIDELITY = "full"
+"""Prediction fidelity of :func:`from_plant`, chosen by measurement (BENCHMARKS.md, MPC
+section; ``sarcomere bench mpc``): on the full exact-law plant (n = 3, 20 g, RTI) the full
+and quasi_static predictions track equally (RMS error 1.09 mm before the load step, quick
+scene) and hold a raised tension bound to 2e-5 N, and full was the faster of the two here;
+symmetric is about 4x faster but tracks 60 % worse and has one representative thread, so
+it cannot bound the lowest thread's tension."""
+
+
+def from_plant(
+    model: Model, operating_point, dt: float, settings: Mapping[str, object] | None = None
+) -> NonlinearMPC:
+    """An NMPC for a hanging-load plant: the factory of the controller registry.
+
+    The prediction model is ``hanging_load`` with the plant's number of units at the
+    fidelity ``settings["fidelity"]`` (default :data:`DEFAULT_FIDELITY`), the smooth flow
+    law and no clamp; its parameters take the plant's values by name (load, regulator,
+    geometry), from ``operating_point.p``. Other keys of ``settings`` are
+    :class:`NMPCSettings` fields (an unknown key is a TypeError).
+    """
+    opts = dict(settings or {})
+    fidelity = opts.pop("fidelity", DEFAULT_FIDELITY)
+    units = [n for n in model.state_names if re.fullmatch(r"myofibril\.aps\d+\.chamber\.m_air", n)]
+    if "load.m" not in model.param_names or not units:
+        raise ParameterError(
+            "nmpc.model", model.name, "a hanging_load plant (the prediction is built for it)"
+        )
+    pred = hanging_load(len(units), fidelity=fidelity, flow_law="smooth", saturate=False)
+    given = dict(zip(model.param_names, np.asarray(operating_point.p, float), strict=True))
+    params = {n: given[n] for n in pred.param_names if n in given}
+    return NonlinearMPC(pred, operating_point.u, dt, NMPCSettings(**opts), params)

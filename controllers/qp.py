@@ -87,6 +87,8 @@ class ReferenceClip:
         The input that moves it.
     u_range : (float, float)
         The input's allowed range [SI].
+    params : mapping of str to float, optional
+        Parameter overrides of ``model`` (SI).
 
     Attributes
     ----------
@@ -95,9 +97,14 @@ class ReferenceClip:
     """
 
     def __init__(
-        self, model: Model, output: str, u_name: str, u_range: tuple[float, float]
+        self,
+        model: Model,
+        output: str,
+        u_name: str,
+        u_range: tuple[float, float],
+        params: Mapping[str, float] | None = None,
     ) -> None:
-        self.ends = [solve_equilibrium(model, {u_name: u}) for u in u_range]
+        self.ends = [solve_equilibrium(model, {u_name: u}, params) for u in u_range]
         values = [e[output] for e in self.ends]
         self.low, self.high = min(values), max(values)
         self.output = output

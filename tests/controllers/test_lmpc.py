@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP, from_plant
 from sarcomere.controllers.qp import qp_solver, zoh
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
@@ -132,3 +132,13 @@ def test_too_short_sample_time_is_refused(plant):
     model, eq = plant
     with pytest.raises(ParameterError, match="lmpc.dt"):
         LinearMPC(model, eq.x, eq.u, 1e-3)  # 20 samples of 1 ms < the 50 ms regulator lag
+
+
+def test_from_plant_linearizes_the_plant_at_the_operating_point():
+    model = hanging_load(1, load_kg=0.05)
+    eq = solve_equilibrium(model, {P: 3e4})
+    mpc = from_plant(model, eq, 0.01, {"horizon": 10})
+    assert mpc.settings.horizon == 10 and mpc.model is model
+    assert mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})[P] == pytest.approx(3e4, abs=1e-6)
+    with pytest.raises(TypeError):
+        from_plant(model, eq, 0.01, {"weight": 1.0})

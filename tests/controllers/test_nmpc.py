@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC, radau_residual
-from sarcomere.dynamics import Simulator, hanging_load, solve_equilibrium
+from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC, from_plant, radau_residual
+from sarcomere.dynamics import Simulator, hanging_load, isometric, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 
 P = "regulator.p_cmd"
@@ -129,3 +129,19 @@ def test_too_short_sample_time_is_refused(prediction):
     model, eq = prediction
     with pytest.raises(ParameterError, match="nmpc.dt"):
         NonlinearMPC(model, eq.u, 1e-3)
+
+
+def test_from_plant_predicts_with_the_plants_parameters():
+    plant = hanging_load(2, load_kg=0.05)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    mpc = from_plant(plant, eq, 0.01, {"fidelity": "quasi_static", "solver": "rti"})
+    pred = mpc.model
+    assert pred.name == "hanging_n2_quasi_static"
+    assert mpc.clip.ends[0].p[pred.param_names.index("load.m")] == pytest.approx(0.051)
+    y = {n: eq[n] for n in mpc.outputs}  # the plant's equilibrium is the prediction's too
+    assert mpc.checked(0.0, y, {L: eq[L]})[P] == pytest.approx(5e4, abs=1.0)
+    with pytest.raises(TypeError):
+        from_plant(plant, eq, 0.01, {"horizn": 10})
+    iso = isometric(1)
+    with pytest.raises(ParameterError, match="nmpc.model"):
+        from_plant(iso, solve_equilibrium(iso, {P: 0.0}), 0.01)
