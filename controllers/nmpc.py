@@ -23,6 +23,10 @@ Solvers (``NMPCSettings.solver``):
   Newton, its sensitivities come from the implicit function theorem, the QP is condensed onto
   the input moves in one CasADi Function and solved by ``casadi.conic`` (DAQP or qpOASES).
 
+Integral action (``integral_gain``, default 5 1/s): the reference the optimiser sees is
+moved by the integrated tracking error, so a load the prediction does not know (the +50 g
+disturbance) leaves no steady offset.
+
 A failed solve (infeasible QP, NLP not converged) falls back to the previous plan shifted
 by one sample and is counted in ``stats.fallbacks``.
 """
@@ -80,6 +84,11 @@ class NMPCSettings:
         QP solver of the real-time iteration: "daqp" or "qpoases".
     output : str
         The tracked signal.
+    integral_gain : float
+        Integral action [1/s]: the reference given to the optimiser is moved by
+        ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound), so
+        a load or model error the prediction does not know leaves no steady offset; 0
+        turns it off.
     """
 
     horizon: int = 20
@@ -95,9 +104,11 @@ class NMPCSettings:
     max_iter: int = 100
     qp_solver: str = "daqp"
     output: str = "myofibril.length"
+    integral_gain: float = 5.0
 
     def __post_init__(self) -> None:
         check_horizon("nmpc.horizon", self.horizon)
+        check_positive("nmpc.integral_gain", self.integral_gain, allow_zero=True)
         check_positive("nmpc.weight_y", self.weight_y)
         check_positive("nmpc.weight_du", self.weight_du, allow_zero=True)
         check_positive("nmpc.rate_max", self.rate_max)
@@ -460,6 +471,7 @@ class NonlinearMPC(Controller):
         vec = [u0[n] for n in self.inputs] if isinstance(u0, Mapping) else u0
         self._u = np.clip(np.asarray(vec, float).reshape(-1), self._lo, self._hi)
         self._plan: np.ndarray | None = None
+        self._offset = 0.0
         if isinstance(self.engine, _RealTimeIteration):
             self.engine.guess = None
         else:
@@ -468,7 +480,10 @@ class NonlinearMPC(Controller):
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
         ref = self.clip(r)
-        plan, ok = self.engine.solve(x, self._u, ref)
+        # integral action: the reference the optimiser sees is shifted by the integrated
+        # error, kept inside the reachable range
+        shifted = min(max(ref + self._offset, self.clip.low), self.clip.high)
+        plan, ok = self.engine.solve(x, self._u, shifted)
         if ok:
             self._plan = plan
         else:
@@ -478,6 +493,9 @@ class NonlinearMPC(Controller):
             else:
                 self._plan = np.tile(self._u, (self.settings.horizon, 1))
         self._u = np.clip(self._plan[0], self._lo, self._hi)
+        if np.all((self._u > self._lo) & (self._u < self._hi)):  # no windup at a bound
+            error = ref - float(y[self.settings.output])
+            self._offset += self.settings.integral_gain * self.dt * error
         return dict(zip(self.inputs, self._u.tolist(), strict=True))
 
 

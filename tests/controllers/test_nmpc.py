@@ -145,3 +145,22 @@ def test_from_plant_predicts_with_the_plants_parameters():
     iso = isometric(1)
     with pytest.raises(ParameterError, match="nmpc.model"):
         from_plant(iso, solve_equilibrium(iso, {P: 0.0}), 0.01)
+
+
+def steady_error(integral_gain):
+    """Hold a length on a plant 10 g heavier than the prediction: the error after 1 s."""
+    plant = hanging_load(1, load_kg=0.03)
+    pred = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    mpc = NonlinearMPC(pred, eq.u, 0.01, NMPCSettings(integral_gain=integral_gain))
+    sim = Simulator(plant)
+    sim.reset(x0=eq.x)
+    for _ in range(100):
+        y = sim.signals(mpc.outputs)
+        sim.step(mpc.checked(sim.t, y, {L: eq[L]}), 0.01)
+    return abs(sim.signal(L) - eq[L])
+
+
+def test_integral_action_removes_the_offset_of_an_unknown_load():
+    assert steady_error(0.0) > 3e-4  # 0.6 mm: the prediction's 20 g equilibrium is elsewhere
+    assert steady_error(5.0) < 0.05 * steady_error(0.0)
