@@ -28,11 +28,24 @@ from dataclasses import dataclass, field
 import casadi as cs
 import numpy as np
 
+from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .qp import ReferenceClip, check_dt, check_horizon, check_positive, qp_solver, zoh
+from .qp import (
+    ESTIMATOR_DEFAULTS,
+    TENSION,
+    ReferenceClip,
+    check_dt,
+    check_horizon,
+    check_positive,
+    own_defaults,
+    qp_solver,
+    with_estimator,
+    zoh,
+)
+from .registry import own_settings, register_controller
 
 
 @dataclass(frozen=True)
@@ -190,9 +203,9 @@ class VelocityQP:
 class LinearMPC(Controller):
     """Linear MPC of the tracked output (see the module docstring) by the regulator command.
 
-    Reads every state of ``model`` and the tracked output by name (state feedback: the
-    plant's signals of the same names, or an estimator's), and the reference of the
-    tracked output.
+    Reads every state of ``model``, the tracked output and the softly bounded signals by
+    name (state feedback: the plant's signals of the same names, or an estimator's), and
+    the reference of the tracked output.
 
     Parameters
     ----------
@@ -234,7 +247,7 @@ class LinearMPC(Controller):
         super().__init__(
             dt,
             names,
-            [*model.state_names, s.output],
+            list(dict.fromkeys([*model.state_names, s.output, *(n for n, _ in s.soft_min)])),
             dict.fromkeys(names, s.u_min),
             dict.fromkeys(names, s.u_max),
         )
@@ -304,13 +317,32 @@ class LinearMPC(Controller):
         return dict(zip(self.inputs, self._u.tolist(), strict=True))
 
 
-def from_plant(
-    model: Model, operating_point, dt: float, settings: Mapping[str, object] | None = None
-) -> LinearMPC:
-    """A linear MPC linearised on ``model`` itself at ``operating_point`` (an
-    :class:`~sarcomere.dynamics.equilibrium.Equilibrium`): the factory of the controller
-    registry. ``settings`` are :class:`LMPCSettings` fields (an unknown key is a
-    TypeError)."""
-    given = dict(zip(model.param_names, np.asarray(operating_point.p, float), strict=True))
-    s = LMPCSettings(**dict(settings or {}))
-    return LinearMPC(model, operating_point.x, operating_point.u, dt, s, given)
+def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Controller:
+    """Registry factory of ``lmpc``: linearised on the plant ``model`` itself at ``op``.
+
+    Common keys: ``output``, ``input`` (the model's one input), ``u_min``, ``u_max``;
+    ``tension_min`` (if set) becomes a soft lower bound on every thread tension. Own keys:
+    the other :class:`LMPCSettings` fields, ``estimator`` ("none", or "ekf": run on an
+    EKF fed the ``measured`` signals, see :mod:`.estimated`) and ``ekf`` (its settings).
+    """
+    own = own_settings("lmpc", settings, {**own_defaults(LMPCSettings), **ESTIMATOR_DEFAULTS})
+    if settings["input"] not in model.input_names:
+        raise ParameterError("lmpc.input", settings["input"], f"one of {model.input_names}")
+    tmin = settings.get("tension_min")
+    soft = own.pop("soft_min")
+    if tmin is not None:
+        soft = (*soft, *((n, float(tmin)) for n in model.signal_names if TENSION.fullmatch(n)))
+    est, ekf_settings = own.pop("estimator"), own.pop("ekf")
+    s = LMPCSettings(
+        **own,
+        soft_min=tuple(soft),
+        output=settings["output"],
+        u_min=float(settings["u_min"]),
+        u_max=float(settings["u_max"]),
+    )
+    given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
+    ctl = LinearMPC(model, op.x, op.u, dt, s, given)
+    return with_estimator("lmpc", ctl, model, op, dt, settings, est, ekf_settings)
+
+
+register_controller("lmpc", make_lmpc)

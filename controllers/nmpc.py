@@ -41,17 +41,26 @@ import casadi as cs
 import numpy as np
 
 from sarcomere.dynamics.assemblies import hanging_load
+from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .qp import ReferenceClip, check_dt, check_horizon, check_positive, qp_solver
+from .qp import (
+    ESTIMATOR_DEFAULTS,
+    TENSION,
+    ReferenceClip,
+    check_dt,
+    check_horizon,
+    check_positive,
+    own_defaults,
+    qp_solver,
+    with_estimator,
+)
+from .registry import own_settings, register_controller
 
 SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
-
-TENSION = re.compile(r"myofibril\.actin\w*\.T")
-"""Thread tension signals: constrained to ``>= tension_min``."""
 
 
 @dataclass(frozen=True)
@@ -500,7 +509,7 @@ class NonlinearMPC(Controller):
 
 
 DEFAULT_FIDELITY = "full"
-"""Prediction fidelity of :func:`from_plant`, chosen by measurement (BENCHMARKS.md, MPC
+"""Prediction fidelity of :func:`make_nmpc`, chosen by measurement (BENCHMARKS.md, MPC
 section; ``sarcomere bench mpc``): on the full exact-law plant (n = 3, 20 g, RTI) the full
 and quasi_static predictions track equally (RMS error 1.09 mm before the load step, quick
 scene) and hold a raised tension bound to 2e-5 N, and full was the faster of the two here;
@@ -508,25 +517,39 @@ symmetric is about 4x faster but tracks 60 % worse and has one representative th
 it cannot bound the lowest thread's tension."""
 
 
-def from_plant(
-    model: Model, operating_point, dt: float, settings: Mapping[str, object] | None = None
-) -> NonlinearMPC:
-    """An NMPC for a hanging-load plant: the factory of the controller registry.
+def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Controller:
+    """Registry factory of ``nmpc`` for a hanging-load plant ``model``.
 
     The prediction model is ``hanging_load`` with the plant's number of units at the
-    fidelity ``settings["fidelity"]`` (default :data:`DEFAULT_FIDELITY`), the smooth flow
-    law and no clamp; its parameters take the plant's values by name (load, regulator,
-    geometry), from ``operating_point.p``. Other keys of ``settings`` are
-    :class:`NMPCSettings` fields (an unknown key is a TypeError).
+    fidelity ``fidelity`` (own key, default :data:`DEFAULT_FIDELITY`), the smooth flow law
+    and no clamp; its parameters take the plant's values by name (``op.p``: load,
+    regulator, geometry). Common keys: ``output``, ``input``, ``u_min``, ``u_max``,
+    ``tension_min`` (the hard tension bound, default 0). Own keys: the other
+    :class:`NMPCSettings` fields, ``fidelity``, ``estimator`` ("none" or "ekf") and
+    ``ekf``.
     """
-    opts = dict(settings or {})
-    fidelity = opts.pop("fidelity", DEFAULT_FIDELITY)
+    defaults = {**own_defaults(NMPCSettings), "fidelity": DEFAULT_FIDELITY, **ESTIMATOR_DEFAULTS}
+    own = own_settings("nmpc", settings, defaults)
     units = [n for n in model.state_names if re.fullmatch(r"myofibril\.aps\d+\.chamber\.m_air", n)]
     if "load.m" not in model.param_names or not units:
         raise ParameterError(
             "nmpc.model", model.name, "a hanging_load plant (the prediction is built for it)"
         )
+    if settings["input"] not in model.input_names:
+        raise ParameterError("nmpc.input", settings["input"], f"one of {model.input_names}")
+    fidelity, est, ekf_settings = own.pop("fidelity"), own.pop("estimator"), own.pop("ekf")
     pred = hanging_load(len(units), fidelity=fidelity, flow_law="smooth", saturate=False)
-    given = dict(zip(model.param_names, np.asarray(operating_point.p, float), strict=True))
+    given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
     params = {n: given[n] for n in pred.param_names if n in given}
-    return NonlinearMPC(pred, operating_point.u, dt, NMPCSettings(**opts), params)
+    s = NMPCSettings(
+        **own,
+        output=settings["output"],
+        u_min=float(settings["u_min"]),
+        u_max=float(settings["u_max"]),
+        tension_min=float(settings.get("tension_min") or 0.0),
+    )
+    ctl = NonlinearMPC(pred, op.u, dt, s, params)
+    return with_estimator("nmpc", ctl, model, op, dt, settings, est, ekf_settings)
+
+
+register_controller("nmpc", make_nmpc)

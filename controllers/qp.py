@@ -4,7 +4,9 @@ the reachable output range (reference clipping) and the QP solvers through ``cas
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 import warnings
 from collections.abc import Mapping
 
@@ -12,9 +14,22 @@ import casadi as cs
 import numpy as np
 import scipy.linalg
 
-from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
+
+from .base import Controller
+from .ekf import make_ekf
+from .estimated import OnEstimate
+
+TENSION = re.compile(r"myofibril\.actin\w*\.T")
+"""Thread tension signals (bounded below by ``tension_min``)."""
+
+COMMON = ("output", "u_min", "u_max", "tension_min")
+"""Settings fields the scene sets through the registry's common keys."""
+
+ESTIMATOR_DEFAULTS = {"estimator": "none", "ekf": {}}
+"""Own registry keys of both MPCs: run on the states ("none") or on an EKF ("ekf")."""
 
 QP_SOLVERS = {
     "qpoases": {"printLevel": "none", "error_on_fail": False},
@@ -125,3 +140,29 @@ class ReferenceClip:
             )
             self.warned = True
         return clipped
+
+
+def own_defaults(settings_class) -> dict:
+    """The defaults of a settings dataclass, without the fields the common keys set."""
+    return {f.name: f.default for f in dataclasses.fields(settings_class) if f.name not in COMMON}
+
+
+def with_estimator(
+    slug: str,
+    ctl: Controller,
+    model: Model,
+    op: Equilibrium,
+    dt: float,
+    settings: Mapping[str, object],
+    estimator: str,
+    ekf_settings: Mapping[str, object],
+) -> Controller:
+    """``ctl`` itself ("none") or run on an EKF of the plant ``model`` ("ekf") fed the
+    loop's ``measured`` signals (default: the tracked output and ``regulator.p_out``)."""
+    if estimator == "none":
+        return ctl
+    if estimator != "ekf":
+        raise ParameterError(f"{slug}.estimator", estimator, "'none' or 'ekf'")
+    measured = settings.get("measured") or [settings["output"], "regulator.p_out"]
+    ekf = make_ekf(model, op, dt, measured, settings.get("noise_std"), ekf_settings)
+    return OnEstimate(ctl, ekf, model, op)

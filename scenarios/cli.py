@@ -1,4 +1,5 @@
-"""The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``calibrate``, ``bench``.
+"""The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``calibrate``, ``bench``,
+``linearize SCENARIO``.
 
 Subcommands are rows of :data:`COMMANDS` (name, help, handler, add_arguments); add one by
 appending a :class:`Command`. A :class:`~sarcomere.dynamics.errors.SarcomereError` prints
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 
 from sarcomere.dynamics.errors import SarcomereError
 
-from . import bench, calibrate
+from . import bench, calibrate, linearize
 from .loader import load_scenario, packaged_scenarios
 from .outdir import check_out_dir
 from .output import version
@@ -83,6 +84,12 @@ COMMANDS: list[Command] = [
         "numerical studies: work-precision, stability, mpc",
         bench.handler,
         bench.add_arguments,
+    ),
+    Command(
+        "linearize",
+        "exact linearisation of a scene's model: poles by mode, Bode plot, named matrices",
+        linearize.handler,
+        linearize.add_arguments,
     ),
 ]
 

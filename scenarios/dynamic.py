@@ -229,7 +229,7 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     ``length_ratio`` = L / L' with L' = L(0 MPa, no load, same n) and the paper's
     actuation strain ``strain`` = (L[P, load] - L[0, load]) / L[0, 0].
     """
-    sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance")
+    sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance", "control")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=False)
     check_n(sc, ("model", "n"), b.n, fid)
@@ -498,7 +498,7 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     ``fidelity = "auto"``: every level runs and the smallest one within ``[outputs]
     tolerance`` of "full" is used (see :func:`choose_fidelity`).
     """
-    sc.refuse_unused("sweep")
+    sc.refuse_unused("sweep", "control")
     if sc.model.fidelity != "auto":
         sc.refuse_unused("outputs.tolerance")
     b = bind(sc)

@@ -50,6 +50,7 @@ SECTIONS = (
     "solver",
     "outputs",
     "metrics",
+    "control",
 )
 
 _REQUIRED = object()
@@ -305,6 +306,7 @@ def parse_scenario(text: str, file: str = "<string>") -> Scenario:
         solver=_solver(r, data.get("solver", {})),
         outputs=_outputs(r, data.get("outputs", {})),
         metrics=_metrics(r, data.get("metrics", {})),
+        control=r.table(data.get("control", {}), ("control",)),
         file=file,
         key_lines=lines,
     )

@@ -248,6 +248,9 @@ class Scenario:
     solver : SolverSpec
     outputs : OutputSpec
     metrics : tuple of MetricCheck
+    control : mapping
+        ``[control]`` as written (kind "closed_loop" reads it, see
+        :mod:`sarcomere.scenarios.control`); empty if absent.
     file : str
         Scenario file path, or a label such as ``"<string>"``.
     key_lines : mapping of tuple to int
@@ -265,11 +268,12 @@ class Scenario:
     solver: SolverSpec = field(default_factory=SolverSpec)
     outputs: OutputSpec = field(default_factory=OutputSpec)
     metrics: tuple[MetricCheck, ...] = ()
+    control: Mapping[str, object] = field(default_factory=dict)
     file: str = "<string>"
     key_lines: Mapping[KeyPath, int] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        _freeze(self, "parameters", "inputs", "key_lines")
+        _freeze(self, "parameters", "inputs", "control", "key_lines")
 
     @property
     def base_dir(self) -> Path:
@@ -299,8 +303,8 @@ class Scenario:
     def refuse_unused(self, *sections: str) -> None:
         """Refuse any of ``sections`` the file gives: this kind would ignore it.
 
-        ``sections`` are ``"inputs"``, ``"sweep"``, ``"simulation"``, ``"solver"`` and
-        ``"outputs.tolerance"``.
+        ``sections`` are ``"inputs"``, ``"sweep"``, ``"simulation"``, ``"solver"``,
+        ``"outputs.tolerance"`` and ``"control"``.
         """
         given = {
             "inputs": bool(self.inputs),
@@ -308,6 +312,7 @@ class Scenario:
             "simulation": self.simulation is not None,
             "solver": self.solver != SolverSpec(),
             "outputs.tolerance": self.outputs.tolerance is not None,
+            "control": bool(self.control),
         }
         for section in sections:
             if given[section]:

@@ -7,7 +7,8 @@ import warnings
 import numpy as np
 import pytest
 
-from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP, from_plant
+from sarcomere.controllers import make_controller
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP
 from sarcomere.controllers.qp import qp_solver, zoh
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
@@ -134,11 +135,13 @@ def test_too_short_sample_time_is_refused(plant):
         LinearMPC(model, eq.x, eq.u, 1e-3)  # 20 samples of 1 ms < the 50 ms regulator lag
 
 
-def test_from_plant_linearizes_the_plant_at_the_operating_point():
+def test_registry_factory_linearizes_the_plant_with_soft_tension_bounds():
     model = hanging_load(1, load_kg=0.05)
     eq = solve_equilibrium(model, {P: 3e4})
-    mpc = from_plant(model, eq, 0.01, {"horizon": 10})
+    task = {"output": L, "input": P, "u_min": 0.0, "u_max": 1e5, "tension_min": 0.01}
+    mpc = make_controller("lmpc", model, eq, 0.01, {**task, "horizon": 10})
     assert mpc.settings.horizon == 10 and mpc.model is model
+    assert [n for n, _ in mpc.settings.soft_min] == ["myofibril.actin0.T", "myofibril.actin1.T"]
     assert mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})[P] == pytest.approx(3e4, abs=1e-6)
-    with pytest.raises(TypeError):
-        from_plant(model, eq, 0.01, {"weight": 1.0})
+    with pytest.raises(ParameterError, match="lmpc.weight"):
+        make_controller("lmpc", model, eq, 0.01, {**task, "weight": 1.0})

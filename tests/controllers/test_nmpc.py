@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC, from_plant, radau_residual
+from sarcomere.controllers import make_controller
+from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC, radau_residual
 from sarcomere.dynamics import Simulator, hanging_load, isometric, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 
@@ -131,20 +132,36 @@ def test_too_short_sample_time_is_refused(prediction):
         NonlinearMPC(model, eq.u, 1e-3)
 
 
-def test_from_plant_predicts_with_the_plants_parameters():
+TASK = {"output": L, "input": P, "u_min": 0.0, "u_max": 1e5}
+
+
+def test_registry_factory_predicts_with_the_plants_parameters():
     plant = hanging_load(2, load_kg=0.05)
     eq = solve_equilibrium(plant, {P: 5e4})
-    mpc = from_plant(plant, eq, 0.01, {"fidelity": "quasi_static", "solver": "rti"})
+    mpc = make_controller("nmpc", plant, eq, 0.01, {**TASK, "fidelity": "quasi_static"})
     pred = mpc.model
     assert pred.name == "hanging_n2_quasi_static"
     assert mpc.clip.ends[0].p[pred.param_names.index("load.m")] == pytest.approx(0.051)
     y = {n: eq[n] for n in mpc.outputs}  # the plant's equilibrium is the prediction's too
     assert mpc.checked(0.0, y, {L: eq[L]})[P] == pytest.approx(5e4, abs=1.0)
-    with pytest.raises(TypeError):
-        from_plant(plant, eq, 0.01, {"horizn": 10})
+    with pytest.raises(ParameterError, match="nmpc.horizn"):
+        make_controller("nmpc", plant, eq, 0.01, {**TASK, "horizn": 10})
     iso = isometric(1)
     with pytest.raises(ParameterError, match="nmpc.model"):
-        from_plant(iso, solve_equilibrium(iso, {P: 0.0}), 0.01)
+        make_controller("nmpc", iso, solve_equilibrium(iso, {P: 0.0}), 0.01, TASK)
+
+
+def test_on_an_ekf_it_reads_only_the_measured_signals():
+    plant = hanging_load(1, load_kg=0.02)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    mpc = make_controller("nmpc", plant, eq, 0.01, {**TASK, "estimator": "ekf"})
+    assert mpc.outputs == [L, "regulator.p_out"]
+    sim = Simulator(plant)
+    sim.reset(x0=eq.x)
+    for _ in range(30):
+        y = sim.signals(mpc.outputs)
+        sim.step(mpc.checked(sim.t, y, {L: eq[L] - 2e-4}), 0.01)
+    assert sim.signal(L) == pytest.approx(eq[L] - 2e-4, abs=3e-5)
 
 
 def steady_error(integral_gain):

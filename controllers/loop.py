@@ -1,0 +1,213 @@
+"""The sampled closed loop: a :class:`~sarcomere.dynamics.Simulator` driven by a
+:class:`~.base.Controller` every ``dt`` seconds with zero-order hold.
+
+At each sample ``t_k = k dt`` the loop reads the signals the controller asks for
+(``controller.outputs``), adds seeded Gaussian noise to those named in ``noise_std``,
+evaluates the reference, calls :meth:`~.base.Controller.checked` (finite, inside the
+bounds, timed) and holds its input over ``[t_k, t_k + dt)``. A load disturbance changes a
+parameter (``load.m``) at the first sample at or after its time. The result holds, at the
+samples: the reference, the true output, the measured output (with noise), the inputs,
+the regulator and chamber pressures and every thread tension.
+
+Examples
+--------
+>>> from sarcomere.dynamics import hanging_load
+>>> from sarcomere.controllers import make_controller, operating_point
+>>> m = hanging_load(n=1, load_kg=0.02)
+>>> op = operating_point(m, {"regulator.p_cmd": 5e4})
+>>> task = {"output": "myofibril.length", "input": "regulator.p_cmd", "u_min": 0.0,
+...         "u_max": 1e5}
+>>> pid = make_controller("pid", m, op, 0.01, task)
+>>> y0 = op["myofibril.length"]
+>>> run = run_closed_loop(m, pid, op, lambda t: y0 - 1e-3, 0.5, output="myofibril.length")
+>>> bool(abs(run.result["myofibril.length"][-1] - (y0 - 1e-3)) < 2e-4)
+True
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sarcomere.dynamics.equilibrium import Equilibrium
+from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.model import Model
+from sarcomere.dynamics.results import Result
+from sarcomere.dynamics.simulation.settings import SolverSettings
+from sarcomere.dynamics.simulation.simulator import Simulator
+
+from .base import Controller, ControllerStats
+from .metrics import loop_metrics
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """A step change of a parameter during the run (an added weight: ``load.m``).
+
+    Attributes
+    ----------
+    time : float
+        When [s] (applied at the first sample at or after it).
+    parameter : str
+        Parameter path, e.g. ``"load.m"``.
+    delta : float
+        Change [SI of the parameter], e.g. 0.05 kg.
+    """
+
+    time: float
+    parameter: str = "load.m"
+    delta: float = 0.05
+
+
+@dataclass
+class ClosedLoopResult:
+    """What a closed-loop run produced.
+
+    Attributes
+    ----------
+    result : Result
+        Signals at the sample times (see the module docstring); ``reference`` and
+        ``measured`` are in the output's unit.
+    metrics : dict
+        :func:`~.metrics.loop_metrics` of the run (unprefixed).
+    stats : ControllerStats
+        The controller's solve times and fallbacks.
+    """
+
+    result: Result
+    metrics: dict[str, float]
+    stats: ControllerStats = field(default_factory=ControllerStats)
+
+
+def recorded_signals(model: Model, output: str, inputs: list[str]) -> list[str]:
+    """The signals a run records: the output, the inputs, the regulator and chamber
+    pressures, every thread tension (in the model's order)."""
+    keep = [output, *inputs]
+    for name in model.signal_names:
+        if (
+            name == "regulator.p_out"
+            or name.endswith(".chamber.p_gauge")
+            or (".actin" in name and name.endswith(".T"))
+        ):
+            keep.append(name)
+    return list(dict.fromkeys(keep))
+
+
+def run_closed_loop(
+    model: Model,
+    controller: Controller,
+    op: Equilibrium,
+    reference: Callable[[float], float],
+    stop_time: float,
+    *,
+    output: str,
+    settings: SolverSettings | None = None,
+    noise_std: Mapping[str, float] | None = None,
+    seed: int = 0,
+    disturbance: Disturbance | None = None,
+    reachable: tuple[float, float] | None = None,
+    step: tuple[float, float, float, float] | None = None,
+    tension_min: float = 0.0,
+) -> ClosedLoopResult:
+    """Run ``controller`` on ``model`` from the operating point ``op`` to ``stop_time``.
+
+    Parameters
+    ----------
+    model : Model
+        The plant.
+    controller : Controller
+        Sampled at ``controller.dt``.
+    op : Equilibrium
+        Start point (states, inputs, parameters).
+    reference : callable
+        ``reference(t)`` of the tracked ``output`` [SI].
+    stop_time : float
+        End of the run [s] (the last sample is before it).
+    output : str
+        The tracked signal.
+    settings : SolverSettings, optional
+        The plant's integrator (default CVODES, rtol 1e-6).
+    noise_std : mapping, optional
+        Measurement noise standard deviation by signal [SI]; others are exact.
+    seed : int
+        Seed of the noise.
+    disturbance : Disturbance, optional
+    reachable : (float, float), optional
+        The output range the input can hold: a reference outside it is clipped, with one
+        warning per run.
+    step : (r_before, r_after, t_step, t_end), optional
+        The reference step whose overshoot and settling time are measured.
+    tension_min : float
+        The thread tension constraint [N] the violation metric checks.
+    """
+    dt = controller.dt
+    if not (math.isfinite(stop_time) and stop_time >= dt):
+        raise ParameterError("stop_time", stop_time, f"[{dt:g}, inf) s (one sample at least)")
+    noise = dict(noise_std or {})
+    for name, std in noise.items():
+        if name not in model.signal_names:
+            raise ParameterError("noise_std", name, "a signal of the model")
+        if not (math.isfinite(std) and std >= 0):
+            raise ParameterError(f"noise_std.{name}", std, "[0, inf)")
+    sim = Simulator(model, settings)
+    sim.reset(x0=op.x, z0=op.z)
+    sim.p = op.p.copy()
+    u_now = {n: float(v) for n, v in zip(model.input_names, op.u, strict=True)}
+    controller.reset(u_now)
+    rng = np.random.default_rng(seed)
+    record = recorded_signals(model, output, controller.inputs)
+    read = list(dict.fromkeys([*controller.outputs, *record]))
+    n_samples = int(math.floor(stop_time / dt + 1e-9))
+    t = np.arange(n_samples) * dt
+    rows = np.empty((n_samples, len(record)))
+    refs, meas = np.empty(n_samples), np.empty(n_samples)
+    disturbed, clipped = disturbance is None, False
+    for k, tk in enumerate(t):
+        if not disturbed and tk >= disturbance.time - 1e-12:
+            p = sim.p.copy()
+            p[model.param_names.index(disturbance.parameter)] += disturbance.delta
+            sim.p, disturbed = p, True
+        sig = sim.signals(read)
+        y = {n: sig[n] for n in controller.outputs}
+        for name, std in noise.items():
+            if name in y and std > 0:
+                y[name] += std * rng.standard_normal()
+        r = float(reference(float(tk)))
+        if reachable is not None and not reachable[0] <= r <= reachable[1]:
+            r = min(max(r, reachable[0]), reachable[1])
+            if not clipped:
+                warnings.warn(
+                    f"reference {output} outside the reachable [{reachable[0]:.6g}, "
+                    f"{reachable[1]:.6g}] from t = {tk:g} s: clipped",
+                    stacklevel=2,
+                )
+                clipped = True
+        u_now.update(controller.checked(float(tk), y, {output: r}))
+        rows[k] = [sig[n] for n in record]
+        for name in controller.inputs:  # the input held from t_k on
+            rows[k, record.index(name)] = u_now[name]
+        refs[k] = r
+        meas[k] = y.get(output, sig[output])
+        sim.step(u_now, dt)
+    signals = {"reference": refs, "measured": meas}
+    signals.update({n: rows[:, i] for i, n in enumerate(record)})
+    unit = model.unit(output)
+    units = {"reference": unit, "measured": unit} | {n: model.unit(n) for n in record}
+    result = Result("time", "s", t, signals, units)
+    tensions = np.array([signals[n] for n in record if n.endswith(".T")])
+    metrics = loop_metrics(
+        unit,
+        t,
+        signals[output],
+        refs,
+        tensions,
+        controller.stats.solve_times_s,
+        step,
+        tension_min,
+    )
+    metrics["fallbacks"] = float(controller.stats.fallbacks)
+    return ClosedLoopResult(result, metrics, controller.stats)

@@ -1,0 +1,185 @@
+"""A sampled PID controller: the baseline the others are compared against.
+
+``u = u0 + kp e + I + D`` with ``e = r - y``, held for one sample and clamped into the
+input's bounds. The derivative acts on the measurement (no kick at a reference step)
+through a first-order filter ``D = -kd s / (tf s + 1) y``, discretised by backward Euler.
+Anti-windup by back-calculation: the integral is corrected by ``dt / tt (u - v)`` where
+``v`` is the unclamped command, so it stops growing while the command is saturated.
+
+Gains are in the plant's units (Pa per m for length control): a chain shortens as the
+pressure rises, so length control has negative gains. Left out, ``kp`` and ``ki`` come
+from the linearisation at the operating point (:func:`imc_gains`).
+
+Examples
+--------
+>>> from sarcomere.dynamics import hanging_load
+>>> from sarcomere.controllers.linearize import operating_point
+>>> m = hanging_load(n=1, load_kg=0.02)
+>>> op = operating_point(m, {"regulator.p_cmd": 5e4})
+>>> pid = make_pid(m, op, 0.01, {"output": "myofibril.length", "input": "regulator.p_cmd",
+...                              "u_min": 0.0, "u_max": 1e5})
+>>> pid.reset({"regulator.p_cmd": 5e4})
+>>> u = pid.checked(0.0, {"myofibril.length": op["myofibril.length"]},
+...                 {"myofibril.length": op["myofibril.length"] - 1e-3})
+>>> bool(u["regulator.p_cmd"] > 5e4)  # shorter wanted: more pressure
+True
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import control as ct
+import numpy as np
+
+from sarcomere.dynamics.equilibrium import Equilibrium
+from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.labels import to_label
+from sarcomere.dynamics.modeling.model import Model
+
+from .base import Controller
+from .linearize import linearize
+from .registry import own_settings, positive, register_controller
+
+
+@dataclass(frozen=True)
+class PIDGains:
+    """Gains of :class:`PID`, in the plant's SI units.
+
+    Attributes
+    ----------
+    kp : float
+        Proportional gain [input unit / output unit].
+    ki : float
+        Integral gain [input unit / (output unit s)].
+    kd : float
+        Derivative gain [input unit s / output unit].
+    tf : float
+        Time constant of the derivative filter [s], > 0.
+    tt : float
+        Tracking time constant of the anti-windup back-calculation [s], > 0.
+    """
+
+    kp: float
+    ki: float = 0.0
+    kd: float = 0.0
+    tf: float = 0.02
+    tt: float = 0.1
+
+
+class PID(Controller):
+    """PID on one output and one input (see the module docstring)."""
+
+    slug = "pid"
+
+    def __init__(
+        self,
+        dt: float,
+        output: str,
+        input: str,
+        u_min: float,
+        u_max: float,
+        gains: PIDGains,
+    ) -> None:
+        super().__init__(dt, [input], [output], {input: u_min}, {input: u_max})
+        for key in ("kp", "ki", "kd"):
+            if not math.isfinite(getattr(gains, key)):
+                raise ParameterError(f"pid.{key}", getattr(gains, key), "a finite number")
+        positive("pid", "tf", gains.tf)
+        positive("pid", "tt", gains.tt)
+        self.gains = gains
+        self.output, self.input = output, input
+        self.bias = 0.0
+        self._state = np.zeros(3)  # integral, filtered derivative, last measurement
+
+    def reset(self, u0: Mapping[str, float]) -> None:
+        """Start from the held input ``u0`` (the bias), integral and derivative zero."""
+        super().reset(u0)
+        self.bias = float(u0[self.input])
+        self._state = np.array([0.0, 0.0, math.nan])
+
+    def law(self, state: np.ndarray, r: float, y: float, bias: float) -> tuple[np.ndarray, float]:
+        """One sample of the law: ``(state, r, y, bias) -> (next state, u)``; ``state``
+        is (integral, filtered derivative, last y; NaN before the first sample)."""
+        g, dt = self.gains, self.dt
+        integral, deriv, y_last = state
+        e = r - y
+        dy = 0.0 if math.isnan(y_last) else y - y_last
+        deriv = (g.tf * deriv - g.kd * dy) / (g.tf + dt)
+        v = bias + g.kp * e + integral + deriv
+        u = min(max(v, self.u_min[self.input]), self.u_max[self.input])
+        integral += g.ki * dt * e + dt / g.tt * (u - v)
+        return np.array([integral, deriv, y]), u
+
+    def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
+        self._state, u = self.law(self._state, r[self.output], y[self.output], self.bias)
+        return {self.input: u}
+
+    def as_iosystem(self, op: Equilibrium, model: Model) -> ct.NonlinearIOSystem:
+        """The same law as a discrete python-control I/O system, in deviations from ``op``.
+
+        Inputs ``reference`` and ``to_label(output)``, output ``to_label(input)``: it
+        connects by name to :func:`~.linearize.linearize`'s plant in ``ct.interconnect``.
+        The law only sees the error and the change of ``y``, so it runs on deviations
+        with the operating input as bias; the output is clamped to the bounds of
+        :meth:`update` and returned as a deviation. Start it from the zero state.
+        """
+        u_op = float(op.u[model.input_names.index(self.input)])
+
+        def step(t, x, u, params):
+            return self.law(np.asarray(x, dtype=float), u[0], u[1], u_op)
+
+        return ct.nlsys(
+            lambda t, x, u, params: step(t, x, u, params)[0],
+            lambda t, x, u, params: np.array([step(t, x, u, params)[1] - u_op]),
+            inputs=["reference", to_label(self.output)],
+            outputs=[to_label(self.input)],
+            states=["integral", "derivative", "y_last"],
+            dt=self.dt,
+            name="pid",
+        )
+
+
+def imc_gains(sys: ct.StateSpace, closed_loop_s: float) -> tuple[float, float]:
+    """PI gains ``(kp, ki)`` by internal-model control on a first-order fit of ``sys``.
+
+    The fit keeps the steady-state gain ``K = G(0)`` and the mean residence time
+    ``tau = -G'(0) / G(0)`` (the sum of the time constants, minus those of the zeros):
+    ``ki = 1 / (K lambda)``, ``kp = tau ki`` with the closed-loop time constant
+    ``lambda``.
+    """
+    A, B, C, D = sys.A, sys.B, sys.C, sys.D
+    AiB = np.linalg.solve(A, B)
+    K = float((D - C @ AiB)[0, 0])
+    dK = float(-(C @ np.linalg.solve(A, AiB))[0, 0])  # G'(0) = -C A^-2 B
+    tau = -dK / K
+    ki = 1.0 / (K * closed_loop_s)
+    return tau * ki, ki
+
+
+def make_pid(model: Model, op: Equilibrium, dt: float, settings: dict) -> PID:
+    """Registry factory of ``pid``. Own settings: ``kp``, ``ki``, ``kd`` (None: ``kp`` and
+    ``ki`` from :func:`imc_gains`, ``kd`` 0), ``closed_loop_s`` (the IMC time constant,
+    default 0.15 s), ``tf`` and ``tt`` (see :class:`PIDGains`; ``tt`` None: ``kp / ki``)."""
+    own = own_settings(
+        "pid",
+        settings,
+        {"kp": None, "ki": None, "kd": 0.0, "closed_loop_s": 0.15, "tf": 0.02, "tt": None},
+    )
+    out, inp = settings["output"], settings["input"]
+    kp, ki = own["kp"], own["ki"]
+    if kp is None or ki is None:
+        lam = positive("pid", "closed_loop_s", own["closed_loop_s"])
+        kp_imc, ki_imc = imc_gains(linearize(model, op, [out], inputs=[inp]), lam)
+        kp = kp_imc if kp is None else kp
+        ki = ki_imc if ki is None else ki
+    tt = own["tt"]
+    if tt is None:
+        tt = abs(kp / ki) if ki else 1.0
+    gains = PIDGains(float(kp), float(ki), float(own["kd"]), float(own["tf"]), float(tt))
+    return PID(dt, out, inp, float(settings["u_min"]), float(settings["u_max"]), gains)
+
+
+register_controller("pid", make_pid)

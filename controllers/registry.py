@@ -1,0 +1,138 @@
+"""Controller factories by slug, so the closed loop and the ``closed_loop`` scene kind can
+build any controller from its name and a settings table.
+
+A factory is ``factory(model, operating_point, dt, settings) -> Controller``:
+
+* ``model``: the *plant* model the loop drives (a factory may build its own prediction
+  model from it, e.g. a smooth flow law);
+* ``operating_point``: the :class:`~sarcomere.dynamics.Equilibrium` the loop starts from;
+* ``dt``: the sample time [s], checked by :func:`make_controller` against the plant
+  (:func:`check_sample_time`);
+* ``settings``: a plain dict. The loop sets the :data:`COMMON_KEYS`; every other key is the
+  controller's own (the scene's ``[control.controllers.<key>]`` table, values in SI), and
+  a factory refuses keys it does not know with a ParameterError naming ``<slug>.<key>``
+  (:func:`own_settings` does that).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from sarcomere.dynamics.equilibrium import Equilibrium
+from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.model import Model
+
+from .base import Controller
+from .linearize import linearize
+
+Factory = Callable[[Model, Equilibrium, float, dict], Controller]
+
+COMMON_KEYS = {
+    "output": "the tracked signal (e.g. 'myofibril.length')",
+    "input": "the manipulated input (e.g. 'regulator.p_cmd')",
+    "u_min": "lower bound of the input [SI]",
+    "u_max": "upper bound of the input [SI]",
+    "measured": "signals a realistic sensor set gives (list), for estimators",
+    "noise_std": "measurement noise standard deviation by signal [SI] (dict), for estimators",
+    "tension_min": "the thread tension constraint [N] (for controllers that can state it)",
+}
+"""Keys the loop puts in every factory's ``settings``."""
+
+CONTROLLERS: dict[str, Factory] = {}
+"""Slug -> factory. ``pid`` and ``lqi`` register when :mod:`sarcomere.controllers` is
+imported."""
+
+
+def register_controller(slug: str, factory: Factory, *, replace: bool = False) -> None:
+    """Make ``factory`` the builder of controller ``slug``.
+
+    Raises
+    ------
+    ValueError
+        ``slug`` already has a different factory and ``replace`` is false.
+    """
+    if slug in CONTROLLERS and CONTROLLERS[slug] is not factory and not replace:
+        raise ValueError(f"controller '{slug}' already registered ({CONTROLLERS[slug]!r})")
+    CONTROLLERS[slug] = factory
+
+
+def make_controller(
+    slug: str, model: Model, op: Equilibrium, dt: float, settings: Mapping[str, object]
+) -> Controller:
+    """Build the controller registered as ``slug``.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown slug, missing common settings or a sample time outside what the
+        plant allows (:func:`check_sample_time`).
+    """
+    if slug not in CONTROLLERS:
+        raise ParameterError("controller", slug, f"one of {sorted(CONTROLLERS)}")
+    missing = [k for k in ("output", "input", "u_min", "u_max") if k not in settings]
+    if missing:
+        raise ParameterError(f"{slug}.settings", sorted(settings), f"keys {missing} set")
+    check_sample_time(slug, model, op, dt)
+    return CONTROLLERS[slug](model, op, dt, dict(settings))
+
+
+MIN_SAMPLE_S = 1e-3
+"""Shortest sample time [s]: about the time one update of the slowest controller here
+takes (the EKF, 1-2 ms), and a fiftieth of the regulator's lag."""
+
+
+def check_sample_time(slug: str, model: Model, op: Equilibrium, dt: float) -> None:
+    """Refuse a sample time below :data:`MIN_SAMPLE_S` or above the slowest time constant
+    of the plant at ``op`` (the regulator's 50 ms lag here): sampled slower, the loop
+    would not see the actuator it commands.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``<slug>.dt``, the value and the range.
+    """
+    if not (isinstance(dt, int | float) and math.isfinite(dt)):
+        raise ParameterError(f"{slug}.dt", dt, "a finite sample time [s]")
+    poles = np.linalg.eigvals(linearize(model, op, []).A)
+    slowest = float(np.min(np.abs(poles.real))) if len(poles) else 0.0
+    high = 1.0 / slowest if slowest > 0 else math.inf
+    if not MIN_SAMPLE_S <= dt <= high:
+        raise ParameterError(
+            f"{slug}.dt",
+            dt,
+            f"[{MIN_SAMPLE_S:g}, {high:.3g}] s",
+            "the upper end is the plant's slowest time constant at the operating point",
+        )
+
+
+def own_settings(slug: str, settings: Mapping[str, object], defaults: Mapping[str, object]):
+    """The controller's own settings: ``defaults`` overridden by ``settings`` (the
+    :data:`COMMON_KEYS` left out). Numbers must be finite.
+
+    Raises
+    ------
+    ParameterError
+        For a key not in ``defaults`` (naming ``<slug>.<key>`` and the valid keys) or a
+        non-finite number.
+    """
+    out = dict(defaults)
+    for key, value in settings.items():
+        if key in COMMON_KEYS:
+            continue
+        if key not in defaults:
+            raise ParameterError(f"{slug}.{key}", value, f"one of {sorted(defaults)}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ParameterError(f"{slug}.{key}", value, "a finite number")
+        out[key] = value
+    return out
+
+
+def positive(slug: str, key: str, value: object, allow_zero: bool = False) -> float:
+    """``value`` as a float > 0 (or >= 0), else a ParameterError naming ``<slug>.<key>``."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or not (value >= 0 if allow_zero else value > 0):
+        raise ParameterError(f"{slug}.{key}", value, "[0, inf)" if allow_zero else "(0, inf)")
+    return float(value)

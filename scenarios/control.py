@@ -1,0 +1,246 @@
+"""Scenario kind "closed_loop": controllers on the plant in the sampled loop, compared.
+
+``[model]`` and ``[parameters]`` as kind "transient" (the plant: exact ISO 6358 flow law,
+saturating regulator); ``[simulation] stop_time``; ``[solver]`` the plant's integrator.
+``[control]``:
+
+- ``output``: the tracked signal ("myofibril.length", "sensor.f");
+- ``operating_pressure``: the start equilibrium's regulator command; ``pressure_max``:
+  the input's upper bound (default 0.1 MPa; the lower bound is 0);
+- ``sample_time`` (default 10 ms; from 1 ms to the plant's slowest time constant, see
+  :func:`~sarcomere.controllers.registry.check_sample_time`); ``seed`` of the noise
+  (default 0); ``tension_min``: the thread tension constraint the violation metric checks
+  (default 0 N);
+- ``measured``: the signals a realistic sensor set gives (default the output and
+  ``regulator.p_out``), read by estimators;
+- ``[control.noise]``: measurement noise standard deviation by signal, with units;
+- ``[control.reference]``, in the output's unit, relative to its operating value:
+  ``step`` at ``step_time``, and ``sines`` (a list of ``{frequency, start, periods}``)
+  of ``sine_amplitude`` around the stepped level, each starting at zero phase;
+- ``[control.disturbance]``: ``load`` (an added mass) at ``time``;
+- ``[control.controllers.<key>]``: one run per key; ``type`` is the registered slug
+  (default the key), every other entry is the controller's own setting (SI numbers,
+  or text such as ``estimator = "ekf"``).
+
+Metrics, prefixed by the key: ``rmse_mm`` (force: ``rmse_N``), ``overshoot_pct`` and
+``settling_time_s`` of the step (judged up to the next event), ``constraint_violation_max``
+[N], ``solve_time_median_ms``, ``solve_time_p95_ms``, ``fallbacks``, and per sine
+``rmse_sine_<f>_mm``, and ``disturbance_peak_mm`` (largest error from the disturbance to
+the next event). One result (CSV, curves) per key.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from sarcomere.controllers import CONTROLLERS, make_controller, operating_point
+from sarcomere.controllers.loop import Disturbance, run_closed_loop
+from sarcomere.controllers.metrics import UNIT_SCALES
+from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.units import to_si
+
+from .dynamic import _fidelity, _settings, bind, check_n
+from .output import RunOutput, quantity_tag
+from .runner import register_runner
+from .spec import Scenario, describe, unknown_key
+
+P_CMD = "regulator.p_cmd"
+KEYS = (
+    "output",
+    "operating_pressure",
+    "pressure_max",
+    "sample_time",
+    "seed",
+    "tension_min",
+    "measured",
+    "noise",
+    "reference",
+    "disturbance",
+    "controllers",
+)
+REFERENCE_KEYS = ("step", "step_time", "sine_amplitude", "sines")
+
+
+def _table(sc: Scenario, value: object, path: tuple, allowed=None) -> Mapping:
+    if not isinstance(value, Mapping):
+        raise sc.error(path, f"expected a table, got {value!r}")
+    for key in value:
+        if allowed is not None and key not in allowed:
+            raise sc.error((*path, key), unknown_key(key, list(allowed)))
+    return value
+
+
+def _quantity(sc: Scenario, value: object, path: tuple, unit: str, low: float | None = None):
+    try:
+        v = to_si(value, unit, ".".join(path))
+    except ParameterError as exc:
+        raise sc.error(path, describe(exc)) from None
+    if not math.isfinite(v) or (low is not None and v < low):
+        raise sc.error(path, f"{value!r} is outside [{low:g}, inf) {unit}")
+    return v
+
+
+def _reference(sc: Scenario, tbl: dict, unit: str, y_op: float):
+    """``r(t)``, the events (times where the reference changes character) and the step."""
+    path = ("control", "reference")
+    _table(sc, tbl, path, REFERENCE_KEYS)
+    step = _quantity(sc, tbl.get("step", 0.0), (*path, "step"), unit)
+    t_step = _quantity(sc, tbl.get("step_time", 0.0), (*path, "step_time"), "s", 0.0)
+    amp = _quantity(sc, tbl.get("sine_amplitude", 0.0), (*path, "sine_amplitude"), unit)
+    sines = []
+    raw = tbl.get("sines", [])
+    if not isinstance(raw, list):
+        raise sc.error((*path, "sines"), f"expected a list of tables, got {raw!r}")
+    for i, item in enumerate(raw):
+        p = (*path, "sines")
+        item = _table(sc, item, p, ("frequency", "start", "periods"))
+        f = _quantity(sc, item.get("frequency"), p, "Hz", 0.0)
+        start = _quantity(sc, item.get("start"), p, "s", 0.0)
+        periods = item.get("periods", 1)
+        if f <= 0 or isinstance(periods, bool) or not isinstance(periods, int) or periods < 1:
+            raise sc.error(p, f"sine {i + 1}: need frequency > 0 and periods an integer >= 1")
+        sines.append((f, start, start + periods / f))
+
+    def reference(t: float) -> float:
+        r = y_op + (step if t >= t_step else 0.0)
+        for f, a, b in sines:
+            if a <= t < b:
+                r += amp * math.sin(2 * math.pi * f * (t - a))
+        return r
+
+    return reference, t_step, step, sines
+
+
+def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
+    """Run every ``[control.controllers]`` entry on the same plant and reference."""
+    sc.refuse_unused("inputs", "sweep", "outputs.tolerance")
+    b = bind(sc)
+    fid = _fidelity(sc, allow_auto=False)
+    check_n(sc, ("model", "n"), b.n, fid)
+    if sc.simulation is None:
+        raise sc.error(("simulation",), "a closed loop needs [simulation] stop_time")
+    if sc.simulation.output_interval is not None or sc.simulation.start_time:
+        raise sc.error(("simulation",), "only stop_time: the samples are the output grid")
+    ctl = _table(sc, sc.control, ("control",), KEYS)
+    model = b.build(fid)
+    output = ctl.get("output")
+    if output not in model.signal_names:
+        raise sc.error(("control", "output"), f"{output!r} is not a signal of the model")
+    unit = model.unit(output)
+    dt = _quantity(sc, ctl.get("sample_time", "10 ms"), ("control", "sample_time"), "s", 0.0)
+    p_op = _quantity(
+        sc, ctl.get("operating_pressure"), ("control", "operating_pressure"), "Pa", 0.0
+    )
+    p_max = _quantity(sc, ctl.get("pressure_max", "0.1 MPa"), ("control", "pressure_max"), "Pa")
+    if not 0 < p_op <= p_max <= model.variables[P_CMD].high:
+        raise sc.error(
+            ("control", "pressure_max"),
+            f"need 0 < operating_pressure ({p_op:g} Pa) <= pressure_max ({p_max:g} Pa) <= "
+            f"the regulator's {model.variables[P_CMD].high:g} Pa",
+        )
+    seed = ctl.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise sc.error(("control", "seed"), f"{seed!r}: expected an integer >= 0")
+    t_min = _quantity(sc, ctl.get("tension_min", 0.0), ("control", "tension_min"), "N")
+    measured = ctl.get("measured", [output, "regulator.p_out"])
+    if not (isinstance(measured, list) and all(m in model.signal_names for m in measured)):
+        raise sc.error(("control", "measured"), f"{measured!r}: expected signals of the model")
+    noise = {}
+    for name, raw in _table(sc, ctl.get("noise", {}), ("control", "noise")).items():
+        if name not in model.signal_names:
+            raise sc.error(("control", "noise", name), "not a signal of the model")
+        noise[name] = _quantity(sc, raw, ("control", "noise", name), model.unit(name), 0.0)
+    op = operating_point(model, {P_CMD: p_op}, b.overrides)
+    y_op = op[output]
+    reference, t_step, step, sines = _reference(sc, ctl.get("reference", {}), unit, y_op)
+    dist = None
+    if "disturbance" in ctl:
+        path = ("control", "disturbance")
+        d = _table(sc, ctl["disturbance"], path, ("load", "time"))
+        if "load.m" not in model.param_names:
+            raise sc.error(path, "the set-up holds no load to disturb")
+        dist = Disturbance(
+            _quantity(sc, d.get("time"), (*path, "time"), "s", 0.0),
+            "load.m",
+            _quantity(sc, d.get("load"), (*path, "load"), "kg"),
+        )
+    stop = sc.simulation.stop_time
+    events = sorted({stop, *(a for _, a, _ in sines), *([dist.time] if dist else [])})
+    reach = sorted(operating_point(model, {P_CMD: v}, b.overrides)[output] for v in (0.0, p_max))
+    entries = _table(sc, ctl.get("controllers", {}), ("control", "controllers"))
+    if not entries:
+        raise sc.error(("control", "controllers"), "no controllers to run")
+    settings = _settings(sc, model)
+    scale, suffix = UNIT_SCALES.get(unit, (1.0, unit))
+    metrics, results = {}, {}
+    for key, raw in entries.items():
+        path = ("control", "controllers", key)
+        own = dict(_table(sc, raw, path))
+        slug = own.pop("type", key)
+        if slug not in CONTROLLERS:
+            raise sc.error((*path, "type"), f"'{slug}' is not one of {sorted(CONTROLLERS)}")
+        task = {
+            "output": output,
+            "input": P_CMD,
+            "u_min": 0.0,
+            "u_max": p_max,
+            "measured": list(measured),
+            "noise_std": dict(noise),
+            "tension_min": t_min,
+            **own,
+        }
+        try:
+            controller = make_controller(slug, model, op, dt, task)
+        except ParameterError as exc:
+            key = exc.name.split(".")[-1]
+            where = ("control", "sample_time") if key == "dt" else (*path, key)
+            raise sc.error(where, describe(exc)) from None
+        step_end = next(e for e in events if e > t_step)
+        run = run_closed_loop(
+            model,
+            controller,
+            op,
+            reference,
+            stop,
+            output=output,
+            settings=settings,
+            noise_std=noise,
+            seed=seed,
+            disturbance=dist,
+            reachable=(reach[0], reach[1]),
+            step=(y_op, y_op + step, t_step, step_end) if step else None,
+            tension_min=t_min,
+        )
+        res = run.result
+        err = res[output] - res["reference"]
+        for f, a, b_end in sines:
+            keep = (res.index >= a) & (res.index < b_end)
+            rms = float(np.sqrt(np.mean(err[keep] ** 2))) / scale if keep.any() else 0.0
+            run.metrics[f"rmse_sine_{quantity_tag(f, 'Hz')}_{suffix}"] = rms
+        if dist is not None:
+            end = next((e for e in events if e > dist.time), stop)
+            keep = (res.index >= dist.time) & (res.index < end)
+            run.metrics[f"disturbance_peak_{suffix}"] = float(np.max(np.abs(err[keep]))) / scale
+        metrics.update({f"{key}_{k}": v for k, v in run.metrics.items()})
+        res.meta.update({"controller": slug, "sample_time_s": dt})
+        results[key] = res
+    extra = {
+        "operating_point": {"pressure_Pa": p_op, output: y_op},
+        "reachable": {output: reach},
+        "controllers": {k: dict(_table(sc, v, ("control",))) for k, v in entries.items()},
+    }
+    return RunOutput(
+        sc.name,
+        fid,
+        f"{settings.method} plant, controllers sampled every {dt * 1e3:g} ms (zero-order hold)",
+        metrics=metrics,
+        results=results,
+        extra=extra,
+    )
+
+
+register_runner("closed_loop", run_closed_loop_scene)

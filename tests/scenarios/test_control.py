@@ -1,0 +1,138 @@
+"""Kind "closed_loop": the packaged control scenes, shortened, end to end; bad [control]."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from sarcomere.dynamics import hanging_load, solve_equilibrium
+from sarcomere.dynamics.errors import ScenarioError
+from sarcomere.scenarios import load_scenario, parse_scenario, resolve_scenario, run
+from sarcomere.scenarios.cli import main
+
+SUFFIXES = (
+    "overshoot_pct",
+    "settling_time_s",
+    "constraint_violation_max",
+    "solve_time_median_ms",
+    "solve_time_p95_ms",
+)
+
+
+def _text(name: str) -> str:
+    return resolve_scenario(name).read_text(encoding="utf-8")
+
+
+def _short_length_scene() -> str:
+    """control-length in 1.6 s: the step at 0.2 s, one 3 Hz period, +50 g at 1.3 s."""
+    text = _text("control-length")
+    text = text.replace('stop_time = "12.5 s"', 'stop_time = "1.6 s"')
+    text = text.replace('step_time = "0.5 s"', 'step_time = "0.2 s"')
+    text = re.sub(r"sines = \[.*?\]\n", "", text, flags=re.S)
+    text = text.replace(
+        'sine_amplitude = "1 mm"',
+        'sine_amplitude = "1 mm"\nsines = [{ frequency = "3 Hz", start = "0.9 s", periods = 1 }]',
+    )
+    return text.replace('time = "6.25 s"', 'time = "1.3 s"')
+
+
+def test_packaged_scenes_load():
+    for name in ("control-length", "control-force"):
+        sc = load_scenario(name)
+        assert sc.kind == "closed_loop"
+        assert set(sc.control["controllers"]) == {"pid", "lqi", "lqi_ekf"}
+
+
+def test_length_scene_shortened_end_to_end(tmp_path):
+    sc = parse_scenario(_short_length_scene(), "control-length-short.toml")
+    out = run(sc, tmp_path, quiet=True)
+    m = out.metrics
+    for key in ("pid", "lqi", "lqi_ekf"):
+        assert m[f"{key}_rmse_mm"] > 0
+        for suffix in SUFFIXES:
+            assert f"{key}_{suffix}" in m
+        assert m[f"{key}_constraint_violation_max"] == 0  # the threads stay taut
+        assert m[f"{key}_settling_time_s"] < 0.7  # a 1.5 mm step settles
+        assert 0 < m[f"{key}_rmse_sine_3Hz_mm"] < 1.0
+        assert m[f"{key}_disturbance_peak_mm"] > 3  # +50 g pulls the chain down
+        assert m[f"{key}_fallbacks"] == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["metrics"]["pid_rmse_mm"] == pytest.approx(m["pid_rmse_mm"])
+    for f in ("plot_length.png", "plot_pressure.png", "plot_tension.png", "timeseries_lqi.csv"):
+        assert (tmp_path / f).stat().st_size > 1000
+    header = (tmp_path / "timeseries_pid.csv").read_text().splitlines()[0]
+    for column in ("reference [m]", "myofibril.length [m]", "regulator.p_cmd [Pa]", ".T [N]"):
+        assert column in header
+
+
+def test_force_scene_shortened(tmp_path):
+    text = _text("control-force").replace('stop_time = "11.5 s"', 'stop_time = "1.2 s"')
+    text = re.sub(
+        r"\[control.controllers.lqi_ekf\]\ntype = \"lqi\"\nestimator = \"ekf\"\n", "", text
+    )
+    out = run(parse_scenario(text, "control-force-short.toml"), tmp_path, quiet=True)
+    m = out.metrics
+    assert m["pid_rmse_N"] > 0 and m["lqi_rmse_N"] > 0
+    assert m["lqi_settling_time_s"] < 0.5
+    assert "pid_disturbance_peak_N" not in m  # no disturbance in the force scene
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key"),
+    [
+        ('sample_time = "10 ms"', 'sample_tme = "10 ms"', "control.sample_tme"),
+        ("[control.controllers.pid]", '[control.controllers.pid]\ntype = "pdi"', "pid.type"),
+        ("[control.controllers.pid]", "[control.controllers.pid]\nkq = 1.0", "pid.kq"),
+        ('pressure_max = "0.3 MPa"', 'pressure_max = "0.01 MPa"', "control.pressure_max"),
+        ('output = "myofibril.length"', 'output = "myofibril.lenght"', "control.output"),
+        ('sample_time = "10 ms"', 'sample_time = "0.1 ms"', "control.sample_time"),
+        ('sample_time = "10 ms"', 'sample_time = "0.2 s"', "control.sample_time"),
+    ],
+)
+def test_bad_control_settings_are_refused_by_key(tmp_path, old, new, key):
+    text = _short_length_scene().replace(old, new)
+    with pytest.raises(ScenarioError, match=re.escape(key.split(".")[-1])):
+        run(parse_scenario(text, "bad.toml"), tmp_path / "out", quiet=True)
+
+
+def test_other_kinds_refuse_a_control_section(tmp_path):
+    text = _text("step-50g") + '\n[control]\noutput = "myofibril.length"\n'
+    with pytest.raises(ScenarioError, match=r"does not use \[control\]"):
+        run(parse_scenario(text, "x.toml"), tmp_path / "out", quiet=True)
+
+
+def test_linearize_command_writes_named_matrices_and_modes(tmp_path, capsys):
+    out = tmp_path / "lin"
+    assert main(["linearize", "control-length", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "load (load.s)" in printed
+    record = json.loads((out / "linearization.json").read_text())
+    npz = np.load(out / "matrices.npz")
+    # an independent evaluation: the model's own Jacobian Function at a fresh equilibrium
+    model = hanging_load(3, load_kg=0.02)
+    eq = solve_equilibrium(model, {"regulator.p_cmd": 5e4})
+    A = np.array(model.linearization(["myofibril.length"])(eq.x, eq.z, eq.u, eq.p)[0])
+    np.testing.assert_allclose(npz["A"], A, rtol=1e-9, atol=1e-9)
+    assert list(npz["states"]) == model.state_names == record["states"]
+    assert record["labels"]["myofibril.length"] == "myofibril__length"
+    assert {p["mode"] for p in record["poles"]} == {"pressure", "expansion", "body", "load"}
+    assert sum(2 if p["imag_1_s"] else 1 for p in record["poles"]) == model.nx
+    assert (out / "bode.png").stat().st_size > 1000
+    assert json.loads((out / "summary.json").read_text())["metrics"]["states"] == 18
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["paper-static"],
+        ["control-length", "--output", "myofibril.lenght"],
+        ["step-50g", "--pressure", "0.1 kg"],
+    ],
+)
+def test_linearize_command_refuses_in_one_line_and_writes_nothing(tmp_path, capsys, args):
+    out = tmp_path / "lin"
+    assert main(["linearize", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and "\n" not in err
+    assert not out.exists()
