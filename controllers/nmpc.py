@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
-from sarcomere.dynamics.assemblies import hanging_load
+from sarcomere.dynamics.assemblies import hanging_load, isometric
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
@@ -518,28 +518,36 @@ it cannot bound the lowest thread's tension."""
 
 
 def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Controller:
-    """Registry factory of ``nmpc`` for a hanging-load plant ``model``.
+    """Registry factory of ``nmpc`` for the paper's set-ups.
 
-    The prediction model is ``hanging_load`` with the plant's number of units at the
-    fidelity ``fidelity`` (own key, default :data:`DEFAULT_FIDELITY`), the smooth flow law
-    and no clamp; its parameters take the plant's values by name (``op.p``: load,
-    regulator, geometry). Common keys: ``output``, ``input``, ``u_min``, ``u_max``,
-    ``tension_min`` (the hard tension bound, default 0). Own keys: the other
-    :class:`NMPCSettings` fields, ``fidelity``, ``estimator`` ("none" or "ekf") and
-    ``ekf``.
+    The prediction model is the plant's set-up rebuilt for optimisers: ``hanging_load``
+    (a plant with ``load.m``) or the rigid ``isometric`` fixture at the plant's
+    ``fixture.s0``, with the plant's number of units, at the fidelity ``fidelity`` (own
+    key, default :data:`DEFAULT_FIDELITY`), the smooth flow law and no clamp; its
+    parameters take the plant's values by name (``op.p``: load, regulator, geometry).
+    Common keys: ``output``, ``input``, ``u_min``, ``u_max``, ``tension_min`` (the hard
+    tension bound, default 0). Own keys: the other :class:`NMPCSettings` fields,
+    ``fidelity``, ``estimator`` ("none" or "ekf") and ``ekf``.
     """
     defaults = {**own_defaults(NMPCSettings), "fidelity": DEFAULT_FIDELITY, **ESTIMATOR_DEFAULTS}
     own = own_settings("nmpc", settings, defaults)
     units = [n for n in model.state_names if re.fullmatch(r"myofibril\.aps\d+\.chamber\.m_air", n)]
-    if "load.m" not in model.param_names or not units:
+    given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
+    rigid = "fixture.s0" in given and not any(n.startswith("fixture_spring.") for n in given)
+    if not units or not ("load.m" in given or rigid):
         raise ParameterError(
-            "nmpc.model", model.name, "a hanging_load plant (the prediction is built for it)"
+            "nmpc.model",
+            model.name,
+            "a hanging_load or rigid isometric plant (the prediction is rebuilt from it)",
         )
     if settings["input"] not in model.input_names:
         raise ParameterError("nmpc.input", settings["input"], f"one of {model.input_names}")
     fidelity, est, ekf_settings = own.pop("fidelity"), own.pop("estimator"), own.pop("ekf")
-    pred = hanging_load(len(units), fidelity=fidelity, flow_law="smooth", saturate=False)
-    given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
+    smooth = {"fidelity": fidelity, "flow_law": "smooth", "saturate": False}
+    if "load.m" in given:
+        pred = hanging_load(len(units), **smooth)
+    else:
+        pred = isometric(len(units), length=given["fixture.s0"], **smooth)
     params = {n: given[n] for n in pred.param_names if n in given}
     s = NMPCSettings(
         **own,

@@ -146,9 +146,21 @@ def test_registry_factory_predicts_with_the_plants_parameters():
     assert mpc.checked(0.0, y, {L: eq[L]})[P] == pytest.approx(5e4, abs=1.0)
     with pytest.raises(ParameterError, match="nmpc.horizn"):
         make_controller("nmpc", plant, eq, 0.01, {**TASK, "horizn": 10})
-    iso = isometric(1)
+    sprung = isometric(1, fixture_stiffness=500.0)
     with pytest.raises(ParameterError, match="nmpc.model"):
-        make_controller("nmpc", iso, solve_equilibrium(iso, {P: 0.0}), 0.01, TASK)
+        make_controller("nmpc", sprung, solve_equilibrium(sprung, {P: 0.0}), 0.01, TASK)
+
+
+def test_registry_factory_on_the_rigid_isometric_fixture():
+    plant = isometric(1)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    task = {**TASK, "output": "sensor.f"}
+    mpc = make_controller("nmpc", plant, eq, 0.01, task)
+    assert mpc.model.name == "isometric_n1_full"
+    y = {n: eq[n] for n in mpc.outputs}
+    assert mpc.checked(0.0, y, {"sensor.f": eq["sensor.f"]})[P] == pytest.approx(5e4, abs=5.0)
+    mpc.reset({P: 5e4})
+    assert mpc.checked(0.0, y, {"sensor.f": eq["sensor.f"] + 0.01})[P] > 5e4 + 100
 
 
 def test_on_an_ekf_it_reads_only_the_measured_signals():
