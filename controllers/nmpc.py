@@ -282,7 +282,7 @@ class _RealTimeIteration:
     The guess holds the node states, the inputs and the collocation states of every
     interval. Per interval the Radau equations ``R(V, x, v) = 0`` are linearised once at
     the guess (one Newton step, the "lifted" integrator): ``dV = dV0 + S [dx; dv]`` with
-    ``dV0 = -R_V^{-1} R`` and ``S = -R_V^{-1} [R_x, R_v]`` from one LU factorisation, so
+    ``dV0 = -R_V^{-1} R`` and ``S = -R_V^{-1} [R_x, R_v]`` from one factorisation, so
     the interval's end is ``x_end + dx_end`` linear in ``(dx, dv)``. The node gaps, the
     tracking and move residuals (Gauss-Newton) and the linearised tension constraints are
     condensed onto the input moves.
@@ -297,7 +297,9 @@ class _RealTimeIteration:
         )
         Vm, xm, vm = cs.MX.sym("V", nx * d), cs.MX.sym("xi", nx), cs.MX.sym("v", nu)
         Rk, RV, Rp = lin(Vm, xm, vm)
-        sol = -cs.solve(RV, cs.horzcat(Rk, Rp), "lapacklu")  # [dV0, S]
+        # LAPACK QR: LU (dgetrf) of this size goes multi-threaded in the OpenBLAS CasADi ships
+        # and ran 5-7x slower whenever the other core was busy (QR: 1.4 ms either way)
+        sol = -cs.solve(RV, cs.horzcat(Rk, Rp), "lapackqr")  # [dV0, S]
         lift = cs.Function("lift", [Vm, xm, vm], [sol]).map(N)
         yT = cs.vertcat(pb.y(xi), pb.T(xi))
         outs = cs.Function("outs", [xi], [yT, cs.jacobian(yT, xi)]).map(N)
