@@ -511,12 +511,12 @@ class NonlinearMPC(Controller):
 
 
 DEFAULT_FIDELITY = "full"
-"""Prediction fidelity of :func:`make_nmpc`, chosen by measurement (BENCHMARKS.md, MPC
-section; ``sarcomere bench mpc``): on the full exact-law plant (n = 3, 20 g, RTI) the full
-and quasi_static predictions track equally (RMS error 1.09 mm before the load step, quick
-scene) and hold a raised tension bound to 2e-5 N, and full was the faster of the two here;
-symmetric is about 4x faster but tracks 60 % worse and has one representative thread, so
-it cannot bound the lowest thread's tension."""
+"""Prediction fidelity of :func:`make_nmpc`, chosen by measurement (BENCHMARKS.md, section
+5; ``sarcomere bench mpc``): on the full exact-law plant (n = 3, 20 g, RTI) full and
+quasi_static track equally (0.815 mm RMS before the load step) and hold a raised tension
+bound to 2e-5 N, and full was the faster of the two; symmetric is about 4x faster and
+tracks 6 % worse, but has one representative thread, so it cannot bound the lowest
+thread's tension."""
 
 
 def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Controller:
