@@ -11,7 +11,7 @@ checked by :meth:`~.base.Controller.checked`) and is built by a factory register
 
 ``settings`` holds the common keys the scene sets (:data:`~.registry.COMMON_KEYS`:
 ``output``, ``input``, ``u_min``, ``u_max``, ``measured``, ``noise_std``,
-``tension_min``) and the controller's own keys (the scene's
+``tension_min``, ``build_model``, ``overrides``) and the controller's own keys (the scene's
 ``[control.controllers.<key>]`` table, SI numbers or text), checked with
 :func:`~.registry.own_settings`. A module that registers a controller is imported here, so
 ``import sarcomere.controllers`` makes every slug available to the loop

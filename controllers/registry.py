@@ -38,6 +38,9 @@ COMMON_KEYS = {
     "measured": "signals a realistic sensor set gives (list), for estimators",
     "noise_std": "measurement noise standard deviation by signal [SI] (dict), for estimators",
     "tension_min": "the thread tension constraint [N] (for controllers that can state it)",
+    "build_model": "build_model(fidelity='full', flow_law='iso6358', saturate=True) -> Model: "
+    "the plant's set-up at another level or flow law, for prediction models (scenes only)",
+    "overrides": "the scene's parameter overrides by name (dict), for such a model",
 }
 """Keys the loop puts in every factory's ``settings``."""
 

@@ -40,10 +40,11 @@ import numpy as np
 from sarcomere.controllers import CONTROLLERS, make_controller, operating_point
 from sarcomere.controllers.loop import Disturbance, run_closed_loop
 from sarcomere.controllers.metrics import UNIT_SCALES
+from sarcomere.dynamics.assemblies import hanging_load, isometric
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.units import to_si
 
-from .dynamic import _fidelity, _settings, bind, check_n
+from .dynamic import Binding, _fidelity, _settings, bind, check_n
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
 from .spec import Scenario, describe, unknown_key
@@ -113,6 +114,29 @@ def _reference(sc: Scenario, tbl: dict, unit: str, y_op: float):
         return r
 
     return reference, t_step, step, sines
+
+
+def _builder(b: Binding):
+    """``build_model(fidelity, flow_law, saturate)``: the scene's set-up at another fidelity
+    level or flow law (a controller's prediction model; the plant is the scene's own)."""
+
+    def build_model(fidelity: str = "full", flow_law: str = "iso6358", saturate: bool = True):
+        if b.setup == "isometric":
+            return isometric(
+                b.n,
+                b.aps,
+                fidelity,
+                b.fixture_stiffness,
+                b.fixture_gap,
+                regulator_tau=b.regulator_tau,
+                saturate=saturate,
+                flow_law=flow_law,
+            )
+        return hanging_load(
+            b.n, b.aps, b.load_kg, fidelity, b.regulator_tau, saturate=saturate, flow_law=flow_law
+        )
+
+    return build_model
 
 
 def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
@@ -191,6 +215,8 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
             "measured": list(measured),
             "noise_std": dict(noise),
             "tension_min": t_min,
+            "build_model": _builder(b),
+            "overrides": dict(b.overrides),
             **own,
         }
         try:

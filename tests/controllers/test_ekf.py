@@ -22,33 +22,38 @@ def plant():
 
 
 def test_prediction_matches_cvodes_and_its_jacobian_central_differences(plant):
+    """The augmented state is [x; load.m]: the prediction of x against CVODES at the
+    same load, the Jacobian's columns (a state, the load) against central differences."""
     m, op = plant
-    ekf = EKF(m, op, DT, [L, POUT], STD)
-    u = np.array([6e4])
-    xf, F = (np.array(v) for v in ekf._predict(op.x, u, op.p))
+    ekf = EKF(m, op, DT, [L, POUT], STD, disturbance_std={"load.m": 0.02})
+    load = op.p[m.param_names.index("load.m")]
+    xa, u = np.append(op.x, load), np.array([6e4])
+    xf, F = (np.array(v) for v in ekf._predict(xa, u, op.p))
+    assert xf[-1, 0] == load  # a random walk predicts no change
     sim = Simulator(m)
     sim.reset(x0=op.x)
     sim.step({P: 6e4}, DT)
     change = np.abs(sim.x - op.x)
-    assert np.all(np.abs(xf.ravel() - sim.x) <= 0.03 * change.max(axis=0) + 1e-12 + 0.03 * change)
-    i = m.state_names.index("myofibril.aps1.expansion.s")
-    h = 1e-7
-    plus, minus = op.x.copy(), op.x.copy()
-    plus[i] += h
-    minus[i] -= h
-    fd = np.array(ekf._predict(plus, u, op.p)[0]) - np.array(ekf._predict(minus, u, op.p)[0])
-    np.testing.assert_allclose(F[:, i], fd.ravel() / (2 * h), rtol=1e-5, atol=1e-9)
+    assert np.all(np.abs(xf[: m.nx, 0] - sim.x) <= 0.03 * change + 1e-15)
+    for i, h in ((m.state_names.index("myofibril.aps1.expansion.s"), 1e-7), (m.nx, 1e-5)):
+        plus, minus = xa.copy(), xa.copy()
+        plus[i] += h
+        minus[i] -= h
+        fd = np.array(ekf._predict(plus, u, op.p)[0]) - np.array(ekf._predict(minus, u, op.p)[0])
+        np.testing.assert_allclose(F[:, i], fd.ravel() / (2 * h), rtol=1e-5, atol=1e-9)
+    assert np.any(np.abs(F[: m.nx, m.nx]) > 1e-3)  # the load does move the states
 
 
 def test_estimates_unmeasured_states_from_noisy_measurements(plant):
-    """Open loop, a pressure staircase; the filter starts from the wrong equilibrium
-    (30 kPa instead of 50), sees the length and the regulator pressure with noise, and
-    finds the chamber's air mass."""
+    """Open loop, a pressure staircase, and 30 g hung on the plant at t = 0 unknown to the
+    filter: from the noisy length and regulator pressure alone it finds the load, the
+    length (filtered below the noise) and the chamber's air mass."""
     m, op = plant
-    ekf = EKF(m, op, DT, [L, POUT], STD)
-    ekf.reset(operating_point(m, {P: 3e4}).x)
+    ekf = EKF(m, op, DT, [L, POUT], STD, disturbance_std={"load.m": 0.002})
     sim = Simulator(m)
+    heavy = operating_point(m, {P: 5e4}, load_kg=0.05)
     sim.reset(x0=op.x)
+    sim.p = heavy.p
     rng = np.random.default_rng(3)
     mair = m.state_names.index("myofibril.aps1.chamber.m_air")
     errs, excursion, len_err = [], [], []
@@ -58,14 +63,17 @@ def test_estimates_unmeasured_states_from_noisy_measurements(plant):
         s = sim.signals([L, POUT])
         y = {n: s[n] + STD[n] * rng.standard_normal() for n in (L, POUT)}
         est = ekf.estimate(y, u_prev)  # the input held over the last sample
-        if k >= 20:
+        if k >= 50:  # after the 30 g drop
             errs.append(est[mair] - sim.x[mair])
             excursion.append(sim.x[mair] - op.x[mair])
-            len_err.append(np.array(ekf._measure(est, [u], op.p)[0]).ravel()[0] - s[L])
+            len_err.append(np.array(ekf._measure(ekf.xa, [u], op.p)[0]).ravel()[0] - s[L])
         sim.step({P: u}, DT)
         u_prev = u
     assert np.sqrt(np.mean(np.square(errs))) < 0.05 * np.ptp(excursion)
     assert np.sqrt(np.mean(np.square(len_err))) < 0.7 * STD[L]  # filtered, not just copied
+    assert ekf.parameters["load.m"] == pytest.approx(
+        heavy.p[m.param_names.index("load.m")], rel=0.03
+    )
 
 
 def test_bad_settings_name_the_setting(plant):

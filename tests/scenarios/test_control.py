@@ -6,6 +6,7 @@ import re
 import numpy as np
 import pytest
 
+from sarcomere.controllers import CONTROLLERS, Controller, register_controller
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ScenarioError
 from sarcomere.scenarios import load_scenario, parse_scenario, resolve_scenario, run
@@ -143,3 +144,46 @@ def test_linearize_command_refuses_in_one_line_and_writes_nothing(tmp_path, caps
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and "\n" not in err
     assert not out.exists()
+
+
+def test_a_registered_controller_runs_in_the_scene_with_the_common_settings(tmp_path):
+    """What part B's MPCs rely on: register a factory, name it in [control.controllers],
+    get the common settings, including a builder of the set-up with the smooth flow law."""
+    seen = {}
+
+    class Hold(Controller):
+        slug = "hold"
+
+        def update(self, t, y, r):
+            return {"regulator.p_cmd": self.u0}
+
+        def reset(self, u0):
+            super().reset(u0)
+            self.u0 = u0["regulator.p_cmd"]
+
+    def make_hold(model, op, dt, settings):
+        seen.update(settings, model=model, op=op, dt=dt)
+        return Hold(
+            dt,
+            [settings["input"]],
+            [settings["output"]],
+            {settings["input"]: settings["u_min"]},
+            {settings["input"]: settings["u_max"]},
+        )
+
+    register_controller("hold", make_hold)
+    try:
+        text = _short_length_scene().replace(
+            "[control.controllers.pid]", "[control.controllers.hold]\n\n[control.controllers.pid]"
+        )
+        out = run(parse_scenario(text, "probe.toml"), tmp_path, quiet=True)
+    finally:
+        CONTROLLERS.pop("hold")
+    assert out.metrics["hold_solve_time_median_ms"] >= 0
+    assert seen["dt"] == 0.01 and seen["u_max"] == 3e5 and seen["tension_min"] == 0.0
+    assert seen["measured"] == ["myofibril.length", "regulator.p_out"]
+    assert seen["noise_std"]["myofibril.length"] == pytest.approx(2e-5)
+    smooth = seen["build_model"](flow_law="smooth", saturate=False)
+    assert smooth.state_names == seen["model"].state_names
+    eq = solve_equilibrium(smooth, {"regulator.p_cmd": 5e4}, seen["overrides"])
+    assert eq["myofibril.length"] == pytest.approx(seen["op"]["myofibril.length"], rel=1e-4)
