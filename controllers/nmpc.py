@@ -522,34 +522,27 @@ thread's tension."""
 def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Controller:
     """Registry factory of ``nmpc`` for the paper's set-ups.
 
-    The prediction model is the plant's set-up rebuilt for optimisers: ``hanging_load``
-    (a plant with ``load.m``) or the rigid ``isometric`` fixture at the plant's
-    ``fixture.s0``, with the plant's number of units, at the fidelity ``fidelity`` (own
-    key, default :data:`DEFAULT_FIDELITY`), the smooth flow law and no clamp; its
-    parameters take the plant's values by name (``op.p``: load, regulator, geometry).
+    The prediction model is the plant's set-up rebuilt for optimisers at the fidelity
+    ``fidelity`` (own key, default :data:`DEFAULT_FIDELITY`), with the smooth flow law and
+    no clamp: by the scene's ``build_model`` where given, else from the plant itself
+    (``hanging_load`` for a plant with ``load.m``, the rigid ``isometric`` fixture at its
+    ``fixture.s0``); its parameters take the plant's values by name (``op.p``: load,
+    regulator, geometry, the scene's overrides).
     Common keys: ``output``, ``input``, ``u_min``, ``u_max``, ``tension_min`` (the hard
     tension bound, default 0). Own keys: the other :class:`NMPCSettings` fields,
     ``fidelity``, ``estimator`` ("none" or "ekf") and ``ekf``.
     """
     defaults = {**own_defaults(NMPCSettings), "fidelity": DEFAULT_FIDELITY, **ESTIMATOR_DEFAULTS}
     own = own_settings("nmpc", settings, defaults)
-    units = [n for n in model.state_names if re.fullmatch(r"myofibril\.aps\d+\.chamber\.m_air", n)]
     given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
-    rigid = "fixture.s0" in given and not any(n.startswith("fixture_spring.") for n in given)
-    if not units or not ("load.m" in given or rigid):
-        raise ParameterError(
-            "nmpc.model",
-            model.name,
-            "a hanging_load or rigid isometric plant (the prediction is rebuilt from it)",
-        )
     if settings["input"] not in model.input_names:
         raise ParameterError("nmpc.input", settings["input"], f"one of {model.input_names}")
     fidelity, est, ekf_settings = own.pop("fidelity"), own.pop("estimator"), own.pop("ekf")
     smooth = {"fidelity": fidelity, "flow_law": "smooth", "saturate": False}
-    if "load.m" in given:
-        pred = hanging_load(len(units), **smooth)
+    if settings.get("build_model") is not None:  # a scene: its own set-up, rebuilt
+        pred = settings["build_model"](**smooth)
     else:
-        pred = isometric(len(units), length=given["fixture.s0"], **smooth)
+        pred = _rebuild(model, given, smooth)
     params = {n: given[n] for n in pred.param_names if n in given}
     s = NMPCSettings(
         **own,
@@ -560,6 +553,22 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     )
     ctl = NonlinearMPC(pred, op.u, dt, s, params)
     return with_estimator("nmpc", ctl, model, op, dt, settings, est, ekf_settings)
+
+
+def _rebuild(model: Model, given: dict, smooth: dict) -> Model:
+    """The plant's set-up rebuilt from its parameters: a hanging load (``load.m``) or the
+    rigid isometric fixture at ``fixture.s0``."""
+    units = [n for n in model.state_names if re.fullmatch(r"myofibril\.aps\d+\.chamber\.m_air", n)]
+    rigid = "fixture.s0" in given and not any(n.startswith("fixture_spring.") for n in given)
+    if not units or not ("load.m" in given or rigid):
+        raise ParameterError(
+            "nmpc.model",
+            model.name,
+            "a hanging_load or rigid isometric plant, or a build_model setting",
+        )
+    if "load.m" in given:
+        return hanging_load(len(units), **smooth)
+    return isometric(len(units), length=given["fixture.s0"], **smooth)
 
 
 register_controller("nmpc", make_nmpc)

@@ -193,3 +193,18 @@ def steady_error(integral_gain):
 def test_integral_action_removes_the_offset_of_an_unknown_load():
     assert steady_error(0.0) > 3e-4  # 0.6 mm: the prediction's 20 g equilibrium is elsewhere
     assert steady_error(5.0) < 0.05 * steady_error(0.0)
+
+
+def test_a_scenes_build_model_makes_the_prediction():
+    plant = hanging_load(1, load_kg=0.02)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    calls = []
+
+    def build_model(**kwargs):
+        calls.append(kwargs)
+        return hanging_load(1, load_kg=0.02, **kwargs)
+
+    task = {**TASK, "build_model": build_model, "fidelity": "symmetric"}
+    mpc = make_controller("nmpc", plant, eq, 0.01, task)
+    assert calls == [{"fidelity": "symmetric", "flow_law": "smooth", "saturate": False}]
+    assert mpc.model.name == "hanging_n1_symmetric"
