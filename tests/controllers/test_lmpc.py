@@ -145,3 +145,22 @@ def test_registry_factory_linearizes_the_plant_with_soft_tension_bounds():
     assert mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})[P] == pytest.approx(3e4, abs=1e-6)
     with pytest.raises(ParameterError, match="lmpc.weight"):
         make_controller("lmpc", model, eq, 0.01, {**task, "weight": 1.0})
+
+
+def test_soft_lower_bound_pulls_the_signal_up_and_is_paid_for():
+    Ad, Bd = zoh(np.array([[-1.0]]), np.array([[1.0]]), 0.1)
+    C = np.array([[1.0]])
+    args = (Ad, Bd, C)
+    free = VelocityQP(*args, np.zeros((0, 1)), 10, 1.0, 0.01, 100.0, np.ones(1), None)
+    soft = VelocityQP(*args, C, 10, 1.0, 0.01, 100.0, np.ones(1), None)
+    big = np.full(1, 1e9)
+    for qp in (free, soft):
+        qp.solver = qp_solver("daqp", *qp.sparsities())
+    xi0 = np.zeros(2)  # at rest on the reference
+    du_free, _ = free.solve(xi0, np.zeros(1), -big, big, big, np.zeros(0))
+    du_soft, ok = soft.solve(xi0, np.zeros(1), -big, big, big, np.array([0.5]))
+    assert ok and np.allclose(du_free, 0.0)
+    # the bound 0.5 above the present value wins over tracking (slack costs 100x): the
+    # signal is lifted onto it at the first sample and held there (x = u at steady state)
+    assert (Bd @ du_soft[0])[0] == pytest.approx(0.5, rel=1e-6)
+    assert du_soft.sum() == pytest.approx(0.5, rel=1e-6)
