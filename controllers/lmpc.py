@@ -16,7 +16,7 @@ penalty). The QP is condensed (only the moves and slacks are unknowns) and solve
 ``casadi.conic`` (qpOASES or DAQP), built once; each sample passes flat numeric vectors.
 
 The model is re-linearised at the measured point ``(x, u)`` when the tracked output has
-moved more than ``relinearize_m`` (default 2 mm, about a tenth of the 3-APS stroke at
+moved more than ``relinearize_m`` (default 2 mm, about a quarter of the 8.8 mm 3-APS stroke at
 20 g) from where it was last linearised.
 """
 
