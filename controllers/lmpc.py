@@ -26,10 +26,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import casadi as cs
+import control as ct
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
@@ -283,6 +285,7 @@ class LinearMPC(Controller):
         )  # fmt: skip
         out = self.model.signals_function([s.output])(x, np.zeros(0), u, self.p)
         self._y_lin = float(out)
+        self._lin_point = (x.copy(), u.copy(), self._y_lin)
         self.relinearizations += 1
         return qp
 
@@ -292,6 +295,37 @@ class LinearMPC(Controller):
         self._u = np.clip(np.asarray(vec, float).reshape(-1), self._u_lo, self._u_hi)
         self._x_prev: np.ndarray | None = None
         self._plan: np.ndarray | None = None
+
+    def as_iosystem(self) -> ct.NonlinearIOSystem:
+        """The law as a discrete python-control I/O system, in deviations from the point of
+        the last linearisation: inputs ``reference`` and the states and the output (labels
+        as :func:`~.linearize.linearize`: link a plant linearised there with outputs
+        ``state_names + [output]``), output the input; states the last states and input.
+        A linear plant needs no re-linearisation, reference clip or soft bound: none here.
+        """
+        m, n = self.model, self.model.nx
+        x_op, u_op, _ = self._lin_point
+        off = np.full(len(self._soft), -np.inf)  # soft bounds inactive
+
+        def law(xs, inp):
+            x_prev, u_prev, x = x_op + xs[:n], u_op + xs[n:], x_op + inp[1 : 1 + n]
+            xi0 = np.concatenate([x - x_prev, [inp[1 + n] - inp[0]]])
+            du, ok = self._qp.solve(xi0, u_prev, self._u_lo, self._u_hi, self._du_max, off)
+            return np.clip(u_prev + du[0] if ok else u_prev, self._u_lo, self._u_hi)
+
+        return ct.nlsys(
+            lambda t, xs, inp, params: np.concatenate([inp[1 : 1 + n], law(xs, inp) - u_op]),
+            lambda t, xs, inp, params: law(xs, inp) - u_op,
+            inputs=[
+                "reference",
+                *[to_label(v) for v in m.state_names],
+                to_label(self.settings.output),
+            ],
+            outputs=[to_label(v) for v in self.inputs],
+            states=[*[f"last_{to_label(v)}" for v in m.state_names], "last_input"],
+            dt=self.dt,
+            name="lmpc",
+        )
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         s = self.settings

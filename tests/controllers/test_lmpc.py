@@ -4,10 +4,11 @@ settings."""
 
 import warnings
 
+import control as ct
 import numpy as np
 import pytest
 
-from sarcomere.controllers import make_controller
+from sarcomere.controllers import linearize, make_controller
 from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP
 from sarcomere.controllers.qp import qp_solver, zoh
 from sarcomere.dynamics import hanging_load, solve_equilibrium
@@ -164,3 +165,24 @@ def test_soft_lower_bound_pulls_the_signal_up_and_is_paid_for():
     # signal is lifted onto it at the first sample and held there (x = u at steady state)
     assert (Bd @ du_soft[0])[0] == pytest.approx(0.5, rel=1e-6)
     assert du_soft.sum() == pytest.approx(0.5, rel=1e-6)
+
+
+def test_as_iosystem_is_the_same_law_as_update(plant):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01)
+    lin = linearize(model, eq, [*model.state_names, L], dt=0.01)
+    loop = ct.interconnect(
+        [lin, mpc.as_iosystem()], inplist=["reference"], outlist=["myofibril__length"]
+    )
+    t = np.arange(100) * 0.01
+    resp = ct.input_output_response(loop, t, np.full(len(t), -2e-4))
+    assert resp.outputs[-1] == pytest.approx(-2e-4, rel=1e-3)  # offset-free
+    # the same linear plant stepped by hand with update(): the same trajectory
+    A, B, C = lin.A, lin.B, lin.C[-1]
+    dx, lengths = np.zeros(model.nx), []
+    for tk in t:
+        lengths.append(C @ dx)
+        y = dict(zip(model.state_names, eq.x + dx, strict=True)) | {L: eq[L] + C @ dx}
+        u = mpc.checked(tk, y, {L: eq[L] - 2e-4})[P]
+        dx = A @ dx + B[:, 0] * (u - 4e4)
+    assert np.allclose(lengths, resp.outputs, rtol=0, atol=1e-10)
