@@ -1,5 +1,6 @@
 """Controllers on the flattened model: exact linearisation to python-control, PID, LQI
-(full state or on an extended Kalman filter), the sampled closed loop and its metrics.
+(full state or on an extended Kalman filter), linear and nonlinear MPC, the sampled
+closed loop and its metrics.
 
 Every controller implements :class:`~.base.Controller` (``update(t, y, r) -> u`` by name,
 checked by :meth:`~.base.Controller.checked`) and is built by a factory registered by slug
@@ -17,7 +18,7 @@ checked by :meth:`~.base.Controller.checked`) and is built by a factory register
 (:func:`~.loop.run_closed_loop`) and to the ``closed_loop`` scene kind.
 """
 
-from . import lqi, pid  # noqa: F401  (register the controllers)
+from . import lmpc, lqi, nmpc, pid  # noqa: F401  (register the controllers)
 from .base import Controller, ControllerStats
 from .linearize import classify_poles, linearize, operating_point
 from .registry import CONTROLLERS, make_controller, register_controller

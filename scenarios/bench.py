@@ -7,6 +7,9 @@
 * ``sarcomere bench stability --out DIR [--quick]``: predicted against observed step
   limits of the explicit fixed-step methods (:mod:`sarcomere.dynamics.studies.stability`);
   writes ``DIR/stability.json``, two charts and ``DIR/summary.json``.
+* ``sarcomere bench mpc --out DIR [--quick]``: time per step of the MPCs on the
+  length-control scene (:mod:`sarcomere.dynamics.studies.mpc`); writes ``DIR/mpc.json``
+  and ``DIR/summary.json``.
 
 ``--quick`` uses fewer tolerances, steps and repeats (under a minute each).
 The CLI wires :func:`add_arguments` and :func:`handler` as the ``bench`` subcommand.
@@ -20,7 +23,7 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from sarcomere.dynamics.studies import stability, workprecision
+from sarcomere.dynamics.studies import mpc, stability, workprecision
 
 from .outdir import check_out_dir, staged
 from .output import version
@@ -32,6 +35,7 @@ STUDIES = {
         "cvodes (reference: rtol 1e-12) against rk4, radau_fixed, collocation and scipy",
     ),
     "stability": (stability.study, "rk4 and euler (reference: cvodes rtol 1e-10)"),
+    "mpc": (mpc.study, "plant cvodes rtol 1e-6; NMPC rti/ipopt/fatrop, LMPC daqp, plain Opti"),
 }
 
 
@@ -40,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("study", choices=sorted(STUDIES), help="which study to run")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument(
-        "--quick", action="store_true", help="fewer points and repeats (under a minute)"
+        "--quick", action="store_true", help="fewer points and repeats (about a minute)"
     )
 
 

@@ -80,7 +80,10 @@ COMMANDS: list[Command] = [
         calibrate.add_arguments,
     ),
     Command(
-        "bench", "numerical studies: work-precision, stability", bench.handler, bench.add_arguments
+        "bench",
+        "numerical studies: work-precision, stability, mpc",
+        bench.handler,
+        bench.add_arguments,
     ),
     Command(
         "export-fmu",

@@ -42,7 +42,14 @@ def test_packaged_scenes_load():
     for name in ("control-length", "control-force"):
         sc = load_scenario(name)
         assert sc.kind == "closed_loop"
-        assert set(sc.control["controllers"]) == {"pid", "lqi", "lqi_ekf"}
+        assert set(sc.control["controllers"]) == {
+            "pid",
+            "lqi",
+            "lqi_ekf",
+            "lmpc",
+            "nmpc",
+            "nmpc_ekf",
+        }
 
 
 def test_length_scene_shortened_end_to_end(tmp_path):

@@ -1,0 +1,64 @@
+"""A state-feedback controller run on an extended Kalman filter's estimate.
+
+The MPCs read every state of their prediction model by name; in the realistic case only a
+few signals are measured (the length and the regulator pressure, with noise). This wrapper
+reads what is measured, updates the :class:`~.ekf.EKF` (on the plant model) with the input
+it applied last, and hands the inner controller the estimated states, and its other
+signals evaluated on the estimate, by name. The prediction models' state names are a
+subset of the full plant's, so this works for every prediction fidelity.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from sarcomere.dynamics.equilibrium import Equilibrium
+from sarcomere.dynamics.modeling.model import Model
+
+from .base import Controller
+from .ekf import EKF
+
+
+class OnEstimate(Controller):
+    """``inner`` fed with ``ekf``'s estimate (see the module docstring).
+
+    Parameters
+    ----------
+    inner : Controller
+        A controller reading plant states (and signals of them) by name.
+    ekf : EKF
+        The estimator, on the plant model.
+    plant : Model
+        The plant model the EKF runs on.
+    op : Equilibrium
+        The operating point: the estimate restarts there on :meth:`reset`.
+    """
+
+    def __init__(self, inner: Controller, ekf: EKF, plant: Model, op: Equilibrium) -> None:
+        super().__init__(inner.dt, inner.inputs, ekf.measured, inner.u_min, inner.u_max)
+        self.slug = inner.slug
+        self.inner, self.ekf, self.plant, self.op = inner, ekf, plant, op
+        states = set(plant.state_names)
+        self._derived = [n for n in inner.outputs if n not in states]
+        self._signals = plant.signals_function(self._derived)
+        self.reset(dict(zip(plant.input_names, op.u.tolist(), strict=True)))
+
+    def reset(self, u0: Mapping[str, float]) -> None:
+        super().reset(u0)
+        self.inner.reset(u0)
+        self.ekf.reset(self.op.x)
+        self._u = np.array([u0[n] for n in self.plant.input_names], dtype=float)
+
+    def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
+        x = self.ekf.estimate(y, self._u)
+        est = dict(zip(self.plant.state_names, x.tolist(), strict=True))
+        values = np.array(self._signals(x, np.zeros(self.plant.nz), self._u, self.op.p))
+        est.update(zip(self._derived, values.ravel().tolist(), strict=True))
+        u = self.inner.checked(t, est, r)
+        self.stats.fallbacks = self.inner.stats.fallbacks
+        self._u = np.array(
+            [u.get(n, v) for n, v in zip(self.plant.input_names, self._u, strict=True)]
+        )
+        return u

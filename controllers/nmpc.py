@@ -1,0 +1,574 @@
+"""Nonlinear MPC on the model's own equations: Radau IIA collocation, IPOPT or fatrop, and a
+real-time-iteration variant.
+
+The prediction model should be built for optimisers
+(``hanging_load(..., flow_law="smooth", saturate=False)``): the smooth flow law keeps every
+derivative continuous, and the input's range is a bound of the problem, not a clamp.
+
+Discretisation: one Radau IIA collocation element of ``degree`` points (default 3, order 5,
+L-stable) per sample interval, states scaled by their magnitude over the operating range.
+The stage state is ``s_k = [x_k; u_{k-1}]`` (the previous input is carried, so the rate limit
+is a constraint of one stage, as fatrop's structure needs); the stage controls are ``u_k``
+and the collocation states. Cost ``sum_k weight_y (y_k - r)^2 + weight_du (u_k - u_{k-1})^2``;
+constraints: the input within ``[u_min, u_max]``, its rate within ``rate_max``, and every
+thread tension ``>= tension_min`` at every node from ``k = 1`` on (hard: no slack).
+
+Solvers (``NMPCSettings.solver``):
+
+* ``"ipopt"``, ``"fatrop"``: the collocation NLP built once as an ``nlpsol`` with the
+  measured state, the previous input and the reference as parameters, warm-started from the
+  previous solution shifted by one sample (primal and, for IPOPT, dual);
+* ``"rti"``: real-time iteration (one Gauss-Newton SQP step per sample) on the multiple-
+  shooting form: each interval is integrated by the same Radau IIA equations solved by
+  Newton, its sensitivities come from the implicit function theorem, the QP is condensed onto
+  the input moves in one CasADi Function and solved by ``casadi.conic`` (DAQP or qpOASES).
+
+Integral action (``integral_gain``, default 5 1/s): the reference the optimiser sees is
+moved by the integrated tracking error, so a load the prediction does not know (the +50 g
+disturbance) leaves no steady offset.
+
+A failed solve (infeasible QP, NLP not converged) falls back to the previous plan shifted
+by one sample and is counted in ``stats.fallbacks``.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import casadi as cs
+import numpy as np
+
+from sarcomere.dynamics.assemblies import hanging_load, isometric
+from sarcomere.dynamics.equilibrium import Equilibrium
+from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.model import Model
+
+from .base import Controller
+from .qp import (
+    ESTIMATOR_DEFAULTS,
+    TENSION,
+    ReferenceClip,
+    check_dt,
+    check_horizon,
+    check_positive,
+    own_defaults,
+    qp_solver,
+    with_estimator,
+)
+from .registry import own_settings, register_controller
+
+SOLVERS = ("ipopt", "fatrop", "rti")
+"""NMPC solution methods."""
+
+
+@dataclass(frozen=True)
+class NMPCSettings:
+    """Settings of :class:`NonlinearMPC` (SI).
+
+    Attributes
+    ----------
+    horizon : int
+        Prediction horizon [samples].
+    weight_y : float
+        Weight of the squared tracking error [1/m^2].
+    weight_du : float
+        Weight of the squared input move per sample [1/Pa^2].
+    u_min, u_max : float
+        Regulator command bounds [Pa gauge] (default 0 to 0.1 MPa).
+    rate_max : float
+        Largest input rate [Pa/s].
+    tension_min : float
+        Smallest allowed thread tension [N] (hard constraint).
+    solver : str
+        "ipopt", "fatrop" or "rti".
+    degree : int
+        Radau IIA collocation points per interval (1..5).
+    tol : float
+        NLP tolerance (ipopt, fatrop).
+    max_iter : int
+        NLP iteration limit (ipopt, fatrop).
+    qp_solver : str
+        QP solver of the real-time iteration: "daqp" or "qpoases".
+    output : str
+        The tracked signal.
+    integral_gain : float
+        Integral action [1/s]: the reference given to the optimiser is moved by
+        ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound), so
+        a load or model error the prediction does not know leaves no steady offset; 0
+        turns it off.
+    """
+
+    horizon: int = 20
+    weight_y: float = 1.0e6
+    weight_du: float = 1.0e-9
+    u_min: float = 0.0
+    u_max: float = 1.0e5
+    rate_max: float = 2.0e6
+    tension_min: float = 0.0
+    solver: str = "rti"
+    degree: int = 3
+    tol: float = 1.0e-6
+    max_iter: int = 100
+    qp_solver: str = "daqp"
+    output: str = "myofibril.length"
+    integral_gain: float = 5.0
+
+    def __post_init__(self) -> None:
+        check_horizon("nmpc.horizon", self.horizon)
+        check_positive("nmpc.integral_gain", self.integral_gain, allow_zero=True)
+        check_positive("nmpc.weight_y", self.weight_y)
+        check_positive("nmpc.weight_du", self.weight_du, allow_zero=True)
+        check_positive("nmpc.rate_max", self.rate_max)
+        check_positive("nmpc.tol", self.tol)
+        check_horizon("nmpc.max_iter", self.max_iter)
+        if not self.u_min < self.u_max:
+            raise ParameterError("nmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
+        if self.solver not in SOLVERS:
+            raise ParameterError("nmpc.solver", self.solver, f"one of {SOLVERS}")
+        if isinstance(self.degree, bool) or self.degree not in range(1, 6):
+            raise ParameterError("nmpc.degree", self.degree, "an integer in 1..5")
+
+
+def radau_residual(f: cs.Function, nx: int, nu: int, degree: int) -> cs.Function:
+    """The Radau IIA collocation equations of one interval as an SX Function.
+
+    ``f(x, u) -> dx/dt``; returns ``(x0, V, u, h) -> r`` with ``V`` the states at the
+    ``degree`` collocation points stacked (the last point is the interval's end) and
+    ``r = h f(V_j, u) - sum_r C[r, j] [x0, V]_r`` (zero on the solution).
+    """
+    tau = cs.collocation_points(degree, "radau")
+    C = cs.collocation_coeff(tau)[0]
+    x0, V = cs.SX.sym("x0", nx), cs.SX.sym("V", nx * degree)
+    u, h = cs.SX.sym("u", nu), cs.SX.sym("h")
+    X = cs.horzcat(x0, cs.reshape(V, nx, degree))
+    res = [h * f(X[:, j + 1], u) - cs.mtimes(X, C[:, j]) for j in range(degree)]
+    return cs.Function("radau", [x0, V, u, h], [cs.vertcat(*res)], ["x0", "V", "u", "h"], ["r"])
+
+
+class _Problem:
+    """The prediction model in scaled variables: ``x = xs * xi``, ``u = us * v``."""
+
+    def __init__(
+        self, model: Model, s: NMPCSettings, dt: float, xs: np.ndarray, p: np.ndarray
+    ) -> None:
+        m = model
+        self.nx, self.nu = m.nx, len(m.input_names)
+        self.xs, self.us = xs, np.full(self.nu, s.u_max - s.u_min)
+        xi, v = cs.SX.sym("xi", self.nx), cs.SX.sym("v", self.nu)
+        x, u = xi * xs, v * self.us
+        ode = m.function("ode")(x, cs.SX(0, 1), u, p) / xs
+        self.f = cs.Function("f", [xi, v], [ode])
+        self.tensions = [n for n in m.signal_names if TENSION.fullmatch(n)]
+        sig = m.signals_function([s.output, *self.tensions])(x, cs.SX(0, 1), u, p)
+        self.y = cs.Function("y", [xi], [sig[0]])
+        self.T = cs.Function("T", [xi], [sig[1:]])
+        self.res = radau_residual(self.f, self.nx, self.nu, s.degree)
+        self.dt, self.s = dt, s
+
+
+class _CollocationNLP:
+    """The collocation NLP, stage by stage (see the module docstring), as an nlpsol."""
+
+    def __init__(self, pb: _Problem, solver: str) -> None:
+        s, nx, nu, d, N = pb.s, pb.nx, pb.nu, pb.s.degree, pb.s.horizon
+        P = cs.SX.sym("P", nx + nu + 1)  # measured x [SI], previous u [SI], reference [SI]
+        xi0, vprev, ref = P[:nx] / pb.xs, P[nx : nx + nu] / pb.us, P[nx + nu]
+        w, lbw, ubw, g, lbg, ubg, eq = [], [], [], [], [], [], []
+        J = 0
+
+        def con(expr, lo, hi, is_eq):
+            g.append(expr)
+            n = expr.numel()
+            lbg.extend(np.broadcast_to(lo, n).tolist())
+            ubg.extend(np.broadcast_to(hi, n).tolist())
+            eq.extend([is_eq] * n)
+
+        inf, dv = np.inf, s.rate_max * pb.dt / pb.us
+        vlo, vhi = s.u_min / pb.us, s.u_max / pb.us
+        # stage k: variables [s_k, u_k, V_k]; constraints: the gap to s_{k+1} first, then
+        # the stage's own (the order fatrop's structure detection reads)
+        S = cs.SX.sym("S0", nx + nu)
+        w.append(S), lbw.extend([-inf] * (nx + nu)), ubw.extend([inf] * (nx + nu))
+        for k in range(N):
+            V, Xc = cs.SX.sym(f"U{k}", nu), cs.SX.sym(f"Xc{k}", nx * d)
+            w += [V, Xc]
+            lbw.extend([*vlo, *[-inf] * (nx * d)]), ubw.extend([*vhi, *[inf] * (nx * d)])
+            X, Vp = S[:nx], S[nx:]
+            S_next = cs.SX.sym(f"S{k + 1}", nx + nu)
+            w.append(S_next), lbw.extend([-inf] * (nx + nu)), ubw.extend([inf] * (nx + nu))
+            con(S_next - cs.vertcat(Xc[-nx:], V), 0, 0, True)
+            if k == 0:
+                con(S - cs.vertcat(xi0, vprev), 0, 0, True)
+            else:
+                con(pb.T(X), s.tension_min, inf, False)
+            con(pb.res(X, Xc, V, pb.dt), 0, 0, True)
+            con(V - Vp, -dv, dv, False)
+            J += s.weight_du * cs.sumsqr((V - Vp) * pb.us)
+            J += s.weight_y * (pb.y(S_next[:nx]) - ref) ** 2
+            S = S_next
+        con(pb.T(S[:nx]), s.tension_min, inf, False)
+        self.stage = nx + nu + nu + nx * d
+        nlp = {"x": cs.vertcat(*w), "p": P, "f": J, "g": cs.vertcat(*g)}
+        if solver == "ipopt":
+            opts = {
+                "ipopt": {
+                    "print_level": 0,
+                    "sb": "yes",
+                    "tol": s.tol,
+                    "max_iter": s.max_iter,
+                    "warm_start_init_point": "yes",
+                    "mu_init": 1e-3,
+                },
+                "print_time": False,
+            }
+        else:
+            opts = {
+                "structure_detection": "auto",
+                "equality": eq,
+                "fatrop": {"print_level": 0, "tol": s.tol, "max_iter": s.max_iter},
+                "print_time": False,
+            }
+        opts["error_on_fail"] = False
+        self.solver = cs.nlpsol("nmpc", solver, nlp, opts)
+        self.bounds = {
+            "lbx": np.array(lbw),
+            "ubx": np.array(ubw),
+            "lbg": np.array(lbg),
+            "ubg": np.array(ubg),
+        }
+        self.pb, self.warm = pb, {}
+
+    def initial(self, xi: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """A guess holding the state ``xi`` and input ``v`` over the horizon."""
+        d = self.pb.s.degree
+        stage = np.concatenate([xi, v, v, np.tile(xi, d)])
+        return np.concatenate([np.tile(stage, self.pb.s.horizon), xi, v])
+
+    def solve(self, x: np.ndarray, u_prev: np.ndarray, ref: float) -> tuple[np.ndarray, bool]:
+        """The input plan [SI] (horizon x nu) and whether the solver converged."""
+        pb = self.pb
+        if "x0" not in self.warm:
+            self.warm = {"x0": self.initial(x / pb.xs, u_prev / pb.us)}
+        sol = self.solver(p=np.concatenate([x, u_prev, [ref]]), **self.warm, **self.bounds)
+        ok = bool(self.solver.stats()["success"])
+        wopt = np.array(sol["x"]).ravel()
+        ok = ok and bool(np.all(np.isfinite(wopt)))
+        if ok:  # warm start of the next sample: shifted by one stage
+            b = self.stage
+            self.warm = {
+                "x0": _shift(wopt, b, pb.s.horizon),
+                "lam_x0": _shift(np.array(sol["lam_x"]).ravel(), b, pb.s.horizon),
+                "lam_g0": np.array(sol["lam_g"]).ravel(),
+            }
+        else:
+            self.warm = {}
+        nx, nu, N = pb.nx, pb.nu, pb.s.horizon
+        idx = nx + nu + np.arange(N)[:, None] * self.stage + np.arange(nu)[None, :]
+        return wopt[idx] * pb.us, ok
+
+
+def _shift(w: np.ndarray, stage: int, n: int) -> np.ndarray:
+    """``n`` stages of ``stage`` entries and a terminal part, moved one stage ahead (the
+    last stage repeated)."""
+    stages = w[: n * stage].reshape(n, stage)
+    return np.concatenate([stages[1:].ravel(), stages[-1], w[n * stage :]])
+
+
+class _RealTimeIteration:
+    """One Gauss-Newton SQP step per sample on the lifted collocation form, condensed.
+
+    The guess holds the node states, the inputs and the collocation states of every
+    interval. Per interval the Radau equations ``R(V, x, v) = 0`` are linearised once at
+    the guess (one Newton step, the "lifted" integrator): ``dV = dV0 + S [dx; dv]`` with
+    ``dV0 = -R_V^{-1} R`` and ``S = -R_V^{-1} [R_x, R_v]`` from one factorisation, so
+    the interval's end is ``x_end + dx_end`` linear in ``(dx, dv)``. The node gaps, the
+    tracking and move residuals (Gauss-Newton) and the linearised tension constraints are
+    condensed onto the input moves.
+    """
+
+    def __init__(self, pb: _Problem) -> None:
+        s, nx, nu, d, N = pb.s, pb.nx, pb.nu, pb.s.degree, pb.s.horizon
+        V, xi, v = cs.SX.sym("V", nx * d), cs.SX.sym("xi", nx), cs.SX.sym("v", nu)
+        R = pb.res(xi, V, v, pb.dt)
+        lin = cs.Function(
+            "radau_lin", [V, xi, v], [R, cs.jacobian(R, V), cs.jacobian(R, cs.vertcat(xi, v))]
+        )
+        Vm, xm, vm = cs.MX.sym("V", nx * d), cs.MX.sym("xi", nx), cs.MX.sym("v", nu)
+        Rk, RV, Rp = lin(Vm, xm, vm)
+        # LAPACK QR: LU (dgetrf) of this size goes multi-threaded in the OpenBLAS CasADi ships
+        # and ran 5-7x slower whenever the other core was busy (QR: 1.4 ms either way)
+        sol = -cs.solve(RV, cs.horzcat(Rk, Rp), "lapackqr")  # [dV0, S]
+        lift = cs.Function("lift", [Vm, xm, vm], [sol]).map(N)
+        yT = cs.vertcat(pb.y(xi), pb.T(xi))
+        outs = cs.Function("outs", [xi], [yT, cs.jacobian(yT, xi)]).map(N)
+        nT = len(pb.tensions)
+        # the condensing, one MX Function of the guess and the measurement
+        Xb, Ub = cs.MX.sym("Xb", nx, N + 1), cs.MX.sym("Ub", nu, N)
+        Vb = cs.MX.sym("Vb", nx * d, N)
+        x0, vp, ref = cs.MX.sym("x0", nx), cs.MX.sym("vp", nu), cs.MX.sym("ref")
+        L = lift(Vb, Xb[:, :N], Ub)  # (nx d) x (N (1 + nx + nu))
+        YT, CYT = outs(Xb[:, 1:])
+        w = 1 + nx + nu
+        a = x0 - Xb[:, 0]  # dx_0 = a_0 + G_0 dv, G_0 = 0
+        Gk = cs.MX(nx, N * nu)
+        rows_a, rows_G = [a], [Gk]
+        for k in range(N):
+            Lk = L[-nx:, k * w : (k + 1) * w]  # the interval's end
+            Ak, Bk = Lk[:, 1 : 1 + nx], Lk[:, 1 + nx :]
+            a = Vb[-nx:, k] + Lk[:, 0] + cs.mtimes(Ak, a) - Xb[:, k + 1]
+            Gk = cs.mtimes(Ak, Gk) + cs.horzcat(cs.MX(nx, k * nu), Bk, cs.MX(nx, (N - k - 1) * nu))
+            rows_a.append(a)
+            rows_G.append(Gk)
+        ey, Jy, tb, TJ = [], [], [], []
+        for k in range(N):
+            c = CYT[:, k * nx : (k + 1) * nx]
+            ey.append(YT[0, k] + cs.mtimes(c[0, :], rows_a[k + 1]) - ref)
+            Jy.append(cs.mtimes(c[0, :], rows_G[k + 1]))
+            tb.append(YT[1:, k] + cs.mtimes(c[1:, :], rows_a[k + 1]))
+            TJ.append(cs.mtimes(c[1:, :], rows_G[k + 1]))
+        Dk = np.kron(np.eye(N) - np.eye(N, k=-1), np.eye(nu))
+        Ubv = cs.vec(Ub)
+        du0 = cs.mtimes(Dk, Ubv) - cs.vertcat(vp, cs.MX(nu * (N - 1), 1))  # guess's moves
+        wy, wu = np.sqrt(s.weight_y), np.sqrt(s.weight_du) * pb.us[0]
+        Jres = cs.vertcat(wy * cs.vertcat(*Jy), wu * Dk)
+        r0 = cs.vertcat(wy * cs.vertcat(*ey), wu * du0)
+        dv = s.rate_max * pb.dt / pb.us[0]
+        nq, nA = N * nu, N * nu + nT * N
+        self.qp = qp_solver(s.qp_solver, cs.Sparsity.dense(nq, nq), cs.Sparsity.dense(nA, nq))
+        H, g = 2 * cs.mtimes(Jres.T, Jres), 2 * cs.mtimes(Jres.T, r0)
+        A = cs.vertcat(Dk, *TJ)
+        lba = cs.vertcat(-dv - du0, s.tension_min - cs.vertcat(*tb))
+        uba = cs.vertcat(dv - du0, cs.DM.inf(nT * N))
+        lbx, ubx = s.u_min / pb.us[0] - Ubv, s.u_max / pb.us[0] - Ubv
+        qp = self.qp(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
+        du = qp["x"]
+        # how far the QP's answer is from feasible (the solver's flag is not reachable
+        # from inside a Function): constraint rows scaled by their size, and the bounds
+        Ad = cs.mtimes(A, du)
+        scale = 1 + cs.fabs(Ad)
+        viol = cs.mmax(
+            cs.vertcat((lba - Ad) / scale, (Ad - uba) / scale, lbx - du, du - ubx, cs.DM.zeros(1))
+        )
+        dX = cs.horzcat(*rows_a) + cs.reshape(cs.mtimes(cs.vertcat(*rows_G), du), nx, N + 1)
+        dV = cs.horzcat(
+            *[
+                L[:, k * w] + cs.mtimes(L[:, k * w + 1 : (k + 1) * w], cs.vertcat(dX[:, k], du[k]))
+                for k in range(N)
+            ]
+        )
+        X, U, V = Xb + dX, Ub + cs.reshape(du, nu, N), Vb + dV
+
+        def shift(M):
+            return cs.horzcat(M[:, 1:], M[:, -1])
+
+        self.step = _Call(
+            cs.Function(
+                "rti",
+                [Xb, Ub, Vb, x0, vp, ref],
+                [shift(X), shift(U), shift(V), U, viol],
+                ["Xb", "Ub", "Vb", "x0", "vp", "ref"],
+                ["Xn", "Un", "Vn", "U", "violation"],
+            )
+        )
+        self.pb = pb
+        self.guess: list[np.ndarray] | None = None
+
+    def solve(self, x: np.ndarray, u_prev: np.ndarray, ref: float) -> tuple[np.ndarray, bool]:
+        pb, N, nx, nu = self.pb, self.pb.s.horizon, self.pb.nx, self.pb.nu
+        xi, vp = x / pb.xs, u_prev / pb.us
+        if self.guess is None:
+            self.guess = [
+                np.tile(xi[:, None], (1, N + 1)),
+                np.tile(vp[:, None], (1, N)),
+                np.tile(xi[:, None], (pb.s.degree, N)),
+            ]
+        Xn, Un, Vn, U, viol = self.step(*self.guess, xi, vp, [ref])
+        if not (viol[0] <= 1e-6 and np.all(np.isfinite(U)) and np.all(np.isfinite(Xn))):
+            self.guess = None  # restart from the measurement next time
+            return np.zeros((N, nu)), False
+        self.guess = [Xn.reshape(N + 1, nx).T, Un.reshape(N, nu).T, Vn.reshape(N, -1).T]
+        return U.reshape(N, nu) * pb.us, True
+
+
+class _Call:
+    """Repeated calls of a CasADi Function on numpy arrays through ``Function.buffer``
+    (about 1 us of overhead per call instead of some 30 us of conversions per argument)."""
+
+    def __init__(self, F: cs.Function) -> None:
+        self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
+        self.res = [np.zeros(F.nnz_out(i)) for i in range(F.n_out())]
+        self.buf, self.trigger = F.buffer()
+        for i, arr in enumerate(self.args):
+            self.buf.set_arg(i, memoryview(arr))
+        for i, arr in enumerate(self.res):
+            self.buf.set_res(i, memoryview(arr))
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        """Arguments as arrays (column-major flattened); copies of the outputs' nonzeros."""
+        for arr, value in zip(self.args, args, strict=True):
+            arr[:] = np.ravel(value, order="F")
+        self.trigger()
+        return [r.copy() for r in self.res]
+
+
+class NonlinearMPC(Controller):
+    """Nonlinear MPC of the tracked output by the regulator command (module docstring).
+
+    Reads every state of the prediction model and the tracked output by name (state
+    feedback: the plant's signals of the same names, or an estimator's).
+
+    Parameters
+    ----------
+    model : Model
+        The prediction model (smooth flow law, ``saturate=False``).
+    u_op : numpy.ndarray
+        The input held before the first sample [SI].
+    dt : float
+        Sample time [s].
+    settings : NMPCSettings, optional
+    params : mapping of str to float, optional
+        Parameter overrides of ``model`` by name (SI), e.g. the plant's load.
+
+    Examples
+    --------
+    >>> from sarcomere.dynamics import hanging_load, solve_equilibrium
+    >>> m = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
+    >>> eq = solve_equilibrium(m, {"regulator.p_cmd": 5e4})
+    >>> mpc = NonlinearMPC(m, eq.u, 0.01)
+    >>> y = {n: eq[n] for n in mpc.outputs}
+    >>> u = mpc.checked(0.0, y, {"myofibril.length": eq["myofibril.length"]})
+    >>> round(u["regulator.p_cmd"])
+    50000
+    """
+
+    slug = "nmpc"
+
+    def __init__(
+        self,
+        model: Model,
+        u_op: np.ndarray,
+        dt: float,
+        settings: NMPCSettings | None = None,
+        params: Mapping[str, float] | None = None,
+    ) -> None:
+        s = settings or NMPCSettings()
+        names = model.input_names
+        super().__init__(
+            dt,
+            names,
+            [*model.state_names, s.output],
+            dict.fromkeys(names, s.u_min),
+            dict.fromkeys(names, s.u_max),
+        )
+        check_dt(self.slug, model, self.dt, s.horizon)
+        if model.nz:
+            raise ParameterError("nmpc.model", model.name, "an ODE model (no algebraic unknowns)")
+        self.model, self.settings = model, s
+        self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max), params)
+        # state scales: the largest magnitude at the ends of the input range; states that
+        # are zero there (velocities) get 1 cm/s
+        big = np.abs(np.vstack([e.x for e in self.clip.ends])).max(axis=0)
+        pb = _Problem(model, s, self.dt, np.where(big > 1e-12, big, 1e-2), model.parameters(params))
+        self.problem = pb
+        self.engine = _RealTimeIteration(pb) if s.solver == "rti" else _CollocationNLP(pb, s.solver)
+        self._lo = np.full(len(names), s.u_min)
+        self._hi = np.full(len(names), s.u_max)
+        self.reset(u_op)
+
+    def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
+        super().reset(u0)
+        vec = [u0[n] for n in self.inputs] if isinstance(u0, Mapping) else u0
+        self._u = np.clip(np.asarray(vec, float).reshape(-1), self._lo, self._hi)
+        self._plan: np.ndarray | None = None
+        self._offset = 0.0
+        if isinstance(self.engine, _RealTimeIteration):
+            self.engine.guess = None
+        else:
+            self.engine.warm = {}
+
+    def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
+        x = np.array([y[n] for n in self.model.state_names], dtype=float)
+        ref = self.clip(r)
+        # integral action: the reference the optimiser sees is shifted by the integrated
+        # error, kept inside the reachable range
+        shifted = min(max(ref + self._offset, self.clip.low), self.clip.high)
+        plan, ok = self.engine.solve(x, self._u, shifted)
+        if ok:
+            self._plan = plan
+        else:
+            self.stats.fallbacks += 1
+            if self._plan is not None and len(self._plan) > 1:
+                self._plan = np.vstack([self._plan[1:], self._plan[-1:]])
+            else:
+                self._plan = np.tile(self._u, (self.settings.horizon, 1))
+        self._u = np.clip(self._plan[0], self._lo, self._hi)
+        if np.all((self._u > self._lo) & (self._u < self._hi)):  # no windup at a bound
+            error = ref - float(y[self.settings.output])
+            self._offset += self.settings.integral_gain * self.dt * error
+        return dict(zip(self.inputs, self._u.tolist(), strict=True))
+
+
+DEFAULT_FIDELITY = "full"
+"""Prediction fidelity of :func:`make_nmpc`, chosen by measurement (BENCHMARKS.md, section
+5; ``sarcomere bench mpc``): on the full exact-law plant (n = 3, 20 g, RTI) full and
+quasi_static track equally (0.815 mm RMS before the load step) and hold a raised tension
+bound to 2e-5 N, and full was the faster of the two; symmetric is about 4x faster and
+tracks 6 % worse, but has one representative thread, so it cannot bound the lowest
+thread's tension."""
+
+
+def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Controller:
+    """Registry factory of ``nmpc`` for the paper's set-ups.
+
+    The prediction model is the plant's set-up rebuilt for optimisers at the fidelity
+    ``fidelity`` (own key, default :data:`DEFAULT_FIDELITY`), with the smooth flow law and
+    no clamp: by the scene's ``build_model`` where given, else from the plant itself
+    (``hanging_load`` for a plant with ``load.m``, the rigid ``isometric`` fixture at its
+    ``fixture.s0``); its parameters take the plant's values by name (``op.p``: load,
+    regulator, geometry, the scene's overrides).
+    Common keys: ``output``, ``input``, ``u_min``, ``u_max``, ``tension_min`` (the hard
+    tension bound, default 0). Own keys: the other :class:`NMPCSettings` fields,
+    ``fidelity``, ``estimator`` ("none" or "ekf") and ``ekf``.
+    """
+    defaults = {**own_defaults(NMPCSettings), "fidelity": DEFAULT_FIDELITY, **ESTIMATOR_DEFAULTS}
+    own = own_settings("nmpc", settings, defaults)
+    given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
+    if settings["input"] not in model.input_names:
+        raise ParameterError("nmpc.input", settings["input"], f"one of {model.input_names}")
+    fidelity, est, ekf_settings = own.pop("fidelity"), own.pop("estimator"), own.pop("ekf")
+    smooth = {"fidelity": fidelity, "flow_law": "smooth", "saturate": False}
+    if settings.get("build_model") is not None:  # a scene: its own set-up, rebuilt
+        pred = settings["build_model"](**smooth)
+    else:
+        pred = _rebuild(model, given, smooth)
+    params = {n: given[n] for n in pred.param_names if n in given}
+    s = NMPCSettings(
+        **own,
+        output=settings["output"],
+        u_min=float(settings["u_min"]),
+        u_max=float(settings["u_max"]),
+        tension_min=float(settings.get("tension_min") or 0.0),
+    )
+    ctl = NonlinearMPC(pred, op.u, dt, s, params)
+    return with_estimator("nmpc", ctl, model, op, dt, settings, est, ekf_settings)
+
+
+def _rebuild(model: Model, given: dict, smooth: dict) -> Model:
+    """The plant's set-up rebuilt from its parameters: a hanging load (``load.m``) or the
+    rigid isometric fixture at ``fixture.s0``."""
+    units = [n for n in model.state_names if re.fullmatch(r"myofibril\.aps\d+\.chamber\.m_air", n)]
+    rigid = "fixture.s0" in given and not any(n.startswith("fixture_spring.") for n in given)
+    if not units or not ("load.m" in given or rigid):
+        raise ParameterError(
+            "nmpc.model",
+            model.name,
+            "a hanging_load or rigid isometric plant, or a build_model setting",
+        )
+    if "load.m" in given:
+        return hanging_load(len(units), **smooth)
+    return isometric(len(units), length=given["fixture.s0"], **smooth)
+
+
+register_controller("nmpc", make_nmpc)

@@ -1,0 +1,188 @@
+"""Linear MPC: the steady input at a matched equilibrium, active bounds and rate limits,
+the condensed QP against the closed-form finite-horizon LQ solution, fallbacks and bad
+settings."""
+
+import warnings
+
+import control as ct
+import numpy as np
+import pytest
+
+from sarcomere.controllers import linearize, make_controller
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP
+from sarcomere.controllers.qp import qp_solver, zoh
+from sarcomere.dynamics import hanging_load, solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError
+
+P = "regulator.p_cmd"
+L = "myofibril.length"
+
+
+@pytest.fixture(scope="module")
+def plant():
+    model = hanging_load(1, load_kg=0.02)
+    return model, solve_equilibrium(model, {P: 4e4})
+
+
+def measure(mpc, eq):
+    return {n: eq[n] for n in mpc.outputs}
+
+
+@pytest.mark.parametrize("solver", ["daqp", "qpoases"])
+def test_matched_equilibrium_gives_the_steady_input(plant, solver):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(qp_solver=solver))
+    u = mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})
+    assert u[P] == pytest.approx(4e4, abs=1e-6)
+    assert np.allclose(mpc._plan, 4e4, atol=1e-6)  # the whole plan holds it
+    # a shorter reference asks for more pressure (the sign of the loop)
+    mpc.reset(eq.u)
+    assert mpc.checked(0.0, measure(mpc, eq), {L: eq[L] - 1e-3})[P] > 4e4 + 100
+
+
+def test_rate_limit_and_bound_are_active(plant):
+    model, eq = plant
+    s = LMPCSettings(rate_max=5e5, u_max=5e4, weight_du=1e-9)  # moves nearly free
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, s)
+    y = measure(mpc, eq)
+    with pytest.warns(UserWarning, match="unreachable"):  # beyond L(u_max): clipped
+        u = mpc.checked(0.0, y, {L: eq[L] - 5e-3})[P]
+    assert u == pytest.approx(4e4 + 5e3, rel=1e-9)  # the largest move: rate_max * dt
+    for k in range(1, 5):  # the same measurement: the command climbs to u_max, not past
+        u = mpc.checked(0.01 * k, y, {L: eq[L] - 5e-3})[P]
+    assert u == pytest.approx(5e4, rel=1e-12)
+    assert np.all(np.abs(np.diff(mpc._plan[:, 0])) <= 5e3 + 1e-6)
+
+
+def test_relinearized_when_the_output_moved_far(plant):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(relinearize_m=1e-4))
+    mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})
+    assert mpc.relinearizations == 1
+    far = solve_equilibrium(model, {P: 8e4})  # 0.5 mm shorter
+    mpc.checked(0.01, measure(mpc, far), {L: far[L]})
+    assert mpc.relinearizations == 2 and mpc._y_lin == pytest.approx(far[L], rel=1e-12)
+    mpc.checked(0.02, measure(mpc, far), {L: far[L]})
+    assert mpc.relinearizations == 2  # near the new point: kept
+
+
+def riccati_first_gain(Phi, Gam, Q, R, N):
+    """Gain of the first move of the finite-horizon LQ problem (cost on xi_1..xi_N)."""
+    P = Q
+    for _ in range(N):
+        K = np.linalg.solve(R + Gam.T @ P @ Gam, Gam.T @ P @ Phi)
+        P = Q + Phi.T @ P @ (Phi - Gam @ K)
+    return K
+
+
+def test_condensed_qp_equals_closed_form_lq():
+    rng = np.random.default_rng(3)
+    A = np.array([[-2.0, 1.0, 0.0], [0.0, -1.0, 0.5], [0.3, 0.0, -4.0]])
+    B = np.array([[0.0], [1.0], [0.5]])
+    C = np.array([[1.0, 0.0, 2.0]])
+    Ad, Bd = zoh(A, B, 0.1)
+    N, q, r = 12, 3.0, 0.2
+    qp = VelocityQP(Ad, Bd, C, np.zeros((0, 3)), N, q, r, 1.0, np.ones(1), None)
+    qp.solver = qp_solver("daqp", *qp.sparsities())
+    xi0 = rng.normal(size=4)
+    big = np.full(1, 1e9)
+    du, ok = qp.solve(xi0, np.zeros(1), -big, big, big, np.zeros(0))
+    assert ok
+    Phi = np.block([[Ad, np.zeros((3, 1))], [C @ Ad, np.eye(1)]])
+    Gam = np.vstack([Bd, C @ Bd])
+    Q = np.diag([0, 0, 0, q])
+    K = riccati_first_gain(Phi, Gam, Q, np.array([[r]]), N)
+    assert du[0] == pytest.approx(-K @ xi0, rel=1e-8)
+
+
+def test_failed_qp_falls_back_to_the_shifted_plan(plant, monkeypatch):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01)
+    y = measure(mpc, eq)
+    mpc.checked(0.0, y, {L: eq[L] - 2e-3})
+    plan = mpc._plan.copy()
+    monkeypatch.setattr(mpc._qp, "solve", lambda *a: (None, False))
+    u = mpc.checked(0.01, y, {L: eq[L] - 2e-3})
+    assert u[P] == plan[1, 0] and mpc.stats.fallbacks == 1
+
+
+def test_unreachable_reference_is_clipped_with_a_warning(plant):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01)
+    with pytest.warns(UserWarning, match="unreachable"):
+        mpc.checked(0.0, measure(mpc, eq), {L: 1.0})
+    assert mpc.clip.high < 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once per run
+        mpc.checked(0.01, measure(mpc, eq), {L: 1.0})
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"weight_du": -1.0}, "lmpc.weight_du"),
+        ({"horizon": 0}, "lmpc.horizon"),
+        ({"rate_max": 0.0}, "lmpc.rate_max"),
+    ],
+)
+def test_bad_settings_name_the_setting(kwargs, name):
+    with pytest.raises(ParameterError, match=name):
+        LMPCSettings(**kwargs)
+
+
+def test_too_short_sample_time_is_refused(plant):
+    model, eq = plant
+    with pytest.raises(ParameterError, match="lmpc.dt"):
+        LinearMPC(model, eq.x, eq.u, 1e-3)  # 20 samples of 1 ms < the 50 ms regulator lag
+
+
+def test_registry_factory_linearizes_the_plant_with_soft_tension_bounds():
+    model = hanging_load(1, load_kg=0.05)
+    eq = solve_equilibrium(model, {P: 3e4})
+    task = {"output": L, "input": P, "u_min": 0.0, "u_max": 1e5, "tension_min": 0.01}
+    mpc = make_controller("lmpc", model, eq, 0.01, {**task, "horizon": 10})
+    assert mpc.settings.horizon == 10 and mpc.model is model
+    assert [n for n, _ in mpc.settings.soft_min] == ["myofibril.actin0.T", "myofibril.actin1.T"]
+    assert mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})[P] == pytest.approx(3e4, abs=1e-6)
+    with pytest.raises(ParameterError, match="lmpc.weight"):
+        make_controller("lmpc", model, eq, 0.01, {**task, "weight": 1.0})
+
+
+def test_soft_lower_bound_pulls_the_signal_up_and_is_paid_for():
+    Ad, Bd = zoh(np.array([[-1.0]]), np.array([[1.0]]), 0.1)
+    C = np.array([[1.0]])
+    args = (Ad, Bd, C)
+    free = VelocityQP(*args, np.zeros((0, 1)), 10, 1.0, 0.01, 100.0, np.ones(1), None)
+    soft = VelocityQP(*args, C, 10, 1.0, 0.01, 100.0, np.ones(1), None)
+    big = np.full(1, 1e9)
+    for qp in (free, soft):
+        qp.solver = qp_solver("daqp", *qp.sparsities())
+    xi0 = np.zeros(2)  # at rest on the reference
+    du_free, _ = free.solve(xi0, np.zeros(1), -big, big, big, np.zeros(0))
+    du_soft, ok = soft.solve(xi0, np.zeros(1), -big, big, big, np.array([0.5]))
+    assert ok and np.allclose(du_free, 0.0)
+    # the bound 0.5 above the present value wins over tracking (slack costs 100x): the
+    # signal is lifted onto it at the first sample and held there (x = u at steady state)
+    assert (Bd @ du_soft[0])[0] == pytest.approx(0.5, rel=1e-6)
+    assert du_soft.sum() == pytest.approx(0.5, rel=1e-6)
+
+
+def test_as_iosystem_is_the_same_law_as_update(plant):
+    model, eq = plant
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01)
+    lin = linearize(model, eq, [*model.state_names, L], dt=0.01)
+    loop = ct.interconnect(
+        [lin, mpc.as_iosystem()], inplist=["reference"], outlist=["myofibril__length"]
+    )
+    t = np.arange(100) * 0.01
+    resp = ct.input_output_response(loop, t, np.full(len(t), -2e-4))
+    assert resp.outputs[-1] == pytest.approx(-2e-4, rel=1e-3)  # offset-free
+    # the same linear plant stepped by hand with update(): the same trajectory
+    A, B, C = lin.A, lin.B, lin.C[-1]
+    dx, lengths = np.zeros(model.nx), []
+    for tk in t:
+        lengths.append(C @ dx)
+        y = dict(zip(model.state_names, eq.x + dx, strict=True)) | {L: eq[L] + C @ dx}
+        u = mpc.checked(tk, y, {L: eq[L] - 2e-4})[P]
+        dx = A @ dx + B[:, 0] * (u - 4e4)
+    assert np.allclose(lengths, resp.outputs, rtol=0, atol=1e-10)

@@ -1,0 +1,210 @@
+"""Nonlinear MPC: the steady input at a matched equilibrium (every solver), one Radau
+interval against the matrix exponential, a raised minimum thread tension held in closed
+loop on the exact-flow-law plant, fallbacks and bad settings."""
+
+import casadi as cs
+import numpy as np
+import pytest
+import scipy.linalg
+
+from sarcomere.controllers import make_controller
+from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC, radau_residual
+from sarcomere.dynamics import Simulator, hanging_load, isometric, solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError
+
+P = "regulator.p_cmd"
+L = "myofibril.length"
+
+
+@pytest.fixture(scope="module")
+def prediction():
+    model = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
+    return model, solve_equilibrium(model, {P: 5e4})
+
+
+@pytest.mark.parametrize("solver", ["rti", "ipopt", "fatrop"])
+def test_matched_equilibrium_gives_the_steady_input(prediction, solver):
+    model, eq = prediction
+    mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(solver=solver))
+    y = {n: eq[n] for n in mpc.outputs}
+    for k in range(3):  # and stays there on the warm-started samples
+        u = mpc.checked(0.01 * k, y, {L: eq[L]})
+        assert u[P] == pytest.approx(5e4, abs=0.5)
+    assert np.allclose(mpc._plan, 5e4, atol=0.5) and mpc.stats.fallbacks == 0
+    mpc.reset(eq.u)
+    assert mpc.checked(0.0, y, {L: eq[L] - 2e-4})[P] > 5e4 + 100  # shorter: more pressure
+
+
+def radau_end(A, B, x0, u, h, degree):
+    """The end of one Radau IIA interval of dx/dt = A x + B u (the equations are linear)."""
+    nx = len(x0)
+    xs, us = cs.SX.sym("x", nx), cs.SX.sym("u", B.shape[1])
+    f = cs.Function("f", [xs, us], [cs.mtimes(A, xs) + cs.mtimes(B, us)])
+    res = radau_residual(f, nx, B.shape[1], degree)
+    V = cs.SX.sym("V", nx * degree)
+    r = res(x0, V, u, h)
+    J = cs.Function("J", [V], [cs.jacobian(r, V), r])
+    Jv, r0 = (np.array(M) for M in J(np.zeros(nx * degree)))
+    return np.linalg.solve(Jv, -r0).ravel()[-nx:]
+
+
+def exact_end(A, B, x0, u, h):
+    nx, nu = B.shape
+    M = np.zeros((nx + nu, nx + nu))
+    M[:nx, :nx], M[:nx, nx:] = A, B
+    return (scipy.linalg.expm(M * h) @ np.concatenate([x0, u]))[:nx]
+
+
+def test_one_radau_interval_matches_the_matrix_exponential():
+    A = np.array([[-1.0, 2.0, 0.0], [-2.0, -1.0, 0.0], [0.0, 1.0, -3.0]])
+    B = np.array([[0.0], [1.0], [2.0]])
+    x0, u = np.array([1.0, -0.5, 0.3]), np.array([0.7])
+    err = {
+        h: np.max(np.abs(radau_end(A, B, x0, u, h, 3) - exact_end(A, B, x0, u, h)))
+        for h in (0.1, 0.05)
+    }
+    assert err[0.05] < 1e-8
+    assert 2**5 < err[0.1] / err[0.05] < 2**7  # local error O(h^6) (order 5)
+    # a stiff mode far beyond the step (z = lambda h = -50): Radau IIA's stability function
+    # R(z) = (1 + 2z/5 + z^2/20) / (1 - 3z/5 + 3z^2/20 - z^3/60), damped (|R| < 0.05)
+    z = -50.0
+    end = radau_end(np.array([[-5000.0]]), np.zeros((1, 1)), np.ones(1), np.zeros(1), 0.01, 3)
+    R = (1 + 2 * z / 5 + z**2 / 20) / (1 - 3 * z / 5 + 3 * z**2 / 20 - z**3 / 60)
+    assert end[0] == pytest.approx(R, rel=1e-10) and abs(R) < 0.05
+
+
+def closed_loop_min_tension(tension_min):
+    """Vent from 0.1 MPa towards the longest length on the exact-law plant; the smallest
+    thread tension seen at the samples."""
+    plant = hanging_load(1, load_kg=0.02)
+    pred = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
+    eq = solve_equilibrium(plant, {P: 1e5})
+    mpc = NonlinearMPC(pred, eq.u, 0.01, NMPCSettings(tension_min=tension_min))
+    tensions = [n for n in plant.signal_names if n.startswith("myofibril.actin")]
+    tensions = [n for n in tensions if n.endswith(".T")]
+    sim = Simulator(plant)
+    sim.reset(x0=eq.x)
+    lowest = np.inf
+    for _ in range(40):
+        y = sim.signals([*mpc.outputs, *tensions])
+        lowest = min(lowest, *(y[n] for n in tensions))
+        sim.step(mpc.checked(sim.t, y, {L: mpc.clip.high}), 0.01)
+    assert mpc.stats.fallbacks == 0
+    return lowest, y[L]
+
+
+def test_raised_minimum_tension_holds_in_closed_loop():
+    free, _ = closed_loop_min_tension(0.0)
+    held, length = closed_loop_min_tension(0.2)
+    assert free < 0.195  # venting at full speed slackens the lower thread
+    assert held >= 0.2 - 1e-4  # the constraint holds on the plant
+    assert length > 57.5e-3  # and the chain still got long (0.4 s)
+
+
+def test_failed_qp_falls_back_to_the_shifted_plan(prediction, monkeypatch):
+    model, eq = prediction
+    mpc = NonlinearMPC(model, eq.u, 0.01)
+    y = {n: eq[n] for n in mpc.outputs}
+    mpc.checked(0.0, y, {L: eq[L] - 2e-4})
+    plan = mpc._plan.copy()
+    monkeypatch.setattr(mpc.engine, "solve", lambda *a: (np.zeros_like(plan), False))
+    u = mpc.checked(0.01, y, {L: eq[L] - 2e-4})
+    assert u[P] == plan[1, 0] and mpc.stats.fallbacks == 1
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"weight_y": -1.0}, "nmpc.weight_y"),
+        ({"horizon": 0}, "nmpc.horizon"),
+        ({"solver": "snopt"}, "nmpc.solver"),
+        ({"degree": 0}, "nmpc.degree"),
+    ],
+)
+def test_bad_settings_name_the_setting(kwargs, name):
+    with pytest.raises(ParameterError, match=name):
+        NMPCSettings(**kwargs)
+
+
+def test_too_short_sample_time_is_refused(prediction):
+    model, eq = prediction
+    with pytest.raises(ParameterError, match="nmpc.dt"):
+        NonlinearMPC(model, eq.u, 1e-3)
+
+
+TASK = {"output": L, "input": P, "u_min": 0.0, "u_max": 1e5}
+
+
+def test_registry_factory_predicts_with_the_plants_parameters():
+    plant = hanging_load(2, load_kg=0.05)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    mpc = make_controller("nmpc", plant, eq, 0.01, {**TASK, "fidelity": "quasi_static"})
+    pred = mpc.model
+    assert pred.name == "hanging_n2_quasi_static"
+    assert mpc.clip.ends[0].p[pred.param_names.index("load.m")] == pytest.approx(0.051)
+    y = {n: eq[n] for n in mpc.outputs}  # the plant's equilibrium is the prediction's too
+    assert mpc.checked(0.0, y, {L: eq[L]})[P] == pytest.approx(5e4, abs=1.0)
+    with pytest.raises(ParameterError, match="nmpc.horizn"):
+        make_controller("nmpc", plant, eq, 0.01, {**TASK, "horizn": 10})
+    sprung = isometric(1, fixture_stiffness=500.0)
+    with pytest.raises(ParameterError, match="nmpc.model"):
+        make_controller("nmpc", sprung, solve_equilibrium(sprung, {P: 0.0}), 0.01, TASK)
+
+
+def test_registry_factory_on_the_rigid_isometric_fixture():
+    plant = isometric(1)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    task = {**TASK, "output": "sensor.f"}
+    mpc = make_controller("nmpc", plant, eq, 0.01, task)
+    assert mpc.model.name == "isometric_n1_full"
+    y = {n: eq[n] for n in mpc.outputs}
+    assert mpc.checked(0.0, y, {"sensor.f": eq["sensor.f"]})[P] == pytest.approx(5e4, abs=5.0)
+    mpc.reset({P: 5e4})
+    assert mpc.checked(0.0, y, {"sensor.f": eq["sensor.f"] + 0.01})[P] > 5e4 + 100
+
+
+def test_on_an_ekf_it_reads_only_the_measured_signals():
+    plant = hanging_load(1, load_kg=0.02)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    mpc = make_controller("nmpc", plant, eq, 0.01, {**TASK, "estimator": "ekf"})
+    assert mpc.outputs == [L, "regulator.p_out"]
+    sim = Simulator(plant)
+    sim.reset(x0=eq.x)
+    for _ in range(30):
+        y = sim.signals(mpc.outputs)
+        sim.step(mpc.checked(sim.t, y, {L: eq[L] - 2e-4}), 0.01)
+    assert sim.signal(L) == pytest.approx(eq[L] - 2e-4, abs=3e-5)
+
+
+def steady_error(integral_gain):
+    """Hold a length on a plant 10 g heavier than the prediction: the error after 1 s."""
+    plant = hanging_load(1, load_kg=0.03)
+    pred = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    mpc = NonlinearMPC(pred, eq.u, 0.01, NMPCSettings(integral_gain=integral_gain))
+    sim = Simulator(plant)
+    sim.reset(x0=eq.x)
+    for _ in range(100):
+        y = sim.signals(mpc.outputs)
+        sim.step(mpc.checked(sim.t, y, {L: eq[L]}), 0.01)
+    return abs(sim.signal(L) - eq[L])
+
+
+def test_integral_action_removes_the_offset_of_an_unknown_load():
+    assert steady_error(0.0) > 3e-4  # 0.6 mm: the prediction's 20 g equilibrium is elsewhere
+    assert steady_error(5.0) < 0.05 * steady_error(0.0)
+
+
+def test_a_scenes_build_model_makes_the_prediction():
+    plant = hanging_load(1, load_kg=0.02)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    calls = []
+
+    def build_model(**kwargs):
+        calls.append(kwargs)
+        return hanging_load(1, load_kg=0.02, **kwargs)
+
+    task = {**TASK, "build_model": build_model, "fidelity": "symmetric"}
+    mpc = make_controller("nmpc", plant, eq, 0.01, task)
+    assert calls == [{"fidelity": "symmetric", "flow_law": "smooth", "saturate": False}]
+    assert mpc.model.name == "hanging_n1_symmetric"
