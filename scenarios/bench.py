@@ -8,7 +8,7 @@
   limits of the explicit fixed-step methods (:mod:`sarcomere.dynamics.studies.stability`);
   writes ``DIR/stability.json``, two charts and ``DIR/summary.json``.
 * ``sarcomere bench mpc --out DIR [--quick]``: time per step of the MPCs on the
-  length-control scene (:mod:`sarcomere.dynamics.studies.mpc`); writes ``DIR/mpc.json``
+  length-control scene (:mod:`sarcomere.controllers.study`); writes ``DIR/mpc.json``
   and ``DIR/summary.json``.
 
 ``--quick`` uses fewer tolerances, steps and repeats (under a minute each).
@@ -23,7 +23,8 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from sarcomere.dynamics.studies import mpc, stability, workprecision
+from sarcomere.controllers import study as mpc
+from sarcomere.dynamics.studies import stability, workprecision
 
 from .outdir import check_out_dir, staged
 from .output import version

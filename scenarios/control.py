@@ -40,7 +40,6 @@ import numpy as np
 from sarcomere.controllers import CONTROLLERS, make_controller, operating_point
 from sarcomere.controllers.loop import Disturbance, run_closed_loop
 from sarcomere.controllers.metrics import UNIT_SCALES
-from sarcomere.dynamics.assemblies import hanging_load, isometric
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.units import to_si
 
@@ -120,21 +119,8 @@ def _builder(b: Binding):
     """``build_model(fidelity, flow_law, saturate)``: the scene's set-up at another fidelity
     level or flow law (a controller's prediction model; the plant is the scene's own)."""
 
-    def build_model(fidelity: str = "full", flow_law: str = "iso6358", saturate: bool = True):
-        if b.setup == "isometric":
-            return isometric(
-                b.n,
-                b.aps,
-                fidelity,
-                b.fixture_stiffness,
-                b.fixture_gap,
-                regulator_tau=b.regulator_tau,
-                saturate=saturate,
-                flow_law=flow_law,
-            )
-        return hanging_load(
-            b.n, b.aps, b.load_kg, fidelity, b.regulator_tau, saturate=saturate, flow_law=flow_law
-        )
+    def build_model(fidelity: str = "full", flow_law: str | None = None, saturate: bool = True):
+        return b.build(fidelity, flow_law=flow_law, saturate=saturate)
 
     return build_model
 

@@ -8,7 +8,9 @@
   (the chain end is held by a force sensor on a fixture);
 - ``load``: the hanging mass ("50 g", hanging only); ``regulator_tau``: the regulator lag;
 - ``fixture_stiffness`` ("2000 N/m", default rigid) and ``fixture_gap`` ("1 mm"),
-  isometric only.
+  isometric only;
+- ``flow_law``: the restriction's law, ``"iso6358"`` (exact, default) or ``"smooth"`` (C1,
+  for optimisers; :data:`~sarcomere.dynamics.assemblies.FLOW_LAWS`).
 
 Nothing is ignored: an option the set-up does not read, ``[model] geometry``, a section the
 kind does not use, ``n`` above the level's measured limit (:data:`N_LIMITS`), a pressure
@@ -32,7 +34,14 @@ import casadi as cs
 import numpy as np
 
 from sarcomere.dynamics import fidelity as ladder
-from sarcomere.dynamics.assemblies import FIDELITIES, N_LIMITS, N_WHY, hanging_load, isometric
+from sarcomere.dynamics.assemblies import (
+    FIDELITIES,
+    FLOW_LAWS,
+    N_LIMITS,
+    N_WHY,
+    hanging_load,
+    isometric,
+)
 from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
@@ -52,11 +61,9 @@ OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
     "regulator_tau": ("s", 0.0, False),
     "fixture_stiffness": ("N/m", 0.0, False),
     "fixture_gap": ("m", 0.0, True),
+    "flow_law": ("", None, True),
 }
 INPUT_ALIASES = {"pressure": P_CMD}
-#: Largest n per level: each was measured to build, settle and simulate a 1 s step with
-#: 50 g in well under a minute; one level up (full 300, quasi_static 64, static_chain 30,
-#: symmetric 5000) the equilibrium or the flattening fails, or it takes minutes.
 #: Set-up -> options the other set-up reads and this one would ignore.
 SETUP_ONLY = {"hanging": ("fixture_stiffness", "fixture_gap"), "isometric": ("load",)}
 
@@ -73,20 +80,28 @@ class Binding:
     fixture_stiffness: float | None
     fixture_gap: float
     overrides: dict
+    flow_law: str = "iso6358"
 
-    def build(self, fidelity: str, n: int | None = None) -> Model:
-        """Flatten the model for one fidelity level (and optionally another n)."""
+    def build(
+        self,
+        fidelity: str,
+        n: int | None = None,
+        flow_law: str | None = None,
+        saturate: bool = True,
+    ) -> Model:
+        """Flatten the model for one fidelity level (optionally another n, another flow law,
+        or an unclamped regulator for optimisers)."""
         n = self.n if n is None else n
+        common = {
+            "regulator_tau": self.regulator_tau,
+            "saturate": saturate,
+            "flow_law": self.flow_law if flow_law is None else flow_law,
+        }
         if self.setup == "isometric":
             return isometric(
-                n,
-                self.aps,
-                fidelity,
-                self.fixture_stiffness,
-                self.fixture_gap,
-                regulator_tau=self.regulator_tau,
+                n, self.aps, fidelity, self.fixture_stiffness, self.fixture_gap, **common
             )
-        return hanging_load(n, self.aps, self.load_kg, fidelity, self.regulator_tau)
+        return hanging_load(n, self.aps, self.load_kg, fidelity, **common)
 
 
 def bind(sc: Scenario) -> Binding:
@@ -114,6 +129,11 @@ def bind(sc: Scenario) -> Binding:
     setup = opts.get("setup", "hanging")
     if setup not in ("hanging", "isometric"):
         raise sc.error(("model", "options", "setup"), f"'{setup}': use 'hanging' or 'isometric'")
+    flow_law = opts.get("flow_law", "iso6358")
+    if flow_law not in FLOW_LAWS:
+        raise sc.error(
+            ("model", "options", "flow_law"), f"'{flow_law}': use {' or '.join(FLOW_LAWS)}"
+        )
     for key in SETUP_ONLY[setup]:
         if key in opts:
             raise sc.error(
@@ -146,6 +166,7 @@ def bind(sc: Scenario) -> Binding:
         opts.get("fixture_stiffness"),
         opts.get("fixture_gap", 0.0),
         model_over,
+        flow_law,
     )
 
 

@@ -94,3 +94,39 @@ def test_unknown_setup_is_refused(tmp_path):
     sc = parse_scenario(BAD.replace('"hanging"', '"sideways"').replace("-5 g", "5 g"), "b.toml")
     with pytest.raises(ScenarioError, match="sideways"):
         run(sc, tmp_path, quiet=True)
+
+
+SMOOTH = """
+[scenario]
+kind = "transient"
+[model]
+n = 1
+[model.options]
+setup = "hanging"
+load = "50 g"
+flow_law = "FLOW"
+[inputs.pressure]
+type = "step"
+final = "0.1 MPa"
+time = "0.01 s"
+[simulation]
+stop_time = "0.3 s"
+"""
+
+
+def test_flow_law_is_chosen_from_the_scenario(tmp_path):
+    """[model.options] flow_law reaches the model: the smooth law differs from the exact
+    one during filling (not at rest), and an unknown law is refused with its key."""
+    from sarcomere.scenarios import dynamic
+
+    sc = parse_scenario(SMOOTH.replace("FLOW", "smooth"), "s.toml")
+    exact = parse_scenario(SMOOTH.replace("FLOW", "iso6358"), "e.toml")
+    assert dynamic.bind(sc).flow_law == "smooth"
+    out_s = run(sc, tmp_path / "s", quiet=True)
+    out_e = run(exact, tmp_path / "e", quiet=True)
+    (res_s,), (res_e,) = out_s.results.values(), out_e.results.values()
+    ps = res_s.signals["myofibril.aps1.chamber.p_gauge"]
+    pe = res_e.signals["myofibril.aps1.chamber.p_gauge"]
+    assert 0 < abs(ps - pe).max() < 0.01 * pe.max()  # C1 within 1 % of the exact law
+    with pytest.raises(ScenarioError, match=r"flow_law.*'laminar'"):
+        run(parse_scenario(SMOOTH.replace("FLOW", "laminar"), "b.toml"), tmp_path / "b")
