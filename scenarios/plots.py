@@ -94,6 +94,31 @@ def thin(items: Sequence, count: int) -> list:
     return [items[i] for i in picks]
 
 
+def _distinct_curves(
+    results: Mapping[str, Result], names: Sequence[str]
+) -> list[tuple[list[str], str]]:
+    """``(result keys, signal)`` per distinct curve: a signal identical in several results
+    (a shared reference) is one curve, labelled with every key that holds it."""
+    curves: list[tuple[list[str], str]] = []
+    for name in names:
+        for key, result in results.items():
+            same = next(
+                (
+                    c
+                    for c in curves
+                    if c[1] == name
+                    and np.array_equal(results[c[0][0]].index, result.index)
+                    and np.array_equal(results[c[0][0]][name], result[name])
+                ),
+                None,
+            )
+            if same is None:
+                curves.append(([key], name))
+            else:
+                same[0].append(key)
+    return curves
+
+
 def plot_groups(
     results: Mapping[str, Result],
     groups: Mapping[str, Sequence[str]],
@@ -130,12 +155,13 @@ def plot_groups(
         fig = Figure(figsize=(6.4, 4.4), layout="constrained")
         FigureCanvasAgg(fig)
         ax = fig.add_subplot()
-        keys = thin(list(results), max(1, MAX_CURVES // len(names)))
-        shown = thin(list(names), max(1, MAX_CURVES // len(keys)))
-        total = len(results) * len(names)
-        for k, (key, name) in enumerate((key, name) for key in keys for name in shown):
-            result = results[key]
-            label = name if len(results) == 1 else f"{key}: {name}" if len(names) > 1 else key
+        curves = _distinct_curves(results, names)
+        total = len(curves)
+        drawn = thin(curves, MAX_CURVES)
+        for k, (keys, name) in enumerate(drawn):
+            result = results[keys[0]]
+            owner = ", ".join(keys) if len(keys) < len(results) else "all"
+            label = name if len(results) == 1 else f"{owner}: {name}" if len(names) > 1 else owner
             ax.plot(
                 result.index * x_scale,
                 result[name] * y_scale,
@@ -148,7 +174,7 @@ def plot_groups(
         ax.set_xlabel(f"{first.index_name} [{x_unit}]")
         quantity = re.sub(r"_\d+$", "", group).replace("_", " ")  # length_2 -> length
         ax.set_ylabel(f"{quantity} [{y_unit}]")
-        count = len(keys) * len(shown)
+        count = len(drawn)
         note = f" ({count} of {total} curves)" if count < total else ""
         ax.set_title(f"{title}: {group.replace('_', ' ')}{note}")
         ax.grid(True, alpha=0.3)

@@ -57,3 +57,21 @@ def test_version(capsys):
     script = Path(sys.executable).parent / "sarcomere"
     done = subprocess.run([str(script), "--version"], capture_output=True, text=True, check=True)
     assert done.stdout.startswith("sarcomere ")
+
+
+def test_a_signal_shared_by_every_result_is_one_curve():
+    """Six controllers tracking one reference: the reference is drawn once ("all"), so the
+    cap of 8 curves keeps every controller's output."""
+    import numpy as np
+
+    from sarcomere.dynamics.results import Result
+    from sarcomere.scenarios.plots import _distinct_curves
+
+    t = np.linspace(0.0, 1.0, 11)
+    results = {
+        f"c{k}": Result("time", "s", t, {"ref": t, "y": t + k}, {"ref": "m", "y": "m"})
+        for k in range(6)
+    }
+    curves = _distinct_curves(results, ["ref", "y"])
+    assert curves[0] == (list(results), "ref")
+    assert [c for c in curves[1:]] == [([k], "y") for k in results]
