@@ -4,13 +4,17 @@ stop the run naming the participant, the time and the status."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
-from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.errors import ParameterError, ScenarioError
 from sarcomere.fmu.archive import open_fmu
 from sarcomere.fmu.cosim import Connection, CosimError, cosimulate
 from sarcomere.fmu.participants import FmuParticipant, NativeParticipant
+from sarcomere.scenarios import resolve_scenario, run
+from sarcomere.scenarios.cli import main
 from sarcomere.scenarios.export_fmu import scenario_setup
 
 P_CMD = "regulator.p_cmd"
@@ -73,7 +77,7 @@ def test_fmi3_and_fmi2_fmus_and_the_native_model_agree(iso_fmu, iso_fmu3, iso_se
         assert _rel_error(result, native, names) < 1e-4, path
 
 
-def _chain(a, b, ordering: str, inputs: str):
+def _chain(a, b, ordering: str, inputs: str, on_step=None):
     """``a``'s regulator output drives ``b``'s command."""
     return cosimulate(
         [a, b],
@@ -84,6 +88,7 @@ def _chain(a, b, ordering: str, inputs: str):
         inputs=inputs,
         sources={f"a.{P_CMD}": iso_step},
         record=[f"a.{P_OUT}", f"b.{P_CMD}", f"b.{P_OUT}"],
+        on_step=on_step,
     )
 
 
@@ -98,12 +103,15 @@ def _chain(a, b, ordering: str, inputs: str):
 )
 def test_orderings_and_input_laws_feed_the_documented_value(iso_setup, ordering, inputs, expected):
     model, params, _, _ = iso_setup
+    reported = []
     r = _chain(
         NativeParticipant(model, "a", params),
         NativeParticipant(model, "b", params),
         ordering,
         inputs,
+        reported.append,
     )
+    np.testing.assert_allclose(reported, r.index[1:], rtol=0, atol=1e-15)
     y, fed = r[f"a.{P_OUT}"], r[f"b.{P_CMD}"]
     # the input held over step k (read back at its end, row k + 1), from step 1 on
     np.testing.assert_allclose(fed[2:], expected(y), rtol=1e-12)
@@ -180,3 +188,41 @@ def test_bad_configurations_are_refused(iso_setup, change, message):
         config["connections"] = [Connection(f"a.{P_OUT}", f"b.{P_CMD}")]
     with pytest.raises(ParameterError, match=message):
         cosimulate(parts, **config)
+
+
+KEYS = ("native", "cosim")
+
+
+def _column(csv, header: str) -> np.ndarray:
+    names = csv.read_text().splitlines()[0].split(",")
+    return np.loadtxt(csv, delimiter=",", skiprows=1, usecols=names.index(header))
+
+
+def test_the_roundtrip_scene_runs_from_the_cli(tmp_path, step_fmu):
+    """``cosim-roundtrip`` as packaged (its own export), and pointed at an FMU file."""
+    out = tmp_path / "out"
+    assert main(["run", "cosim-roundtrip", "--out", str(out), "--quiet"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    error = summary["metrics"]["max_rel_error_vs_native"]
+    assert 1e-6 < error < 5e-5  # 2.6e-5: the chamber pressure at the step
+    assert summary["checks"]["max_rel_error_vs_native"]["ok"]
+    assert summary["extra"]["worst_signal"].endswith(".chamber.p_gauge")
+    native, cosim = (_column(out / f"timeseries_{k}.csv", "regulator.p_cmd [Pa]") for k in KEYS)
+    assert len(cosim) == len(native) == 1001 and native[-1] == 1e5
+    np.testing.assert_array_equal(cosim, native)  # the commands at the communication points
+    scene = resolve_scenario("cosim-roundtrip").read_text()
+    given = tmp_path / "given.toml"
+    given.write_text(scene.replace("fmi = 2", f'fmu = "{step_fmu}"'))
+    again = run(given, tmp_path / "again", quiet=True)
+    assert again.metrics["max_rel_error_vs_native"] == pytest.approx(error, rel=1e-6)
+
+
+def test_the_cosim_kind_refuses_unknown_keys(tmp_path):
+    scene = resolve_scenario("cosim-roundtrip").read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(scene.replace('ordering = "jacobi"', 'ordering = "parallel"'))
+    with pytest.raises(ScenarioError, match="'parallel': one of jacobi, gauss-seidel"):
+        run(bad, tmp_path / "out", quiet=True)
+    bad.write_text(scene.replace('ordering = "jacobi"', "order = 1"))
+    with pytest.raises(ScenarioError, match="unknown key 'order'"):
+        run(bad, tmp_path / "out", quiet=True)
