@@ -52,14 +52,13 @@ class CosimError(SarcomereError):
     time : float
         Start of the communication step that failed [s].
     result : Result
-        The recorded signals up to the last completed communication point.
+        The recorded signals up to the last completed communication point (no rows when
+        a participant failed to start).
     """
 
     def __init__(self, err: ParticipantError, time: float, result: Result) -> None:
-        super().__init__(
-            f"co-simulation stopped at t = {time:.6g} s: {err} "
-            f"(results kept up to t = {result.index[-1]:.6g} s)"
-        )
+        kept = f"up to t = {result.index[-1]:.6g} s" if len(result.index) else "none"
+        super().__init__(f"co-simulation stopped at t = {time:.6g} s: {err} (results kept: {kept})")
         self.participant = err.participant
         self.status = err.status
         self.time = time

@@ -203,8 +203,14 @@ class NativeParticipant:
         except SarcomereError as err:
             raise ParticipantError(f"model '{self.name}'", "error", f"{what}: {err}") from None
 
+    def _finite(self, what: str, values: Mapping[str, float]) -> None:
+        bad = {n: v for n, v in values.items() if not np.isfinite(v)}
+        if bad:  # refused when set, as an FMU does (solve_equilibrium would accept a NaN)
+            raise ParticipantError(f"model '{self.name}'", "error", f"{what}: {bad} not finite")
+
     def start(self, t0: float, inputs: Mapping[str, float]) -> None:
         _unknown(self.name, list(inputs), self.inputs, "inputs")
+        self._finite("start", inputs)
         m = self.model
         start = m.u0(m.parameters(self._params))
         self._u = {**dict(zip(m.input_names, start, strict=True)), **inputs}
@@ -212,6 +218,7 @@ class NativeParticipant:
         self._guard("reset", self._sim.reset, eq.x, eq.z, self._params, t0)
 
     def set(self, values: Mapping[str, float]) -> None:
+        self._finite("set", values)
         self._u.update(values)
 
     def get(self, names: Sequence[str]) -> dict[str, float]:

@@ -144,6 +144,7 @@ def test_an_fmu_error_mid_run_stops_with_the_fmu_time_status_and_results(step_fm
     assert err.participant == f"FMU 'm' ({step_fmu.name})" and err.status == "error"
     assert err.time == pytest.approx(0.1)
     assert "at t = 0.1 s" in str(err) and "regulator.p_cmd = -100000 is outside" in str(err)
+    assert "(results kept: up to t = 0.1 s)" in str(err)
     np.testing.assert_allclose(err.result.index, np.arange(11) * 0.01, atol=1e-12)
     assert np.all(np.isfinite(err.result["m.myofibril.length"]))
 
@@ -160,6 +161,16 @@ def test_a_native_failure_mid_run_keeps_the_results_so_far(iso_setup):
     err = info.value
     assert err.participant == "model 'm'" and err.status == "error"
     assert err.time == pytest.approx(0.05) and err.result.index[-1] == pytest.approx(0.05)
+
+
+def test_a_failure_to_start_is_reported_with_no_results(iso_setup):
+    model, params, _, _ = iso_setup
+    with pytest.raises(
+        CosimError, match=r"at t = 0 s: model 'm' returned error: start: .*nan.* not finite"
+    ) as info:
+        _alone(NativeParticipant(model, "m", params), lambda t: np.nan, 0.1, 0.01)
+    assert str(info.value).endswith("(results kept: none)")
+    assert len(info.value.result.index) == 0
 
 
 @pytest.mark.parametrize(
