@@ -24,6 +24,7 @@ import scipy.sparse.linalg as spla
 
 from .errors import ParameterError, SolverError
 from .modeling.model import Model
+from .units import to_si
 
 _ARGS = ["x", "z", "u", "p"]
 
@@ -165,9 +166,6 @@ class _Fail(Exception):
         self.why, self.residual, self.iterations = why, residual, iterations
 
 
-_SOLVERS: dict[int, _Newton] = {}
-
-
 def solve_equilibrium(
     model: Model,
     inputs: Mapping[str, float] | None = None,
@@ -192,16 +190,12 @@ def solve_equilibrium(
         continuation got), or if it leaves the physical domain.
     """
     m = model
-    newton = _SOLVERS.get(id(m))
-    if newton is None or newton.model is not m:
-        if len(_SOLVERS) > 64:  # bounded: sweeps build many models
-            _SOLVERS.clear()
-        newton = _SOLVERS[id(m)] = _Newton(m)
+    newton = m.cached("equilibrium.newton", lambda: _Newton(m))
     u_target = m.u0()
     for k, v in (inputs or {}).items():
         if k not in m.input_names:
             raise ParameterError("inputs", k, f"an input of model '{m.name}': {m.input_names}")
-        u_target[m.input_names.index(k)] = float(v)
+        u_target[m.input_names.index(k)] = _input_value(m, k, v)
     p_target = m.parameters(params)
     if guess is None:  # first the model's own operating point, then continue from it
         u_start, p_start = m.u0(), m.parameters()
@@ -246,6 +240,15 @@ def solve_equilibrium(
 
 SETTLE_TIME_S = 10.0
 """Simulated time [s] of the fallback that lets a model settle before Newton."""
+
+
+def _input_value(m: Model, name: str, raw: object) -> float:
+    """An input value in SI (numbers or quantity strings), finite and inside its bounds."""
+    var = m.variables[name]
+    value = to_si(raw, var.unit, f"inputs.{name}")
+    if not (np.isfinite(value) and var.low <= value <= var.high):
+        raise ParameterError(f"inputs.{name}", raw, f"[{var.low:g}, {var.high:g}] {var.unit}")
+    return value
 
 
 def _start_point(newton: _Newton, u: np.ndarray, p: np.ndarray, tol: float, max_iter: int):

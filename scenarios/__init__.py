@@ -9,7 +9,7 @@ for its ``kind`` and writes ``summary.json``, CSV time series and PNG plots.
 'paper'
 """
 
-from . import control, dynamic, static  # noqa: F401  (register the kinds)
+from . import control, cosim, dynamic, static  # noqa: F401  (register the kinds)
 from .loader import load_scenario, packaged_scenarios, parse_scenario, resolve_scenario
 from .output import RunOutput, quantity_tag
 from .runner import register_runner, run, runner_kinds

@@ -127,7 +127,7 @@ def _builder(b: Binding):
 
 def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     """Run every ``[control.controllers]`` entry on the same plant and reference."""
-    sc.refuse_unused("inputs", "sweep", "outputs.tolerance")
+    sc.refuse_unused("inputs", "sweep", "outputs.tolerance", "cosim")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=False)
     check_n(sc, ("model", "n"), b.n, fid)

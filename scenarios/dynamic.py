@@ -230,7 +230,7 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     ``length_ratio`` = L / L' with L' = L(0 MPa, no load, same n) and the paper's
     actuation strain ``strain`` = (L[P, load] - L[0, load]) / L[0, 0].
     """
-    sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance", "control")
+    sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance", "control", "cosim")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=False)
     check_n(sc, ("model", "n"), b.n, fid)
@@ -506,7 +506,7 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     ``fidelity = "auto"``: the cheapest level predicted within ``[outputs] tolerance``
     of "full" runs, and only that one (see :func:`choose_fidelity`).
     """
-    sc.refuse_unused("sweep", "control")
+    sc.refuse_unused("sweep", "control", "cosim")
     if sc.model.fidelity != "auto":
         sc.refuse_unused("outputs.tolerance")
     b = bind(sc)

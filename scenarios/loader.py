@@ -51,6 +51,7 @@ SECTIONS = (
     "outputs",
     "metrics",
     "control",
+    "cosim",
 )
 
 _REQUIRED = object()
@@ -307,6 +308,7 @@ def parse_scenario(text: str, file: str = "<string>") -> Scenario:
         outputs=_outputs(r, data.get("outputs", {})),
         metrics=_metrics(r, data.get("metrics", {})),
         control=r.table(data.get("control", {}), ("control",)),
+        cosim=r.table(data.get("cosim", {}), ("cosim",)),
         file=file,
         key_lines=lines,
     )

@@ -251,6 +251,9 @@ class Scenario:
     control : mapping
         ``[control]`` as written (kind "closed_loop" reads it, see
         :mod:`sarcomere.scenarios.control`); empty if absent.
+    cosim : mapping
+        ``[cosim]`` as written (kind "cosim" reads it, see :mod:`sarcomere.scenarios.cosim`);
+        empty if absent.
     file : str
         Scenario file path, or a label such as ``"<string>"``.
     key_lines : mapping of tuple to int
@@ -269,11 +272,12 @@ class Scenario:
     outputs: OutputSpec = field(default_factory=OutputSpec)
     metrics: tuple[MetricCheck, ...] = ()
     control: Mapping[str, object] = field(default_factory=dict)
+    cosim: Mapping[str, object] = field(default_factory=dict)
     file: str = "<string>"
     key_lines: Mapping[KeyPath, int] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        _freeze(self, "parameters", "inputs", "control", "key_lines")
+        _freeze(self, "parameters", "inputs", "control", "cosim", "key_lines")
 
     @property
     def base_dir(self) -> Path:
@@ -304,7 +308,7 @@ class Scenario:
         """Refuse any of ``sections`` the file gives: this kind would ignore it.
 
         ``sections`` are ``"inputs"``, ``"sweep"``, ``"simulation"``, ``"solver"``,
-        ``"outputs.tolerance"`` and ``"control"``.
+        ``"outputs.tolerance"``, ``"control"`` and ``"cosim"``.
         """
         given = {
             "inputs": bool(self.inputs),
@@ -313,6 +317,7 @@ class Scenario:
             "solver": self.solver != SolverSpec(),
             "outputs.tolerance": self.outputs.tolerance is not None,
             "control": bool(self.control),
+            "cosim": bool(self.cosim),
         }
         for section in sections:
             if given[section]:

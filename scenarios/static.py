@@ -138,7 +138,9 @@ def run_static(scenario: Scenario, out_dir: Path) -> RunOutput:
             "kind 'static' evaluates the paper's closed-form model: use fidelity = 'paper' "
             "(other levels need an equilibrium solve)",
         )
-    scenario.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance", "control")
+    scenario.refuse_unused(
+        "inputs", "simulation", "solver", "outputs.tolerance", "control", "cosim"
+    )
     axis = scenario.axis("pressure")
     if len(scenario.sweep) > 1:
         raise scenario.error(("sweep",), "kind 'static' sweeps 'pressure' only")

@@ -91,3 +91,15 @@ def test_an_unknown_input_name_is_a_parameter_error():
         solve_equilibrium(model, {"regulator.p_cm": 3e4})
     with pytest.raises(ParameterError, match="parameter 'inputs' = 'load.s'"):
         solve_equilibrium(model, {"load.s": 0.1})
+
+
+def test_inputs_are_checked_and_take_units():
+    """NaN or out-of-range inputs are refused (a NaN command once returned a finite
+    equilibrium); a quantity string is converted like a parameter."""
+    model = hanging_load(1, load_kg=0.05)
+    for bad in (float("nan"), -1e4, 7e5):
+        with pytest.raises(ParameterError, match=r"inputs\.regulator\.p_cmd"):
+            solve_equilibrium(model, {"regulator.p_cmd": bad})
+    a = solve_equilibrium(model, {"regulator.p_cmd": "0.05 MPa"})
+    b = solve_equilibrium(model, {"regulator.p_cmd": 5e4})
+    np.testing.assert_array_equal(a.x, b.x)

@@ -50,6 +50,10 @@ def test_sweep_in_a_transient_is_refused(tmp_path):
     _refused(tmp_path, r"t.toml:\d+: key 'sweep'.*does not use \[sweep\]", extra=SWEEP)
 
 
+def test_cosim_settings_in_a_transient_are_refused(tmp_path):
+    _refused(tmp_path, r"key 'cosim'.*does not use \[cosim\]", extra="[cosim]\nfmi = 2")
+
+
 def test_tolerance_without_auto_is_refused(tmp_path):
     _refused(tmp_path, r"outputs.tolerance", extra='[outputs]\ntolerance = "1 %"')
 

@@ -1,0 +1,241 @@
+"""Participants of a co-simulation: one interface for a Co-Simulation FMU (FMI 2.0 or
+3.0, through fmpy) and for a native model (the stepping :class:`Simulator`).
+
+A participant has a ``name``, the names of its ``inputs`` and ``outputs``, their
+``units``, and five operations: ``start(t0, inputs)`` (initialise at ``t0`` with the
+given input values, states at the equilibrium of those inputs), ``set(values)``,
+``get(names)``, ``do_step(t, h)`` and ``close()``. A failure of any operation is a
+:class:`ParticipantError` carrying the status (``"error"``, ``"fatal"``, ``"discard"``,
+...) for the master to report with the time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from ctypes import byref
+
+import numpy as np
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave, defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.fmi3 import FMU3Slave
+from fmpy.logging import addLoggerProxy
+
+from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError, SarcomereError
+from sarcomere.dynamics.modeling.model import Model
+from sarcomere.dynamics.simulation.settings import SolverSettings
+from sarcomere.dynamics.simulation.simulator import Simulator
+
+from .archive import OpenedFmu
+
+STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
+"""FMI status labels by code (FMI 2.0; FMI 3.0 has the first five)."""
+
+
+class ParticipantError(SarcomereError):
+    """An operation of a participant failed with ``status`` (an FMI status label)."""
+
+    def __init__(self, participant: str, status: str, detail: str) -> None:
+        super().__init__(f"{participant} returned {status}: {detail}")
+        self.participant = participant
+        self.status = status
+
+
+def _unknown(owner: str, names: Sequence[str], known: Sequence[str], what: str) -> None:
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise ParameterError(what, bad[:5], f"{what} of '{owner}': {list(known)[:20]}")
+
+
+class FmuParticipant:
+    """A Co-Simulation FMU opened by :func:`~.archive.open_fmu` (kept open by the caller).
+
+    Parameters
+    ----------
+    fmu : OpenedFmu
+        The extracted, checked FMU.
+    name : str
+        The participant's name in connections (``"muscle"``).
+    params : mapping of str to float, optional
+        Parameter values [SI] set in initialisation mode.
+    """
+
+    def __init__(
+        self, fmu: OpenedFmu, name: str, params: Mapping[str, float] | None = None
+    ) -> None:
+        md = fmu.description
+        self.name = name
+        self.fmu_path = fmu.path
+        self._version = fmu.fmi_version
+        reals = [v for v in md.modelVariables if v.type in ("Real", "Float64")]
+        self._vr = {v.name: v.valueReference for v in reals}
+        self.inputs = tuple(v.name for v in reals if v.causality == "input")
+        self.outputs = tuple(v.name for v in reals if v.causality == "output")
+        self.units = {
+            v.name: (v.unit or (v.declaredType.unit if v.declaredType else None)) or "1"
+            for v in reals
+        }
+        parameters = [v.name for v in reals if v.causality == "parameter"]
+        self._params = dict(params or {})
+        _unknown(name, list(self._params), parameters, "parameters")
+        cls = FMU2Slave if self._version == 2 else FMU3Slave
+        self._slave = cls(
+            guid=md.guid if self._version == 2 else md.instantiationToken,
+            unzipDirectory=str(fmu.folder),
+            modelIdentifier=md.coSimulation.modelIdentifier,
+            instanceName=name,
+        )
+        self._live = False
+        self._log: list[str] = []  # the FMU's messages of status warning and worse
+
+    def _logged(self, status: int, message: bytes) -> None:
+        if status >= 1:
+            self._log.append(message.decode(errors="replace"))
+
+    def _call(self, what: str, fn, *args):
+        seen = len(self._log)
+        try:
+            return fn(*args)
+        except FMICallException as err:
+            said = "; ".join(self._log[seen:]) or "no message"
+            raise ParticipantError(
+                f"FMU '{self.name}' ({self.fmu_path.name})",
+                STATUS[err.status],
+                f"{what} failed: {said}",
+            ) from None
+
+    def _set(self, values: Mapping[str, float]) -> None:
+        if values:
+            setter = self._slave.setReal if self._version == 2 else self._slave.setFloat64
+            refs = [self._vr[n] for n in values]
+            self._call("set", setter, refs, [float(v) for v in values.values()])
+
+    def start(self, t0: float, inputs: Mapping[str, float]) -> None:
+        _unknown(self.name, list(inputs), self.inputs, "inputs")
+        s = self._slave
+        if self._version == 2:
+            self._logger = fmi2CallbackLoggerTYPE(
+                lambda env, inst, status, cat, msg: self._logged(status, msg)
+            )
+            callbacks = fmi2CallbackFunctions()
+            callbacks.logger = self._logger  # kept alive as long as the instance
+            callbacks.allocateMemory = defaultCallbacks.allocateMemory
+            callbacks.freeMemory = defaultCallbacks.freeMemory
+            addLoggerProxy(byref(callbacks))  # formats the FMU's printf-style messages
+            self._call("instantiate", s.instantiate, False, callbacks)
+        else:
+            self._call(
+                "instantiate",
+                s.instantiate,
+                False,
+                False,
+                False,
+                False,
+                lambda env, status, cat, msg: self._logged(status, msg),
+            )
+        self._live = True
+        if self._version == 2:
+            self._call("setupExperiment", s.setupExperiment, None, t0)
+            self._call("enterInitializationMode", s.enterInitializationMode)
+        else:
+            self._call("enterInitializationMode", s.enterInitializationMode, None, t0)
+        self._set({**self._params, **inputs})
+        self._call("exitInitializationMode", s.exitInitializationMode)
+
+    def set(self, values: Mapping[str, float]) -> None:
+        self._set(values)
+
+    def get(self, names: Sequence[str]) -> dict[str, float]:
+        getter = self._slave.getReal if self._version == 2 else self._slave.getFloat64
+        values = self._call("get", getter, [self._vr[n] for n in names])
+        return dict(zip(names, values, strict=True))
+
+    def do_step(self, t: float, h: float) -> None:
+        self._call("doStep", self._slave.doStep, t, h)
+
+    def close(self) -> None:
+        """Terminate and free the instance (errors ignored: the instance may have failed)."""
+        if self._live:
+            self._live = False
+            try:
+                self._slave.terminate()
+            except FMICallException:
+                pass
+            self._slave.freeInstance()
+
+
+class NativeParticipant:
+    """A flattened model stepped by the :class:`Simulator`, interchangeable with its FMU:
+    it starts at the equilibrium of its start inputs as the exported FMU does, holds its
+    inputs over each step, and reads any named signal.
+
+    Parameters
+    ----------
+    model : Model
+        A flattened model (with no algebraic unknowns or with them: any the simulator runs).
+    name : str
+        The participant's name in connections.
+    params : mapping of str to object, optional
+        Parameter overrides by name (units allowed).
+    settings : SolverSettings, optional
+        The simulator's method and tolerances.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        name: str,
+        params: Mapping[str, object] | None = None,
+        settings: SolverSettings | None = None,
+    ) -> None:
+        self.name = name
+        self.model = model
+        self.inputs = tuple(model.input_names)
+        self.outputs = tuple(model.output_names)  # as its FMU; every signal can be read
+        self.units = {n: model.unit(n) for n in model.signal_names}
+        self._params = dict(params or {})
+        self._sim = Simulator(model, settings)
+        self._u: dict[str, float] = {}
+
+    def _guard(self, what: str, fn, *args):
+        try:
+            return fn(*args)
+        except SarcomereError as err:
+            raise ParticipantError(f"model '{self.name}'", "error", f"{what}: {err}") from None
+
+    def _finite(self, what: str, values: Mapping[str, float]) -> None:
+        bad = {n: v for n, v in values.items() if not np.isfinite(v)}
+        if bad:  # refused when set, as an FMU does (solve_equilibrium would accept a NaN)
+            raise ParticipantError(f"model '{self.name}'", "error", f"{what}: {bad} not finite")
+
+    def start(self, t0: float, inputs: Mapping[str, float]) -> None:
+        _unknown(self.name, list(inputs), self.inputs, "inputs")
+        self._finite("start", inputs)
+        m = self.model
+        start = m.u0(m.parameters(self._params))
+        self._u = {**dict(zip(m.input_names, start, strict=True)), **inputs}
+        eq = self._guard("equilibrium", solve_equilibrium, m, self._u, self._params)
+        self._guard("reset", self._sim.reset, eq.x, eq.z, self._params, t0)
+
+    def set(self, values: Mapping[str, float]) -> None:
+        self._finite("set", values)
+        self._u.update(values)
+
+    def get(self, names: Sequence[str]) -> dict[str, float]:
+        values = self._sim.signals(names)
+        for n in names:
+            if n in self._u:  # an input reads back as set, like an FMU's
+                values[n] = self._u[n]
+        return values
+
+    def do_step(self, t: float, h: float) -> None:
+        if not np.isclose(t, self._sim.t, rtol=0, atol=1e-12 * max(1.0, abs(t))):
+            raise ParticipantError(
+                f"model '{self.name}'",
+                "error",
+                f"doStep at {t:g} s, but it is at {self._sim.t:g} s",
+            )
+        self._guard(f"step to {t + h:g} s", self._sim.step, self._u, h)
+
+    def close(self) -> None:
+        """Nothing to free."""

@@ -1,0 +1,118 @@
+"""Scenario kind "cosim": the scene's model as a Co-Simulation FMU in the co-simulation
+master, against the native simulation of the same scene.
+
+``[model]``, ``[parameters]``, ``[inputs]``, ``[simulation]`` and ``[solver]`` as kind
+"transient" (the native run; the FMU is exported from the same model, parameters and
+start inputs). ``[simulation] output_interval`` is the communication step. ``[cosim]``:
+
+- ``fmu``: an FMU file (relative to the scene file) of this scene's model; default: the
+  model exported during the run into a temporary folder (a few seconds of gcc), removed
+  afterwards;
+- ``fmi``: 2 or 3, the FMI version of that export (default 2);
+- ``ordering``: "jacobi" or "gauss-seidel" (default "jacobi"), ``inputs``: "hold" or
+  "extrapolate" (default "hold"), see :mod:`sarcomere.fmu.cosim`.
+
+The scene's input signals drive the FMU's inputs, sampled at each communication step's
+start and held over it (a step at a communication point is exact).
+
+Metric: ``max_rel_error_vs_native``, the largest over the recorded signals (the driven
+inputs excepted) of ``max |y_fmu - y_native| / max |y_native|``; each signal's value is in
+``summary.json`` (``extra.rel_error_vs_native``). Two results: ``native`` and ``cosim``
+(whose driven inputs are the scene's signals at the communication points).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from sarcomere.fmu.archive import open_fmu
+from sarcomere.fmu.cosim import INPUT_LAWS, ORDERINGS, cosimulate
+from sarcomere.fmu.export import FMI_VERSIONS, export_fmu
+from sarcomere.fmu.participants import FmuParticipant
+
+from .dynamic import _inputs, run_transient  # _inputs: the same name and unit checks as a run
+from .export_fmu import scenario_setup
+from .output import RunOutput
+from .runner import register_runner
+from .spec import Scenario, unknown_key
+
+KEYS = ("fmu", "fmi", "ordering", "inputs")
+NAME = "muscle"
+"""The FMU's participant name."""
+
+
+def _choice(sc: Scenario, key: str, choices: tuple, default):
+    value = sc.cosim.get(key, default)
+    if value not in choices:
+        raise sc.error(("cosim", key), f"{value!r}: one of {', '.join(map(str, choices))}")
+    return value
+
+
+def run_cosim(sc: Scenario, out_dir: Path) -> RunOutput:
+    """Co-simulate the scene's FMU and compare it with the native run."""
+    for key in sc.cosim:
+        if key not in KEYS:
+            raise sc.error(("cosim", key), unknown_key(key, KEYS))
+    fmi = _choice(sc, "fmi", FMI_VERSIONS, 2)
+    ordering = _choice(sc, "ordering", ORDERINGS, "jacobi")
+    law = _choice(sc, "inputs", INPUT_LAWS, "hold")
+    transient = dataclasses.replace(sc, kind="transient", cosim={})
+    model, params, start, experiment = scenario_setup(transient)
+    native_run = run_transient(transient, out_dir)
+    native = native_run.results["main"]
+    sim = sc.simulation
+    step = sim.output_interval or (sim.stop_time - sim.start_time)
+    sources = {f"{NAME}.{k}": sig for k, sig in _inputs(sc, model).items()}
+    p = model.parameters(params)
+    si_params = {n: float(p[model.param_names.index(n)]) for n in params}
+    with tempfile.TemporaryDirectory(prefix="sarcomere-cosim-") as tmp:
+        if "fmu" in sc.cosim:
+            path = sc.base_dir / str(sc.cosim["fmu"])
+        else:
+            path = export_fmu(model, Path(tmp) / f"{sc.name}.fmu", fmi, params, start, experiment)
+        with open_fmu(path) as fmu:
+            participant = FmuParticipant(fmu, NAME, si_params)
+            names = [n for n in native.names if n in participant.units]
+            result = cosimulate(
+                [participant],
+                stop_time=sim.stop_time,
+                start_time=sim.start_time,
+                step=step,
+                ordering=ordering,
+                inputs=law,
+                sources=sources,
+                record=[f"{NAME}.{n}" for n in names],
+            )
+    if result.index.shape != native.index.shape or not np.allclose(
+        result.index, native.index, rtol=0, atol=1e-9 * step
+    ):
+        raise sc.error(
+            ("simulation", "output_interval"), "the native and co-simulation grids differ"
+        )
+    signals = {n: result[f"{NAME}.{n}"] for n in names}
+    driven = {n for n in names if f"{NAME}.{n}" in sources}
+    for n in driven:  # what applies from each point on, as the native table shows
+        signals[n] = np.array([float(sources[f"{NAME}.{n}"](t)) for t in result.index])
+    cosim = dataclasses.replace(result, signals=signals, units={n: native.units[n] for n in names})
+    errors = {
+        n: float(np.max(np.abs(cosim[n] - native[n])) / max(np.max(np.abs(native[n])), 1e-300))
+        for n in names
+        if n not in driven
+    }
+    worst = max(errors, key=errors.get)
+    return RunOutput(
+        sc.name,
+        native_run.fidelity,
+        f"co-simulation of an FMI {fmu.fmi_version}.0 FMU ({ordering}, {law}, "
+        f"step {step:g} s) vs {native_run.solver}",
+        metrics={"max_rel_error_vs_native": errors[worst]},
+        results={"native": native.select(names), "cosim": cosim},
+        extra={"rel_error_vs_native": errors, "worst_signal": worst, "fmu": str(path)},
+    )
+
+
+register_runner("cosim", run_cosim)
