@@ -13,7 +13,8 @@ and the problem:
   declared size and checks the CRC);
 * ``modelDescription.xml`` exists, is well-formed XML whose root is
   ``fmiModelDescription`` with ``fmiVersion`` 2.0 or 3.x, and fmpy reads it;
-* the FMU has Co-Simulation and the binary of its model identifier for this platform
+* the FMU has the interface asked for (Co-Simulation by default) and the binary of its
+  model identifier for this platform
   (``binaries/linux64`` for FMI 2.0, ``binaries/x86_64-linux`` for FMI 3.0).
 """
 
@@ -52,6 +53,10 @@ RATIO_FLOOR_BYTES = 2**20
 
 PLATFORMS = {2: "linux64", 3: "x86_64-linux"}
 """The binaries folder of this platform by FMI major version."""
+
+
+INTERFACES = {"coSimulation": "Co-Simulation", "modelExchange": "Model Exchange"}
+"""The interfaces :func:`open_fmu` checks for, by fmpy's attribute name."""
 
 
 class FmuArchiveError(SarcomereError):
@@ -126,8 +131,10 @@ def _fmi_version(path: Path, folder: Path) -> int:
 
 
 @contextmanager
-def open_fmu(path: str | Path) -> Iterator[OpenedFmu]:
+def open_fmu(path: str | Path, interface: str = "coSimulation") -> Iterator[OpenedFmu]:
     """Check and extract the FMU at ``path``; the folder is removed when the block ends.
+
+    ``interface``: the one the caller will use, "coSimulation" or "modelExchange".
 
     Raises
     ------
@@ -162,10 +169,11 @@ def open_fmu(path: str | Path) -> Iterator[OpenedFmu]:
         except Exception as err:  # fmpy raises plain Exceptions for schema problems
             problem = " ".join(str(err).split())[:300]
             raise _fail(path, f"malformed modelDescription.xml ({problem})") from None
-        if md.coSimulation is None:
-            raise _fail(path, "no Co-Simulation interface")
+        kind = getattr(md, interface)
+        if kind is None:
+            raise _fail(path, f"no {INTERFACES[interface]} interface")
         platform = PLATFORMS[version]
-        binary = Path("binaries") / platform / f"{md.coSimulation.modelIdentifier}.so"
+        binary = Path("binaries") / platform / f"{kind.modelIdentifier}.so"
         if not (folder / binary).is_file():
             raise _fail(path, f"no binary for this platform ({binary})")
         yield OpenedFmu(path, folder, md, version)

@@ -25,6 +25,22 @@ class Fixed(Component):
         b.equation(b.port("flange", FLANGE).s, s0)
 
 
+class Position(Component):
+    """A flange moved to the input position ``s`` [m] (an ideal position source)."""
+
+    def build(self, b: Builder) -> None:
+        s = b.input("s", "m", "position imposed on the flange")
+        b.equation(b.port("flange", FLANGE).s, s)
+
+
+class Force(Component):
+    """The input force ``f`` [N] applied to a flange along +s (an ideal force source)."""
+
+    def build(self, b: Builder) -> None:
+        f = b.input("f", "N", "force applied to the connected flange along +s")
+        b.equation(b.port("flange", FLANGE).f, -f)
+
+
 class Mass(Component):
     """A point mass ``m`` [kg] with gravity along +s; states s [m], v [m/s].
 
@@ -187,9 +203,11 @@ class PositionSensor(Component):
 __all__ = [
     "Damper",
     "Fixed",
+    "Force",
     "ForceSensor",
     "Mass",
     "Node",
+    "Position",
     "PositionSensor",
     "Spring",
     "ViscousNode",

@@ -1,0 +1,221 @@
+"""Model Exchange FMUs imported as CasADi Functions (fmu/me_import.py): derivatives and
+Jacobians against the native model, a composition with the muscle linearised and simulated
+against the monolithic model, and the finite-difference fallback of an FMU without
+directional derivatives."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import casadi as cs
+import numpy as np
+import pytest
+
+from sarcomere.dynamics.assemblies import hanging_load
+from sarcomere.dynamics.components.aps import APSParams, Myofibril
+from sarcomere.dynamics.components.environment import Environment
+from sarcomere.dynamics.components.mechanical import Fixed, Force, Mass, Position, Spring
+from sarcomere.dynamics.components.pneumatic import Regulator
+from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.errors import ModelError, ParameterError
+from sarcomere.dynamics.modeling.component import System
+from sarcomere.fmu import export_fmu
+from sarcomere.fmu.me_import import compose, import_me
+
+LOAD = {"c": 200.0, "s_rel0": 0.01, "m": 0.02}
+"""The load FMU: a spring [N/m] of rest length [m] to a mass [kg] (no gravity)."""
+
+P_CMD = 0.03e6
+"""The pressure command [Pa] of the operating point (the step goes to twice this)."""
+
+
+@pytest.fixture(scope="session")
+def hanging():
+    return hanging_load(1, load_kg=0.05)
+
+
+@pytest.fixture(scope="session")
+def hanging_fmu(tmp_path_factory, hanging) -> Path:
+    return export_fmu(hanging, tmp_path_factory.mktemp("fmu") / "hanging.fmu")
+
+
+def _spring_and_mass(sys: System, start) -> tuple:
+    spring = sys.add(Spring("spring", c=LOAD["c"], s_rel0=LOAD["s_rel0"]))
+    mass = sys.add(Mass("mass", m=LOAD["m"], g=0.0, s_start=start))
+    sys.connect(spring.flange_b, mass.flange_a)
+    return spring, mass
+
+
+@pytest.fixture(scope="session")
+def load_fmu(tmp_path_factory) -> Path:
+    """The load as an FMU: its input is the position of the spring's free end, its output
+    the spring tension."""
+    sys = System("load_fmu")
+    drive = sys.add(Position("drive"))
+    spring, _ = _spring_and_mass(sys, LOAD["s_rel0"])
+    sys.connect(drive.flange, spring.flange_a)
+    return export_fmu(sys.flatten(), tmp_path_factory.mktemp("fmu") / "load.fmu")
+
+
+def _muscle(name: str, monolithic: bool):
+    """One APS hanging from the frame with a 50 g load; the load FMU's spring and mass
+    hang below it (``monolithic``) or a force input stands in for them."""
+    sys = System(name)
+    sys.add(Environment())
+    frame = sys.add(Fixed("frame"))
+    reg = sys.add(Regulator("regulator", tau=0.05))
+    myo = Myofibril("myofibril", 1, APSParams.from_paper())
+    mf = sys.add(myo)
+    sys.connect(frame.flange, mf.flange_a)
+    sys.connect(reg.port, mf.port)
+    end = sys.add(Mass("load", m=0.05, s_start=myo.rest_length_expr))
+    sys.connect(mf.flange_b, end.flange_a)
+    if monolithic:
+        spring, _ = _spring_and_mass(sys, myo.rest_length_expr + LOAD["s_rel0"])
+        sys.connect(end.flange_b, spring.flange_a)
+    else:
+        sys.connect(end.flange_b, sys.add(Force("coupling")).flange)
+    return sys.flatten()
+
+
+@pytest.fixture(scope="session")
+def joined(load_fmu):
+    """The muscle (native) and the load FMU, coupled by name, and the monolithic model."""
+    native = _muscle("native", monolithic=False)
+    fmu = import_me(load_fmu)
+    composed = compose(native, fmu, {"drive.s": "load.s", "coupling.f": "spring.f"})
+    return composed, _muscle("monolithic", monolithic=True)
+
+
+def _to_composed(composed, mono, x_mono: np.ndarray) -> np.ndarray:
+    """The monolithic model's states in the composition's order (matched by name)."""
+    names = [n.removeprefix("load_fmu.") for n in composed.state_names]
+    return np.array([x_mono[mono.state_names.index(n)] for n in names])
+
+
+def test_imported_me_fmu_matches_the_model(hanging, hanging_fmu):
+    fmu = import_me(hanging_fmu)
+    assert (fmu.state_names, fmu.input_names) == (hanging.state_names, hanging.input_names)
+    p = hanging.parameters()
+    x = fmu.x0 * (1 + 0.02 * np.arange(hanging.nx))  # off the equilibrium it starts at
+    u = hanging.u0(p) + 2e4
+    native = np.array(hanging.function("ode")(x, [], u, p)).ravel()
+    assert np.max(np.abs(native)) > 1.0  # not an equilibrium
+    xdot = np.array(fmu.ode(x, u)[0]).ravel()
+    np.testing.assert_allclose(xdot, native, rtol=1e-10, atol=1e-10 * np.max(np.abs(native)))
+
+    X, U = cs.MX.sym("x", hanging.nx), cs.MX.sym("u", 1)
+    f = fmu.ode(X, U)[0]
+    jac = cs.Function("AB", [X, U], [cs.jacobian(f, X), cs.jacobian(f, U)])
+    A, B = (np.array(m) for m in jac(x, u))
+    A0, B0, _, _ = (np.array(m) for m in hanging.function("jac")(x, [], u, p))
+    np.testing.assert_allclose(A, A0, rtol=1e-8, atol=1e-8 * np.max(np.abs(A0)))
+    np.testing.assert_allclose(B, B0, rtol=1e-8, atol=1e-8 * np.max(np.abs(B0)))
+
+
+def test_import_refuses_an_unknown_parameter(hanging_fmu):
+    with pytest.raises(ParameterError, match="no_such"):
+        import_me(hanging_fmu, {"no_such.parameter": 1.0})
+
+
+def test_import_sets_parameters_on_the_fmu(hanging, hanging_fmu):
+    p = hanging.parameters({"load.m": 0.08})
+    fmu = import_me(hanging_fmu, {"load.m": 0.08})
+    x, u = fmu.x0, hanging.u0(p)
+    native = np.array(hanging.function("ode")(x, [], u, p)).ravel()
+    np.testing.assert_allclose(np.array(fmu.ode(x, u)[0]).ravel(), native, rtol=1e-12)
+
+
+def test_composition_linearises_at_the_joint_equilibrium(joined):
+    composed, mono = joined
+    eq = solve_equilibrium(mono, {"regulator.p_cmd": P_CMD})
+    x, u = _to_composed(composed, mono, eq.x), np.array([P_CMD])
+    xdot = np.array(composed.rhs(x, u)).ravel()
+    mono_xdot = np.array(mono.function("ode")(eq.x, [], eq.u, mono.parameters())).ravel()
+    np.testing.assert_allclose(xdot, _to_composed(composed, mono, mono_xdot), atol=1e-12)
+
+    X, U = cs.MX.sym("x", len(x)), cs.MX.sym("u", 1)
+    A = np.array(cs.Function("A", [X, U], [cs.jacobian(composed.rhs(X, U), X)])(x, u))
+    h = 1e-6 * _to_composed(composed, mono, mono.nominal("x"))
+    fd = np.column_stack(
+        [
+            (np.array(composed.rhs(x + e, u)) - np.array(composed.rhs(x - e, u))).ravel()
+            / (2 * e[i])
+            for i, e in enumerate(np.diag(h))
+        ]
+    )
+    scale = np.max(np.abs(A), axis=0)  # per column: the states' scales differ by 1e6
+    assert np.max(np.abs(A - fd) / scale) < 1e-6
+    A_mono = np.array(mono.function("jac")(eq.x, [], eq.u, mono.parameters())[0])
+    order = [mono.state_names.index(n.removeprefix("load_fmu.")) for n in composed.state_names]
+    assert np.max(np.abs(A - A_mono[np.ix_(order, order)]) / scale) < 1e-10
+
+
+def test_composition_simulates_like_the_monolithic_model(joined):
+    composed, mono = joined
+    eq = solve_equilibrium(mono, {"regulator.p_cmd": P_CMD})
+    opts = {"abstol": 1e-14, "reltol": 1e-10}
+    X, U = cs.MX.sym("x", len(composed.state_names)), cs.MX.sym("u", 1)
+    sim = cs.integrator("c", "cvodes", {"x": X, "p": U, "ode": composed.rhs(X, U)}, 0, 0.1, opts)
+    x_c = np.array(sim(x0=_to_composed(composed, mono, eq.x), p=2 * P_CMD)["xf"]).ravel()
+
+    xm, p = cs.SX.sym("x", mono.nx), mono.parameters()
+    um = cs.SX.sym("u", 1)
+    ode = mono.function("ode")(xm, cs.SX(0, 1), um, p)
+    sim_m = cs.integrator("m", "cvodes", {"x": xm, "p": um, "ode": ode}, 0, 0.1, opts)
+    x_m = _to_composed(composed, mono, np.array(sim_m(x0=eq.x, p=2 * P_CMD)["xf"]).ravel())
+    moved = np.abs(x_m - _to_composed(composed, mono, eq.x))
+    assert np.min(moved[[composed.state_names.index("load.s")]]) > 1e-4  # the step acts
+    scale = _to_composed(composed, mono, mono.nominal("x"))
+    assert np.max(np.abs(x_c - x_m) / (np.abs(x_m) + scale)) < 1e-6
+    x_m_own = np.array(sim_m(x0=eq.x, p=2 * P_CMD)["xf"]).ravel()
+    tension = mono.function("signals")(x_m_own, [], [2 * P_CMD], p)[
+        mono.signal_names.index("spring.f")
+    ]
+    y = composed.outputs(x_c, 2 * P_CMD)[1]
+    assert float(y) == pytest.approx(float(tension), rel=1e-6)
+
+
+def test_compose_refuses_a_connection_it_cannot_make(load_fmu):
+    native = _muscle("native", monolithic=False)
+    fmu = import_me(load_fmu)
+    with pytest.raises(ModelError, match="load.nope -> drive.s"):
+        compose(native, fmu, {"drive.s": "load.nope"})
+
+
+def test_compose_refuses_an_algebraic_loop(load_fmu):
+    native = _muscle("native", monolithic=False)
+    fmu = import_me(load_fmu)
+    # the force input feeds straight through to the load's acceleration, not to a signal
+    # the model names; the input itself is a signal, so feeding it back is a loop
+    with pytest.raises(ModelError, match="algebraic loop"):
+        compose(native, fmu, {"drive.s": "coupling.f", "coupling.f": "spring.f"})
+
+
+def test_without_directional_derivatives_casadi_falls_back_to_finite_differences(
+    hanging, hanging_fmu, tmp_path
+):
+    """An FMU that declares no directional derivatives: the values stay exact, the Jacobian
+    comes from CasADi's finite differences and is far off on this badly scaled model."""
+    crafted = tmp_path / "no-dd.fmu"
+    with zipfile.ZipFile(hanging_fmu) as src, zipfile.ZipFile(crafted, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "modelDescription.xml":
+                text = data.decode()
+                assert 'providesDirectionalDerivative="true"' in text
+                data = text.replace(
+                    'providesDirectionalDerivative="true"', 'providesDirectionalDerivative="false"'
+                ).encode()
+            dst.writestr(item, data)
+    fmu = import_me(crafted)
+    p = hanging.parameters()
+    x, u = fmu.x0 * 1.01, hanging.u0(p) + 2e4
+    native = np.array(hanging.function("ode")(x, [], u, p)).ravel()
+    np.testing.assert_allclose(np.array(fmu.ode(x, u)[0]).ravel(), native, rtol=1e-12)
+    X, U = cs.MX.sym("x", hanging.nx), cs.MX.sym("u", 1)
+    A = np.array(cs.Function("A", [X, U], [cs.jacobian(fmu.ode(X, U)[0], X)])(x, u))
+    A0 = np.array(hanging.function("jac")(x, [], u, p)[0])
+    assert np.all(np.isfinite(A))
+    assert np.max(np.abs(A - A0) / (1 + np.abs(A0))) > 1e-3
