@@ -282,12 +282,7 @@ def _start_point(newton: _Newton, u: np.ndarray, p: np.ndarray, tol: float, max_
 def _settle(m: Model, u: np.ndarray, p: np.ndarray) -> np.ndarray:
     """The state after SETTLE_TIME_S of the model's own dynamics at constant ``u`` (a
     pseudo-transient start for Newton; CVODES on the flattened ODE, explicit models only)."""
-    uv, pv = cs.SX.sym("u", m.u.numel()), cs.SX.sym("p", m.p.numel())
-    ode = m.function("ode")(m.x, cs.SX(0, 1), uv, pv)
-    dae = {"x": m.x, "p": cs.vertcat(uv, pv), "ode": ode}
-    opts = {"abstol": 1e-10, "reltol": 1e-6, "max_num_steps": 100_000}
-    opts["disable_internal_warnings"] = True
-    F = cs.integrator("settle", "cvodes", dae, 0.0, SETTLE_TIME_S, opts)
+    F = m.cached("equilibrium.settle", lambda: _settle_integrator(m))
     try:
         x = np.array(F(x0=m.x0(p), p=np.concatenate([u, p]))["xf"]).ravel()
     except RuntimeError as exc:
@@ -295,6 +290,16 @@ def _settle(m: Model, u: np.ndarray, p: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(x)):
         raise SolverError("settling gave a non-finite state")
     return x
+
+
+def _settle_integrator(m: Model) -> cs.Function:
+    """CVODES over SETTLE_TIME_S on the model's ODE, with ``p = [u; p]`` (built once per model)."""
+    uv, pv = cs.SX.sym("u", m.u.numel()), cs.SX.sym("p", m.p.numel())
+    ode = m.function("ode")(m.x, cs.SX(0, 1), uv, pv)
+    dae = {"x": m.x, "p": cs.vertcat(uv, pv), "ode": ode}
+    opts = {"abstol": 1e-10, "reltol": 1e-6, "max_num_steps": 100_000}
+    opts["disable_internal_warnings"] = True
+    return cs.integrator("settle", "cvodes", dae, 0.0, SETTLE_TIME_S, opts)
 
 
 def _check_domain(newton: _Newton, w: np.ndarray, u: np.ndarray, p: np.ndarray) -> None:

@@ -294,12 +294,9 @@ class SealedVolume(Component):
         tau_heat: float = math.inf,
     ) -> None:
         super().__init__(name)
-        self.V0, self.A, self.p_start_gauge, self.thermal = V0, A, p_start_gauge, thermal
-        self.tau_heat = tau_heat
+        self.chamber = Chamber("chamber", V0, A, p_start_gauge, thermal, tau_heat)  # checks them
 
     def build(self, b: Builder) -> None:
-        ch = b.add(
-            Chamber("chamber", self.V0, self.A, self.p_start_gauge, self.thermal, self.tau_heat)
-        )
+        ch = b.add(self.chamber)
         b.connect(ch.port, b.add(Cap("cap")).port)
         b.expose("flange", ch.flange)
