@@ -18,25 +18,29 @@ The CLI wires :func:`add_arguments` and :func:`handler` as the ``bench`` subcomm
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from sarcomere.controllers import study as mpc
-from sarcomere.dynamics.studies import stability, workprecision
-
 from .outdir import check_out_dir, staged
 from .output import version
 from .progress import progress
 
-STUDIES = {
+STUDIES = {  # (module holding ``study``, solver line): imported only when run
     "work-precision": (
-        workprecision.study,
+        "sarcomere.dynamics.studies.workprecision",
         "cvodes (reference: rtol 1e-12) against rk4, radau_fixed, collocation and scipy",
     ),
-    "stability": (stability.study, "rk4 and euler (reference: cvodes rtol 1e-10)"),
-    "mpc": (mpc.study, "plant cvodes rtol 1e-6; NMPC rti/ipopt/fatrop, LMPC daqp, plain Opti"),
+    "stability": (
+        "sarcomere.dynamics.studies.stability",
+        "rk4 and euler (reference: cvodes rtol 1e-10)",
+    ),
+    "mpc": (
+        "sarcomere.controllers.study",
+        "plant cvodes rtol 1e-6; NMPC rti/ipopt/fatrop, LMPC daqp, plain Opti",
+    ),
 }
 
 
@@ -51,7 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def handler(args: argparse.Namespace) -> int:
     """Run the study, write its files and ``summary.json``; print one line per file."""
-    run, solver = STUDIES[args.study]
+    module, solver = STUDIES[args.study]
+    run = importlib.import_module(module).study
     folder = check_out_dir(args.out, "--out")
     with staged(folder) as tmp:
         tic = time.perf_counter()

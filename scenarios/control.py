@@ -37,9 +37,6 @@ from pathlib import Path
 
 import numpy as np
 
-from sarcomere.controllers import CONTROLLERS, make_controller, operating_point
-from sarcomere.controllers.loop import Disturbance, run_closed_loop
-from sarcomere.controllers.metrics import UNIT_SCALES
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.units import to_si
 
@@ -127,6 +124,11 @@ def _builder(b: Binding):
 
 def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     """Run every ``[control.controllers]`` entry on the same plant and reference."""
+    # imported here: python-control and scipy.signal cost about 1 s, paid by control scenes only
+    from sarcomere.controllers import CONTROLLERS, make_controller, operating_point
+    from sarcomere.controllers.loop import Disturbance, run_closed_loop
+    from sarcomere.controllers.metrics import UNIT_SCALES
+
     sc.refuse_unused("inputs", "sweep", "outputs.tolerance", "cosim")
     b = bind(sc)
     fid = _fidelity(sc, allow_auto=False)

@@ -22,10 +22,8 @@ import math
 from datetime import UTC, datetime
 from pathlib import Path
 
-import control as ct
 import numpy as np
 
-from sarcomere.controllers.linearize import classify_poles, linearize, operating_point
 from sarcomere.dynamics.errors import ScenarioError
 from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.units import to_si
@@ -66,6 +64,8 @@ def _pressure(sc, given: str | None) -> float:
 def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs=None) -> dict:
     """Linearise the scene's model and write the files into ``out_dir`` (which exists);
     returns the summary metrics."""
+    from sarcomere.controllers.linearize import classify_poles, linearize, operating_point
+
     sc = load_scenario(source)
     if sc.kind == "static":
         raise ScenarioError(
@@ -143,11 +143,13 @@ def _mode_line(r: dict) -> str:
     return f"{r['mode']} ({r['dominant_state']}): {r['real_1_s']:.4g}{imag} 1/s"
 
 
-def _bode(sys: ct.StateSpace, outs: list[str], path: Path, title: str) -> None:
+def _bode(sys, outs: list[str], path: Path, title: str) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: CLI start-up
     from matplotlib.figure import Figure
 
     w = np.logspace(math.log10(2 * math.pi * 0.05), math.log10(2 * math.pi * 2000), 400)
+    import control as ct
+
     resp = ct.frequency_response(sys, w)
     mag = np.abs(resp.complex).reshape(len(outs), -1)
     phase = np.unwrap(np.angle(resp.complex).reshape(len(outs), -1), axis=1)

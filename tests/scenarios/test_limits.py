@@ -1,7 +1,9 @@
 """Limits are checked at once, with the numbers; long runs show progress on a terminal."""
 
 import io
+import sys
 import time
+import types
 
 import pytest
 
@@ -88,7 +90,10 @@ def test_bench_shows_progress_on_a_terminal(tmp_path, monkeypatch, capsys):
         time.sleep(0.3)
         return {"metrics": {}, "files": []}
 
-    monkeypatch.setitem(bench.STUDIES, "stability", (study, "test"))
+    fake = types.ModuleType("fake_study")
+    fake.study = study
+    monkeypatch.setitem(sys.modules, "fake_study", fake)
+    monkeypatch.setitem(bench.STUDIES, "stability", ("fake_study", "test"))
     monkeypatch.setattr("sarcomere.scenarios.progress.DELAY_S", 0.05)
     terminal = _Terminal()
     monkeypatch.setattr("sys.stderr", terminal)
