@@ -6,6 +6,10 @@ through a first-order filter ``D = -kd s / (tf s + 1) y``, discretised by backwa
 Anti-windup by back-calculation: the integral is corrected by ``dt / tt (u - v)`` where
 ``v`` is the unclamped command, so it stops growing while the command is saturated.
 
+The law is one CasADi Function (:func:`pid_law`), the one source of truth: :class:`PID`
+evaluates it every sample, and the controller FMU (:mod:`sarcomere.fmu.controller`)
+generates its C code from it.
+
 Gains are in the plant's units (Pa per m for length control): a chain shortens as the
 pressure rises, so length control has negative gains. Left out, ``kp`` and ``ki`` come
 from the linearisation at the operating point (:func:`imc_gains`).
@@ -27,10 +31,12 @@ True
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 
+import casadi as cs
 import control as ct
 import numpy as np
 
@@ -69,6 +75,38 @@ class PIDGains:
     tt: float = 0.1
 
 
+STATE_NAMES = ("integral", "derivative", "last_measurement", "started")
+"""The law's state: the integral and the filtered derivative [input unit], the last
+measurement [output unit] and whether a sample was taken (0 or 1)."""
+
+LAW_PARAMETERS = ("kp", "ki", "kd", "tf", "tt", "u_min", "u_max", "bias")
+"""The law's parameters: the :class:`PIDGains` fields, the input's bounds and the bias."""
+
+
+@functools.cache
+def pid_law(dt: float) -> cs.Function:
+    """One sample of the PID law at the sample time ``dt`` [s]:
+    ``pid(state[4], r, y, g[8]) -> (next state, u)``, with ``state`` as
+    :data:`STATE_NAMES` and ``g`` as :data:`LAW_PARAMETERS` (SI)."""
+    state, r, y = cs.SX.sym("state", 4), cs.SX.sym("r"), cs.SX.sym("y")
+    g = cs.SX.sym("g", len(LAW_PARAMETERS))
+    kp, ki, kd, tf, tt, u_min, u_max, bias = cs.vertsplit(g)
+    integral, deriv, y_last, started = cs.vertsplit(state)
+    e = r - y
+    dy = cs.if_else(started > 0.5, y - y_last, 0.0)  # no derivative kick at the first sample
+    deriv = (tf * deriv - kd * dy) / (tf + dt)
+    v = bias + kp * e + integral + deriv
+    u = cs.fmin(cs.fmax(v, u_min), u_max)
+    integral = integral + ki * dt * e + dt / tt * (u - v)
+    return cs.Function(
+        "pid",
+        [state, r, y, g],
+        [cs.vertcat(integral, deriv, y, 1.0), u],
+        ["state", "r", "y", "g"],
+        ["next", "u"],
+    )
+
+
 class PID(Controller):
     """PID on one output and one input (see the module docstring)."""
 
@@ -92,26 +130,25 @@ class PID(Controller):
         self.gains = gains
         self.output, self.input = output, input
         self.bias = 0.0
-        self._state = np.zeros(3)  # integral, filtered derivative, last measurement
+        self._law = pid_law(self.dt)
+        self._state = np.zeros(len(STATE_NAMES))
 
     def reset(self, u0: Mapping[str, float]) -> None:
         """Start from the held input ``u0`` (the bias), integral and derivative zero."""
         super().reset(u0)
         self.bias = float(u0[self.input])
-        self._state = np.array([0.0, 0.0, math.nan])
+        self._state = np.zeros(len(STATE_NAMES))
+
+    def law_parameters(self, bias: float) -> np.ndarray:
+        """The parameter vector ``g`` of :func:`pid_law` (:data:`LAW_PARAMETERS`)."""
+        lo, hi = self.u_min[self.input], self.u_max[self.input]
+        return np.array([*astuple(self.gains), lo, hi, bias], dtype=float)
 
     def law(self, state: np.ndarray, r: float, y: float, bias: float) -> tuple[np.ndarray, float]:
-        """One sample of the law: ``(state, r, y, bias) -> (next state, u)``; ``state``
-        is (integral, filtered derivative, last y; NaN before the first sample)."""
-        g, dt = self.gains, self.dt
-        integral, deriv, y_last = state
-        e = r - y
-        dy = 0.0 if math.isnan(y_last) else y - y_last
-        deriv = (g.tf * deriv - g.kd * dy) / (g.tf + dt)
-        v = bias + g.kp * e + integral + deriv
-        u = min(max(v, self.u_min[self.input]), self.u_max[self.input])
-        integral += g.ki * dt * e + dt / g.tt * (u - v)
-        return np.array([integral, deriv, y]), u
+        """One sample of :func:`pid_law`: ``(state, r, y, bias) -> (next state, u)``;
+        ``state`` as :data:`STATE_NAMES` (zeros before the first sample)."""
+        nxt, u = self._law(state, r, y, self.law_parameters(bias))
+        return np.array(nxt, dtype=float).ravel(), float(u)
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         self._state, u = self.law(self._state, r[self.output], y[self.output], self.bias)
@@ -136,7 +173,7 @@ class PID(Controller):
             lambda t, x, u, params: np.array([step(t, x, u, params)[1] - u_op]),
             inputs=["reference", to_label(self.output)],
             outputs=[to_label(self.input)],
-            states=["integral", "derivative", "y_last"],
+            states=list(STATE_NAMES),
             dt=self.dt,
             name="pid",
         )
