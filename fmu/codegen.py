@@ -130,10 +130,9 @@ def radau_step(model: Model, points: int = RADAU_POINTS) -> cs.Function:
     )
 
 
-def generate(model: Model, folder: Path) -> Generated:
-    """Write ``sm_casadi.c`` and ``sm_casadi.h`` into ``folder``; the work sizes are the
-    largest over the Functions."""
-    funcs = functions(model)
+def generate(funcs: list[cs.Function], folder: Path) -> Generated:
+    """Write ``funcs`` (e.g. :func:`functions`) as ``sm_casadi.c`` and ``sm_casadi.h`` into
+    ``folder``; the work sizes are the largest over the Functions."""
     gen = cs.CodeGenerator("sm_casadi.c", {"with_header": True, "casadi_int": "long long int"})
     for f in funcs:
         gen.add(f)

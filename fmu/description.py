@@ -12,7 +12,6 @@ import math
 import xml.etree.ElementTree as ET
 from importlib import metadata
 
-import casadi as cs
 import pint
 
 from sarcomere.dynamics.errors import ParameterError
@@ -64,19 +63,10 @@ def _num(v: float) -> str:
     return repr(float(v))
 
 
-def _dependencies(lay, expr: cs.SX, base: int) -> list[str]:
-    """For each row of ``expr``: the states and inputs it uses, as value references plus
-    ``base`` (1: FMI 2.0 ScalarVariable indices; 0: FMI 3.0 value references)."""
-    m = lay.model
-    known = cs.vertcat(m.x, m.u)
-    columns = list(range(base, m.nx + base))
-    first_u = lay.first("u") + base
-    columns += list(range(first_u, first_u + len(m.input_names)))
-    sp = cs.jacobian(expr, known).sparsity()
-    rows: list[list[int]] = [[] for _ in range(expr.numel())]
-    for r, c in zip(sp.row(), sp.get_col(), strict=True):
-        rows[r].append(columns[c])
-    return [" ".join(str(i) for i in sorted(r)) for r in rows]
+def _dependencies(deps: list[list[int]], base: int) -> list[str]:
+    """Value references as the attribute text, plus ``base`` (1: FMI 2.0 ScalarVariable
+    indices; 0: FMI 3.0 value references)."""
+    return [" ".join(str(i + base) for i in row) for row in deps]
 
 
 def _text(root: ET.Element) -> str:
@@ -102,12 +92,11 @@ def build_description(ident: str, sources) -> str:
 
 
 def _header(lay, version_attrs: dict, guid_key: str, guid: str) -> ET.Element:
-    m = lay.model
     attrs = {
         **version_attrs,
-        "modelName": m.name,
+        "modelName": lay.name,
         guid_key: guid,
-        "description": m.describe(),
+        "description": lay.text,
         "generationTool": f"sarcomere {metadata.version('sarcomere')}",
         "variableNamingConvention": "structured",
     }
@@ -141,7 +130,7 @@ def _type_attrs(lay, i: int, row: tuple, fmi_version: int) -> dict:
     name, group, unit, start, low, high, nominal, _ = row
     attrs = {"unit": unit}
     if group == "der":
-        nx = lay.model.nx
+        nx = lay.count("x")
         attrs["derivative"] = str(i - nx + (1 if fmi_version == 2 else 0))
     if math.isfinite(low):
         attrs["min"] = _num(low)
@@ -157,32 +146,37 @@ def _type_attrs(lay, i: int, row: tuple, fmi_version: int) -> dict:
 def _var_attrs(lay, i: int, row: tuple, vr_key: str) -> dict:
     name, group, *_, text = row
     attrs = {"name": name, vr_key: str(i), "description": text, "causality": _CAUSALITY[group]}
+    sampled = lay.sample_period is not None
     if group == "p":
         attrs["variability"] = "tunable" if name in lay.tunable else "fixed"
+    elif sampled and group in ("x", "y"):
+        attrs["variability"] = "discrete"  # changes at the sample instants only
     else:
         attrs["variability"] = "continuous"
     if group == "x":
-        attrs["initial"] = "approx"
+        attrs["initial"] = "exact" if sampled else "approx"
     elif group == "p":
         attrs["initial"] = "exact"
     return attrs
 
 
+def _interfaces(lay) -> tuple[str, ...]:
+    """A sampled system has no continuous-time form: Co-Simulation only."""
+    return ("CoSimulation",) if lay.sample_period is not None else ("ModelExchange", "CoSimulation")
+
+
 def _fmi2(lay, ident: str, guid: str, sources, experiment) -> ET.Element:
-    m = lay.model
     root = _header(lay, {"fmiVersion": "2.0"}, "guid", guid)
     root.set("numberOfEventIndicators", "0")
     caps = {
         "modelIdentifier": ident,
-        "providesDirectionalDerivative": "true",
+        "providesDirectionalDerivative": str(lay.sample_period is None).lower(),
         "canGetAndSetFMUstate": "true",
         "canSerializeFMUstate": "true",
         "canNotUseMemoryManagementFunctions": "true",
     }
-    for kind, extra in (
-        ("ModelExchange", {}),
-        ("CoSimulation", {"canHandleVariableCommunicationStepSize": "true"}),
-    ):
+    for kind in _interfaces(lay):
+        extra = {"canHandleVariableCommunicationStepSize": "true"} if kind == "CoSimulation" else {}
         el = ET.SubElement(root, kind, {**caps, **extra})
         files = ET.SubElement(el, "SourceFiles")
         for f in sources:
@@ -195,34 +189,41 @@ def _fmi2(lay, ident: str, guid: str, sources, experiment) -> ET.Element:
         sv = ET.SubElement(mv, "ScalarVariable", _var_attrs(lay, i, row, "valueReference"))
         ET.SubElement(sv, "Real", _type_attrs(lay, i, row, 2))
     ms = ET.SubElement(root, "ModelStructure")
-    nothing = cs.SX(0, 1)
-    y_dep = _dependencies(lay, m.function("y")(m.x, nothing, m.u, m.p), 1)
-    f_dep = _dependencies(lay, m.function("ode")(m.x, nothing, m.u, m.p), 1)
-    first_y, first_der = lay.first("y"), lay.first("der")
+    first_y = lay.first("y")
     outs = ET.SubElement(ms, "Outputs")
-    for k, dep in enumerate(y_dep):
+    for k, dep in enumerate(_dependencies(lay.y_dep, 1)):
         ET.SubElement(outs, "Unknown", {"index": str(first_y + k + 1), "dependencies": dep})
-    ders = ET.SubElement(ms, "Derivatives")
-    for k, dep in enumerate(f_dep):
-        ET.SubElement(ders, "Unknown", {"index": str(first_der + k + 1), "dependencies": dep})
+    if lay.f_dep:
+        first_der = lay.first("der")
+        ders = ET.SubElement(ms, "Derivatives")
+        for k, dep in enumerate(_dependencies(lay.f_dep, 1)):
+            attrs = {"index": str(first_der + k + 1), "dependencies": dep}
+            ET.SubElement(ders, "Unknown", attrs)
     init = ET.SubElement(ms, "InitialUnknowns")
     for i, row in enumerate(lay.variables):
-        if row[1] in ("x", "der", "y"):
+        if row[1] in _initial_unknowns(lay):
             ET.SubElement(init, "Unknown", {"index": str(i + 1)})
     return root
 
 
+def _initial_unknowns(lay) -> tuple[str, ...]:
+    """Groups computed at initialisation (a sampled system's states start as given)."""
+    return ("y",) if lay.sample_period is not None else ("x", "der", "y")
+
+
 def _fmi3(lay, ident: str, guid: str, experiment) -> ET.Element:
-    m = lay.model
     root = _header(lay, {"fmiVersion": "3.0"}, "instantiationToken", guid)
     caps = {
         "modelIdentifier": ident,
-        "providesDirectionalDerivatives": "true",
+        "providesDirectionalDerivatives": str(lay.sample_period is None).lower(),
         "canGetAndSetFMUState": "true",
         "canSerializeFMUState": "true",
     }
-    ET.SubElement(root, "ModelExchange", {**caps, "needsCompletedIntegratorStep": "true"})
-    ET.SubElement(root, "CoSimulation", {**caps, "canHandleVariableCommunicationStepSize": "true"})
+    for kind in _interfaces(lay):
+        extra = {"canHandleVariableCommunicationStepSize": "true"}
+        if kind == "ModelExchange":
+            extra = {"needsCompletedIntegratorStep": "true"}
+        ET.SubElement(root, kind, {**caps, **extra})
     _units(root, lay, ("s",))
     _log_categories(root)
     _experiment(root, experiment)
@@ -235,16 +236,13 @@ def _fmi3(lay, ident: str, guid: str, experiment) -> ET.Element:
     time.update(causality="independent", variability="continuous", unit="s")
     ET.SubElement(mv, "Float64", {**time, "description": "simulation time"})
     ms = ET.SubElement(root, "ModelStructure")
-    nothing = cs.SX(0, 1)
-    y_dep = _dependencies(lay, m.function("y")(m.x, nothing, m.u, m.p), 0)
-    f_dep = _dependencies(lay, m.function("ode")(m.x, nothing, m.u, m.p), 0)
-    first_y, first_der = lay.first("y"), lay.first("der")
-    for k, dep in enumerate(y_dep):
+    first_y = lay.first("y")
+    for k, dep in enumerate(_dependencies(lay.y_dep, 0)):
         ET.SubElement(ms, "Output", {"valueReference": str(first_y + k), "dependencies": dep})
-    for k, dep in enumerate(f_dep):
-        attrs = {"valueReference": str(first_der + k), "dependencies": dep}
+    for k, dep in enumerate(_dependencies(lay.f_dep, 0)):
+        attrs = {"valueReference": str(lay.first("der") + k), "dependencies": dep}
         ET.SubElement(ms, "ContinuousStateDerivative", attrs)
     for i, row in enumerate(lay.variables):
-        if row[1] in ("x", "der", "y"):
+        if row[1] in _initial_unknowns(lay):
             ET.SubElement(ms, "InitialUnknown", {"valueReference": str(i)})
     return root

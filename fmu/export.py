@@ -58,6 +58,11 @@ EQ_MIN_FRACTION = 1.0 / 1024
 """Smallest continuation step of the initial equilibrium in C (fraction of the way from
 the exported operating point to the inputs and parameters set)."""
 
+SAMPLE_TOL = 1e-6
+"""A sampled system's instant ``k T`` lies in a ``doStep`` interval ``[t, t + h)`` when
+``t / T - SAMPLE_TOL <= k < (t + h) / T - SAMPLE_TOL`` [-, fraction of a period]: times
+that accumulate rounding errors still hit their sample."""
+
 C_SOURCES = ("physics.c", "instance.c")
 C_HEADERS = ("physics.h", "instance.h")
 
@@ -77,21 +82,34 @@ class Experiment:
 
 @dataclass(frozen=True)
 class Layout:
-    """Every FMU variable in value-reference order, with its metadata.
+    """Every FMU variable in value-reference order, with its metadata: all the model
+    description and the C tables need.
 
     Each row of ``variables`` is ``(name, group, unit, start, low, high, nominal,
     description)``; ``group`` is "x" (state), "der" (its derivative), "u", "y" or "p".
     ``start`` is None where the variable has no start value (derivatives, outputs).
     ``tunable``: the parameters no start value depends on (see :func:`tunable`).
+    ``y_dep``, ``f_dep``: for each output and each derivative, the value references of
+    the states and inputs it depends on. ``sample_period`` [s]: None for a continuous
+    model, else the period of a sampled system (discrete states, no derivatives,
+    Co-Simulation only; :mod:`.sampled`).
     """
 
-    model: Model
+    name: str
+    text: str
     variables: list[tuple] = field(default_factory=list)
     tunable: frozenset[str] = frozenset()
+    y_dep: list[list[int]] = field(default_factory=list)
+    f_dep: list[list[int]] = field(default_factory=list)
+    sample_period: float | None = None
 
     def first(self, group: str) -> int:
         """Value reference of the first variable of ``group``."""
         return next(i for i, v in enumerate(self.variables) if v[1] == group)
+
+    def count(self, group: str) -> int:
+        """How many variables ``group`` has."""
+        return sum(v[1] == group for v in self.variables)
 
 
 def _derivative_unit(unit: str) -> str:
@@ -109,6 +127,18 @@ def tunable(model: Model) -> frozenset[str]:
     starts = cs.vertcat(*model.function("start")(model.p))
     used = set(cs.jacobian(starts, model.p).sparsity().get_col())
     return frozenset(n for i, n in enumerate(model.param_names) if i not in used)
+
+
+def dependencies(model: Model, expr: cs.SX, first_u: int) -> list[list[int]]:
+    """For each row of ``expr``: the value references of the states and inputs it uses
+    (from the sparsity of its exact Jacobian); the inputs start at ``first_u``."""
+    known = cs.vertcat(model.x, model.u)
+    columns = [*range(model.nx), *range(first_u, first_u + len(model.input_names))]
+    sp = cs.jacobian(expr, known).sparsity()
+    rows: list[list[int]] = [[] for _ in range(expr.numel())]
+    for r, c in zip(sp.row(), sp.get_col(), strict=True):
+        rows[r].append(columns[c])
+    return [sorted(r) for r in rows]
 
 
 def layout(model: Model, x0: np.ndarray, u0: np.ndarray, p: np.ndarray) -> Layout:
@@ -131,7 +161,11 @@ def layout(model: Model, x0: np.ndarray, u0: np.ndarray, p: np.ndarray) -> Layou
     for i, n in enumerate(m.param_names):
         v = m.variables[n]
         rows.append((n, "p", v.unit, p[i], v.low, v.high, v.nominal, v.description))
-    return Layout(m, rows, tunable(m))
+    nothing = cs.SX(0, 1)
+    first_u = 2 * m.nx
+    y_dep = dependencies(m, m.function("y")(m.x, nothing, m.u, m.p), first_u)
+    f_dep = dependencies(m, m.function("ode")(m.x, nothing, m.u, m.p), first_u)
+    return Layout(m.name, m.describe(), rows, tunable(m), y_dep, f_dep)
 
 
 def _c_double(v: float) -> str:
@@ -154,18 +188,24 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
 
     The tables have one row more than the variables: ``time``, value reference
     ``SM_VR_TIME``, a variable of the FMI 3.0 description only (``SM_HAS_TIME_VR``)."""
-    m = lay.model
-    nx, nu, ny, np_ = m.nx, len(m.input_names), len(m.output_names), len(m.param_names)
+    nx, nder, nu = lay.count("x"), lay.count("der"), lay.count("u")
+    ny, np_ = lay.count("y"), lay.count("p")
+    sampled = lay.sample_period is not None
     defines = {
+        "SM_MODEL_NAME": _c_string(lay.name),
+        "SM_SAMPLED": int(sampled),
+        "SM_SAMPLE_PERIOD": repr(lay.sample_period or 0.0),
+        "SM_SAMPLE_TOL": repr(SAMPLE_TOL),
+        "SM_ADVANCE_UNIT": _c_string("samples" if sampled else "Radau substeps"),
         "SM_NX": nx,
         "SM_NU": nu,
         "SM_NY": ny,
         "SM_NP": np_,
         "SM_VR_X": 0,
         "SM_VR_DER": nx,
-        "SM_VR_U": 2 * nx,
-        "SM_VR_Y": 2 * nx + nu,
-        "SM_VR_P": 2 * nx + nu + ny,
+        "SM_VR_U": nx + nder,
+        "SM_VR_Y": nx + nder + nu,
+        "SM_VR_P": nx + nder + nu + ny,
         "SM_NVARS": len(lay.variables),
         "SM_VR_TIME": len(lay.variables),
         "SM_HAS_TIME_VR": int(fmi_version == 3),
@@ -182,7 +222,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         "SM_EQ_MIN_FRACTION": repr(EQ_MIN_FRACTION),
     }
     h = [
-        f"/* Generated by sarcomere for model '{m.name}': sizes and tables of the FMU. */",
+        f"/* Generated by sarcomere for model '{lay.name}': sizes and tables of the FMU. */",
         "#ifndef SM_MODEL_DATA_H",
         "#define SM_MODEL_DATA_H",
         "",
@@ -205,7 +245,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
     rows = lay.variables
     group = {g: [r for r in rows if r[1] == g] for g in ("x", "u", "p")}
     c = [
-        f"/* Generated by sarcomere for model '{m.name}': the variable tables. */",
+        f"/* Generated by sarcomere for model '{lay.name}': the variable tables. */",
         "#include <math.h>",
         "",
         '#include "model_data.h"',
@@ -223,7 +263,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
 
 
 def _guid(lay: Layout, fmi_version: int) -> str:
-    text = repr((lay.model.name, fmi_version, lay.variables)).encode()
+    text = repr((lay.name, fmi_version, lay.variables, lay.sample_period)).encode()
     return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, hashlib.sha256(text).hexdigest())) + "}"
 
 
@@ -337,13 +377,25 @@ def export_fmu(
             raise ParameterError("model", model.name, f"a model with {what}")
     x0, u0, p = start_point(model, params, inputs)
     lay = layout(model, x0, u0, p)
+    return build(lay, codegen.functions(model), path, fmi_version, experiment or Experiment())
+
+
+def build(
+    lay: Layout,
+    functions: list[cs.Function],
+    path: Path,
+    fmi_version: int,
+    experiment: Experiment,
+) -> Path:
+    """Generate, compile and zip the FMU of ``lay`` whose physics are ``functions`` (the
+    generated ``sm_*`` Functions :file:`physics.c` calls) into ``path``."""
     guid = _guid(lay, fmi_version)
-    ident = model.name
+    ident = lay.name
     with tempfile.TemporaryDirectory(prefix="sarcomere-fmu-") as tmp:
         root = Path(tmp)
         src = root / "sources"
         src.mkdir()
-        gen = codegen.generate(model, src)
+        gen = codegen.generate(functions, src)
         header, data = model_data(lay, gen, guid, fmi_version)
         (src / "model_data.h").write_text(header)
         (src / "model_data.c").write_text(data)
@@ -351,9 +403,7 @@ def export_fmu(
         for name in (*C_SOURCES, *C_HEADERS, f"fmi{fmi_version}.c"):
             (src / name).write_text(templates.joinpath(name).read_text())
         sources = [*C_SOURCES, f"fmi{fmi_version}.c", "sm_casadi.c", "model_data.c"]
-        xml = description.model_description(
-            lay, fmi_version, ident, guid, sources, experiment or Experiment()
-        )
+        xml = description.model_description(lay, fmi_version, ident, guid, sources, experiment)
         (root / "modelDescription.xml").write_text(xml)
         if fmi_version == 3:
             (src / "buildDescription.xml").write_text(description.build_description(ident, sources))

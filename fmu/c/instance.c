@@ -164,6 +164,7 @@ SmStatus sm_set_logging(SmInstance* inst, int on, size_t n, const char* const* c
 void sm_reset(SmInstance* inst) {
     inst->v.owner = sm_owner;
     inst->v.t = 0.0;
+    inst->v.t_start = 0.0;
     memcpy(inst->v.x, sm_x_start, sizeof inst->v.x);
     memcpy(inst->v.u, sm_u_start, sizeof inst->v.u);
     memcpy(inst->v.p, sm_p_start, sizeof inst->v.p);
@@ -175,6 +176,17 @@ void sm_reset(SmInstance* inst) {
 
 SmInstance* sm_new(const char* name, int cosim, SmLogger log, SmCallback callback, void* log_env,
                    int logging_on) {
+    if (!cosim && SM_SAMPLED) { /* no continuous-time form: Model Exchange is refused */
+        char msg[SM_MSG];
+        snprintf(msg, sizeof msg,
+                 "instantiate: '%s' is a sampled system (period %g s): Co-Simulation only, no "
+                 "Model Exchange",
+                 SM_MODEL_NAME, SM_SAMPLE_PERIOD);
+        if (log != NULL && callback != NULL) {
+            log(callback, log_env, name, SM_ERROR, "logStatusError", msg);
+        }
+        return NULL;
+    }
     SmInstance* inst = calloc(1, sizeof *inst);
     if (inst == NULL) return NULL;
     inst->name = malloc(strlen(name) + 1);
@@ -212,6 +224,7 @@ SmStatus sm_setup(SmInstance* inst, double start_time) {
         return SM_ERROR;
     }
     inst->v.t = start_time;
+    inst->v.t_start = start_time;
     return SM_OK;
 }
 
@@ -375,7 +388,8 @@ SmStatus sm_do_step(SmInstance* inst, double t, double h) {
         return SM_ERROR;
     }
     memcpy(x, inst->v.x, sizeof x);
-    if (sm_advance(&inst->wk, x, inst->v.u, inst->v.p, h, &inst->substeps, msg)) {
+    if (sm_advance(&inst->wk, x, inst->v.u, inst->v.p, t - inst->v.t_start, h, &inst->substeps,
+                   msg)) {
         return sm_fail(inst, "doStep from t = %.9g s: %s", t, msg);
     }
     if (sm_check_domain(&inst->wk, x, inst->v.u, inst->v.p, msg)) {
@@ -383,8 +397,8 @@ SmStatus sm_do_step(SmInstance* inst, double t, double h) {
     }
     memcpy(inst->v.x, x, sizeof x);
     inst->v.t = t + h;
-    sm_log(inst, SM_OK, SM_LOG_SOLVER, "doStep to t = %.9g s: %ld Radau substeps", inst->v.t,
-           inst->substeps);
+    sm_log(inst, SM_OK, SM_LOG_SOLVER, "doStep to t = %.9g s: %ld %s", inst->v.t, inst->substeps,
+           SM_ADVANCE_UNIT);
     return SM_OK;
 }
 
@@ -463,6 +477,10 @@ SmStatus sm_get_directional(SmInstance* inst, const unsigned* unknown, size_t n_
         !check_vrs(inst, unknown, n_unknown, sensitivity, f)) {
         return SM_ERROR;
     }
+    if (SM_SAMPLED) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "%s: a sampled system has no derivatives", f);
+        return SM_ERROR;
+    }
     for (size_t i = 0; i < n_known; i++) {
         unsigned r = known[i];
         if (r < SM_VR_DER) {
@@ -520,9 +538,9 @@ SmStatus sm_set_state(SmInstance* inst, const SmValues* state) {
     return SM_OK;
 }
 
-/* Layout: magic, GUID, then the doubles t, x, u, p and three ints as doubles. */
-#define SM_MAGIC "sarcomere-fmu-state-1"
-#define SM_N_DOUBLES (1 + SM_NX + SM_NU + SM_NP + 3)
+/* Layout: magic, GUID, then the doubles t, t_start, x, u, p and three ints as doubles. */
+#define SM_MAGIC "sarcomere-fmu-state-2"
+#define SM_N_DOUBLES (2 + SM_NX + SM_NU + SM_NP + 3)
 
 size_t sm_serialized_size(void) {
     return sizeof SM_MAGIC + sizeof SM_GUID + SM_N_DOUBLES * sizeof(double);
@@ -536,9 +554,10 @@ SmStatus sm_serialize(SmInstance* inst, const SmValues* s, char* bytes, size_t s
         return SM_ERROR;
     }
     d[0] = s->t;
-    memcpy(d + 1, s->x, sizeof s->x);
-    memcpy(d + 1 + SM_NX, s->u, sizeof s->u);
-    memcpy(d + 1 + SM_NX + SM_NU, s->p, sizeof s->p);
+    d[1] = s->t_start;
+    memcpy(d + 2, s->x, sizeof s->x);
+    memcpy(d + 2 + SM_NX, s->u, sizeof s->u);
+    memcpy(d + 2 + SM_NX + SM_NU, s->p, sizeof s->p);
     d[SM_N_DOUBLES - 3] = s->mode;
     d[SM_N_DOUBLES - 2] = s->x_given;
     d[SM_N_DOUBLES - 1] = s->x_solved;
@@ -568,11 +587,11 @@ SmValues* sm_deserialize(SmInstance* inst, const char* bytes, size_t size) {
         why = "unknown mode";
     }
     for (int i = 0; i < SM_NP && why == NULL; i++) {
-        double v = d[1 + SM_NX + SM_NU + i];
+        double v = d[2 + SM_NX + SM_NU + i];
         if (v < sm_min[SM_VR_P + i] || v > sm_max[SM_VR_P + i]) why = "a parameter out of range";
     }
     for (int i = 0; i < SM_NU && why == NULL; i++) {
-        double v = d[1 + SM_NX + i];
+        double v = d[2 + SM_NX + i];
         if (v < sm_min[SM_VR_U + i] || v > sm_max[SM_VR_U + i]) why = "an input out of range";
     }
     if (why != NULL) {
@@ -586,9 +605,10 @@ SmValues* sm_deserialize(SmInstance* inst, const char* bytes, size_t size) {
     }
     s->owner = sm_owner;
     s->t = d[0];
-    memcpy(s->x, d + 1, sizeof s->x);
-    memcpy(s->u, d + 1 + SM_NX, sizeof s->u);
-    memcpy(s->p, d + 1 + SM_NX + SM_NU, sizeof s->p);
+    s->t_start = d[1];
+    memcpy(s->x, d + 2, sizeof s->x);
+    memcpy(s->u, d + 2 + SM_NX, sizeof s->u);
+    memcpy(s->p, d + 2 + SM_NX + SM_NU, sizeof s->p);
     s->mode = mode;
     s->x_given = d[SM_N_DOUBLES - 2] != 0;
     s->x_solved = d[SM_N_DOUBLES - 1] != 0;

@@ -37,6 +37,7 @@ typedef void (*SmLogger)(SmCallback callback, void* env, const char* instance, S
 typedef struct {
     const char* owner; /* the tag of the FMU that made it: a foreign state is refused */
     double t;
+    double t_start; /* setupExperiment's start time: sample instants count from it */
     double x[SM_NX];
     double u[SM_NU];
     double p[SM_NP];
@@ -53,7 +54,7 @@ typedef struct {
     void* log_env;
     int categories;
     SmValues v;
-    long substeps; /* Radau substeps of the last doStep */
+    long substeps; /* Radau substeps (or samples, a sampled system) of the last doStep */
     SmWork wk;
 } SmInstance;
 

@@ -1,5 +1,6 @@
 /* The physics interface (physics.h) on top of the CasADi-generated functions. Numerics
- * only: the continuation of the equilibrium and the substeps of the Radau step. */
+ * only: the continuation of the equilibrium and the substeps of the Radau step, or the
+ * sample instants of a sampled system. */
 #include "physics.h"
 
 #include <math.h>
@@ -24,24 +25,10 @@ static int call(SmWork* wk, SmFunction f, int n_arg, const double** arg, int n_r
     return f(wk->arg, wk->res, wk->iw, wk->w, 0);
 }
 
-int sm_derivatives(SmWork* wk, const double* x, const double* u, const double* p, double* xdot) {
-    const double* arg[] = {x, u, p};
-    double* res[] = {xdot};
-    return call(wk, sm_ode, 3, arg, 1, res) || !all_finite(xdot, SM_NX);
-}
-
 int sm_outputs(SmWork* wk, const double* x, const double* u, const double* p, double* y) {
     const double* arg[] = {x, u, p};
     double* res[] = {y};
     return call(wk, sm_out, 3, arg, 1, res) || !all_finite(y, SM_NY);
-}
-
-int sm_directional(SmWork* wk, const double* x, const double* u, const double* p,
-                   const double* dx, const double* du, double* dxdot, double* dy) {
-    const double* arg[] = {x, u, p, dx, du};
-    double* res[] = {dxdot, dy};
-    return call(wk, sm_fwd, 5, arg, 2, res) || !all_finite(dxdot, SM_NX) ||
-           !all_finite(dy, SM_NY);
 }
 
 int sm_check_domain(SmWork* wk, const double* x, const double* u, const double* p, char* msg) {
@@ -66,6 +53,71 @@ int sm_check_domain(SmWork* wk, const double* x, const double* u, const double* 
         }
     }
     return 0;
+}
+
+#if SM_SAMPLED
+/* --- a sampled system: no continuous-time form (instantiation refuses Model Exchange) --- */
+int sm_derivatives(SmWork* wk, const double* x, const double* u, const double* p, double* xdot) {
+    (void)wk, (void)x, (void)u, (void)p, (void)xdot;
+    return 1;
+}
+
+int sm_directional(SmWork* wk, const double* x, const double* u, const double* p,
+                   const double* dx, const double* du, double* dxdot, double* dy) {
+    (void)wk, (void)x, (void)u, (void)p, (void)dx, (void)du, (void)dxdot, (void)dy;
+    return 1;
+}
+
+int sm_equilibrium(SmWork* wk, double* x, const double* u0, const double* p0, const double* u,
+                   const double* p, char* msg) {
+    double xs[SM_NX];
+    const double* arg[] = {u, p};
+    double* res[] = {xs};
+    (void)u0, (void)p0;
+    if (call(wk, sm_start, 2, arg, 1, res) || !all_finite(xs, SM_NX)) {
+        snprintf(msg, SM_MSG, "the start state is not finite");
+        return 1;
+    }
+    memcpy(x, xs, sizeof xs);
+    return 0;
+}
+
+int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
+               long* substeps, char* msg) {
+    double xw[SM_NX], xn[SM_NX];
+    /* the sample instants k T in [t, t + h): k from ceil(t / T) to ceil((t + h) / T) - 1 */
+    double first = ceil(t / SM_SAMPLE_PERIOD - SM_SAMPLE_TOL);
+    double end = ceil((t + h) / SM_SAMPLE_PERIOD - SM_SAMPLE_TOL);
+    memcpy(xw, x, sizeof xw);
+    *substeps = 0;
+    for (double k = first; k < end; k += 1.0) {
+        const double* arg[] = {xw, u, p};
+        double* res[] = {xn};
+        if (call(wk, sm_update, 3, arg, 1, res) || !all_finite(xn, SM_NX)) {
+            snprintf(msg, SM_MSG, "the update at the sample t = %.9g s is not finite",
+                     k * SM_SAMPLE_PERIOD);
+            return 1;
+        }
+        memcpy(xw, xn, sizeof xw);
+        (*substeps)++;
+    }
+    memcpy(x, xw, sizeof xw);
+    return 0;
+}
+#else
+/* --- a continuous model: ODE, equilibrium, Radau IIA ---------------------------------- */
+int sm_derivatives(SmWork* wk, const double* x, const double* u, const double* p, double* xdot) {
+    const double* arg[] = {x, u, p};
+    double* res[] = {xdot};
+    return call(wk, sm_ode, 3, arg, 1, res) || !all_finite(xdot, SM_NX);
+}
+
+int sm_directional(SmWork* wk, const double* x, const double* u, const double* p,
+                   const double* dx, const double* du, double* dxdot, double* dy) {
+    const double* arg[] = {x, u, p, dx, du};
+    double* res[] = {dxdot, dy};
+    return call(wk, sm_fwd, 5, arg, 2, res) || !all_finite(dxdot, SM_NX) ||
+           !all_finite(dy, SM_NY);
 }
 
 /* One Newton solve of the equilibrium at (u, p) from x; 0 and x updated on success. */
@@ -122,9 +174,10 @@ static int radau(SmWork* wk, const double* x, const double* u, const double* p, 
            !(*residual < SM_STEP_TOL);
 }
 
-int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double h, long* substeps,
-               char* msg) {
+int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
+               long* substeps, char* msg) {
     double xw[SM_NX], xn[SM_NX], residual = NAN;
+    (void)t; /* time-invariant */
     double done = 0.0;
     double n = ceil(h / SM_MAX_SUBSTEP * (1.0 - 1e-12));
     double hs = h / (n > 1.0 ? n : 1.0);
@@ -152,3 +205,4 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double h
     memcpy(x, xw, sizeof xw);
     return 0;
 }
+#endif

@@ -1,6 +1,8 @@
 /* The physics of the FMU behind one small interface: every function calls CasADi-generated
  * code (sm_casadi.c) built from the model's own Functions; nothing here knows FMI.
- * model_data.h (generated at export) gives the sizes, tables and tolerances. */
+ * model_data.h (generated at export) gives the sizes, tables and tolerances, and whether the
+ * FMU is a continuous model (SM_SAMPLED 0: ODE, equilibrium, Radau IIA steps) or a sampled
+ * system (SM_SAMPLED 1: x+ = update(x, u, p) at the sample instants, outputs held). */
 #ifndef SM_PHYSICS_H
 #define SM_PHYSICS_H
 
@@ -26,15 +28,17 @@ int sm_directional(SmWork* wk, const double* x, const double* u, const double* p
 /* Equilibrium at (u, p): Newton from x (the equilibrium at (u0, p0)), continuing from
  * (u0, p0) to (u, p) in steps that halve on failure; each step's scaled residual must be
  * below SM_EQ_TOL and every bounded output inside its range. x is updated only on
- * success. */
+ * success. A sampled system: x = start(u, p), its reset state. */
 int sm_equilibrium(SmWork* wk, double* x, const double* u0, const double* p0, const double* u,
                    const double* p, char* msg);
 
-/* Advance x by h with u held: Radau IIA substeps of at most SM_MAX_SUBSTEP, each halved
- * (down to SM_MIN_SUBSTEP) until its Newton residual is below SM_STEP_TOL. x is updated
- * only on success; *substeps counts the steps taken. */
-int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double h, long* substeps,
-               char* msg);
+/* Advance x from t (time since the start) by h with u held: Radau IIA substeps of at most
+ * SM_MAX_SUBSTEP, each halved (down to SM_MIN_SUBSTEP) until its Newton residual is below
+ * SM_STEP_TOL. A sampled system: x = update(x, u, p) at each sample instant k SM_SAMPLE_PERIOD
+ * in [t, t + h) (to SM_SAMPLE_TOL of a period). x is updated only on success; *substeps
+ * counts the steps (samples) taken. */
+int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
+               long* substeps, char* msg);
 
 /* "" if every bounded output is inside its range, else a message naming the first one. */
 int sm_check_domain(SmWork* wk, const double* x, const double* u, const double* p, char* msg);
