@@ -256,7 +256,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         _c_array("double", "sm_x_start", [_c_double(r[3]) for r in group["x"]]),
         _c_array("double", "sm_u_start", [_c_double(r[3]) for r in group["u"]]),
         _c_array("double", "sm_p_start", [_c_double(r[3]) for r in group["p"]]),
-        _c_array("double", "sm_x_nominal", [_c_double(r[6]) for r in group["x"]]),
+        _c_array("double", "sm_x_nominal", [_c_double(r[6] or 1.0) for r in group["x"]]),
         _c_array("int", "sm_tunable", [str(int(r[0] in lay.tunable)) for r in group["p"]]),
     ]
     return "\n".join(h), "\n".join(c)
@@ -287,6 +287,18 @@ def compile_binary(src: Path, out: Path, fmi_version: int) -> None:
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise FmuError(f"the C compiler failed ({' '.join(cmd[:6])} ...): {done.stderr[-2000:]}")
+
+
+def check_target(path: str | Path, fmi_version: int) -> Path:
+    """``path`` as a Path, checked: a ``.fmu`` file in an existing folder; and the version."""
+    if fmi_version not in FMI_VERSIONS:
+        raise ParameterError("fmi_version", fmi_version, "2 or 3")
+    path = Path(path)
+    if path.suffix != ".fmu":
+        raise ParameterError("path", str(path), "a file name ending in .fmu")
+    if not path.parent.is_dir():
+        raise ParameterError("path", str(path), "a file in an existing folder")
+    return path
 
 
 def start_point(
@@ -354,13 +366,7 @@ def export_fmu(
     >>> export_fmu(hanging_load(1, load_kg=0.05), out).stat().st_size > 10_000
     True
     """
-    if fmi_version not in FMI_VERSIONS:
-        raise ParameterError("fmi_version", fmi_version, "2 or 3")
-    path = Path(path)
-    if path.suffix != ".fmu":
-        raise ParameterError("path", str(path), "a file name ending in .fmu")
-    if not path.parent.is_dir():
-        raise ParameterError("path", str(path), "a file in an existing folder")
+    path = check_target(path, fmi_version)
     if isinstance(model_or_scenario, Model):
         model = model_or_scenario
     else:
