@@ -13,10 +13,11 @@ measurement    input       the measured output ``y``
 command        output      the plant input ``u``, held between samples
 integral, ...  local       the law's state (:data:`~.pid.STATE_NAMES`) and the
                            held command ``held_command`` (discrete)
-kp, ki, kd,    parameter   the gains (tunable: from the next sample on)
-tf, tt
-u_min, u_max,  parameter   bounds and the command before the first sample
-bias                       (fixed; within the exported bounds)
+kp, ki, kd,    parameter   the gains and the command's bounds (tunable: from the
+tf, tt, u_min,             next sample on; the bounds within the exported ones)
+u_max
+bias           parameter   the command before the first sample (fixed: the start
+                           state is computed from it)
 ============== =========== ====================================================
 
 Sampled at the PID's ``dt`` from the start time (see :mod:`.sampled` for ``doStep``).

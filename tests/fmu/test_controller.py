@@ -1,0 +1,201 @@
+"""The PID controller FMU (fmu/controller.py over fmu/sampled.py): valid, Co-Simulation only,
+and sample for sample the Python controller's law (the same CasADi Function) on a
+measurement sequence that saturates and winds; the doStep semantics of docs/fmu.md."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Model, FMU2Slave
+from fmpy.fmi3 import FMU3Model, FMU3Slave
+from fmpy.validation import validate_fmu
+
+from sarcomere.controllers.linearize import operating_point
+from sarcomere.controllers.lqi import make_lqi
+from sarcomere.controllers.pid import make_pid
+from sarcomere.dynamics import hanging_load
+from sarcomere.dynamics.errors import ParameterError
+from sarcomere.fmu.controller import export_controller_fmu, pid_system
+from sarcomere.fmu.sampled import export_sampled_fmu
+
+DT = 0.01
+"""Sample period [s]."""
+U0 = 5e4
+"""Operating pressure and bias [Pa]."""
+TASK = {"output": "myofibril.length", "input": "regulator.p_cmd", "u_min": 0.0, "u_max": 1e5}
+
+
+@pytest.fixture(scope="module")
+def plant():
+    m = hanging_load(n=1, load_kg=0.02)
+    return m, operating_point(m, {"regulator.p_cmd": U0})
+
+
+@pytest.fixture(scope="module")
+def pid(plant):
+    m, op = plant
+    return make_pid(m, op, DT, {**TASK, "kd": -50.0})
+
+
+@pytest.fixture(scope="module", params=[2, 3])
+def fmu(request, plant, pid, tmp_path_factory):
+    """(path, FMI version) of the PID's FMU."""
+    out = tmp_path_factory.mktemp("ctl") / f"pid{request.param}.fmu"
+    return export_controller_fmu(pid, plant[0], out, U0, request.param), request.param
+
+
+def _measurements(op, n: int = 300) -> tuple[np.ndarray, float]:
+    """A measured length that swings the PID into both bounds, and the reference."""
+    rng = np.random.default_rng(1)
+    y0 = op["myofibril.length"]
+    return y0 + 2e-3 * np.sin(np.arange(n) * 0.05) + 1e-4 * rng.standard_normal(n), y0
+
+
+def _python(pid, ys, r) -> np.ndarray:
+    pid.reset({"regulator.p_cmd": U0})
+    y, ref = pid.output, {pid.output: r}
+    return np.array([pid.update(k * DT, {y: v}, ref)[pid.input] for k, v in enumerate(ys)])
+
+
+class Slave:
+    """A Co-Simulation instance of the FMU, stepped by hand."""
+
+    def __init__(self, path, version: int, t0: float = 0.0) -> None:
+        md = read_model_description(path)
+        self.vr = {v.name: v.valueReference for v in md.modelVariables}
+        cls, guid = (FMU2Slave, md.guid) if version == 2 else (FMU3Slave, md.instantiationToken)
+        self.s = cls(
+            guid=guid, unzipDirectory=extract(path), modelIdentifier="pid", instanceName="c"
+        )
+        self.v = version
+        self.s.instantiate()
+        if version == 2:
+            self.s.setupExperiment(startTime=t0)
+            self.s.enterInitializationMode()
+        else:
+            self.s.enterInitializationMode(startTime=t0)
+        self.s.exitInitializationMode()
+
+    def set(self, **values) -> None:
+        setter = self.s.setReal if self.v == 2 else self.s.setFloat64
+        setter([self.vr[k] for k in values], list(values.values()))
+
+    def get(self, name: str) -> float:
+        getter = self.s.getReal if self.v == 2 else self.s.getFloat64
+        return getter([self.vr[name]])[0]
+
+    def step(self, t: float, h: float) -> None:
+        self.s.doStep(t, h)
+
+    def close(self) -> None:
+        self.s.terminate()
+        self.s.freeInstance()
+
+
+def test_controller_fmu_validates_and_is_co_simulation_only(fmu):
+    path, version = fmu
+    assert validate_fmu(str(path)) == []
+    md = read_model_description(path)
+    assert md.modelExchange is None and md.coSimulation is not None
+    by_name = {v.name: v for v in md.modelVariables}
+    assert by_name["command"].causality == "output" and by_name["command"].variability == "discrete"
+    assert (by_name["measurement"].unit, by_name["command"].unit) == ("m", "Pa")
+    assert by_name["kp"].variability == "tunable" and by_name["bias"].variability == "fixed"
+    assert float(md.defaultExperiment.stepSize) == DT
+
+
+def test_controller_fmu_equals_the_python_pid_step_by_step(fmu, plant, pid):
+    path, version = fmu
+    ys, r = _measurements(plant[1])
+    expected = _python(pid, ys, r)
+    assert np.any(expected == 0.0) and np.any(expected == 1e5)  # both bounds: anti-windup
+    assert np.sum((expected > 0) & (expected < 1e5)) > 50  # and the linear range
+    s = Slave(path, version)
+    assert s.get("command") == U0  # before the first sample: the bias
+    got = []
+    for k, y in enumerate(ys):
+        s.set(reference=r, measurement=y)
+        s.step(k * DT, DT)
+        got.append(s.get("command"))
+    s.close()
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12 * 1e5)
+
+
+def test_fmpy_simulation_of_the_controller_fmu_equals_the_python_pid(fmu, plant, pid):
+    path, _ = fmu
+    ys, r = _measurements(plant[1])
+    t = np.arange(len(ys)) * DT
+    rows = [row for k in range(len(ys)) for row in ((t[k], r, ys[k]), (t[k] + DT, r, ys[k]))]
+    dtype = [("time", float), ("reference", float), ("measurement", float)]
+    res = simulate_fmu(
+        str(path),
+        fmi_type="CoSimulation",
+        stop_time=t[-1] + DT,
+        output_interval=DT,
+        input=np.array(rows, dtype=dtype),
+        output=["command"],
+    )
+    assert res["command"][0] == U0
+    np.testing.assert_allclose(res["command"][1:], _python(pid, ys, r), rtol=1e-12, atol=1e-7)
+
+
+def test_steps_shorter_longer_and_off_the_sample_grid(fmu, plant, pid):
+    """h = T/4: the samples at the instants, outputs held between; h = 2.5 T: every
+    instant inside the step, on the held inputs; a start time of 1 s: first sample there."""
+    path, version = fmu
+    ys, r = _measurements(plant[1], 12)
+    expected = _python(pid, ys, r)
+    s = Slave(path, version, t0=1.0)
+    for k in range(4):
+        for j in range(4):
+            s.set(reference=r, measurement=ys[k])
+            s.step(1.0 + k * DT + j * DT / 4, DT / 4)
+            assert s.get("command") == pytest.approx(expected[k], rel=1e-12)
+    s.close()
+    pid.reset({"regulator.p_cmd": U0})  # 0, 1, 2 at ys[0]; 3, 4 at ys[3]
+    held = [ys[0]] * 3 + [ys[3]] * 2
+    want = [pid.update(0, {pid.output: y}, {pid.output: r})[pid.input] for y in held]
+    s = Slave(path, version)
+    s.set(reference=r, measurement=ys[0])
+    s.step(0.0, 2.5 * DT)  # instants 0, T, 2T
+    assert s.get("command") == pytest.approx(want[2], rel=1e-12)
+    s.set(reference=r, measurement=ys[3])
+    s.step(2.5 * DT, 2.5 * DT)  # instants 3T, 4T
+    assert s.get("command") == pytest.approx(want[4], rel=1e-12)
+    s.close()
+
+
+def test_a_tunable_gain_takes_effect_at_the_next_sample(fmu, plant, pid):
+    path, version = fmu
+    s = Slave(path, version)
+    y = plant[1]["myofibril.length"]
+    s.set(reference=y - 1e-4, measurement=y)
+    s.set(kp=0.0, ki=0.0)
+    s.step(0.0, DT)
+    assert s.get("command") == U0  # no error term left: the bias
+    with pytest.raises(FMICallException):
+        s.set(bias=1e4)  # fixed: the start state depends on it
+    s.close()
+
+
+def test_model_exchange_is_refused(fmu, pid, plant, tmp_path):
+    path, version = fmu
+    md = read_model_description(path)
+    cls, guid = (FMU2Model, md.guid) if version == 2 else (FMU3Model, md.instantiationToken)
+    me = cls(guid=guid, unzipDirectory=extract(path), modelIdentifier="pid", instanceName="me")
+    with pytest.raises(Exception, match="instantiate"):
+        me.instantiate()
+    system = pid_system(pid, plant[0], U0)
+    with pytest.raises(ParameterError, match="no continuous-time form"):
+        export_sampled_fmu(system, tmp_path / "me.fmu", interface="ModelExchange")
+
+
+def test_bad_controller_exports_are_refused(plant, pid, tmp_path):
+    m, op = plant
+    with pytest.raises(ParameterError, match="bias"):
+        export_controller_fmu(pid, m, tmp_path / "c.fmu", 2e5)
+    lqi = make_lqi(m, op, DT, {**TASK, "feedforward": "linear"})
+    with pytest.raises(ParameterError, match="a PID"):
+        export_controller_fmu(lqi, m, tmp_path / "c.fmu", U0)
