@@ -26,7 +26,17 @@ from .components.aps import (
     SymmetricMyofibril,
 )
 from .components.environment import Environment
-from .components.mechanical import Fixed, ForceSensor, Mass, Node, Spring
+from .components.mechanical import (
+    Damper,
+    Fixed,
+    Force,
+    ForceSensor,
+    Mass,
+    Node,
+    Position,
+    PositionSensor,
+    Spring,
+)
 from .components.pneumatic import Regulator
 from .equilibrium import solve_equilibrium
 from .errors import ParameterError
@@ -208,4 +218,96 @@ def isometric(
         sys.connect(hook.flange_b, sensor.flange_a)
         sys.connect(sensor.flange_b, spring.flange_a)
         sys.connect(spring.flange_b, fix.flange)
+    return sys.flatten()
+
+
+SPRING_LOAD = {"mass_kg": 0.05, "stiffness": 100.0, "damping": 0.5}
+"""Defaults of the sprung load [kg, N/m, N*s/m]: step-50g's 50 g, hung on a spring whose
+load mode (sqrt(k/m) = 45 rad/s, 7 Hz) sits near the hanging chain's own load mode
+(6.7 Hz, docs/controllers.md), lightly damped to the ground (damping ratio 0.16); chosen
+for the co-simulation scene ``cosim-controller-load``, not measured."""
+
+
+def force_driven(
+    n: int = 3,
+    params: APSParams | None = None,
+    fidelity: str = "full",
+    regulator_tau: float | str = 0.05,
+    g: float | str = G_DEFAULT,
+    saturate: bool = True,
+    flow_law: str = "iso6358",
+) -> Model:
+    """Myofibril of ``n`` APS hanging from the frame, its lower end (the 1 g hook) free
+    and pulled down by the input force ``pull.f`` [N, along +s]; output ``end.s`` [m], the
+    end's position below the frame. The muscle of a co-simulation whose load is another
+    participant (its force in, the end position out); other arguments as
+    :func:`hanging_load`."""
+    sys, myo, mf = _frame_regulator_chain(
+        "force_driven", n, params, fidelity, regulator_tau, g, saturate, flow_law
+    )
+    _hook_pulled(sys, myo, mf, sys.add(Force("pull")).flange)
+    return sys.flatten()
+
+
+def _hook_pulled(sys: System, myo, mf, flange) -> None:
+    """The hook at the chain's end, with the end-position sensor, attached to ``flange``."""
+    hook = sys.add(Mass("hook", m=HOOK_MASS_KG + _end_mass(myo), s_start=myo.rest_length_expr))
+    sys.connect(mf.flange_b, hook.flange_a)
+    sys.connect(hook.flange_b, sys.add(PositionSensor("end")).flange)
+    sys.connect(hook.flange_b, flange)
+
+
+def _spring_load(sys: System, mass_kg, stiffness, damping, g, s_start) -> object:
+    """Force sensor, spring and mass (damped to the ground) below a flange; returns the
+    sensor's upper flange. ``sensor.f`` [N] is the force the load pulls with."""
+    m = _si(mass_kg, "kg", "mass_kg", 0.0, closed=False)
+    k = _si(stiffness, "N/m", "stiffness", 0.0, closed=False)
+    d = _si(damping, "N*s/m", "damping", 0.0)
+    g = _si(g, "m/s^2", "g", 0.0, closed=False)
+    sensor = sys.add(ForceSensor("sensor"))
+    spring = sys.add(Spring("spring", c=k))
+    mass = sys.add(Mass("mass", m=m, g=g, s_start=s_start))
+    damper = sys.add(Damper("damper", d=d))
+    ground = sys.add(Fixed("ground"))
+    sys.connect(sensor.flange_b, spring.flange_a)
+    sys.connect(spring.flange_b, mass.flange_a)
+    sys.connect(ground.flange, damper.flange_a)
+    sys.connect(damper.flange_b, mass.flange_b)
+    return sensor.flange_a
+
+
+def spring_mass_load(
+    mass_kg: float | str = SPRING_LOAD["mass_kg"],
+    stiffness: float | str = SPRING_LOAD["stiffness"],
+    damping: float | str = SPRING_LOAD["damping"],
+    g: float | str = G_DEFAULT,
+) -> Model:
+    """A mass [kg] hanging on a spring [N/m] whose top is moved to the input position
+    ``drive.s`` [m]; a damper [N*s/m] from the mass to the ground. Output ``sensor.f``
+    [N], the tension at the top (the load's pull on whatever holds it). The load of
+    :func:`force_driven` as a model of its own (defaults :data:`SPRING_LOAD`)."""
+    sys = System("spring_mass_load")
+    drive = sys.add(Position("drive"))
+    sys.connect(drive.flange, _spring_load(sys, mass_kg, stiffness, damping, g, 0.0))
+    return sys.flatten()
+
+
+def sprung_load(
+    n: int = 3,
+    params: APSParams | None = None,
+    fidelity: str = "full",
+    regulator_tau: float | str = 0.05,
+    g: float | str = G_DEFAULT,
+    mass_kg: float | str = SPRING_LOAD["mass_kg"],
+    stiffness: float | str = SPRING_LOAD["stiffness"],
+    damping: float | str = SPRING_LOAD["damping"],
+) -> Model:
+    """:func:`force_driven` with :func:`spring_mass_load` hung from its hook, in one model
+    (the monolithic reference of their co-simulation; the same names but ``pull.f`` and
+    ``drive.s``)."""
+    sys, myo, mf = _frame_regulator_chain(
+        "sprung_load", n, params, fidelity, regulator_tau, g, True, "iso6358"
+    )
+    top = _spring_load(sys, mass_kg, stiffness, damping, g, myo.rest_length_expr)
+    _hook_pulled(sys, myo, mf, top)
     return sys.flatten()
