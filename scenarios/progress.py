@@ -2,7 +2,9 @@
 
 :func:`progress` prints ``label: 12 s`` on one rewritten line once a run has taken longer
 than ``delay`` seconds, and clears it at the end. It stays silent when disabled
-(``--quiet``) and when the stream is not a terminal (logs and pipes stay clean).
+(``--quiet``) and when the stream is not a terminal (logs and pipes stay clean). Code
+running inside the block adds its own state to the line with :func:`report` (a
+co-simulation its simulated time: ``running x: 12 s, t = 1.2 / 3 s``).
 """
 
 from __future__ import annotations
@@ -16,6 +18,16 @@ from typing import TextIO
 
 #: Seconds before the progress line appears.
 DELAY_S = 2.0
+
+_status: list[str] = []
+"""The state shown on the active progress line (empty: none active or nothing reported)."""
+
+
+def report(text: str) -> None:
+    """Show ``text`` after the elapsed time on the active progress line; nothing when no
+    line is active (quiet runs, pipes)."""
+    if _status:
+        _status[-1] = text
 
 
 @contextmanager
@@ -37,12 +49,17 @@ def progress(
     done = threading.Event()
     start = time.perf_counter()
     shown = []
+    _status.append("")
+    width = [0]
 
     def tick() -> None:
         if done.wait(delay):
             return
         while True:
-            out.write(f"\r{label}: {time.perf_counter() - start:.0f} s")
+            state = f", {_status[-1]}" if _status[-1] else ""
+            line = f"{label}: {time.perf_counter() - start:.0f} s{state}"
+            out.write(f"\r{line:<{width[0]}}")
+            width[0] = max(width[0], len(line))
             out.flush()
             shown.append(True)
             if done.wait(every):
@@ -55,6 +72,8 @@ def progress(
     finally:
         done.set()
         thread.join()
+        _status.pop()
         if shown:
-            out.write(f"\r{label}: done in {time.perf_counter() - start:.1f} s\n")
+            line = f"{label}: done in {time.perf_counter() - start:.1f} s"
+            out.write(f"\r{' ' * width[0]}\r{line}\n")
             out.flush()
