@@ -1,5 +1,6 @@
 """Scenario kind "cosim": the scene's model as a Co-Simulation FMU in the co-simulation
-master, against the native simulation of the same scene.
+master, against the native simulation of the same scene; or, with ``[cosim.participants]``,
+a system of several participants (:mod:`.cosim_system`).
 
 ``[model]``, ``[parameters]``, ``[inputs]``, ``[simulation]`` and ``[solver]`` as kind
 "transient" (the native run; the FMU is exported from the same model, parameters and
@@ -34,6 +35,7 @@ from sarcomere.fmu.cosim import INPUT_LAWS, ORDERINGS, cosimulate
 from sarcomere.fmu.export import FMI_VERSIONS, export_fmu
 from sarcomere.fmu.participants import FmuParticipant
 
+from .cosim_system import run_system
 from .dynamic import _inputs, run_transient  # _inputs: the same name and unit checks as a run
 from .export_fmu import scenario_setup
 from .output import RunOutput
@@ -53,7 +55,10 @@ def _choice(sc: Scenario, key: str, choices: tuple, default):
 
 
 def run_cosim(sc: Scenario, out_dir: Path) -> RunOutput:
-    """Co-simulate the scene's FMU and compare it with the native run."""
+    """Co-simulate the scene's FMU and compare it with the native run (or run a system of
+    participants, :func:`~.cosim_system.run_system`)."""
+    if "participants" in sc.cosim:
+        return run_system(sc, out_dir)
     for key in sc.cosim:
         if key not in KEYS:
             raise sc.error(("cosim", key), unknown_key(key, KEYS))
