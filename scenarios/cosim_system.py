@@ -114,6 +114,28 @@ class Part:
     pid: PID | None = None
 
 
+class _StartedNative(NativeParticipant):
+    """A native participant whose unconnected start inputs are the scene's ``start`` values
+    (as its exported FMU's start values would be), and whose outputs are read at the
+    inputs it holds (as an FMU's are)."""
+
+    def __init__(self, part: Part, settings) -> None:
+        super().__init__(part.model, part.name, None, settings)
+        self._given = dict(part.start)
+
+    def start(self, t0: float, inputs: Mapping[str, float]) -> None:
+        super().start(t0, {**self._given, **inputs})
+
+    def get(self, names) -> dict[str, float]:
+        """Signals at the inputs held now: an output may feed through from an input (the
+        load's tension from its driven end), which the simulator's last step has not
+        seen yet."""
+        m, sim = self.model, self._sim
+        u = [self._u[n] for n in m.input_names]
+        values = np.asarray(m.signals_function(list(names))(sim.x, sim.z, u, sim.p)).ravel()
+        return dict(zip(names, values.tolist(), strict=True))
+
+
 def _quantity(sc: Scenario, value, path: tuple, unit: str, low: float | None = None) -> float:
     try:
         v = to_si(value, unit, ".".join(path))
@@ -218,8 +240,10 @@ def _pid(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
     try:
         op = solve_equilibrium(m, start)
         part.pid = make_pid(m, op, dt, {**task, **gains})
-    except ParameterError as exc:
-        raise sc.error(path, describe(exc)) from None
+    except ParameterError as exc:  # the PID's own settings are its gains
+        key = exc.name.removeprefix("pid.")
+        where = (*path, "gains", key) if exc.name.startswith("pid.") else path
+        raise sc.error(where, describe(exc)) from None
     part.model = m
     part.start = {"bias": float(op.u[m.input_names.index(task["input"])])}
 
@@ -276,9 +300,8 @@ def _sources(sc: Scenario, participants: dict) -> dict:
     return out
 
 
-def _compare(sc, parts, connections, sources, stop_time: float, step: float):
-    """The monolithic closed loop of the scene's muscle, load and PID (see the module
-    docstring); returns the loop's result and the names it maps to."""
+def _wired(sc: Scenario, parts: list[Part], connections: list[Connection]) -> tuple:
+    """``(muscle, load, pid)`` of a ``compare`` scene, checked before anything is built."""
     kinds = {k: [p for p in parts if p.kind == k] for k in ("muscle", "load", "pid")}
     path = ("cosim", "compare")
     if any(len(v) != 1 for v in kinds.values()):
@@ -293,13 +316,29 @@ def _compare(sc, parts, connections, sources, stop_time: float, step: float):
     }
     if not wiring <= {(c.source, c.target) for c in connections}:
         raise sc.error(path, f"needs the connections {sorted(wiring)}")
-    ratio = pid.dt / step
+    ratio = pid.dt / sc.simulation.output_interval
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         raise sc.error(path, "needs a sample time that is a whole number of steps")
-    reference = sources.get(f"{ctl.name}.reference")
-    if reference is None:
+    if f"{ctl.name}.reference" not in sc.cosim.get("sources", {}):
         raise sc.error(path, f"needs a source for '{ctl.name}.reference'")
-    load = lo.spec
+    return mu, lo, ctl
+
+
+def _compared(mu: Part, ctl: Part) -> dict[str, str]:
+    """The monolithic loop's signal -> the co-simulation's name for it."""
+    pid = ctl.pid
+    return {
+        pid.output: f"{mu.name}.{pid.output}",
+        pid.input: f"{ctl.name}.command",
+        "reference": "reference",
+        "regulator.p_out": f"{mu.name}.regulator.p_out",
+    }
+
+
+def _monolithic_loop(sc: Scenario, mu: Part, lo: Part, ctl: Part, reference) -> Result:
+    """The same PID on :func:`sprung_load` (the scene's muscle and load in one model) in the
+    project's sampled loop, its signals named as in the co-simulation."""
+    pid, load = ctl.pid, lo.spec
     kw = {
         "mass_kg": load.get("mass", SPRING_LOAD["mass_kg"]),
         "stiffness": load.get("stiffness", SPRING_LOAD["stiffness"]),
@@ -308,9 +347,17 @@ def _compare(sc, parts, connections, sources, stop_time: float, step: float):
     mono = sprung_load(mu.spec.get("n", 3), fidelity=mu.spec.get("fidelity", "full"), **kw)
     op = solve_equilibrium(mono, {pid.input: ctl.start["bias"]})
     loop = run_closed_loop(
-        mono, pid, op, reference, stop_time, output=pid.output, settings=_settings(sc, mono)
-    )
-    return loop.result, mu, ctl
+        mono,
+        pid,
+        op,
+        reference,
+        sc.simulation.stop_time,
+        output=pid.output,
+        settings=_settings(sc, mono),
+    ).result
+    names = _compared(mu, ctl)
+    signals = {new: loop[old] for old, new in names.items()}
+    return Result("time", "s", loop.index, signals, {n: loop.units[o] for o, n in names.items()})
 
 
 def run_system(sc: Scenario, out_dir: Path) -> RunOutput:
@@ -337,20 +384,24 @@ def run_system(sc: Scenario, out_dir: Path) -> RunOutput:
         if p.kind == "pid":
             _pid(sc, p, by_name)
     connections = _connections(sc)
+    wired = _wired(sc, parts, connections) if compare else None
     total = sim.stop_time - sim.start_time
     with tempfile.TemporaryDirectory(prefix="sarcomere-cosim-") as tmp, contextlib.ExitStack() as s:
         participants = {}
         for p in parts:
             _export(sc, p, Path(tmp), sim.stop_time)
             if p.fmu is None:
-                settings = _settings(sc, p.model)
-                participants[p.name] = NativeParticipant(p.model, p.name, None, settings)
+                participants[p.name] = _StartedNative(p, _settings(sc, p.model))
             else:
                 participants[p.name] = FmuParticipant(s.enter_context(open_fmu(p.fmu)), p.name)
         sources = _sources(sc, participants)
-        record = sc.cosim.get("record") or [
+        record = list(sc.cosim.get("record") or [])
+        record = record or [
             f"{n}.{v}" for n, q in participants.items() for v in (*q.inputs, *q.outputs)
         ]
+        if wired:  # what the comparison reads
+            read = _compared(wired[0], wired[2]).values()
+            record += [n for n in read if n not in record and n != "reference"]
         try:
             result = cosimulate(
                 list(participants.values()),
@@ -361,12 +412,13 @@ def run_system(sc: Scenario, out_dir: Path) -> RunOutput:
                 ordering=ordering,
                 inputs=law,
                 sources=sources,
-                record=list(record),
+                record=record,
                 on_step=lambda t: report(f"t = {t - sim.start_time:.3g} / {total:g} s"),
             )
         except ParameterError as exc:
             raise sc.error(("cosim", KEY_OF.get(exc.name, exc.name)), describe(exc)) from None
-    return _output(sc, parts, connections, sources, result, step, ordering, law, compare)
+    mono = _monolithic_loop(sc, *wired, sources[f"{wired[2].name}.reference"]) if wired else None
+    return _output(sc, parts, connections, sources, result, step, ordering, law, wired, mono)
 
 
 def _label(p: Part) -> str:
@@ -379,9 +431,9 @@ def _label(p: Part) -> str:
     return label if p.kind in what else f"{label} {'native' if p.native else 'as FMU'}"
 
 
-def _output(sc, parts, connections, sources, result, step, ordering, law, compare) -> RunOutput:
-    """Metrics and results of a system run."""
-    metrics, extra = {}, {"participants": {p.name: p.kind for p in parts}}
+def _output(sc, parts, connections, sources, result, step, ordering, law, wired, mono):
+    """Metrics and results of a system run (``mono``: the monolithic loop's result)."""
+    metrics, extra = {}, {"participants": {p.name: _label(p) for p in parts}}
     signals, units = dict(result.signals), dict(result.units)
     for p in (p for p in parts if p.kind == "pid"):
         target = f"{p.name}.measurement"
@@ -395,41 +447,27 @@ def _output(sc, parts, connections, sources, result, step, ordering, law, compar
         err = signals[measured] - r
         metrics[f"{p.name}_tracking_rmse_{unit}"] = float(np.sqrt(np.mean(err**2)))
     results = {"cosim": dataclasses.replace(result, signals=signals, units=units)}
-    if compare:
-        loop, mu, ctl = _compare(sc, parts, connections, sources, sc.simulation.stop_time, step)
-        pid = ctl.pid
-        names = {
-            pid.output: f"{mu.name}.{pid.output}",
-            pid.input: f"{ctl.name}.command",
-            "reference": "reference",
-            "regulator.p_out": f"{mu.name}.regulator.p_out",
-        }
-        mono = Result(
-            "time",
-            "s",
-            loop.index,
-            {new: loop[old] for old, new in names.items()},
-            {new: loop.units[old] for old, new in names.items()},
-        )
-        rows = np.rint((loop.index - result.index[0]) / step).astype(int)
-        unit = loop.units[pid.output]
-        co = signals[names[pid.output]][rows]
-        metrics[f"max_error_vs_monolithic_loop_{unit}"] = float(
-            np.max(np.abs(co - loop[pid.output]))
-        )
-        extra["command_max_error_vs_monolithic_loop_Pa"] = float(
-            np.max(np.abs(signals[names[pid.input]][rows + 1] - loop[pid.input]))
-        )
+    if wired:
+        mu, _, ctl = wired
+        pid, names = ctl.pid, _compared(mu, ctl)
+        y, u = names[pid.output], names[pid.input]
+        rows = np.rint((mono.index - result.index[0]) / step).astype(int)
+        unit = mono.units[y]
+        co = signals[y][rows]
+        metrics[f"max_error_vs_monolithic_loop_{unit}"] = float(np.max(np.abs(co - mono[y])))
+        # the command held from a sample on is read one step later
+        du = np.max(np.abs(signals[u][rows + 1] - mono[u]))
+        extra[f"command_max_error_vs_monolithic_loop_{mono.units[u]}"] = float(du)
         extra[f"tracking_rmse_at_samples_{unit}"] = {
-            "cosim": float(np.sqrt(np.mean((co - loop["reference"]) ** 2))),
-            "monolithic": float(np.sqrt(np.mean((loop[pid.output] - loop["reference"]) ** 2))),
+            "cosim": float(np.sqrt(np.mean((co - mono["reference"]) ** 2))),
+            "monolithic": float(np.sqrt(np.mean((mono[y] - mono["reference"]) ** 2))),
         }
         extra["compared"] = (
-            f"{names[pid.output]} of the co-simulation against {pid.output} of the monolithic "
-            f"model (muscle and load in one model) in controllers.loop.run_closed_loop with "
-            f"the same PID, at its {pid.dt:g} s samples"
+            f"{y} of the co-simulation against the monolithic model (muscle and load in one "
+            f"model) in controllers.loop.run_closed_loop with the same PID, at its "
+            f"{pid.dt:g} s samples"
         )
-        results["monolithic"] = mono
+        results = {"monolithic": mono, **results}  # first: its signals are the plots'
     return RunOutput(
         sc.name,
         ", ".join(f"{p.name}: {_label(p)}" for p in parts),
