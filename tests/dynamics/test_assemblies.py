@@ -195,3 +195,23 @@ def test_a_chain_that_would_invert_leaves_the_physical_domain(fidelity):
     x0["load.v"] = -1000.0
     with pytest.raises(SolverError, match="myofibril.length"):
         simulate(model, 0.01, x0=x0)
+
+
+def test_the_split_muscle_and_load_meet_the_sprung_load_equilibrium():
+    """force_driven pulled by the load's weight, and spring_mass_load driven at its end,
+    are the two halves of sprung_load: the same length and the same coupling force."""
+    from sarcomere.dynamics.assemblies import (
+        force_driven,
+        spring_mass_load,
+        sprung_load,
+    )
+
+    mono = solve_equilibrium(sprung_load(2, mass_kg="30 g"), {"regulator.p_cmd": 4e4})
+    weight = mono["sensor.f"]
+    assert weight == pytest.approx(0.03 * G, rel=1e-9)
+    muscle = solve_equilibrium(force_driven(2), {"regulator.p_cmd": 4e4, "pull.f": weight})
+    assert muscle["end.s"] == pytest.approx(mono["end.s"], rel=1e-9)
+    load = solve_equilibrium(spring_mass_load("30 g"), {"drive.s": muscle["end.s"]})
+    assert load["mass.s"] == pytest.approx(mono["mass.s"], rel=1e-9)
+    with pytest.raises(ParameterError, match="stiffness"):
+        spring_mass_load(stiffness="-1 N/m")
