@@ -110,6 +110,28 @@ def export_controller_fmu(
 ) -> Path:
     """Write ``controller`` (a PID) as a Co-Simulation FMU; see :func:`pid_system`.
 
+    Parameters
+    ----------
+    controller : PID
+        The controller; its sample time is the FMU's period.
+    model : Model
+        The plant it controls: the units of its output and input.
+    path : str or Path
+        The ``.fmu`` file to write (its folder must exist).
+    bias : float
+        The command before the first sample [input unit], in the controller's bounds.
+    fmi_version : int
+        2 or 3.
+    name : str
+        The model name and identifier.
+    stop_time : float, optional
+        The default experiment's stop time [s].
+
+    Returns
+    -------
+    Path
+        ``path``.
+
     Raises
     ------
     ParameterError

@@ -7,7 +7,8 @@ step (required). ``[solver]``: the native participants' integrator. ``[cosim]``:
 - ``participants``: one table per participant, stepped (and started) in the listed order.
   Each has exactly one of
   ``fmu = "file.fmu"`` (relative to the scene file), ``scene = "step-50g"`` (a transient
-  scene exported during the run; ``fmi``) or ``build``, a model the project builds:
+  scene, a file next to this one or a packaged name, exported during the run; ``fmi``)
+  or ``build``, a model the project builds:
 
   * ``"muscle"``: :func:`~sarcomere.dynamics.assemblies.force_driven` (inputs
     ``regulator.p_cmd`` and ``pull.f``, output ``end.s``); keys ``n`` (3), ``fidelity``
@@ -90,6 +91,7 @@ SOURCES = {"fmu": (), "scene": ("fmi",)}
 """Participants from a file or a scene and their own keys."""
 COMPARE = ("monolithic-loop",)
 KEY_OF = {
+    "record": "record",
     "connection source": "connections",
     "connection target": "connections",
     "source": "sources",
@@ -257,7 +259,9 @@ def _export(sc: Scenario, part: Part, folder: Path, stop_time: float) -> None:
     fmi = _choice(sc, part.spec, path, "fmi", FMI_VERSIONS, 2)
     out = folder / f"{part.name}.fmu"
     if part.kind == "scene":
-        model, params, inputs, experiment = scenario_setup(str(part.spec["scene"]))
+        scene = str(part.spec["scene"])  # a file next to the scene, or a packaged name
+        beside = sc.base_dir / scene
+        model, params, inputs, experiment = scenario_setup(beside if beside.is_file() else scene)
         part.fmu = export_fmu(model, out, fmi, params, inputs, experiment)
     elif part.kind == "pid":
         part.fmu = export_controller_fmu(
@@ -395,8 +399,10 @@ def run_system(sc: Scenario, out_dir: Path) -> RunOutput:
             else:
                 participants[p.name] = FmuParticipant(s.enter_context(open_fmu(p.fmu)), p.name)
         sources = _sources(sc, participants)
-        record = list(sc.cosim.get("record") or [])
-        record = record or [
+        record = sc.cosim.get("record", [])
+        if not (isinstance(record, list) and all(isinstance(n, str) for n in record)):
+            raise sc.error(("cosim", "record"), f"expected a list of names, got {record!r}")
+        record = list(record) or [
             f"{n}.{v}" for n, q in participants.items() for v in (*q.inputs, *q.outputs)
         ]
         if wired:  # what the comparison reads

@@ -170,3 +170,73 @@ def _refused(tmp_path, text: str, message: str) -> None:
     with pytest.raises(ScenarioError, match=message) as err:
         run(parse_scenario(text, str(tmp_path / "bad.toml")), tmp_path / "out", quiet=True)
     assert "\n" not in str(err.value)
+
+
+HANGING = """
+[scenario]
+name = "hang"
+kind = "transient"
+
+[model]
+name = "myofibril"
+n = 1
+
+[model.options]
+setup = "hanging"
+load = "20 g"
+
+[inputs.pressure]
+type = "step"
+final = "0 MPa"
+
+[simulation]
+stop_time = "0.2 s"
+"""
+
+FILES = """
+[scenario]
+name = "files"
+kind = "cosim"
+
+[simulation]
+stop_time = "0.2 s"
+output_interval = "1 ms"
+
+[cosim]
+connections = [["muscle.myofibril.length", "load.drive.s"]]
+
+[cosim.participants.muscle]
+scene = "hang.toml"
+fmi = 3
+
+[cosim.participants.load]
+fmu = "load.fmu"
+
+[cosim.sources."muscle.regulator.p_cmd"]
+type = "step"
+final = "60 kPa"
+time = "0.05 s"
+"""
+
+
+def test_participants_from_a_scene_file_and_an_fmu_file(tmp_path):
+    """A transient scene next to the system's file, exported as FMI 3.0, drives a load
+    FMU given as a file: the muscle shortens at the step and the load swings."""
+    from sarcomere.dynamics.assemblies import spring_mass_load
+    from sarcomere.fmu import export_fmu
+
+    (tmp_path / "hang.toml").write_text(HANGING)
+    export_fmu(spring_mass_load(), tmp_path / "load.fmu")
+    (tmp_path / "files.toml").write_text(FILES)
+    assert main(["run", str(tmp_path / "files.toml"), "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["extra"]["participants"] == {
+        "muscle": "scene hang.toml as FMU",
+        "load": f"FMU file {tmp_path / 'load.fmu'}",
+    }
+    with (tmp_path / "o" / "timeseries.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    length = np.array([float(r["muscle.myofibril.length [m]"]) for r in rows])
+    force = np.array([float(r["load.sensor.f [N]"]) for r in rows])
+    assert length[-1] < length[0] - 1e-3  # shortened by the step
+    assert np.ptp(force[:50]) < 1e-9 < np.ptp(force[50:])  # at rest, then swinging
