@@ -41,9 +41,10 @@ def pid(plant):
 
 @pytest.fixture(scope="module", params=[2, 3])
 def fmu(request, plant, pid, tmp_path_factory):
-    """(path, FMI version) of the PID's FMU."""
-    out = tmp_path_factory.mktemp("ctl") / f"pid{request.param}.fmu"
-    return export_controller_fmu(pid, plant[0], out, U0, request.param), request.param
+    """(path, FMI version, extracted folder) of the PID's FMU."""
+    folder = tmp_path_factory.mktemp("ctl")
+    path = export_controller_fmu(pid, plant[0], folder / "pid.fmu", U0, request.param)
+    return path, request.param, extract(str(path), unzipdir=str(folder / "unzipped"))
 
 
 def _measurements(op, n: int = 300) -> tuple[np.ndarray, float]:
@@ -62,7 +63,8 @@ def _python(pid, ys, r) -> np.ndarray:
 class Slave:
     """A Co-Simulation instance of the FMU, stepped by hand."""
 
-    def __init__(self, path, version: int, t0: float = 0.0) -> None:
+    def __init__(self, fmu, t0: float = 0.0) -> None:
+        path, version, folder = fmu
         md = read_model_description(path)
         self.vr = {v.name: v.valueReference for v in md.modelVariables}
         cls, guid = (FMU2Slave, md.guid) if version == 2 else (FMU3Slave, md.instantiationToken)
@@ -95,7 +97,7 @@ class Slave:
 
 
 def test_controller_fmu_validates_and_is_co_simulation_only(fmu):
-    path, version = fmu
+    path, version, folder = fmu
     assert validate_fmu(str(path)) == []
     md = read_model_description(path)
     assert md.modelExchange is None and md.coSimulation is not None
@@ -107,12 +109,12 @@ def test_controller_fmu_validates_and_is_co_simulation_only(fmu):
 
 
 def test_controller_fmu_equals_the_python_pid_step_by_step(fmu, plant, pid):
-    path, version = fmu
+    path, version, folder = fmu
     ys, r = _measurements(plant[1])
     expected = _python(pid, ys, r)
     assert np.any(expected == 0.0) and np.any(expected == 1e5)  # both bounds: anti-windup
     assert np.sum((expected > 0) & (expected < 1e5)) > 50  # and the linear range
-    s = Slave(path, version)
+    s = Slave(fmu)
     assert s.get("command") == U0  # before the first sample: the bias
     got = []
     for k, y in enumerate(ys):
@@ -124,7 +126,7 @@ def test_controller_fmu_equals_the_python_pid_step_by_step(fmu, plant, pid):
 
 
 def test_fmpy_simulation_of_the_controller_fmu_equals_the_python_pid(fmu, plant, pid):
-    path, _ = fmu
+    path, _, _ = fmu
     ys, r = _measurements(plant[1])
     t = np.arange(len(ys)) * DT
     rows = [row for k in range(len(ys)) for row in ((t[k], r, ys[k]), (t[k] + DT, r, ys[k]))]
@@ -144,10 +146,10 @@ def test_fmpy_simulation_of_the_controller_fmu_equals_the_python_pid(fmu, plant,
 def test_steps_shorter_longer_and_off_the_sample_grid(fmu, plant, pid):
     """h = T/4: the samples at the instants, outputs held between; h = 2.5 T: every
     instant inside the step, on the held inputs; a start time of 1 s: first sample there."""
-    path, version = fmu
+    path, version, folder = fmu
     ys, r = _measurements(plant[1], 12)
     expected = _python(pid, ys, r)
-    s = Slave(path, version, t0=1.0)
+    s = Slave(fmu, t0=1.0)
     for k in range(4):
         for j in range(4):
             s.set(reference=r, measurement=ys[k])
@@ -157,7 +159,7 @@ def test_steps_shorter_longer_and_off_the_sample_grid(fmu, plant, pid):
     pid.reset({"regulator.p_cmd": U0})  # 0, 1, 2 at ys[0]; 3, 4 at ys[3]
     held = [ys[0]] * 3 + [ys[3]] * 2
     want = [pid.update(0, {pid.output: y}, {pid.output: r})[pid.input] for y in held]
-    s = Slave(path, version)
+    s = Slave(fmu)
     s.set(reference=r, measurement=ys[0])
     s.step(0.0, 2.5 * DT)  # instants 0, T, 2T
     assert s.get("command") == pytest.approx(want[2], rel=1e-12)
@@ -168,8 +170,8 @@ def test_steps_shorter_longer_and_off_the_sample_grid(fmu, plant, pid):
 
 
 def test_a_tunable_gain_takes_effect_at_the_next_sample(fmu, plant, pid):
-    path, version = fmu
-    s = Slave(path, version)
+    path, version, folder = fmu
+    s = Slave(fmu)
     y = plant[1]["myofibril.length"]
     s.set(reference=y - 1e-4, measurement=y)
     s.set(kp=0.0, ki=0.0)
@@ -181,10 +183,10 @@ def test_a_tunable_gain_takes_effect_at_the_next_sample(fmu, plant, pid):
 
 
 def test_model_exchange_is_refused(fmu, pid, plant, tmp_path):
-    path, version = fmu
+    path, version, folder = fmu
     md = read_model_description(path)
     cls, guid = (FMU2Model, md.guid) if version == 2 else (FMU3Model, md.instantiationToken)
-    me = cls(guid=guid, unzipDirectory=extract(path), modelIdentifier="pid", instanceName="me")
+    me = cls(guid=guid, unzipDirectory=folder, modelIdentifier="pid", instanceName="me")
     with pytest.raises(Exception, match="instantiate"):
         me.instantiate()
     system = pid_system(pid, plant[0], U0)
