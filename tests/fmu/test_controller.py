@@ -201,3 +201,34 @@ def test_bad_controller_exports_are_refused(plant, pid, tmp_path):
     lqi = make_lqi(m, op, DT, {**TASK, "feedforward": "linear"})
     with pytest.raises(ParameterError, match="a PID"):
         export_controller_fmu(lqi, m, tmp_path / "c.fmu", U0)
+
+
+def test_a_serialized_state_keeps_the_sample_grid(fmu, plant):
+    """An instance started at 5 ms (half a period) samples at 5 ms + k T; its state,
+    serialised and restored into an instance started at 0, still does."""
+    _, version, _ = fmu
+    ys, r = _measurements(plant[1], 8)
+    names = ("getFMUstate", "serializeFMUstate", "deSerializeFMUstate", "setFMUstate")
+    if version == 3:
+        names = ("getFMUState", "serializeFMUState", "deserializeFMUState", "setFMUState")
+
+    def steps(s: Slave, ks) -> list[float]:
+        out = []
+        for k in ks:
+            s.set(reference=r, measurement=ys[k])
+            s.step(0.005 + k * DT / 2, DT / 2)
+            out.append(s.get("command"))
+        return out
+
+    s = Slave(fmu, t0=0.005)
+    get, serialize, _, _ = (getattr(s.s, n) for n in names)
+    steps(s, range(3))
+    raw = serialize(get())
+    tail = steps(s, range(3, 8))
+    s.close()
+    assert len(set(tail)) > 1  # samples at 0.025 and 0.035 s changed the command
+    s = Slave(fmu, t0=0.0)
+    _, _, deserialize, restore = (getattr(s.s, n) for n in names)
+    restore(deserialize(raw))
+    assert steps(s, range(3, 8)) == tail
+    s.close()
