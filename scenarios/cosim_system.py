@@ -370,6 +370,9 @@ def run_system(sc: Scenario, out_dir: Path) -> RunOutput:
         if key not in KEYS:
             raise sc.error(("cosim", key), unknown_key(key, KEYS))
     sc.refuse_unused("inputs", "sweep", "control")
+    for section in ("model", "parameters"):
+        if any(path[0] == section for path in sc.key_lines):
+            raise sc.error((section,), "the participants bring their own models; remove it")
     sim = sc.simulation
     if sim is None or not sim.output_interval:
         raise sc.error(("simulation",), "needs stop_time and output_interval (the step)")

@@ -142,6 +142,8 @@ def test_the_co_simulated_time_shows_on_the_progress_line(tmp_path):
         (('["muscle.end.s", "load.drive.s"],', '["muscle.end.s"],'), "key 'cosim.connections'"),
         (('"pid.reference"]', '"pid.nothing"]'), 'sources."pid.nothing"\'.*not an input'),
         (('ordering = "gauss-seidel"', 'ordering = "seidel"'), "key 'cosim.ordering'"),
+        (("[simulation]", "[model]\nn = 2\n\n[simulation]"), "key 'model'.*own models"),
+        (("[simulation]", "[inputs.pressure]\ntype = 'step'\nfinal = 1\n\n[simulation]"), "inputs"),
     ],
 )
 def test_schema_errors_are_one_line_and_name_the_key(tmp_path, change, message):
