@@ -14,6 +14,9 @@ at 50 kPa, which the integral then takes a second to remove) or the linearisatio
 (``"linear"``).
 Anti-windup by clamping: the integral does not grow while the command is saturated in
 the direction it would push.
+The law is one CasADi Function per feed-forward (:meth:`LQI.law_function`): :class:`LQI`
+evaluates it every sample, and the controller FMU (:mod:`sarcomere.fmu.controller`)
+generates its C code from it.
 
 The state comes from the plant (``estimator = "none"``: every state is read by name, the
 full-state case) or from an :class:`~.ekf.EKF` on the measured signals
@@ -25,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import casadi as cs
 import control as ct
 import numpy as np
 
@@ -128,6 +132,7 @@ class LQI(Controller):
         )
         self.xi = 0.0
         self.u_last = self.u_op
+        self._laws: dict[bool, tuple] = {}
 
     def reset(self, u0: Mapping[str, float]) -> None:
         """Integral to zero; the estimator (if any) restarts at the operating point."""
@@ -143,28 +148,69 @@ class LQI(Controller):
             return np.array([y[n] for n in self.model.state_names])
         return self.estimator.estimate(y, self.u_last)
 
-    def target(self, dr: float) -> tuple[np.ndarray, float]:
-        """Steady state ``(dx_ss, du_ss)`` of the reference deviation ``dr`` (the
-        equilibria grid interpolated, clamped at its ends; or the linear map)."""
+    def target_function(self) -> cs.Function:
+        """``target(dr) -> (dx_ss, du_ss)``: the steady state of the reference deviation
+        ``dr`` (the equilibria grid interpolated linearly, clamped at its ends; or the
+        linear map)."""
+        dr = cs.MX.sym("dr")
         if self._grid is None:
-            return self.Nx * dr, self.Nu * dr
-        ys, X, U = self._grid
-        y = dr + self.y_op
-        x = np.array([np.interp(y, ys, col) for col in X.T])
-        return x - self.x_op, float(np.interp(y, ys, U)) - self.u_op
+            x_ss, u_ss = cs.DM(self.Nx) * dr, self.Nu * dr
+        else:
+            ys, X, U = self._grid
+            y = cs.fmin(cs.fmax(dr + self.y_op, ys[0]), ys[-1])
+            cols = [cs.interpolant(f"x{i}", "linear", [ys], X[:, i])(y) for i in range(X.shape[1])]
+            x_ss = cs.vertcat(*cols) - cs.DM(self.x_op)
+            u_ss = cs.interpolant("u", "linear", [ys], U)(y) - self.u_op
+        return cs.Function("lqi_target", [dr], [x_ss, u_ss], ["dr"], ["dx_ss", "du_ss"])
+
+    def target(self, dr: float) -> tuple[np.ndarray, float]:
+        """:meth:`target_function` at ``dr`` [output unit]."""
+        x_ss, u_ss = self.target_function()(dr)
+        return np.array(x_ss, dtype=float).ravel(), float(u_ss)
+
+    def law_function(self, linear: bool = False) -> cs.Function:
+        """One sample on deviations: ``lqi(xi, dx, dr, dy, g) -> (next xi, u)`` with
+        ``g = (u_min, u_max)`` [SI]; ``linear`` uses the linear steady-state map whatever
+        the setting (:meth:`target_function` otherwise)."""
+        n = self.model.nx
+        xi, dr, dy = cs.MX.sym("xi"), cs.MX.sym("dr"), cs.MX.sym("dy")
+        dx, g = cs.MX.sym("dx", n), cs.MX.sym("g", 2)
+        if linear:
+            x_ss, u_ss = cs.DM(self.Nx) * dr, self.Nu * dr
+        else:
+            x_ss, u_ss = self.target_function()(dr)
+        v = self.u_op + u_ss - cs.dot(cs.DM(self.Kx), dx - x_ss) - self.Ki * xi
+        u = cs.fmin(cs.fmax(v, g[0]), g[1])
+        xi_next = xi + self.dt * (dy - dr)
+        # saturated, and integrating would push further out: hold the integral
+        wind = cs.logic_and(u != v, cs.fabs(v - self.Ki * (xi_next - xi) - u) > cs.fabs(v - u))
+        return cs.Function(
+            "lqi",
+            [xi, dx, dr, dy, g],
+            [cs.if_else(wind, xi, xi_next), u],
+            ["xi", "dx", "dr", "dy", "g"],
+            ["next", "u"],
+        )
 
     def law(
         self, xi: float, dx: np.ndarray, dr: float, dy: float, linear: bool = False
     ) -> tuple[float, float]:
-        """One sample on deviations: ``(xi, dx, dr, dy) -> (next xi, u)`` [SI];
-        ``linear`` uses the linear steady-state map whatever the setting."""
-        x_ss, u_ss = (self.Nx * dr, self.Nu * dr) if linear else self.target(dr)
-        v = self.u_op + u_ss - float(self.Kx @ (dx - x_ss)) - self.Ki * xi
-        u = min(max(v, self.u_min[self.input]), self.u_max[self.input])
-        xi_next = xi + self.dt * (dy - dr)
-        if u != v and abs(v - self.Ki * (xi_next - xi) - u) > abs(v - u):
-            xi_next = xi  # saturated, and integrating would push further out
-        return xi_next, u
+        """One sample of :meth:`law_function`: ``(xi, dx, dr, dy) -> (next xi, u)`` [SI]."""
+        if linear not in self._laws:  # bound arrays (Function.buffer): ~1 us per call
+            f = self.law_function(linear)
+            args = [np.zeros(f.nnz_in(i)) for i in range(f.n_in())]
+            res = [np.zeros(f.nnz_out(i)) for i in range(f.n_out())]
+            buf, trigger = f.buffer()
+            for i, a in enumerate(args):
+                buf.set_arg(i, memoryview(a))
+            for i, a in enumerate(res):
+                buf.set_res(i, memoryview(a))
+            args[4][:] = self.u_min[self.input], self.u_max[self.input]
+            self._laws[linear] = (buf, trigger, args, res)
+        _, trigger, (a_xi, a_dx, a_dr, a_dy, _), (r_xi, r_u) = self._laws[linear]
+        a_xi[0], a_dx[:], a_dr[0], a_dy[0] = xi, dx, dr, dy
+        trigger()
+        return float(r_xi[0]), float(r_u[0])
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         dx = self.state(y) - self.x_op
