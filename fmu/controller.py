@@ -1,26 +1,29 @@
 """The project's controllers as Co-Simulation FMUs.
 
-:func:`pid_system` wraps a :class:`~sarcomere.controllers.pid.PID`'s own law
-(:func:`~sarcomere.controllers.pid.pid_law`, the CasADi Function the Python controller
-evaluates every sample) as a :class:`~.sampled.SampledSystem`; :func:`export_controller_fmu`
-writes it. The FMU's variables (SI, units from the plant model):
+:func:`pid_system` and :func:`lqi_system` wrap a controller's own law (the CasADi Function
+the Python controller evaluates every sample: :func:`~sarcomere.controllers.pid.pid_law`,
+:meth:`~sarcomere.controllers.lqi.LQI.law_function`) as a :class:`~.sampled.SampledSystem`;
+:func:`export_controller_fmu` writes either. The FMU's variables (SI, units from the plant
+model):
 
 ============== =========== ====================================================
 variable       causality   meaning
 ============== =========== ====================================================
 reference      input       the tracked output's reference ``r``
 measurement    input       the measured output ``y``
+<state names>  input       LQI only: the plant's states, by their model names
 command        output      the plant input ``u``, held between samples
-integral, ...  local       the law's state (:data:`~.pid.STATE_NAMES`) and the
-                           held command ``held_command`` (discrete)
-kp, ki, kd,    parameter   the gains and the command's bounds (tunable: from the
-tf, tt, u_min,             next sample on; the bounds within the exported ones)
-u_max
+integral, ...  local       the law's state (PID: :data:`~.pid.STATE_NAMES`; LQI:
+                           ``integral``) and the held command ``held_command``
+kp, ki, kd,    parameter   PID: the gains (tunable: from the next sample on)
+tf, tt
+u_min, u_max   parameter   the command's bounds (tunable, within the exported ones)
 bias           parameter   the command before the first sample (fixed: the start
                            state is computed from it)
 ============== =========== ====================================================
 
-Sampled at the PID's ``dt`` from the start time (see :mod:`.sampled` for ``doStep``).
+Sampled at the controller's ``dt`` from the start time (see :mod:`.sampled` for
+``doStep``).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from pathlib import Path
 
 import casadi as cs
 
+from sarcomere.controllers.lqi import LQI
 from sarcomere.controllers.pid import LAW_PARAMETERS, PID, STATE_NAMES, pid_law
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
@@ -45,10 +49,7 @@ divides by ``tt``)."""
 def pid_system(pid: PID, model: Model, bias: float, name: str = "pid") -> SampledSystem:
     """``pid`` as a sampled system, its units from ``model`` (the plant), the command
     ``bias`` [input unit] before the first sample (the Python controller's ``reset(u0)``)."""
-    yu, uu = model.unit(pid.output), model.unit(pid.input)
-    lo, hi = pid.u_min[pid.input], pid.u_max[pid.input]
-    if not lo <= bias <= hi:
-        raise ParameterError("bias", bias, f"[{lo:g}, {hi:g}] {uu}")
+    yu, (uu, lo, hi) = model.unit(pid.output), _bias(pid, model, bias)
     rate = f"{uu}/{yu}"
     g = pid.law_parameters(bias)
     units = {"kp": rate, "ki": f"{rate}/s", "kd": f"{rate}*s", "tf": "s", "tt": "s"}
@@ -99,20 +100,73 @@ def pid_system(pid: PID, model: Model, bias: float, name: str = "pid") -> Sample
     )
 
 
+def _bias(controller, model: Model, bias: float) -> tuple[str, float, float]:
+    """The input's unit and bounds; ``bias`` checked inside them."""
+    uu = model.unit(controller.input)
+    lo, hi = controller.u_min[controller.input], controller.u_max[controller.input]
+    if not lo <= bias <= hi:
+        raise ParameterError("bias", bias, f"[{lo:g}, {hi:g}] {uu}")
+    return uu, lo, hi
+
+
+def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> SampledSystem:
+    """A full-state ``lqi`` (no estimator) as a sampled system: inputs the reference, the
+    measured output and the plant's states by name; units from ``model``; the command
+    ``bias`` [input unit] before the first sample."""
+    if lqi.estimator is not None:
+        raise ParameterError(
+            "controller", "lqi on an EKF", "a full-state LQI (the EKF is not exported)"
+        )
+    yu, (uu, lo, hi) = model.unit(lqi.output), _bias(lqi, model, bias)
+    states = (
+        Variable("integral", f"{yu}*s", "integral of the tracking error (y - r)"),
+        Variable("held_command", uu, "command held since the last sample", low=lo, high=hi),
+    )
+    inputs = [  # start values: the design point
+        Variable("reference", yu, f"reference of {lqi.output}", lqi.y_op),
+        Variable("measurement", yu, f"measured {lqi.output}", lqi.y_op),
+    ]
+    for n, x0 in zip(model.state_names, lqi.x_op, strict=True):
+        inputs.append(Variable(n, model.unit(n), f"plant state {n}", float(x0)))
+    params = (
+        Variable("u_min", uu, "lowest command", lo, lo, hi),
+        Variable("u_max", uu, "highest command", hi, lo, hi),
+        Variable("bias", uu, "command before the first sample", bias, lo, hi),
+    )
+    x = cs.MX.sym("x", 2)
+    u, p = cs.MX.sym("u", len(inputs)), cs.MX.sym("p", 3)
+    dx = u[2:] - cs.DM(lqi.x_op)
+    law = lqi.law_function()
+    nxt, cmd = law(x[0], dx, u[0] - lqi.y_op, u[1] - lqi.y_op, p[:2])
+    return SampledSystem(
+        name,
+        f"LQI of {lqi.input} on {lqi.output} (full state), sampled every {lqi.dt:g} s (sarcomere)",
+        lqi.dt,
+        states,
+        tuple(inputs),
+        (Variable("command", uu, f"{lqi.input}, held between samples", low=lo, high=hi),),
+        params,
+        cs.Function("update", [x, u, p], [cs.vertcat(nxt, cmd)]),
+        cs.Function("output", [x, p], [x[1]]),
+        cs.Function("start", [u, p], [cs.vertcat(0.0, p[2])]),
+    )
+
+
 def export_controller_fmu(
-    controller: PID,
+    controller: PID | LQI,
     model: Model,
     path: str | Path,
     bias: float,
     fmi_version: int = 2,
-    name: str = "pid",
+    name: str | None = None,
     stop_time: float | None = None,
 ) -> Path:
-    """Write ``controller`` (a PID) as a Co-Simulation FMU; see :func:`pid_system`.
+    """Write ``controller`` (a PID, or a full-state LQI) as a Co-Simulation FMU; see
+    :func:`pid_system` and :func:`lqi_system`.
 
     Parameters
     ----------
-    controller : PID
+    controller : PID or LQI
         The controller; its sample time is the FMU's period.
     model : Model
         The plant it controls: the units of its output and input.
@@ -122,8 +176,8 @@ def export_controller_fmu(
         The command before the first sample [input unit], in the controller's bounds.
     fmi_version : int
         2 or 3.
-    name : str
-        The model name and identifier.
+    name : str, optional
+        The model name and identifier (default the controller's slug).
     stop_time : float, optional
         The default experiment's stop time [s].
 
@@ -135,13 +189,15 @@ def export_controller_fmu(
     Raises
     ------
     ParameterError
-        For a controller without a CasADi law (only PID has one), a bias outside the
-        bounds, a bad version or path.
+        For a controller without an exported law (MPCs, an LQI on an EKF), a bias
+        outside the bounds, a bad version or path.
     """
-    if not isinstance(controller, PID):
+    builders = {PID: pid_system, LQI: lqi_system}
+    build = builders.get(type(controller))
+    if build is None:
         raise ParameterError(
-            "controller", type(controller).__name__, "a PID (the controller with an exported law)"
+            "controller", type(controller).__name__, "a PID or an LQI (the exported laws)"
         )
-    system = pid_system(controller, model, bias, name)
+    system = build(controller, model, bias, name or controller.slug)
     experiment = Experiment(stop_time=stop_time, step_size=controller.dt)
     return export_sampled_fmu(system, path, fmi_version, experiment=experiment)

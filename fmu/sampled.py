@@ -114,8 +114,8 @@ def functions(system: SampledSystem) -> list[cs.Function]:
     """The generated Functions ``physics.c`` calls for a sampled system: ``sm_out``
     ``(x, u, p) -> y``, ``sm_start`` ``(u, p) -> x``, ``sm_update`` ``(x, u, p) -> x``."""
     s = system
-    x = cs.SX.sym("x", len(s.states))
-    u, p = cs.SX.sym("u", len(s.inputs)), cs.SX.sym("p", len(s.parameters))
+    x = cs.MX.sym("x", len(s.states))
+    u, p = cs.MX.sym("u", len(s.inputs)), cs.MX.sym("p", len(s.parameters))
     return [
         cs.Function("sm_out", [x, u, p], [s.output(x, p)], ["x", "u", "p"], ["y"]),
         cs.Function("sm_start", [u, p], [s.start(u, p)], ["u", "p"], ["x"]),
@@ -138,7 +138,7 @@ def layout(system: SampledSystem) -> Layout:
         for v in variables:
             start = None if group == "y" else v.start
             rows.append((v.name, group, v.unit, start, v.low, v.high, None, v.description))
-    u, p = cs.SX.sym("u", len(s.inputs)), cs.SX.sym("p", len(s.parameters))
+    u, p = cs.MX.sym("u", len(s.inputs)), cs.MX.sym("p", len(s.parameters))
     used = set(cs.jacobian(s.start(u, p), p).sparsity().get_col())
     tunable = frozenset(v.name for i, v in enumerate(s.parameters) if i not in used)
     return Layout(s.name, s.description, rows, tunable, [[] for _ in s.outputs], [], s.period)

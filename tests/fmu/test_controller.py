@@ -12,6 +12,7 @@ from fmpy.fmi2 import FMU2Model, FMU2Slave
 from fmpy.fmi3 import FMU3Model, FMU3Slave
 from fmpy.validation import validate_fmu
 
+from sarcomere.controllers.base import Controller
 from sarcomere.controllers.linearize import operating_point
 from sarcomere.controllers.lqi import make_lqi
 from sarcomere.controllers.pid import make_pid
@@ -63,13 +64,13 @@ def _python(pid, ys, r) -> np.ndarray:
 class Slave:
     """A Co-Simulation instance of the FMU, stepped by hand."""
 
-    def __init__(self, fmu, t0: float = 0.0) -> None:
+    def __init__(self, fmu, t0: float = 0.0, model_identifier: str = "pid") -> None:
         path, version, folder = fmu
         md = read_model_description(path)
         self.vr = {v.name: v.valueReference for v in md.modelVariables}
         cls, guid = (FMU2Slave, md.guid) if version == 2 else (FMU3Slave, md.instantiationToken)
         self.s = cls(
-            guid=guid, unzipDirectory=extract(path), modelIdentifier="pid", instanceName="c"
+            guid=guid, unzipDirectory=folder, modelIdentifier=model_identifier, instanceName="c"
         )
         self.v = version
         self.s.instantiate()
@@ -82,7 +83,7 @@ class Slave:
 
     def set(self, **values) -> None:
         setter = self.s.setReal if self.v == 2 else self.s.setFloat64
-        setter([self.vr[k] for k in values], list(values.values()))
+        setter([self.vr[k] for k in values], [float(v) for v in values.values()])
 
     def get(self, name: str) -> float:
         getter = self.s.getReal if self.v == 2 else self.s.getFloat64
@@ -196,11 +197,59 @@ def test_model_exchange_is_refused(fmu, pid, plant, tmp_path):
 
 def test_bad_controller_exports_are_refused(plant, pid, tmp_path):
     m, op = plant
+
+    class Hold(Controller):
+        def update(self, t, y, r):
+            return {TASK["input"]: U0}
+
     with pytest.raises(ParameterError, match="bias"):
         export_controller_fmu(pid, m, tmp_path / "c.fmu", 2e5)
-    lqi = make_lqi(m, op, DT, {**TASK, "feedforward": "linear"})
-    with pytest.raises(ParameterError, match="a PID"):
-        export_controller_fmu(lqi, m, tmp_path / "c.fmu", U0)
+    hold = Hold(DT, [TASK["input"]], [TASK["output"]], {TASK["input"]: 0}, {TASK["input"]: 1e5})
+    with pytest.raises(ParameterError, match="a PID or an LQI"):
+        export_controller_fmu(hold, m, tmp_path / "c.fmu", U0)
+    on_ekf = make_lqi(m, op, DT, {**TASK, "feedforward": "linear", "estimator": "ekf"})
+    with pytest.raises(ParameterError, match="full-state LQI"):
+        export_controller_fmu(on_ekf, m, tmp_path / "c.fmu", U0)
+
+
+@pytest.fixture(scope="module")
+def lqi(plant):
+    m, op = plant
+    return make_lqi(m, op, DT, TASK)  # the equilibria feed-forward: interpolated tables
+
+
+@pytest.fixture(scope="module", params=[2, 3])
+def lqi_fmu(request, plant, lqi, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("lqi")
+    path = export_controller_fmu(lqi, plant[0], folder / "lqi.fmu", U0, request.param)
+    return path, request.param, extract(str(path), unzipdir=str(folder / "unzipped"))
+
+
+def test_the_lqi_fmu_equals_the_python_lqi(lqi_fmu, plant, lqi):
+    """A full-state LQI: the plant's states are inputs by name. Random states and lengths
+    around the operating point and a reference that steps beyond both ends of the
+    feed-forward table: the same commands, both bounds and the windup guard included."""
+    path, version, folder = lqi_fmu
+    assert validate_fmu(str(path)) == []
+    m, op = plant
+    rng = np.random.default_rng(2)
+    s = Slave((path, version, folder), model_identifier="lqi")
+    lqi.reset({TASK["input"]: U0})
+    got, want = [], []
+    for k in range(200):
+        x = op.x * (1 + 1e-5 * rng.standard_normal(m.nx))
+        y = op["myofibril.length"] + 2e-4 * np.sin(0.1 * k)
+        r = op["myofibril.length"] + (-0.05 if k < 60 else 0.0 if k < 140 else 0.05)
+        states = dict(zip(m.state_names, x, strict=True))
+        want.append(lqi.update(k * DT, {**states, lqi.output: y}, {lqi.output: r})[lqi.input])
+        s.set(reference=r, measurement=y, **states)
+        s.step(k * DT, DT)
+        got.append(s.get("command"))
+    s.close()
+    want = np.array(want)
+    assert np.any(want == 0.0) and np.any(want == 1e5)
+    assert np.sum((want > 0) & (want < 1e5)) > 20, np.sum((want > 0) & (want < 1e5))
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * 1e5)
 
 
 def test_a_serialized_state_keeps_the_sample_grid(fmu, plant):
