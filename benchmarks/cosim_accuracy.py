@@ -36,6 +36,7 @@ import time
 from pathlib import Path
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -175,6 +176,8 @@ def _chart(path: Path, steps, results: dict, ylabel: str, title: str) -> None:
         ax.loglog(
             np.array(steps) * 1e3, r["errors"], "o-", label=f"{label}: order {r['order']:.2f}"
         )
+    ax.set_xticks(np.array(steps) * 1e3, [f"{h * 1e3:g}" for h in steps])
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_xlabel("communication step [ms]")
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=9)
@@ -238,8 +241,14 @@ def main() -> None:
             print(f"{part} {label}: {errs}  order {r['order']:.2f}")
     for label, rows in results["stability"]["boundary"].items():
         print(label, " ".join(f"{r['h_c_over_d']:.2f}" for r in rows))
-    unstable = [r for r in results["stability"]["runs"] if not r["stable"]]
-    print(f"{len(unstable)} of {len(results['stability']['runs'])} runs unstable")
+    runs = results["stability"]["runs"]
+    agree = sum(r["stable"] == (r["radius"] <= 1) for r in runs)
+    results["stability"]["agree_with_linear"] = agree
+    print(f"{sum(not r['stable'] for r in runs)} of {len(runs)} runs unstable; ", end="")
+    print(f"{agree} agree with the linear analysis (radius <= 1: stable)")
+    for r in runs:
+        if r["stable"] != (r["radius"] <= 1):
+            print("  disagree:", r)
     print(f"run time {results['run_time_s']:.0f} s")
     (args.out_dir / "cosim_accuracy.json").write_text(json.dumps(results, indent=1))
     _chart(
