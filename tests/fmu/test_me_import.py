@@ -13,6 +13,8 @@ import casadi as cs
 import numpy as np
 import pytest
 
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP
+from sarcomere.controllers.qp import qp_solver, zoh
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.components.aps import APSParams, Myofibril
 from sarcomere.dynamics.components.environment import Environment
@@ -375,3 +377,57 @@ def test_compose_refuses_a_cycle_through_two_fmus(load_fmu, upper_fmu):
         )
     with pytest.raises(ModelError, match="'drive.s' is ambiguous"):
         compose(native, [upper, lower], {"drive.s": "load.s"})
+
+
+def _cvodes_step(rhs, n: int, dt: float) -> cs.Function:
+    """``(x0, u) -> x(dt)`` of ``xdot = rhs(x, u)``, CVODES at tight tolerances."""
+    X, U = cs.MX.sym("x", n), cs.MX.sym("u", 1)
+    opts = {"abstol": 1e-14, "reltol": 1e-10}
+    return cs.integrator("plant", "cvodes", {"x": X, "p": U, "ode": rhs(X, U)}, 0, dt, opts)
+
+
+def test_the_linear_mpc_on_a_composition_moves_as_on_the_monolithic_model(joined):
+    """The project's LinearMPC on the monolithic model, and its velocity-form QP (the same
+    class, solver and law) on the composition's linearisation (muscle + load ME FMU),
+    each closing the loop on its own plant for five samples: the same moves."""
+    composed, mono = joined
+    dt, samples = 0.01, 5
+    settings = LMPCSettings(horizon=10, relinearize_m=1.0)
+    eq = solve_equilibrium(mono, {"regulator.p_cmd": P_CMD})
+    target = {"myofibril.length": eq["myofibril.length"] - 5e-4}  # 0.5 mm shorter
+    mpc = LinearMPC(mono, eq.x, eq.u, dt, settings)
+    plant = _cvodes_step(
+        lambda X, U: mono.function("ode")(X, cs.MX(0, 1), U, mono.parameters()), mono.nx, dt
+    )
+    x, mono_moves = eq.x.copy(), []
+    for k in range(samples):
+        length = float(mono.signals_function(["myofibril.length"])(x, [], eq.u, eq.p))
+        y = dict(zip(mono.state_names, x, strict=True)) | {"myofibril.length": length}
+        mono_moves.append(mpc.checked(k * dt, y, target)["regulator.p_cmd"])
+        x = np.array(plant(x0=x, p=mono_moves[-1])["xf"]).ravel()
+
+    x = _to_composed(composed, mono, eq.x)
+    lin = composed.linearization(["myofibril.length"])
+    A, B, C, _ = lin(x, eq.u)
+    Ad, Bd = zoh(A, B, dt)
+    lo, hi = np.array([settings.u_min]), np.array([settings.u_max])
+    nv, na = settings.horizon, settings.horizon  # moves; one input, no soft bounds
+    qp = VelocityQP(
+        Ad, Bd, C, np.zeros((0, len(x))), settings.horizon, settings.weight_y,
+        settings.weight_du, settings.weight_slack, hi - lo,
+        qp_solver(settings.qp_solver, cs.Sparsity.dense(nv, nv), cs.Sparsity.dense(na, nv)),
+    )  # fmt: skip
+    plant = _cvodes_step(composed.rhs, len(x), dt)
+    index = composed.signal_names.index("myofibril.length")
+    u, x_prev, moves = eq.u.copy(), None, []
+    for _ in range(samples):
+        length = float(cs.vertcat(*composed.outputs(x, u))[index])
+        dx = np.zeros_like(x) if x_prev is None else x - x_prev
+        xi = np.concatenate([dx, [length - target["myofibril.length"]]])
+        du, ok = qp.solve(xi, u, lo, hi, np.array([settings.rate_max * dt]), np.zeros(0))
+        assert ok
+        u = np.clip(u + du[0], lo, hi)
+        moves.append(float(u[0]))
+        x_prev, x = x, np.array(plant(x0=x, p=u)["xf"]).ravel()
+    assert mono_moves[-1] - P_CMD > 1e3  # the MPC acts: 300 Pa per sample
+    np.testing.assert_allclose(moves, mono_moves, rtol=1e-7)
