@@ -9,11 +9,14 @@ wrong by more than 100 % (badly scaled states), so check such an FMU's linearisa
 using it (docs/cosim.md). CasADi's option ``uses_directional_derivatives=False`` does not
 reach the Jacobian here (casadi 3.8.2: still exact), so it is not offered. Parameters are
 set on the DaeBuilder, never passed as inputs (with FMI 3.0 that gave wrong Jacobians).
+An FMI 3.0 FMU must state the ``dependencies`` of its ``InitialUnknown`` elements (the
+DaeBuilder does not implement their default); one that does not is refused.
 
-:func:`compose` couples an imported FMU to a flattened
+:func:`compose` couples imported FMUs to a flattened
 :class:`~sarcomere.dynamics.modeling.model.Model` by connections by name and returns plain
-CasADi Functions of the joint state: simulate them with ``cs.integrator`` and linearise them
-with ``cs.jacobian``.
+CasADi Functions of the joint state: simulate them with ``cs.integrator``; linearise with
+:meth:`Composed.linearization` (by parts: CasADi's Jacobian of two chained FMU Functions
+was wrong).
 """
 
 from __future__ import annotations
@@ -67,6 +70,9 @@ def import_me(path, params: Mapping[str, float] | None = None) -> ImportedFMU:
     ------
     FmuArchiveError
         The archive fails a safety check or has no Model Exchange interface.
+    ModelError
+        An FMI 3.0 FMU with an ``InitialUnknown`` without ``dependencies``, or another
+        description or binary CasADi's DaeBuilder cannot load (its cause named).
     ParameterError
         A name in ``params`` is not a parameter of the FMU.
 
