@@ -16,7 +16,8 @@ spring, its tension pulls the end), command 0.02 -> 0.08 MPa at 20 ms, 0.2 s. Th
 model (CVODES, rtol 1e-10), at the communication points. Then the spring's stiffness is
 swept: a run that fails (a participant leaves the physical domain) or whose error grows
 (:func:`~sarcomere.fmu.cosim_study.diverges`) is unstable, and the linear analysis
-(:func:`~sarcomere.fmu.cosim_study.amplification`) gives the boundary.
+(:func:`~sarcomere.fmu.cosim_study.amplification`) gives the boundary. With hold, the runs
+are repeated with the load as its exported FMU (FMI 2.0, built once, about 3 s of gcc).
 
 The observed order is the slope of log error against log step between the two smallest
 steps. Writes ``cosim_accuracy.png`` (one-way), ``cosim_two_way.png``,
@@ -32,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import tempfile
 import time
 from pathlib import Path
 
@@ -44,10 +46,18 @@ import numpy as np  # noqa: E402
 
 from sarcomere.dynamics.assemblies import isometric  # noqa: E402
 from sarcomere.dynamics.simulation.settings import SolverSettings  # noqa: E402
-from sarcomere.fmu import Connection, CosimError, NativeParticipant, cosimulate  # noqa: E402
+from sarcomere.fmu import (  # noqa: E402
+    Connection,
+    CosimError,
+    NativeParticipant,
+    cosimulate,
+    export_fmu,
+    open_fmu,
+)
 from sarcomere.fmu import cosim_study as study  # noqa: E402
 
-COMBOS = [(o, i) for o in ("jacobi", "gauss-seidel") for i in ("hold", "extrapolate")]
+ORDERINGS = ("jacobi", "gauss-seidel")
+COMBOS = [(o, i) for o in ORDERINGS for i in ("hold", "extrapolate")]
 
 STEPS = (0.02, 0.01, 0.005, 0.0025)
 REFERENCE_STEP = 0.000125
@@ -110,20 +120,31 @@ def _grid(step: float) -> np.ndarray:
     return np.linspace(0.0, TWO_WAY_STOP, round(TWO_WAY_STOP / step) + 1)
 
 
-def two_way() -> dict:
+def two_way(load_fmu: Path) -> dict:
+    """Every ordering and input law with native participants; with hold, also with the
+    load as its exported FMU (labels ending in ", load FMU")."""
     finest = TWO_WAY_STEPS[-1]
     ref = study.monolithic_run(TWO_WAY_C, COMMAND, TWO_WAY_STOP, _grid(finest))["load.s"]
     out = {}
-    for ordering, inputs in COMBOS:
+    cases = [(o, i, False) for o, i in COMBOS] + [(o, "hold", True) for o in ORDERINGS]
+    for ordering, inputs, fmu in cases:
         errors = []
         for h in TWO_WAY_STEPS:
-            r = study.cosimulate_split(
-                TWO_WAY_C, h, ordering, inputs, COMMAND, TWO_WAY_STOP, settings=PARTICIPANTS
-            )
+            with open_fmu(load_fmu) as opened:
+                r = study.cosimulate_split(
+                    TWO_WAY_C,
+                    h,
+                    ordering,
+                    inputs,
+                    COMMAND,
+                    TWO_WAY_STOP,
+                    settings=PARTICIPANTS,
+                    load_fmu=opened if fmu else None,
+                )
             e = np.abs(r["load.load.s"] - ref[:: round(h / finest)])
             errors.append(float(np.max(e) / np.ptp(ref)))
         ratios = [errors[k] / errors[k + 1] for k in range(len(errors) - 1)]
-        out[f"{ordering}, {inputs}"] = {
+        out[f"{ordering}, {inputs}{', load FMU' if fmu else ''}"] = {
             "errors": errors,
             "order": order(TWO_WAY_STEPS, errors),
             "orders": [math.log2(q) for q in ratios],
@@ -131,18 +152,29 @@ def two_way() -> dict:
     return out
 
 
-def stability() -> dict:
-    """Nonlinear runs over the stiffness and step grid, and the linear boundary."""
+def stability(load_fmu: Path) -> dict:
+    """Nonlinear runs over the stiffness and step grid (with hold, also with the load as
+    its FMU: ``"fmu": true``), and the linear boundary."""
     finest = min(SWEEP_STEPS)
     runs = []
+    cases = [(o, i, False) for o, i in COMBOS] + [(o, "hold", True) for o in ORDERINGS]
     for c in SWEEP_C:
         ref = study.monolithic_run(c, COMMAND, TWO_WAY_STOP, _grid(finest))["spring.f"]
-        for ordering, inputs in COMBOS:
+        for ordering, inputs, fmu in cases:
             for h in SWEEP_STEPS:
-                row = {"c": c, "h": h, "ordering": ordering, "inputs": inputs}
+                row = {"c": c, "h": h, "ordering": ordering, "inputs": inputs, "fmu": fmu}
                 row["radius"] = study.amplification(c, h, ordering, inputs, COMMAND[1])
                 try:
-                    r = study.cosimulate_split(c, h, ordering, inputs, COMMAND, TWO_WAY_STOP)
+                    with open_fmu(load_fmu) as opened:
+                        r = study.cosimulate_split(
+                            c,
+                            h,
+                            ordering,
+                            inputs,
+                            COMMAND,
+                            TWO_WAY_STOP,
+                            load_fmu=opened if fmu else None,
+                        )
                 except CosimError as err:
                     row.update(stable=False, why=f"failed at t = {err.time:.4g} s", error=None)
                 else:
@@ -202,7 +234,7 @@ def _stability_chart(path: Path, stab: dict) -> None:
                 label=f"{ordering}: linear boundary",
             )
             for r in stab["runs"]:
-                if (r["ordering"], r["inputs"]) == (ordering, law):
+                if (r["ordering"], r["inputs"], r["fmu"]) == (ordering, law, False):
                     shift = 0.93 if ordering == "jacobi" else 1.07  # side by side
                     ax.plot(
                         r["c"] * shift,
@@ -228,12 +260,14 @@ def main() -> None:
     args.out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     results = {"one_way": {"steps": STEPS, "results": one_way()}}
-    results["two_way"] = {
-        "c": TWO_WAY_C,
-        "steps": TWO_WAY_STEPS,
-        "results": two_way(),
-    }
-    results["stability"] = stability()
+    with tempfile.TemporaryDirectory() as folder:  # the load participant's FMU (FMI 2.0)
+        load_fmu = export_fmu(study.load_participant_model(TWO_WAY_C), Path(folder) / "load.fmu")
+        results["two_way"] = {
+            "c": TWO_WAY_C,
+            "steps": TWO_WAY_STEPS,
+            "results": two_way(load_fmu),
+        }
+        results["stability"] = stability(load_fmu)
     results["run_time_s"] = time.perf_counter() - started
     for part in ("one_way", "two_way"):
         for label, r in results[part]["results"].items():
@@ -241,8 +275,20 @@ def main() -> None:
             print(f"{part} {label}: {errs}  order {r['order']:.2f}")
     for label, rows in results["stability"]["boundary"].items():
         print(label, " ".join(f"{r['h_c_over_d']:.2f}" for r in rows))
-    runs = results["stability"]["runs"]
+    runs = [r for r in results["stability"]["runs"] if not r["fmu"]]
     agree = sum(r["stable"] == (r["radius"] <= 1) for r in runs)
+    with_fmu = {
+        (r["c"], r["h"], r["ordering"]): r["stable"]
+        for r in results["stability"]["runs"]
+        if r["fmu"]
+    }
+    alike = sum(
+        r["stable"] == with_fmu[(r["c"], r["h"], r["ordering"])]
+        for r in runs
+        if r["inputs"] == "hold"
+    )
+    results["stability"]["fmu_alike_native"] = [alike, len(with_fmu)]
+    print(f"the load as an FMU is classified as the native load in {alike} of {len(with_fmu)}")
     results["stability"]["agree_with_linear"] = agree
     print(f"{sum(not r['stable'] for r in runs)} of {len(runs)} runs unstable; ", end="")
     print(f"{agree} agree with the linear analysis (radius <= 1: stable)")

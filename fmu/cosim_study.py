@@ -47,8 +47,9 @@ from sarcomere.dynamics.signals import Step
 from sarcomere.dynamics.simulation.settings import SolverSettings
 from sarcomere.dynamics.simulation.simulate import simulate
 
+from .archive import OpenedFmu
 from .cosim import INPUT_LAWS, ORDERINGS, Connection, cosimulate
-from .participants import NativeParticipant
+from .participants import FmuParticipant, NativeParticipant
 
 G = Ambient().g
 """Gravity of both participants [m/s^2] (the environment's default)."""
@@ -259,19 +260,24 @@ def cosimulate_split(
     stop_time: float,
     record: tuple[str, ...] = ("load.load.s", "load.spring.f"),
     settings: SolverSettings | None = None,
+    load_fmu: OpenedFmu | None = None,
 ) -> Result:
-    """The split system co-simulated natively (muscle first), the command ``p = (p_low,
-    p_high, t_step)`` [Pa, Pa, s], from the joint equilibrium of ``p_low``.
+    """The split system co-simulated (muscle first), the command ``p = (p_low, p_high,
+    t_step)`` [Pa, Pa, s], from the joint equilibrium of ``p_low``. Both participants are
+    native (CVODES with ``settings``), or the load is ``load_fmu``, an FMU of
+    :func:`load_participant_model` (any ``c``: its ``spring.c`` is set to ``c``).
 
     Raises
     ------
     CosimError
         A participant failed (a diverging coupling leaves the physical domain).
     """
-    parts = [
-        NativeParticipant(muscle_participant_model(), "muscle", settings=settings),
-        NativeParticipant(load_participant_model(c), "load", settings=settings),
-    ]
+    load = (
+        NativeParticipant(load_participant_model(c), "load", settings=settings)
+        if load_fmu is None
+        else FmuParticipant(load_fmu, "load", {"spring.c": _check(c)})
+    )
+    parts = [NativeParticipant(muscle_participant_model(), "muscle", settings=settings), load]
     return cosimulate(
         parts,
         CONNECTIONS,

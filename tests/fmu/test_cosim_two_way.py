@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from sarcomere.fmu import cosim_study as study
+from sarcomere.fmu import export_fmu, open_fmu
 from sarcomere.fmu.cosim import CosimError
 
 COMMAND = (2e4, 8e4, 0.02)
@@ -74,3 +75,27 @@ def test_the_held_coupling_acts_as_a_delay_against_the_physical_damping():
     gauss = study.critical_step(c, "gauss-seidel", "hold", COMMAND[1], bracket)
     assert jacobi * c / d == pytest.approx(1.0, abs=0.1)
     assert gauss / jacobi == pytest.approx(3.8, abs=0.4)
+
+
+@pytest.fixture(scope="module")
+def load_fmu(tmp_path_factory):
+    """The load participant's model as an FMI 2.0 FMU (its spring's ``c`` a parameter)."""
+    path = tmp_path_factory.mktemp("fmu") / "load.fmu"
+    return export_fmu(study.load_participant_model(200.0), path)
+
+
+def test_the_load_as_its_fmu_couples_as_the_native_load(load_fmu):
+    """The same loop with the load as its exported FMU (Radau IIA inside): the coupling
+    error is the native load's to 1 %, and a stiff spring at a large step still tears the
+    muscle out of its domain (the spring's stiffness set as the FMU's parameter)."""
+    stop = 0.08
+    ref = study.monolithic_run(200.0, COMMAND, stop, np.linspace(0, stop, 81))
+    scale = np.ptp(ref["load.s"])
+    native = np.max(_error(200.0, 1e-3, "gauss-seidel", stop, ref, "load.s")) / scale
+    with open_fmu(load_fmu) as fmu:
+        r = study.cosimulate_split(200.0, 1e-3, "gauss-seidel", "hold", COMMAND, stop, load_fmu=fmu)
+    fmu_error = np.max(np.abs(r["load.load.s"] - ref["load.s"])) / scale
+    assert fmu_error == pytest.approx(native, rel=0.01)
+    with open_fmu(load_fmu) as fmu:
+        with pytest.raises(CosimError, match="model 'muscle' returned error"):
+            study.cosimulate_split(3e4, 1e-3, "gauss-seidel", "hold", COMMAND, 0.2, load_fmu=fmu)
