@@ -167,6 +167,8 @@ def amplification(c: float, h: float, ordering: str, inputs: str, p_cmd: float) 
         raise ParameterError("ordering", ordering, " or ".join(ORDERINGS))
     if inputs not in INPUT_LAWS:
         raise ParameterError("inputs", inputs, " or ".join(INPUT_LAWS))
+    if not (np.isfinite(h) and h > 0):
+        raise ParameterError("h", h, "(0, inf) s")
     muscle, load = _linearised(_check(c), float(p_cmd))
     Pm, Gm, Cm, Dm = _discrete(*muscle, h)
     Pl, Gl, Cl, Dl = _discrete(*load, h)

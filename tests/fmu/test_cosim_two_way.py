@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from sarcomere.dynamics.errors import ParameterError
 from sarcomere.fmu import cosim_study as study
 from sarcomere.fmu import export_fmu, open_fmu
 from sarcomere.fmu.cosim import CosimError
@@ -99,3 +100,17 @@ def test_the_load_as_its_fmu_couples_as_the_native_load(load_fmu):
     with open_fmu(load_fmu) as fmu:
         with pytest.raises(CosimError, match="model 'muscle' returned error"):
             study.cosimulate_split(3e4, 1e-3, "gauss-seidel", "hold", COMMAND, 0.2, load_fmu=fmu)
+
+
+@pytest.mark.parametrize(
+    "args, name",
+    [
+        ((200.0, 0.0, "jacobi", "hold"), "'h'"),
+        ((200.0, 1e-3, "parallel", "hold"), "'ordering'"),
+        ((200.0, 1e-3, "jacobi", "cubic"), "'inputs'"),
+        ((-1.0, 1e-3, "jacobi", "hold"), "'c'"),
+    ],
+)
+def test_the_analysis_refuses_bad_arguments(args, name):
+    with pytest.raises(ParameterError, match=name):
+        study.amplification(*args, COMMAND[1])
