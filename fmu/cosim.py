@@ -3,7 +3,8 @@ stepped at a fixed communication step, their inputs fed by connections and sourc
 
 At the start, the participants are initialised in their listed order, each with its
 sources' values and the outputs of the participants started before it (an input driven
-by a later participant keeps its start value until the first step).
+by a later participant keeps its start value, or the value given in ``start_inputs``,
+until the first step).
 
 Each communication step ``[t_k, t_k + h]``:
 
@@ -90,6 +91,7 @@ def cosimulate(
     ordering: str = "jacobi",
     inputs: str = "hold",
     sources: Mapping[str, Callable[[float], float]] | None = None,
+    start_inputs: Mapping[str, float] | None = None,
     record: Sequence[str] | None = None,
     on_step: Callable[[float], None] | None = None,
 ) -> Result:
@@ -108,6 +110,10 @@ def cosimulate(
         How a connected input is held over a step (see the module docstring).
     sources : mapping of str to callable, optional
         ``"participant.input"`` -> function of time [SI]; evaluated at each step's start.
+    start_inputs : mapping of str to float, optional
+        ``"participant.input"`` -> value [SI] at the start, for a connected input whose
+        driver starts after its participant (a loop: the value that closes it, e.g. the
+        coupling force of the joint equilibrium); default the input's start value.
     record : sequence of str, optional
         ``"participant.variable"`` to record (default every participant's outputs).
     on_step : callable, optional
@@ -158,6 +164,15 @@ def cosimulate(
         if inp not in parts[dst].inputs:
             raise ParameterError("source", target, f"an input of '{dst}'")
         external[dst][inp] = fn
+    given = {}
+    order = {name: i for i, name in enumerate(parts)}
+    for target, value in (start_inputs or {}).items():
+        dst, inp = _split(target, parts, "start_inputs")
+        if inp not in drivers[dst] or order[drivers[dst][inp][0]] < order[dst]:
+            raise ParameterError(
+                "start_inputs", target, "a connected input whose driver starts after it"
+            )
+        given[target] = float(value)
     if record is None:
         record = [f"{p.name}.{o}" for p in participants for o in p.outputs]
     wanted: dict[str, list[str]] = {p: [] for p in parts}
@@ -200,6 +215,8 @@ def cosimulate(
             for inp, (src, out) in drivers[p.name].items():
                 if src in current:  # started before p: its output at the start time
                     start[inp] = current[src][out]
+                elif f"{p.name}.{inp}" in given:
+                    start[inp] = given[f"{p.name}.{inp}"]
             p.start(t, start)
             current[p.name] = p.get(wanted[p.name])
         rows.append(current)

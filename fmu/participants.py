@@ -11,6 +11,7 @@ given input values, states at the equilibrium of those inputs), ``set(values)``,
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from ctypes import byref
 
@@ -78,13 +79,22 @@ class FmuParticipant:
         parameters = [v.name for v in reals if v.causality == "parameter"]
         self._params = dict(params or {})
         _unknown(name, list(self._params), parameters, "parameters")
+        self._who = f"FMU '{name}' ({fmu.path.name})"
         cls = FMU2Slave if self._version == 2 else FMU3Slave
-        self._slave = cls(
-            guid=md.guid if self._version == 2 else md.instantiationToken,
-            unzipDirectory=str(fmu.folder),
-            modelIdentifier=md.coSimulation.modelIdentifier,
-            instanceName=name,
-        )
+        cwd = os.getcwd()  # fmpy enters the binary's folder to load it and, on failure,
+        try:  # stays there
+            self._slave = cls(
+                guid=md.guid if self._version == 2 else md.instantiationToken,
+                unzipDirectory=str(fmu.folder),
+                modelIdentifier=md.coSimulation.modelIdentifier,
+                instanceName=name,
+            )
+        except Exception as err:  # fmpy raises a bare Exception (or OSError, AttributeError)
+            raise ParticipantError(
+                self._who, "fatal", f"loading its binary failed: {err}"
+            ) from None
+        finally:
+            os.chdir(cwd)
         self._live = False
         self._log: list[str] = []  # the FMU's messages of status warning and worse
 
@@ -99,9 +109,19 @@ class FmuParticipant:
         except FMICallException as err:
             said = "; ".join(self._log[seen:]) or "no message"
             raise ParticipantError(
-                f"FMU '{self.name}' ({self.fmu_path.name})",
-                STATUS[err.status],
-                f"{what} failed: {said}",
+                self._who, STATUS[err.status], f"{what} failed: {said}"
+            ) from None
+
+    def _instantiate(self, *args) -> None:
+        """Instantiate; a NULL instance (fmpy raises a bare Exception) is a fatal
+        ParticipantError with the FMU's own messages."""
+        seen = len(self._log)
+        try:
+            self._slave.instantiate(*args)
+        except Exception as err:
+            said = "; ".join(self._log[seen:]) or "no message"
+            raise ParticipantError(
+                self._who, "fatal", f"instantiate failed ({err}): {said}"
             ) from None
 
     def _set(self, values: Mapping[str, float]) -> None:
@@ -122,16 +142,10 @@ class FmuParticipant:
             callbacks.allocateMemory = defaultCallbacks.allocateMemory
             callbacks.freeMemory = defaultCallbacks.freeMemory
             addLoggerProxy(byref(callbacks))  # formats the FMU's printf-style messages
-            self._call("instantiate", s.instantiate, False, callbacks)
+            self._instantiate(False, callbacks)
         else:
-            self._call(
-                "instantiate",
-                s.instantiate,
-                False,
-                False,
-                False,
-                False,
-                lambda env, status, cat, msg: self._logged(status, msg),
+            self._instantiate(
+                False, False, False, False, lambda env, st, cat, msg: self._logged(st, msg)
             )
         self._live = True
         if self._version == 2:
@@ -222,11 +236,14 @@ class NativeParticipant:
         self._u.update(values)
 
     def get(self, names: Sequence[str]) -> dict[str, float]:
-        values = self._sim.signals(names)
-        for n in names:
-            if n in self._u:  # an input reads back as set, like an FMU's
-                values[n] = self._u[n]
-        return values
+        """Signals at the present state and the inputs as set (after ``start``, the start
+        inputs; the simulator's own would be the model's defaults): an output that feeds
+        through from an input reads as an FMU's does. Algebraic unknowns are those of the
+        last step (the master never sets inputs between a step and a read)."""
+        sim, m = self._sim, self.model
+        u = np.array([self._u[n] for n in m.input_names], dtype=float)
+        values = np.array(m.signals_function(list(names))(sim.x, sim.z, u, sim.p)).ravel()
+        return dict(zip(names, values.tolist(), strict=True))
 
     def do_step(self, t: float, h: float) -> None:
         if not np.isclose(t, self._sim.t, rtol=0, atol=1e-12 * max(1.0, abs(t))):
