@@ -117,9 +117,8 @@ class Part:
 
 
 class _StartedNative(NativeParticipant):
-    """A native participant whose unconnected start inputs are the scene's ``start`` values
-    (as its exported FMU's start values would be), and whose outputs are read at the
-    inputs it holds (as an FMU's are)."""
+    """A native participant whose start inputs, where the master gives none, are the
+    scene's ``start`` values (as its exported FMU's start values would be)."""
 
     def __init__(self, part: Part, settings) -> None:
         super().__init__(part.model, part.name, None, settings)
@@ -127,15 +126,6 @@ class _StartedNative(NativeParticipant):
 
     def start(self, t0: float, inputs: Mapping[str, float]) -> None:
         super().start(t0, {**self._given, **inputs})
-
-    def get(self, names) -> dict[str, float]:
-        """Signals at the inputs held now: an output may feed through from an input (the
-        load's tension from its driven end), which the simulator's last step has not
-        seen yet."""
-        m, sim = self.model, self._sim
-        u = [self._u[n] for n in m.input_names]
-        values = np.asarray(m.signals_function(list(names))(sim.x, sim.z, u, sim.p)).ravel()
-        return dict(zip(names, values.tolist(), strict=True))
 
 
 def _quantity(sc: Scenario, value, path: tuple, unit: str, low: float | None = None) -> float:

@@ -4,12 +4,21 @@ measurement sequence that saturates and winds; the doStep semantics of docs/fmu.
 
 from __future__ import annotations
 
+from ctypes import byref
+
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Model, FMU2Slave
+from fmpy.fmi2 import (
+    FMU2Model,
+    FMU2Slave,
+    defaultCallbacks,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+)
 from fmpy.fmi3 import FMU3Model, FMU3Slave
+from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 
 from sarcomere.controllers.base import Controller
@@ -61,6 +70,23 @@ def _python(pid, ys, r) -> np.ndarray:
     return np.array([pid.update(k * DT, {y: v}, ref)[pid.input] for k, v in enumerate(ys)])
 
 
+MESSAGES: list[str] = []
+"""What the FMI 2.0 instances logged."""
+_LOGGER = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: MESSAGES.append(msg.decode()))
+
+
+def _callbacks() -> fmi2CallbackFunctions:
+    """FMI 2.0 callbacks whose logger lives as long as the tests. fmpy's printf proxy keeps
+    one process-wide logger: installing ours again makes it the live one (a logger left
+    there by an FMU user that is gone would crash the next message)."""
+    cb = fmi2CallbackFunctions()
+    cb.logger = _LOGGER
+    cb.allocateMemory = defaultCallbacks.allocateMemory
+    cb.freeMemory = defaultCallbacks.freeMemory
+    addLoggerProxy(byref(cb))
+    return cb
+
+
 class Slave:
     """A Co-Simulation instance of the FMU, stepped by hand."""
 
@@ -73,7 +99,7 @@ class Slave:
             guid=guid, unzipDirectory=folder, modelIdentifier=model_identifier, instanceName="c"
         )
         self.v = version
-        self.s.instantiate()
+        self.s.instantiate(callbacks=_callbacks()) if version == 2 else self.s.instantiate()
         if version == 2:
             self.s.setupExperiment(startTime=t0)
             self.s.enterInitializationMode()
@@ -189,7 +215,9 @@ def test_model_exchange_is_refused(fmu, pid, plant, tmp_path):
     cls, guid = (FMU2Model, md.guid) if version == 2 else (FMU3Model, md.instantiationToken)
     me = cls(guid=guid, unzipDirectory=folder, modelIdentifier="pid", instanceName="me")
     with pytest.raises(Exception, match="instantiate"):
-        me.instantiate()
+        me.instantiate(callbacks=_callbacks()) if version == 2 else me.instantiate()
+    if version == 2:
+        assert "sampled system (period 0.01 s): Co-Simulation only" in MESSAGES[-1]
     system = pid_system(pid, plant[0], U0)
     with pytest.raises(ParameterError, match="no continuous-time form"):
         export_sampled_fmu(system, tmp_path / "me.fmu", interface="ModelExchange")

@@ -42,6 +42,7 @@ connections = [
 build = "pid"
 plant = "muscle"
 sample_time = "10 ms"
+fmi = 3
 
 [cosim.participants.muscle]
 build = "muscle"
@@ -228,7 +229,7 @@ def test_participants_from_a_scene_file_and_an_fmu_file(tmp_path):
     from sarcomere.fmu import export_fmu
 
     (tmp_path / "hang.toml").write_text(HANGING)
-    export_fmu(spring_mass_load(), tmp_path / "load.fmu")
+    export_fmu(spring_mass_load(), tmp_path / "load.fmu", fmi_version=3)
     (tmp_path / "files.toml").write_text(FILES)
     assert main(["run", str(tmp_path / "files.toml"), "--out", str(tmp_path / "o"), "--quiet"]) == 0
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
