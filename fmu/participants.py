@@ -11,8 +11,9 @@ given input values, states at the equilibrium of those inputs), ``set(values)``,
 
 from __future__ import annotations
 
+import itertools
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from ctypes import byref
 
 import numpy as np
@@ -40,6 +41,42 @@ class ParticipantError(SarcomereError):
         super().__init__(f"{participant} returned {status}: {detail}")
         self.participant = participant
         self.status = status
+
+
+_SINKS: dict[str, Callable[[int, bytes], None]] = {}
+"""Where each live FMI 2.0 instance's messages go, by instance name."""
+_SERIAL = itertools.count(1)
+
+
+def _dispatch(env, instance: bytes | None, status: int, category, message: bytes) -> None:
+    sink = _SINKS.get(instance.decode(errors="replace") if instance else "")
+    if sink is not None:
+        sink(status, message)
+
+
+_FMI2_LOGGER = fmi2CallbackLoggerTYPE(_dispatch)
+"""The one FMI 2.0 logger of the process. fmpy's printf-formatting proxy
+(``addLoggerProxy``) holds a single, process-wide target: a logger per instance would
+send every FMU's messages to the instance installed last, and crash the process on the
+next message once that instance was collected. This one lives as long as the module and
+hands each message to its instance's sink."""
+
+
+def fmi2_callbacks(instance_name: str, sink: Callable[[int, bytes], None]):
+    """FMI 2.0 callbacks whose messages from ``instance_name`` reach ``sink(status,
+    message)`` (until :func:`forget_fmi2_sink`), formatted by fmpy's proxy."""
+    _SINKS[instance_name] = sink
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = _FMI2_LOGGER
+    callbacks.allocateMemory = defaultCallbacks.allocateMemory
+    callbacks.freeMemory = defaultCallbacks.freeMemory
+    addLoggerProxy(byref(callbacks))  # the proxy's target: always the same logger
+    return callbacks
+
+
+def forget_fmi2_sink(instance_name: str) -> None:
+    """Stop routing ``instance_name``'s messages (its instance is freed)."""
+    _SINKS.pop(instance_name, None)
 
 
 def _unknown(owner: str, names: Sequence[str], known: Sequence[str], what: str) -> None:
@@ -80,6 +117,7 @@ class FmuParticipant:
         self._params = dict(params or {})
         _unknown(name, list(self._params), parameters, "parameters")
         self._who = f"FMU '{name}' ({fmu.path.name})"
+        self._instance = f"{name}#{next(_SERIAL)}"  # unique: routes its FMI 2.0 messages
         cls = FMU2Slave if self._version == 2 else FMU3Slave
         cwd = os.getcwd()  # fmpy enters the binary's folder to load it and, on failure,
         try:  # stays there
@@ -87,7 +125,7 @@ class FmuParticipant:
                 guid=md.guid if self._version == 2 else md.instantiationToken,
                 unzipDirectory=str(fmu.folder),
                 modelIdentifier=md.coSimulation.modelIdentifier,
-                instanceName=name,
+                instanceName=self._instance,
             )
         except Exception as err:  # fmpy raises a bare Exception (or OSError, AttributeError)
             raise ParticipantError(
@@ -134,15 +172,8 @@ class FmuParticipant:
         _unknown(self.name, list(inputs), self.inputs, "inputs")
         s = self._slave
         if self._version == 2:
-            self._logger = fmi2CallbackLoggerTYPE(
-                lambda env, inst, status, cat, msg: self._logged(status, msg)
-            )
-            callbacks = fmi2CallbackFunctions()
-            callbacks.logger = self._logger  # kept alive as long as the instance
-            callbacks.allocateMemory = defaultCallbacks.allocateMemory
-            callbacks.freeMemory = defaultCallbacks.freeMemory
-            addLoggerProxy(byref(callbacks))  # formats the FMU's printf-style messages
-            self._instantiate(False, callbacks)
+            self._callbacks = fmi2_callbacks(self._instance, self._logged)  # kept alive
+            self._instantiate(False, self._callbacks)
         else:
             self._instantiate(
                 False, False, False, False, lambda env, st, cat, msg: self._logged(st, msg)
@@ -176,6 +207,7 @@ class FmuParticipant:
             except FMICallException:
                 pass
             self._slave.freeInstance()
+        forget_fmi2_sink(self._instance)
 
 
 class NativeParticipant:

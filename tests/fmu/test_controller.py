@@ -4,8 +4,6 @@ measurement sequence that saturates and winds; the doStep semantics of docs/fmu.
 
 from __future__ import annotations
 
-from ctypes import byref
-
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description, simulate_fmu
@@ -13,12 +11,8 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (
     FMU2Model,
     FMU2Slave,
-    defaultCallbacks,
-    fmi2CallbackFunctions,
-    fmi2CallbackLoggerTYPE,
 )
 from fmpy.fmi3 import FMU3Model, FMU3Slave
-from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 
 from sarcomere.controllers.base import Controller
@@ -28,6 +22,7 @@ from sarcomere.controllers.pid import make_pid
 from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.fmu.controller import export_controller_fmu, pid_system
+from sarcomere.fmu.participants import fmi2_callbacks
 from sarcomere.fmu.sampled import export_sampled_fmu
 
 DT = 0.01
@@ -72,19 +67,11 @@ def _python(pid, ys, r) -> np.ndarray:
 
 MESSAGES: list[str] = []
 """What the FMI 2.0 instances logged."""
-_LOGGER = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: MESSAGES.append(msg.decode()))
 
 
-def _callbacks() -> fmi2CallbackFunctions:
-    """FMI 2.0 callbacks whose logger lives as long as the tests. fmpy's printf proxy keeps
-    one process-wide logger: installing ours again makes it the live one (a logger left
-    there by an FMU user that is gone would crash the next message)."""
-    cb = fmi2CallbackFunctions()
-    cb.logger = _LOGGER
-    cb.allocateMemory = defaultCallbacks.allocateMemory
-    cb.freeMemory = defaultCallbacks.freeMemory
-    addLoggerProxy(byref(cb))
-    return cb
+def _callbacks(instance_name: str = "c"):
+    """FMI 2.0 callbacks through the project's one process-wide logger."""
+    return fmi2_callbacks(instance_name, lambda status, msg: MESSAGES.append(msg.decode()))
 
 
 class Slave:
@@ -215,7 +202,7 @@ def test_model_exchange_is_refused(fmu, pid, plant, tmp_path):
     cls, guid = (FMU2Model, md.guid) if version == 2 else (FMU3Model, md.instantiationToken)
     me = cls(guid=guid, unzipDirectory=folder, modelIdentifier="pid", instanceName="me")
     with pytest.raises(Exception, match="instantiate"):
-        me.instantiate(callbacks=_callbacks()) if version == 2 else me.instantiate()
+        me.instantiate(callbacks=_callbacks("me")) if version == 2 else me.instantiate()
     if version == 2:
         assert "sampled system (period 0.01 s): Co-Simulation only" in MESSAGES[-1]
     system = pid_system(pid, plant[0], U0)

@@ -5,6 +5,7 @@ inputs it was started with."""
 
 from __future__ import annotations
 
+import gc
 import os
 import zipfile
 from pathlib import Path
@@ -123,3 +124,24 @@ def test_start_inputs_must_be_a_loop_input_driven_later():
             step=0.01,
             start_inputs={"muscle.regulator.p_cmd": 1e4},  # not connected
         )
+
+
+def test_fmi2_messages_reach_their_own_participant_when_several_live_and_one_is_gone(iso_fmu):
+    """fmpy's printf proxy has one process-wide target: each FMI 2.0 message must still
+    reach the participant whose instance sent it, also after another one was freed and
+    collected (a per-instance logger crashed the process there)."""
+    with open_fmu(iso_fmu) as fmu:
+        a, b, c = (FmuParticipant(fmu, name) for name in "abc")
+        for p in (a, b, c):
+            p.start(0.0, {})
+        c.close()
+        del c
+        gc.collect()
+        with pytest.raises(ParticipantError) as info:
+            a.set({"regulator.p_cmd": 1e9})
+        assert str(info.value).startswith("FMU 'a'")
+        assert "regulator.p_cmd = 1000000000 is outside" in str(info.value)
+        with pytest.raises(ParticipantError, match="FMU 'b'.*is outside"):
+            b.set({"regulator.p_cmd": -1.0})
+        a.close()
+        b.close()
