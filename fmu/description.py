@@ -242,7 +242,13 @@ def _fmi3(lay, ident: str, guid: str, experiment) -> ET.Element:
     for k, dep in enumerate(_dependencies(lay.f_dep, 0)):
         attrs = {"valueReference": str(lay.first("der") + k), "dependencies": dep}
         ET.SubElement(ms, "ContinuousStateDerivative", attrs)
+    # stated, not left to the default (all knowns): CasADi's DaeBuilder cannot read the
+    # default; the start states are the equilibrium of the inputs and parameters
+    knowns = " ".join(str(i) for i, row in enumerate(lay.variables) if row[1] in ("u", "p"))
     for i, row in enumerate(lay.variables):
         if row[1] in _initial_unknowns(lay):
-            ET.SubElement(ms, "InitialUnknown", {"valueReference": str(i)})
+            attrs = {"valueReference": str(i)}
+            if knowns:
+                attrs["dependencies"] = knowns
+            ET.SubElement(ms, "InitialUnknown", attrs)
     return root
