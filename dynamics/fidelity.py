@@ -12,8 +12,9 @@
 
 Both use only the Model's own Functions (equilibrium residual, exact linearisation); they
 hold no physics of their own. What each leaves out, and the predicted error of that, is
-:func:`predict`: computed from the equilibria along the input's range before anything is
-simulated.
+:func:`predict_linear` and :func:`predict_path`: computed from the equilibria along the
+input's range before anything is simulated; :func:`predict_reduced` does the same for
+the reduced chains against a reference chain.
 """
 
 from __future__ import annotations
@@ -168,59 +169,91 @@ def _path_response(
     return path.static(signals, u) + dev
 
 
-def predict(
+def predict_linear(
     model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> dict[str, float]:
-    """Predicted error of ``linear`` and ``equilibrium_path``: max over ``signals`` of the
-    error relative to the output's span, from the equilibria along the input's range and
-    their linearisations, before any nonlinear simulation.
-
-    * ``linear`` leaves out the static nonlinearity: ``e_lin = max |y_eq(u) - y_op - K du|``.
-    * ``equilibrium_path`` leaves out how ``A`` and ``C`` change between path nodes and
-      the nonlinearity of the deviation ``xi``: the first is estimated by running the
-      deviation on every second node (nearest-node scheduling converges to first order in
-      the node spacing, so the difference estimates the error of the full set), the
-      second as ``e_lin d`` with ``d`` the deviation's size over the span (the static
-      nonlinearity met by a deviation of that size; conservative for slow scenes, where
-      it is of order ``d^2``).
-    """
+) -> np.ndarray:
+    """Predicted error of ``linear`` per signal (relative to the output's span): the
+    static nonlinearity it leaves out, ``max |y_eq(u) - y_op - K du|`` over the input's
+    samples, from the equilibria along the input's range."""
     name, sig = _single_input(inputs)
     signals = list(signals)
     u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
     op, i = path.operating_point, model.input_names.index(name)
     K = static_gain(model, op, signals)[:, i]
     y_static = path.static(signals, u)
-    span = np.maximum(np.ptp(y_static, axis=0), 1e-300)
     y_lin = np.array([op[n] for n in signals]) + np.outer(u - op.u[i], K)
-    e_lin = np.max(np.abs(y_static - y_lin), axis=0) / span
+    return np.max(np.abs(y_static - y_lin), axis=0) / _span(y_static)
+
+
+def _span(y: np.ndarray) -> np.ndarray:
+    return np.maximum(np.ptp(y, axis=0), 1e-300)
+
+
+def predict_path(
+    model: Model,
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals,
+    e_lin: np.ndarray | None = None,
+) -> float:
+    """Predicted error of ``equilibrium_path`` (max over ``signals``, relative to the
+    span): it leaves out how ``A`` and ``C`` change between path nodes and the
+    nonlinearity of the deviation ``xi``. The first is estimated by running the deviation
+    on every second node (nearest-node scheduling converges to first order in the node
+    spacing, so the difference estimates the error of the full set), the second as
+    ``e_lin d`` with ``d`` the deviation's size over the span and ``e_lin``
+    (:func:`predict_linear`, computed when not given) the static nonlinearity met by a
+    deviation of that size (conservative for slow scenes, where it is of order ``d^2``).
+    """
+    _, sig = _single_input(inputs)
+    signals = list(signals)
+    if e_lin is None:
+        e_lin = predict_linear(model, path, inputs, t_out, signals)
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    y_static = path.static(signals, u)
+    span = _span(y_static)
     every = range(len(path.nodes))
     Y = _path_response(model, path, inputs, t_out, signals, every)
     d = np.max(np.abs(Y - y_static), axis=0) / span
     coarse = _path_response(model, path, inputs, t_out, signals, every[::2])
     e_sched = np.max(np.abs(Y - coarse), axis=0) / span
-    return {"linear": float(e_lin.max()), "equilibrium_path": float(np.max(e_sched + e_lin * d))}
+    return float(np.max(e_sched + e_lin * d))
+
+
+def predict(
+    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
+) -> dict[str, float]:
+    """Predicted error of ``linear`` and ``equilibrium_path`` (:func:`predict_linear`,
+    :func:`predict_path`): max over ``signals`` of the error relative to the output's
+    span, from the equilibria along the input's range and their linearisations, before
+    any nonlinear simulation."""
+    e_lin = predict_linear(model, path, inputs, t_out, signals)
+    e_path = predict_path(model, path, inputs, t_out, signals, e_lin)
+    return {"linear": float(e_lin.max()), "equilibrium_path": e_path}
 
 
 def predict_reduced(
     reduced: Model,
-    full: Model,
+    reference: Model,
     path: Path,
     inputs: Mapping[str, object],
     t_out: np.ndarray,
     signals: Sequence[str],
     params: Mapping[str, object] | None = None,
 ) -> float:
-    """Predicted error of a reduced chain level (``symmetric``, ``grouped``) against
-    ``full``: its static error on the full model's equilibrium path plus the difference
-    of the two linearised dynamic parts ``y_lin - (y_op + K du)``, both relative to
-    the span of the full model's static response; the nonlinear interplay of the two is
-    left out."""
+    """Predicted difference of a reduced chain (``symmetric``, ``grouped``) to a
+    ``reference`` chain (``full``, or a grouped chain as a convergence estimate) whose
+    equilibrium ``path`` is given: the reduced chain's static error on the reference's
+    path (its own path on the same nodes) plus the difference of the two linearised
+    dynamic parts ``y_lin - (y_op + K du)``, both relative to the span of the reference's
+    static response; the nonlinear interplay of the two is left out."""
     name, sig = _single_input(inputs)
     u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
     red = equilibrium_path(reduced, name, u, params, nodes=len(path.nodes))
-    y_full = path.static(signals, u)
-    span = np.maximum(np.ptp(y_full, axis=0), 1e-300)
-    e_static = np.max(np.abs(red.static(signals, u) - y_full), axis=0) / span
+    y_ref = path.static(signals, u)
+    span = _span(y_ref)
+    e_static = np.max(np.abs(red.static(signals, u) - y_ref), axis=0) / span
 
     def dynamic(model: Model, p: Path) -> np.ndarray:
         op, i = p.operating_point, model.input_names.index(name)
@@ -229,5 +262,5 @@ def predict_reduced(
         y_op = np.array([op[n] for n in signals])
         return np.column_stack([lin[n] for n in signals]) - (y_op + np.outer(u - op.u[i], K))
 
-    e_dyn = np.max(np.abs(dynamic(reduced, red) - dynamic(full, path)), axis=0) / span
+    e_dyn = np.max(np.abs(dynamic(reduced, red) - dynamic(reference, path)), axis=0) / span
     return float(np.max(e_static + e_dyn))

@@ -37,12 +37,13 @@ from sarcomere.dynamics import fidelity as ladder
 from sarcomere.dynamics.assemblies import (
     FIDELITIES,
     FLOW_LAWS,
+    GROUPS,
     N_LIMITS,
     N_WHY,
     hanging_load,
     isometric,
 )
-from sarcomere.dynamics.components.aps import APSParams
+from sarcomere.dynamics.components.aps import APSParams, GroupedMyofibril
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
@@ -88,14 +89,17 @@ class Binding:
         n: int | None = None,
         flow_law: str | None = None,
         saturate: bool = True,
+        groups: int = GROUPS,
     ) -> Model:
         """Flatten the model for one fidelity level (optionally another n, another flow law,
-        or an unclamped regulator for optimisers)."""
+        an unclamped regulator for optimisers, or another number of groups of the
+        "grouped" level)."""
         n = self.n if n is None else n
         common = {
             "regulator_tau": self.regulator_tau,
             "saturate": saturate,
             "flow_law": self.flow_law if flow_law is None else flow_law,
+            "groups": groups,
         }
         if self.setup == "isometric":
             return isometric(
@@ -555,8 +559,57 @@ def _rise_time(t: np.ndarray, y: np.ndarray) -> float:
     return float(t[i90] - t[i10])
 
 
-#: The levels "auto" considers, cheapest first (docs/numerics.md, scene x level table).
-AUTO_LADDER = ("linear", "equilibrium_path", "symmetric", "grouped", "full")
+#: The levels "auto" considers, cheapest first: the reduced chains (their cost does not
+#: grow with n), the two levels on the full model that integrate nothing, then full
+#: (docs/numerics.md, scene x level table).
+AUTO_LADDER = ("symmetric", "grouped", "linear", "equilibrium_path", "full")
+
+#: Equilibria along the command's range when a reduced chain is compared with its
+#: reference (statics on a cubic spline; the equilibrium path level uses
+#: :data:`~sarcomere.dynamics.fidelity.PATH_NODES`).
+REDUCED_PATH_NODES = 9
+
+
+class _Ladder:
+    """The models and equilibrium paths of one auto run, each built once."""
+
+    def __init__(self, sc: Scenario, b: Binding, inputs: dict, grid: np.ndarray) -> None:
+        self.sc, self.b, self.inputs, self.grid = sc, b, inputs, grid
+        self.models: dict[tuple[str, int], Model] = {}
+        self.paths: dict[tuple[str, int, int], ladder.Path] = {}
+
+    def model(self, level: str, groups: int = GROUPS) -> Model:
+        key = (level, groups if level == "grouped" else 0)
+        if key not in self.models:
+            self.models[key] = self.b.build(level, groups=groups)
+        return self.models[key]
+
+    def path(self, level: str, nodes: int, groups: int = GROUPS) -> ladder.Path:
+        key = (level, groups if level == "grouped" else 0, nodes)
+        if key not in self.paths:
+            u = self.inputs[P_CMD](self.grid)
+            m = self.model(level, groups)
+            self.paths[key] = ladder.equilibrium_path(m, P_CMD, u, self.b.overrides, nodes)
+        return self.paths[key]
+
+    def compare(self, level: str, reference: tuple[str, int]) -> float:
+        """Predicted difference of a reduced chain to ``reference`` (level, groups)."""
+        ref_level, ref_groups = reference
+        nodes = ladder.PATH_NODES if ref_level == "full" else REDUCED_PATH_NODES
+        return ladder.predict_reduced(
+            self.model(level),
+            self.model(ref_level, ref_groups),
+            self.path(ref_level, nodes, ref_groups),
+            self.inputs,
+            self.grid,
+            list(self.sc.outputs.signals) or ["myofibril.length"],
+            self.b.overrides,
+        )
+
+
+def grouped_units(n: int, groups: int = GROUPS) -> int:
+    """Representative units of the "grouped" level of an n-unit chain (its cost)."""
+    return GroupedMyofibril.units(n, min(groups, n))
 
 
 def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
@@ -565,61 +618,87 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
 
     Error: max over the scenario's ``[outputs] signals`` (default ``myofibril.length``)
     of ``max |y - y_full| / span(y_full)``. Predictions (:mod:`sarcomere.dynamics.fidelity`,
-    before any nonlinear simulation): from the full model's equilibria along the
-    command's range and its exact linearisation, ``linear`` by its static nonlinearity,
-    ``equilibrium_path`` by how the lag changes along the path, ``symmetric`` and
-    ``grouped`` by their static and linearised dynamic difference to ``full``. A scene
-    with more than one varying input, or a level without a signal the scene cares
-    about, is predicted invalid. The choice depends on the scene alone, never on timings.
+    before any nonlinear simulation), each from the statics along the command's range
+    and exact linearisations, built only when the cheaper levels are ruled out:
+
+    * ``symmetric`` against ``grouped`` (its weight gradient and body inertia; against
+      ``full`` when grouped reduces nothing);
+    * ``grouped`` (:data:`GROUPS` groups) against grouped with one group fewer: the
+      change when the groups grow, a convergence estimate that needs no full model;
+    * ``linear`` by the static nonlinearity of the full model over the command's range,
+      ``equilibrium_path`` by how the lag changes along the path.
+
+    ``grouped`` is skipped where it has as many representatives as the chain has units
+    (it would not be cheaper). A scene with more than one varying input, or a level
+    without a signal the scene cares about, is predicted invalid. The choice depends on
+    the scene alone, never on timings.
     """
     tic = time.perf_counter()
     tol = sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01
     care = list(sc.outputs.signals) or ["myofibril.length"]
     named = {*care, *(n for names in sc.outputs.plots.values() for n in names)}
-    full = b.build("full")
-    inputs, wanted, grid = _prepare(sc, b, full)
+    if sc.simulation is None:
+        raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
+    grid = time_grid(sc.simulation)
+    cheap = b.build("symmetric")
+    inputs = _inputs(sc, cheap)
+    _check_commands(sc, cheap, b.overrides, inputs, grid)
+    run = _Ladder(sc, b, inputs, grid)
+    run.models["symmetric", 0] = cheap
     predicted: dict[str, float] = {}
     why: dict[str, str] = {}
-    path = None
+    against: dict[str, str] = {}
     if list(inputs) != [P_CMD]:
-        why["linear"] = why["equilibrium_path"] = "needs the pressure command as only input"
-    for level in AUTO_LADDER:  # cheapest first; stop at the first predicted within tol
-        if level == "full":
-            predicted[level] = 0.0
-        elif level in why:
-            continue
-        elif level in ("linear", "equilibrium_path"):
-            if path is None:
-                u = inputs[P_CMD](grid)
-                path = ladder.equilibrium_path(full, P_CMD, u, b.overrides)
-                predicted.update(ladder.predict(full, path, inputs, grid, care))
-        elif path is None:
+        for level in AUTO_LADDER[:-1]:
             why[level] = "its prediction needs the pressure command as only input"
-        else:
-            model = b.build(level)
-            lacking = sorted(n for n in named if n not in model.signal_names)
+    if grouped_units(b.n) >= b.n:
+        why["grouped"] = f"not cheaper: {grouped_units(b.n)} representatives for n = {b.n}"
+    chosen, e_lin = "full", None
+    for level in AUTO_LADDER[:-1]:  # cheapest first; stop at the first predicted within tol
+        if level in why:
+            continue
+        if level in ("symmetric", "grouped"):
+            lacking = sorted(n for n in named if n not in run.model(level).signal_names)
             if lacking:
                 why[level] = f"has no signal {lacking}"
                 continue
-            predicted[level] = ladder.predict_reduced(
-                model, full, path, inputs, grid, care, b.overrides
-            )
-        if predicted.get(level, math.inf) <= tol:
+            if level == "grouped":
+                ref = ("grouped", GROUPS - 1)
+            else:
+                ref = ("grouped", GROUPS) if "grouped" not in why else ("full", 0)
+            against[level] = ref[0] + (f" ({ref[1]} groups)" if ref[0] == "grouped" else "")
+            predicted[level] = run.compare(level, ref)
+        else:
+            full, path = run.model("full"), run.path("full", ladder.PATH_NODES)
+            against[level] = "full"
+            if level == "linear":
+                e_lin = ladder.predict_linear(full, path, inputs, grid, care)
+                predicted[level] = float(e_lin.max())
+            else:
+                predicted[level] = ladder.predict_path(full, path, inputs, grid, care, e_lin)
+        if predicted[level] <= tol:
             chosen = level
             break
+    if chosen == "full":
+        predicted["full"] = 0.0
     if chosen in ("linear", "equilibrium_path"):
-        run = ladder.run_linear if chosen == "linear" else ladder.run_equilibrium_path
-        res = run(full, path, inputs, grid, wanted)
+        full, path = run.model("full"), run.path("full", ladder.PATH_NODES)
+        wanted = _prepare(sc, b, full)[1]
+        step = ladder.run_linear if chosen == "linear" else ladder.run_equilibrium_path
+        res = step(full, path, inputs, grid, wanted)
     else:
-        res = _simulate(sc, b, chosen, full if chosen == "full" else None)[1]
+        res = _simulate(sc, b, chosen, run.model(chosen))[1]
     report = {
         "chosen": chosen,
         "tolerance": tol,
         "signals": care,
         "predicted_error": {f: predicted.get(f) for f in AUTO_LADDER},
+        "predicted_against": against,
         "not_predicted": why,
         "wall_time_s": time.perf_counter() - tic,
     }
+    if chosen == "grouped":
+        report["groups"] = GROUPS
     return chosen, res, report
 
 

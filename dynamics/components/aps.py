@@ -525,7 +525,8 @@ class SymmetricMyofibril(Component):
 
     As a group of :class:`GroupedMyofibril`: ``s_top`` is the start position of
     ``flange_a`` [m] (an expression), and ``end_mass`` [kg] replaces the end's weight by
-    a :class:`~.mechanical.Mass` (weight and inertia) of that many kg, or by nothing (0).
+    a :class:`~.mechanical.Mass` (weight and inertia) of that many kg, or by nothing (0);
+    ``n`` may then be fractional (half a group of an odd number of units).
     """
 
     def __init__(
@@ -538,8 +539,8 @@ class SymmetricMyofibril(Component):
         end_mass: float | None = None,
     ) -> None:
         super().__init__(name)
-        if not (isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 10_000):
-            raise ParameterError("n", n, "an integer in [1, 10000]")
+        if isinstance(n, bool) or not isinstance(n, int | float) or not 1 <= n <= 10_000:
+            raise ParameterError("n", n, "a number of units in [1, 10000]")
         if flow_law not in FLOW_LAWS:
             raise ParameterError("flow_law", flow_law, f"one of {tuple(FLOW_LAWS)}")
         self.n, self.p, self.flow_law = n, params, flow_law
@@ -589,16 +590,26 @@ class SymmetricMyofibril(Component):
 
 
 class GroupedMyofibril(Component):
-    """``n`` identical APS as ``groups`` representative units in series (the "grouped"
-    level): each group of ``n_g`` units is a :class:`SymmetricMyofibril` (one pressure,
-    expansion and tension per group), so the tension steps down the chain group by group
-    with the bodies' weight, and the bodies keep their inertia: half of each group's body
-    mass sits at each end of the group (lumped masses of a linear displacement profile),
-    as :class:`~.mechanical.Mass` at the joints between groups. The bottom half of the
-    last group, :attr:`end_mass` [kg], is left to the set-up: it rides on the mass that
-    hangs at the chain end (a second mass there would be rigidly joined to it). Every
-    group has its own tube from the manifold ``port``. Ports, the ``length`` output and
-    ``flow_law`` as :class:`Myofibril`; cost grows with ``groups``, not with ``n``.
+    """``n`` identical APS as ``groups`` groups in series (the "grouped" level), each
+    group of ``n_g >= 2`` units as two representative half-groups
+    (:class:`SymmetricMyofibril` of ``n_g / 2`` units: one pressure, expansion and
+    tension each), a group of one unit as itself.
+
+    The weight gradient: the units of a group carry tensions ``T_lo + (k - 1/2) m_body g``,
+    ``k = 1..n_g`` (``T_lo``: what hangs below the group), of mean ``T_lo + n_g w / 2``
+    and variance ``(n_g^2 - 1) w^2 / 12`` (``w = m_body g``). The group's body mass sits
+    at three joints, ``n_g / 2 - d``, ``2 d`` and ``n_g / 2 - d`` body masses (top,
+    middle, bottom; ``d = sqrt((n_g^2 - 1) / 12)``), so the two half-groups carry
+    ``mean -/+ d w``: the two-point rule with the group's mean and variance, so the
+    group's length is exact up to the fourth derivative of a unit's length in its
+    tension (a single representative at the mean misses the second: 11 % on a 50 g
+    step at n = 30 with three groups, against 1.4 % here). The bodies keep their
+    inertia as those joint masses. The bottom joint's mass, :attr:`end_mass` [kg], is
+    left to the set-up: it rides on the mass that hangs at the chain end; the top
+    one's weight hangs on the frame. The representatives are ``rep1``, ``rep2``, ...
+    top first, each with its own tube from the manifold ``port``. Ports, the ``length``
+    output and ``flow_law`` as :class:`Myofibril`; cost grows with ``groups``, not with
+    ``n``.
     """
 
     def __init__(
@@ -610,25 +621,45 @@ class GroupedMyofibril(Component):
         self.n, self.p, self.groups, self.flow_law = n, params, groups, flow_law
 
     @property
-    def end_mass(self) -> float:
-        """Body mass [kg] the set-up must add to the mass at the chain end."""
-        return 0.5 * self.sizes[-1] * self.p.m_body
-
-    @property
     def sizes(self) -> list[int]:
         """Units per group, top first (as equal as possible, the larger groups on top)."""
         q, r = divmod(self.n, self.groups)
         return [q + 1] * r + [q] * (self.groups - r)
 
+    @property
+    def segments(self) -> list[tuple[float, float, float]]:
+        """Representative units top first: (units it stands for, body masses at its top
+        joint, at its bottom joint), in units of ``m_body``."""
+        out = []
+        for n_g in self.sizes:
+            if n_g == 1:
+                out.append((1.0, 0.5, 0.5))
+                continue
+            d = math.sqrt((n_g**2 - 1) / 12)
+            out += [(n_g / 2, n_g / 2 - d, d), (n_g / 2, d, n_g / 2 - d)]
+        return out
+
+    @staticmethod
+    def units(n: int, groups: int) -> int:
+        """Representative units (APS models, the cost) of ``n`` units in ``groups``
+        groups: two per group of more than one unit."""
+        q, r = divmod(n, groups)
+        return sum(1 if q_g == 1 else 2 for q_g in [q + 1] * r + [q] * (groups - r))
+
+    @property
+    def end_mass(self) -> float:
+        """Body mass [kg] the set-up must add to the mass at the chain end."""
+        return self.segments[-1][2] * self.p.m_body
+
     def build(self, b: Builder) -> None:
-        sizes, m_b = self.sizes, self.p.m_body
+        segs, m_b = self.segments, self.p.m_body
         s_top: float | cs.SX = 0.0
         prev = None
-        for g, n_g in enumerate(sizes):
-            last = g == len(sizes) - 1
-            end_mass = 0.0 if last else 0.5 * (n_g + sizes[g + 1]) * m_b
+        for k, (size, _, below) in enumerate(segs):
+            last = k == len(segs) - 1
+            end_mass = 0.0 if last else (below + segs[k + 1][1]) * m_b
             sub = SymmetricMyofibril(
-                f"group{g + 1}", n_g, self.p, self.flow_law, s_top=s_top, end_mass=end_mass
+                f"rep{k + 1}", size, self.p, self.flow_law, s_top=s_top, end_mass=end_mass
             )
             grp = b.add(sub)
             if prev is None:
