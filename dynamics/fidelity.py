@@ -13,8 +13,8 @@
 Both use only the Model's own Functions (equilibrium residual, exact linearisation); they
 hold no physics of their own. What each leaves out, and the predicted error of that, is
 :func:`predict_linear` and :func:`predict_path`: computed from the equilibria along the
-input's range before anything is simulated; :func:`predict_reduced` does the same for
-the reduced chains against a reference chain.
+input's range before anything is simulated; :func:`predict_reduced` compares a reduced
+chain with a reference chain the same way (:func:`chain_response`).
 """
 
 from __future__ import annotations
@@ -81,11 +81,13 @@ def equilibrium_path(
     u: np.ndarray,
     params: Mapping[str, object] | None = None,
     nodes: int = PATH_NODES,
+    guess: Equilibrium | None = None,
 ) -> Path:
-    """Equilibria of ``model`` at ``nodes`` values spanning the input samples ``u``."""
+    """Equilibria of ``model`` at ``nodes`` values spanning the input samples ``u``, by
+    continuation from ``guess`` (an equilibrium of ``model``; default: its start values)."""
     lo, hi = float(np.min(u)), float(np.max(u))
     values = np.linspace(lo, hi, nodes) if hi > lo else np.array([lo])
-    eqs, guess = [], None
+    eqs = []
     for v in values:
         guess = solve_equilibrium(model, {input_name: float(v)}, params, guess=guess)
         eqs.append(guess)
@@ -233,34 +235,50 @@ def predict(
     return {"linear": float(e_lin.max()), "equilibrium_path": e_path}
 
 
-def predict_reduced(
-    reduced: Model,
-    reference: Model,
+@dataclass
+class ChainResponse:
+    """What a reduced chain's prediction compares, on the scene's output grid.
+
+    Attributes
+    ----------
+    static : numpy.ndarray
+        ``y_eq(u(t))`` of the signals, shape (len(t), ny), from the chain's own path.
+    dynamic : numpy.ndarray
+        The linearised dynamic part ``y_lin - (y_op + K du)`` at the path's operating
+        point, same shape.
+    """
+
+    static: np.ndarray
+    dynamic: np.ndarray
+
+
+def chain_response(
+    model: Model,
     path: Path,
     inputs: Mapping[str, object],
     t_out: np.ndarray,
     signals: Sequence[str],
-    params: Mapping[str, object] | None = None,
-) -> float:
-    """Predicted difference of a reduced chain (``symmetric``, ``grouped``) to a
-    ``reference`` chain (``full``, or a grouped chain as a convergence estimate) whose
-    equilibrium ``path`` is given: the reduced chain's static error on the reference's
-    path (its own path on the same nodes) plus the difference of the two linearised
-    dynamic parts ``y_lin - (y_op + K du)``, both relative to the span of the reference's
-    static response; the nonlinear interplay of the two is left out."""
+) -> ChainResponse:
+    """The static and linearised dynamic response of a chain model on its ``path``."""
     name, sig = _single_input(inputs)
+    signals = list(signals)
     u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
-    red = equilibrium_path(reduced, name, u, params, nodes=len(path.nodes))
-    y_ref = path.static(signals, u)
-    span = _span(y_ref)
-    e_static = np.max(np.abs(red.static(signals, u) - y_ref), axis=0) / span
+    op, i = path.operating_point, model.input_names.index(name)
+    K = static_gain(model, op, signals)[:, i]
+    lin = simulate_linear(model, op, inputs, t_out, signals)
+    y_op = np.array([op[n] for n in signals])
+    dyn = np.column_stack([lin[n] for n in signals]) - (y_op + np.outer(u - op.u[i], K))
+    return ChainResponse(path.static(signals, u), dyn)
 
-    def dynamic(model: Model, p: Path) -> np.ndarray:
-        op, i = p.operating_point, model.input_names.index(name)
-        K = static_gain(model, op, signals)[:, i]
-        lin = simulate_linear(model, op, inputs, t_out, signals)
-        y_op = np.array([op[n] for n in signals])
-        return np.column_stack([lin[n] for n in signals]) - (y_op + np.outer(u - op.u[i], K))
 
-    e_dyn = np.max(np.abs(dynamic(reduced, red) - dynamic(reference, path)), axis=0) / span
+def predict_reduced(reduced: ChainResponse, reference: ChainResponse) -> float:
+    """Predicted difference of a reduced chain (``symmetric``, ``grouped``) to a
+    reference chain (``full``, or a grouped chain as a convergence estimate), both
+    :func:`chain_response` on paths with the same nodes: the difference of the statics
+    plus that of the linearised dynamic parts, each relative to the span of the
+    reference's static response (max over time, then over the signals); the nonlinear
+    interplay of the two is left out."""
+    span = _span(reference.static)
+    e_static = np.max(np.abs(reduced.static - reference.static), axis=0) / span
+    e_dyn = np.max(np.abs(reduced.dynamic - reference.dynamic), axis=0) / span
     return float(np.max(e_static + e_dyn))

@@ -44,7 +44,7 @@ from sarcomere.dynamics.assemblies import (
     isometric,
 )
 from sarcomere.dynamics.components.aps import APSParams, GroupedMyofibril
-from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
@@ -481,12 +481,20 @@ def _prepare(sc: Scenario, b: Binding, model: Model) -> tuple[dict, list[str], n
     return inputs, wanted, grid
 
 
-def _simulate(sc: Scenario, b: Binding, fid: str, model: Model | None = None):
+def _simulate(
+    sc: Scenario,
+    b: Binding,
+    fid: str,
+    model: Model | None = None,
+    guess: Equilibrium | None = None,
+):
+    """Build (unless given) and simulate from the start equilibrium, found by
+    continuation from ``guess`` (an equilibrium of ``model``) where one is known."""
     model = b.build(fid) if model is None else model
     inputs, wanted, grid = _prepare(sc, b, model)
     sim = sc.simulation
     u0 = {k: float(sig(sim.start_time)) for k, sig in inputs.items()}
-    start = solve_equilibrium(model, u0, b.overrides)
+    start = solve_equilibrium(model, u0, b.overrides, guess=guess)
     res = simulate(
         model,
         sim.stop_time,
@@ -569,14 +577,22 @@ AUTO_LADDER = ("symmetric", "grouped", "linear", "equilibrium_path", "full")
 #: :data:`~sarcomere.dynamics.fidelity.PATH_NODES`).
 REDUCED_PATH_NODES = 9
 
+#: Equilibria along the command's range for the ``linear`` level's prediction (the static
+#: nonlinearity over the range) and its operating point (the middle one).
+LINEAR_PATH_NODES = 5
+
 
 class _Ladder:
-    """The models and equilibrium paths of one auto run, each built once."""
+    """The models, equilibrium paths and chain responses of one auto run, each built
+    once."""
 
     def __init__(self, sc: Scenario, b: Binding, inputs: dict, grid: np.ndarray) -> None:
         self.sc, self.b, self.inputs, self.grid = sc, b, inputs, grid
+        self.care = list(sc.outputs.signals) or ["myofibril.length"]
         self.models: dict[tuple[str, int], Model] = {}
         self.paths: dict[tuple[str, int, int], ladder.Path] = {}
+        self.responses: dict[tuple[str, int], ladder.ChainResponse] = {}
+        self.screens: dict[str, float] = {}
 
     def model(self, level: str, groups: int = GROUPS) -> Model:
         key = (level, groups if level == "grouped" else 0)
@@ -589,22 +605,36 @@ class _Ladder:
         if key not in self.paths:
             u = self.inputs[P_CMD](self.grid)
             m = self.model(level, groups)
-            self.paths[key] = ladder.equilibrium_path(m, P_CMD, u, self.b.overrides, nodes)
+            guess = self.known(level, groups)
+            self.paths[key] = ladder.equilibrium_path(m, P_CMD, u, self.b.overrides, nodes, guess)
         return self.paths[key]
 
-    def compare(self, level: str, reference: tuple[str, int]) -> float:
-        """Predicted difference of a reduced chain to ``reference`` (level, groups)."""
-        ref_level, ref_groups = reference
-        nodes = ladder.PATH_NODES if ref_level == "full" else REDUCED_PATH_NODES
-        return ladder.predict_reduced(
-            self.model(level),
-            self.model(ref_level, ref_groups),
-            self.path(ref_level, nodes, ref_groups),
-            self.inputs,
-            self.grid,
-            list(self.sc.outputs.signals) or ["myofibril.length"],
-            self.b.overrides,
-        )
+    def known(self, level: str, groups: int = GROUPS) -> Equilibrium | None:
+        """An equilibrium of the model already found (a continuation start: long chains
+        need seconds of settling to find their first one)."""
+        key = (level, groups if level == "grouped" else 0)
+        return next((p.equilibria[0] for k, p in self.paths.items() if k[:2] == key), None)
+
+    def screen(self, level: str) -> float:
+        """The ``linear`` or ``equilibrium_path`` prediction on the grouped chain (its
+        path and linearisation): on a long chain, a level that is far off there is ruled
+        out without building the full model."""
+        if level not in self.screens:
+            m, path = self.model("grouped"), self.path("grouped", REDUCED_PATH_NODES)
+            e_lin = ladder.predict_linear(m, path, self.inputs, self.grid, self.care)
+            self.screens["linear"] = float(e_lin.max())
+            self.screens["equilibrium_path"] = ladder.predict_path(
+                m, path, self.inputs, self.grid, self.care, e_lin
+            )
+        return self.screens[level]
+
+    def response(self, level: str, groups: int = GROUPS) -> ladder.ChainResponse:
+        key = (level, groups if level == "grouped" else 0)
+        if key not in self.responses:
+            path = self.path(level, REDUCED_PATH_NODES, groups)
+            m = self.model(level, groups)
+            self.responses[key] = ladder.chain_response(m, path, self.inputs, self.grid, self.care)
+        return self.responses[key]
 
 
 def grouped_units(n: int, groups: int = GROUPS) -> int:
@@ -621,17 +651,23 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
     before any nonlinear simulation), each from the statics along the command's range
     and exact linearisations, built only when the cheaper levels are ruled out:
 
-    * ``symmetric`` against ``grouped`` (its weight gradient and body inertia; against
-      ``full`` when grouped reduces nothing);
+    * ``symmetric`` against ``grouped`` (what it drops: the weight gradient and the body
+      inertia);
     * ``grouped`` (:data:`GROUPS` groups) against grouped with one group fewer: the
-      change when the groups grow, a convergence estimate that needs no full model;
+      change when the groups grow, a convergence estimate that needs no full model
+      (conservative while the error falls at least like ``groups^-1.7``; measured
+      about ``groups^-2`` on steps);
     * ``linear`` by the static nonlinearity of the full model over the command's range,
-      ``equilibrium_path`` by how the lag changes along the path.
+      ``equilibrium_path`` by how the lag changes along the path; on a long chain both
+      are first predicted on the grouped chain, and ruled out there (without building
+      the full model) when off by more than the tolerance plus grouped's own predicted
+      error.
 
-    ``grouped`` is skipped where it has as many representatives as the chain has units
-    (it would not be cheaper). A scene with more than one varying input, or a level
-    without a signal the scene cares about, is predicted invalid. The choice depends on
-    the scene alone, never on timings.
+    The reduced chains are considered only where grouped has fewer representative units
+    than the chain (n > 2 :data:`GROUPS`): below, neither is cheaper to predict and run
+    than full. A scene with more than one varying input, or a level without a signal the
+    scene cares about, is predicted invalid. The choice depends on the scene alone,
+    never on timings.
     """
     tic = time.perf_counter()
     tol = sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01
@@ -640,20 +676,26 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
     if sc.simulation is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
     grid = time_grid(sc.simulation)
-    cheap = b.build("symmetric")
+    reduces = grouped_units(b.n) < b.n
+    first = "symmetric" if reduces else "full"  # the first model the ladder needs
+    cheap = b.build(first)
     inputs = _inputs(sc, cheap)
     _check_commands(sc, cheap, b.overrides, inputs, grid)
     run = _Ladder(sc, b, inputs, grid)
-    run.models["symmetric", 0] = cheap
+    run.models[first, 0] = cheap
     predicted: dict[str, float] = {}
     why: dict[str, str] = {}
     against: dict[str, str] = {}
+    if not reduces:
+        for level in ("symmetric", "grouped"):
+            why[level] = (
+                f"not cheaper at n = {b.n}: grouped has {grouped_units(b.n)} representative "
+                "units, and a prediction against full costs more than it saves"
+            )
     if list(inputs) != [P_CMD]:
         for level in AUTO_LADDER[:-1]:
             why[level] = "its prediction needs the pressure command as only input"
-    if grouped_units(b.n) >= b.n:
-        why["grouped"] = f"not cheaper: {grouped_units(b.n)} representatives for n = {b.n}"
-    chosen, e_lin = "full", None
+    chosen = "full"
     for level in AUTO_LADDER[:-1]:  # cheapest first; stop at the first predicted within tol
         if level in why:
             continue
@@ -662,32 +704,38 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
             if lacking:
                 why[level] = f"has no signal {lacking}"
                 continue
-            if level == "grouped":
-                ref = ("grouped", GROUPS - 1)
-            else:
-                ref = ("grouped", GROUPS) if "grouped" not in why else ("full", 0)
-            against[level] = ref[0] + (f" ({ref[1]} groups)" if ref[0] == "grouped" else "")
-            predicted[level] = run.compare(level, ref)
+            ref = GROUPS - 1 if level == "grouped" else GROUPS
+            against[level] = f"grouped ({ref} groups)"
+            predicted[level] = ladder.predict_reduced(
+                run.response(level), run.response("grouped", ref)
+            )
+        elif "grouped" in predicted and run.screen(level) - predicted["grouped"] > tol:
+            # ruled out on the grouped chain, within its predicted difference to full
+            against[level] = f"grouped ({GROUPS} groups), less its predicted error"
+            predicted[level] = run.screen(level)
+            continue
+        elif level == "linear":
+            full, path = run.model("full"), run.path("full", LINEAR_PATH_NODES)
+            against[level] = "full"
+            e_lin = ladder.predict_linear(full, path, inputs, grid, care)
+            predicted[level] = float(e_lin.max())
         else:
             full, path = run.model("full"), run.path("full", ladder.PATH_NODES)
             against[level] = "full"
-            if level == "linear":
-                e_lin = ladder.predict_linear(full, path, inputs, grid, care)
-                predicted[level] = float(e_lin.max())
-            else:
-                predicted[level] = ladder.predict_path(full, path, inputs, grid, care, e_lin)
+            predicted[level] = ladder.predict_path(full, path, inputs, grid, care)
         if predicted[level] <= tol:
             chosen = level
             break
     if chosen == "full":
         predicted["full"] = 0.0
     if chosen in ("linear", "equilibrium_path"):
-        full, path = run.model("full"), run.path("full", ladder.PATH_NODES)
+        nodes = LINEAR_PATH_NODES if chosen == "linear" else ladder.PATH_NODES
+        full, path = run.model("full"), run.path("full", nodes)
         wanted = _prepare(sc, b, full)[1]
         step = ladder.run_linear if chosen == "linear" else ladder.run_equilibrium_path
         res = step(full, path, inputs, grid, wanted)
     else:
-        res = _simulate(sc, b, chosen, run.model(chosen))[1]
+        res = _simulate(sc, b, chosen, run.model(chosen), run.known(chosen))[1]
     report = {
         "chosen": chosen,
         "tolerance": tol,
