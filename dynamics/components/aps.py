@@ -26,6 +26,7 @@ from ..modeling.component import Builder, Component
 from ..modeling.ports import FLANGE
 from ..params import experimental_geometry, get_material, yeoh_energy
 from ..params.core import format_range
+from .environment import ENVIRONMENT
 from .mechanical import Damper, Fixed, Mass, Node, ViscousNode
 from .pneumatic import THERMAL, Chamber, Restriction
 
@@ -512,6 +513,47 @@ class SeriesCopies(Component):
         b.equation(ref.f, 0.0)
 
 
+class Alias(Component):
+    """Signals of a reduced chain named as the full chain's (``"chamber.p_gauge"`` under
+    this component's name): ``signals`` maps a dotted local name to ``(expression, unit,
+    description)``, the expression of the model's own variables."""
+
+    def __init__(self, name: str, signals: dict[str, tuple[cs.SX, str, str]]) -> None:
+        super().__init__(name)
+        self.signals = signals
+
+    def build(self, b: Builder) -> None:
+        _add_aliases(b, self.signals)
+
+
+def _add_aliases(b: Builder, signals: dict[str, tuple[cs.SX, str, str]]) -> None:
+    """Declare ``signals`` (dotted names) as outputs of ``b``, nested components on the way."""
+    nested: dict[str, dict[str, tuple[cs.SX, str, str]]] = {}
+    for key, value in signals.items():
+        head, _, rest = key.partition(".")
+        if rest:
+            nested.setdefault(head, {})[rest] = value
+        else:
+            b.output(key, *value)
+    for head, sub in nested.items():
+        b.add(Alias(head, sub))
+
+
+def chain_end_aliases(
+    n: int, top_p: cs.SX, bottom_p: cs.SX, top_tension: cs.SX, p_amb: cs.SX
+) -> dict[str, tuple[cs.SX, str, str]]:
+    """The full chain's names a reduced chain gives its representatives (top first):
+    ``aps1`` and ``aps<n>.chamber.p_gauge``, the gauge pressure of the representative
+    that stands for the top and the bottom unit (equal at rest; in transients the
+    representative's), and ``actin0.T``, the tension at the top hook (``top_tension``)."""
+    rep = "gauge pressure of the representative unit that stands for unit"
+    out = {"aps1.chamber.p_gauge": (top_p - p_amb, "Pa", f"{rep} 1")}
+    if n > 1:
+        out[f"aps{n}.chamber.p_gauge"] = (bottom_p - p_amb, "Pa", f"{rep} {n}")
+    out["actin0.T"] = (top_tension, "N", "tension at the top hook (the top I-band's)")
+    return out
+
+
 class SymmetricMyofibril(Component):
     """``n`` identical APS reduced to one representative unit (the "symmetric" level).
 
@@ -521,7 +563,8 @@ class SymmetricMyofibril(Component):
     have the compliance ``n / k_s``, one band per unit); :class:`SeriesCopies` of ratio
     ``n`` maps it to the chain end. The bodies are massless; their weight
     ``n m_body g / 2`` (the mean over the chain) acts at the chain end. Ports, the
-    ``length`` output and ``flow_law`` as :class:`Myofibril`.
+    ``length`` output and ``flow_law`` as :class:`Myofibril`, the end signals as
+    :func:`chain_end_aliases`.
 
     As a group of :class:`GroupedMyofibril`: ``s_top`` is the start position of
     ``flange_a`` [m] (an expression), and ``end_mass`` [kg] replaces the end's weight by
@@ -582,6 +625,15 @@ class SymmetricMyofibril(Component):
         b.expose("flange_a", band.flange_a)
         b.expose("flange_b", lever.flange_b)
         b.output("length", lever.flange_b.s - band.flange_a.s, "m", "myofibril length", low=0.0)
+        self.chamber_p = unit.port.potential  # the representative's pressure [Pa]
+        self.band_tension = -band.flange_a.flow  # the representative's tension [N]
+        if self.end_mass is None:  # the "symmetric" level: the full chain's end names
+            env = b.outer(ENVIRONMENT)
+            # the band carries the load and half the bodies; the top hook all of them
+            top = self.band_tension + 0.5 * n * p.m_body * env["g"]
+            names = chain_end_aliases(n, self.chamber_p, self.chamber_p, top, env["p"])
+            del names["aps1.chamber.p_gauge"]  # the representative is aps1 itself
+            _add_aliases(b, names)
 
     @property
     def rest_length(self) -> float:
@@ -608,8 +660,8 @@ class GroupedMyofibril(Component):
     left to the set-up: it rides on the mass that hangs at the chain end; the top
     one's weight hangs on the frame. The representatives are ``rep1``, ``rep2``, ...
     top first, each with its own tube from the manifold ``port``. Ports, the ``length``
-    output and ``flow_law`` as :class:`Myofibril`; cost grows with ``groups``, not with
-    ``n``.
+    output and ``flow_law`` as :class:`Myofibril`, the end signals as
+    :func:`chain_end_aliases`; cost grows with ``groups``, not with ``n``.
     """
 
     def __init__(
@@ -654,7 +706,7 @@ class GroupedMyofibril(Component):
     def build(self, b: Builder) -> None:
         segs, m_b = self.segments, self.p.m_body
         s_top: float | cs.SX = 0.0
-        prev = None
+        prev, reps = None, []
         for k, (size, _, below) in enumerate(segs):
             last = k == len(segs) - 1
             end_mass = 0.0 if last else (below + segs[k + 1][1]) * m_b
@@ -671,9 +723,15 @@ class GroupedMyofibril(Component):
                 b.connect(prev.flange_b, grp.flange_a)
             prev = grp
             s_top = s_top + sub.rest_length_expr
+            reps.append(sub)
         b.expose("flange_b", prev.flange_b)
         b.output("length", prev.flange_b.s - top.s, "m", "myofibril length", low=0.0)
         self.rest_length_expr = s_top
+        env = b.outer(ENVIRONMENT)
+        # the top half-group's band carries all but the body mass at the top joint
+        top_t = reps[0].band_tension + segs[0][1] * m_b * env["g"]
+        p_top, p_bottom = reps[0].chamber_p, reps[-1].chamber_p
+        _add_aliases(b, chain_end_aliases(self.n, p_top, p_bottom, top_t, env["p"]))
 
     @property
     def rest_length(self) -> float:
@@ -682,6 +740,7 @@ class GroupedMyofibril(Component):
 
 
 __all__ = [
+    "Alias",
     "GroupedMyofibril",
     "APS",
     "APSParams",
@@ -691,5 +750,6 @@ __all__ = [
     "SeriesCopies",
     "SymmetricMyofibril",
     "YeohSpring",
+    "chain_end_aliases",
     "thread_height",
 ]

@@ -148,3 +148,17 @@ def test_grouped_chain_keeps_the_weight_gradient_and_predicts_its_error(n, bound
     convergence = fidelity.predict_reduced(resp["grouped"], resp["coarser"])
     assert 0.7 < against_full / error < 3  # measured 1.8 (n = 10), 2.0 (n = 30)
     assert error < convergence < 3 * error  # measured 1.5x, 2.7x
+
+
+@pytest.mark.parametrize("level", ["grouped", "symmetric"])
+def test_reduced_chains_name_the_chain_ends_as_full_does(level):
+    """aps1 / aps<n> chamber pressure and the top hook's tension actin0.T: the
+    representative's pressure and the tension with all body weight, equal to full's at
+    rest (n = 10, 50 g, 60 kPa)."""
+    names = ["myofibril.aps1.chamber.p_gauge", "myofibril.aps10.chamber.p_gauge"]
+    names.append("myofibril.actin0.T")
+    full = solve_equilibrium(hanging_load(10, load_kg=0.05), {P: 6e4})
+    reduced = solve_equilibrium(hanging_load(10, load_kg=0.05, fidelity=level), {P: 6e4})
+    for name in names:
+        assert reduced[name] == pytest.approx(full[name], rel=1e-9)
+    assert full["myofibril.actin0.T"] == pytest.approx(1.3435, rel=1e-4)  # load + 10 bodies
