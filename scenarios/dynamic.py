@@ -574,8 +574,10 @@ AUTO_LADDER = ("symmetric", "grouped", "linear", "equilibrium_path", "full")
 
 #: Equilibria along the command's range when a reduced chain is compared with its
 #: reference (statics on a cubic spline; the equilibrium path level uses
-#: :data:`~sarcomere.dynamics.fidelity.PATH_NODES`).
-REDUCED_PATH_NODES = 9
+#: :data:`~sarcomere.dynamics.fidelity.PATH_NODES`). The predictions of the step, ramp
+#: and slow cycles at n = 10, 30, 60 are the same to 3 digits with 9 nodes: the largest
+#: static difference sits at the range's ends, which are nodes.
+REDUCED_PATH_NODES = 5
 
 #: Equilibria along the command's range for the ``linear`` level's prediction (the static
 #: nonlinearity over the range) and its operating point (the middle one).
