@@ -223,6 +223,32 @@ def predict_path(
     return float(np.max(e_sched + e_lin * d))
 
 
+def path_jump_bound(
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals,
+    e_lin: np.ndarray,
+) -> float:
+    """A lower bound of :func:`predict_path` from the input alone: where the input jumps
+    (a step), the state cannot, so the deviation from the path right after the jump is
+    the jump of the static response, ``d >= |y_eq(u+) - y_eq(u-)| / span``, and the
+    error term ``e_lin d`` is at least ``e_lin`` times that; zero (up to round-off) for
+    continuous inputs."""
+    _, sig = _single_input(inputs)
+    signals = list(signals)
+    t0, tf = float(t_out[0]), float(t_out[-1])
+    bps = np.asarray(sig.breakpoints(t0, tf) if hasattr(sig, "breakpoints") else [], float)
+    if not bps.size:
+        return 0.0
+    after = np.asarray(sig(bps), float) * np.ones(len(bps))
+    before = np.asarray(sig(np.nextafter(bps, -np.inf)), float) * np.ones(len(bps))
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    span = _span(path.static(signals, u))
+    jump = np.abs(path.static(signals, after) - path.static(signals, before))
+    return float(np.max(e_lin * np.max(jump, axis=0) / span))
+
+
 def predict(
     model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
 ) -> dict[str, float]:

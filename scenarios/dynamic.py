@@ -660,7 +660,9 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
       (conservative while the error falls at least like ``groups^-1.7``; measured
       about ``groups^-2`` on steps);
     * ``linear`` by the static nonlinearity of the full model over the command's range,
-      ``equilibrium_path`` by how the lag changes along the path; on a long chain both
+      ``equilibrium_path`` by how the lag changes along the path (ruled out at once
+      when the command's jumps alone, times linear's error, exceed the tolerance:
+      :func:`~sarcomere.dynamics.fidelity.path_jump_bound`); on a long chain both
       are first predicted on the grouped chain, and ruled out there (without building
       the full model) when off by more than the tolerance plus grouped's own predicted
       error.
@@ -697,7 +699,7 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
     if list(inputs) != [P_CMD]:
         for level in AUTO_LADDER[:-1]:
             why[level] = "its prediction needs the pressure command as only input"
-    chosen = "full"
+    chosen, e_lin, path = "full", None, None
     for level in AUTO_LADDER[:-1]:  # cheapest first; stop at the first predicted within tol
         if level in why:
             continue
@@ -722,9 +724,16 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
             e_lin = ladder.predict_linear(full, path, inputs, grid, care)
             predicted[level] = float(e_lin.max())
         else:
-            full, path = run.model("full"), run.path("full", ladder.PATH_NODES)
+            bound = (
+                0.0 if e_lin is None else ladder.path_jump_bound(path, inputs, grid, care, e_lin)
+            )
             against[level] = "full"
-            predicted[level] = ladder.predict_path(full, path, inputs, grid, care)
+            if bound > tol:
+                against[level] += " (lower bound: the command's jumps times linear's error)"
+                predicted[level] = bound
+            else:
+                full, path = run.model("full"), run.path("full", ladder.PATH_NODES)
+                predicted[level] = ladder.predict_path(full, path, inputs, grid, care)
         if predicted[level] <= tol:
             chosen = level
             break

@@ -84,6 +84,16 @@ def test_equilibrium_path_valid_for_the_slow_ramp_invalid_for_the_step(model):
     assert ramp["linear"] > 0.05  # the ramp crosses the whole nonlinear range
     assert step["equilibrium_path"] > 0.1  # measured 31 %: a step is not a slow scene
     assert pred_ramp["equilibrium_path"] < 0.01 < pred_step["equilibrium_path"]
+    # auto's shortcut for a step: the jump alone, times linear's error, is a lower bound
+    sig, stop, dt = SCENES["step-50g"]
+    t = np.linspace(0.0, stop, round(stop / dt) + 1)
+    path = fidelity.equilibrium_path(model, P, sig(t), nodes=5)
+    e_lin = fidelity.predict_linear(model, path, {P: sig}, t, SIGNALS)
+    bound = fidelity.path_jump_bound(path, {P: sig}, t, SIGNALS, e_lin)
+    assert 0.05 < bound <= pred_step["equilibrium_path"]  # 9.5 % <= 10.4 %
+    ramp_sig, ramp_stop, ramp_dt = SCENES["ramp-50g"]
+    t = np.linspace(0.0, ramp_stop, round(ramp_stop / ramp_dt) + 1)
+    assert fidelity.path_jump_bound(path, {P: ramp_sig}, t, SIGNALS, e_lin) < 1e-12  # no jump
     # conservative: 0.78 % predicted (node-spacing estimate plus e_lin d)
     assert pred_ramp["equilibrium_path"] > ramp["equilibrium_path"]
 
