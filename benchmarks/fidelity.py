@@ -24,11 +24,13 @@ median is reported, and each level's ratio to full's median.
 Usage::
 
     python benchmarks/fidelity.py --out out/bench/fidelity.json [--repeats 3] [--quick]
+        [--only step-50g-n30-auto ...]
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import re
 import statistics
@@ -120,9 +122,11 @@ def _signals(text: str) -> list[str]:
     return list(sc.outputs.signals) or ["myofibril.length"]
 
 
-def study(repeats: int, quick: bool) -> dict:
+def study(repeats: int, quick: bool, only: list[str] | None = None) -> dict:
     rows = {}
     for scene, text in scenes(quick).items():
+        if only and scene not in only:
+            continue
         signals = _signals(text)
         long_chain = int(re.search(r"(?m)^n = (\d+)$", text).group(1)) >= 30
         levels = LONG_CHAIN_LEVELS if long_chain else LEVELS
@@ -141,6 +145,7 @@ def study(repeats: int, quick: bool) -> dict:
                 row[level] = {"failed": " ".join(str(exc).split())[:200]}
         for _ in range(repeats):  # rounds of every level: side by side
             for level in walls:
+                gc.collect()  # no level pays for the garbage of the one before
                 tic = time.perf_counter()
                 results[level] = calls[level]()
                 walls[level].append(time.perf_counter() - tic)
@@ -165,8 +170,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("out/bench/fidelity.json"))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="no chains of 30 and more")
+    parser.add_argument("--only", nargs="+", help="these scenes alone")
     args = parser.parse_args()
-    rows = study(args.repeats, args.quick)
+    rows = study(args.repeats, args.quick, args.only)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
 
