@@ -630,6 +630,17 @@ class _Ladder:
             )
         return self.screens[level]
 
+    def static_difference(self, level: str, ref_groups: int) -> float:
+        """The static part of a reduced chain's prediction against grouped with
+        ``ref_groups`` groups (:func:`~sarcomere.dynamics.fidelity.static_difference`)."""
+        return ladder.static_difference(
+            self.path(level, REDUCED_PATH_NODES),
+            self.path("grouped", REDUCED_PATH_NODES, ref_groups),
+            self.inputs,
+            self.grid,
+            self.care,
+        )
+
     def response(self, level: str, groups: int = GROUPS) -> ladder.ChainResponse:
         key = (level, groups if level == "grouped" else 0)
         if key not in self.responses:
@@ -710,9 +721,13 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
                 continue
             ref = GROUPS - 1 if level == "grouped" else GROUPS
             against[level] = f"grouped ({ref} groups)"
-            predicted[level] = ladder.predict_reduced(
-                run.response(level), run.response("grouped", ref)
-            )
+            predicted[level] = run.static_difference(level, ref)
+            if predicted[level] > tol:  # a lower bound already beyond: no linearisation
+                against[level] += ", static part alone"
+            else:
+                predicted[level] = ladder.predict_reduced(
+                    run.response(level), run.response("grouped", ref)
+                )
         elif "grouped" in predicted and run.screen(level) - predicted["grouped"] > tol:
             # ruled out on the grouped chain, within its predicted difference to full
             against[level] = f"grouped ({GROUPS} groups), less its predicted error"
