@@ -281,7 +281,7 @@ def check_n(sc: Scenario, path: tuple, n: float, fidelity: str) -> None:
     """Refuse an n that is not a whole number >= 1 or above the level's :data:`N_LIMITS`."""
     if n != round(n) or n < 1:
         raise sc.error(path, f"{n:g} is not a whole number of units >= 1")
-    level = "full" if fidelity == "auto" else fidelity  # auto runs full as its reference
+    level = "full" if fidelity == "auto" else fidelity  # auto may end at full
     if n > N_LIMITS[level]:
         others = ", ".join(f"{k} {v}" for k, v in N_LIMITS.items())
         raise sc.error(
