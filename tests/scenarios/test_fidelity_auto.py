@@ -80,6 +80,8 @@ def test_step_on_a_long_chain_runs_the_grouped_level_without_a_full_model(tmp_pa
     assert report["predicted_error"]["symmetric"] > 0.05  # against grouped: 65 %
     assert report["predicted_against"]["grouped"] == "grouped (2 groups)"
     assert report["groups"] == 3
+    # beyond n = 6 the levels on the full model cost more than its run: not predicted
+    assert "not cheaper at n = 10" in report["not_predicted"]["equilibrium_path"]
 
 
 def test_short_chain_does_not_predict_the_reduced_chains(tmp_path):
