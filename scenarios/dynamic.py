@@ -43,7 +43,7 @@ from sarcomere.dynamics.assemblies import (
     hanging_load,
     isometric,
 )
-from sarcomere.dynamics.components.aps import APSParams, GroupedMyofibril
+from sarcomere.dynamics.components.aps import APSParams, GroupedMyofibril, chain_end_names
 from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
@@ -636,6 +636,10 @@ class _Ladder:
         return self.responses[key]
 
 
+#: A signal of one unit of the full chain (the reduced chains have those of the ends).
+_UNIT_SIGNAL = re.compile(r"^myofibril\.(aps|tube|actin)\d+\.")
+
+
 def grouped_units(n: int, groups: int = GROUPS) -> int:
     """Representative units of the "grouped" level of an n-unit chain (its cost)."""
     return GroupedMyofibril.units(n, min(groups, n))
@@ -698,6 +702,14 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
                 f"not cheaper at n = {b.n}: the full model's equilibria, exact Jacobians and "
                 "matrix exponentials cost more than its run (3x at n = 10, 17x at n = 30)"
             )
+    unit_signals = sorted(
+        n
+        for n in named
+        if _UNIT_SIGNAL.match(n) and n.removeprefix("myofibril.") not in chain_end_names(b.n)
+    )
+    if reduces and unit_signals:  # known without building them
+        for level in ("symmetric", "grouped"):
+            why[level] = f"has no signal {unit_signals} (it names the chain ends only)"
     if list(inputs) != [P_CMD]:
         for level in AUTO_LADDER[:-1]:
             why[level] = "its prediction needs the pressure command as only input"

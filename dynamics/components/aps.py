@@ -539,6 +539,12 @@ def _add_aliases(b: Builder, signals: dict[str, tuple[cs.SX, str, str]]) -> None
         b.add(Alias(head, sub))
 
 
+def chain_end_names(n: int) -> list[str]:
+    """The full chain's per-unit signals a reduced chain of ``n`` units also has
+    (:func:`chain_end_aliases`), below the chain's name."""
+    return ["aps1.chamber.p_gauge", *([f"aps{n}.chamber.p_gauge"] if n > 1 else []), "actin0.T"]
+
+
 def chain_end_aliases(
     n: int, top_p: cs.SX, bottom_p: cs.SX, top_tension: cs.SX, p_amb: cs.SX
 ) -> dict[str, tuple[cs.SX, str, str]]:
@@ -547,11 +553,11 @@ def chain_end_aliases(
     that stands for the top and the bottom unit (equal at rest; in transients the
     representative's), and ``actin0.T``, the tension at the top hook (``top_tension``)."""
     rep = "gauge pressure of the representative unit that stands for unit"
-    out = {"aps1.chamber.p_gauge": (top_p - p_amb, "Pa", f"{rep} 1")}
+    values = [(top_p - p_amb, "Pa", f"{rep} 1")]
     if n > 1:
-        out[f"aps{n}.chamber.p_gauge"] = (bottom_p - p_amb, "Pa", f"{rep} {n}")
-    out["actin0.T"] = (top_tension, "N", "tension at the top hook (the top I-band's)")
-    return out
+        values.append((bottom_p - p_amb, "Pa", f"{rep} {n}"))
+    values.append((top_tension, "N", "tension at the top hook (the top I-band's)"))
+    return dict(zip(chain_end_names(n), values, strict=True))
 
 
 class SymmetricMyofibril(Component):
@@ -751,5 +757,6 @@ __all__ = [
     "SymmetricMyofibril",
     "YeohSpring",
     "chain_end_aliases",
+    "chain_end_names",
     "thread_height",
 ]
