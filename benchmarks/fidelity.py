@@ -2,24 +2,35 @@
 ``fidelity = "auto"`` picks, all in one process.
 
 Scenes: the packaged transients (step-50g, step-50g-auto, ramp-50g, sine-sweep-50g,
-vent-0g) and study variants of them (a small sweep, the ramp and the step at n = 10 and 30,
-a 10 s ramp). Levels: the flattened ones (:data:`~sarcomere.dynamics.assemblies.FIDELITIES`)
-run as ``[model] fidelity``; ``linear`` and ``equilibrium_path`` on the full model
-(:mod:`sarcomere.dynamics.fidelity`). Error: ``max |L - L_full| / span(L_full)`` of
-``myofibril.length`` against the full level at the scene's own solver settings. Time: the
-median of ``--repeats`` warm calls of the transient runner (model build, start
-equilibrium, simulation; no file writing), the same for every level; for linear and
-equilibrium_path, build + equilibrium path + the level. "auto" is the runner with
-``fidelity = "auto"``: its prediction and the chosen level's run.
+vent-0g, and the auto scenes dither-50g-auto, step-50g-n30-auto, ramp-50g-n60-auto,
+cycle-50g-n60-auto) and study variants (a 3 kPa sweep, a 10 s ramp, the step and the
+ramp at n = 10). Levels: the flattened ones (:data:`~sarcomere.dynamics.assemblies.
+FIDELITIES`) run as ``[model] fidelity``; ``linear`` and ``equilibrium_path`` on the
+full model (:mod:`sarcomere.dynamics.fidelity`); on chains of 30 and more only full,
+grouped, symmetric and auto (the others cost many full runs there: quasi_static 7-11 s
+and the full model's equilibrium path 2-13 s at n = 30, static_chain is refused above
+n = 20).
+
+Error: ``max |y - y_full| / span(y_full)`` over the scene's ``[outputs] signals``
+(default ``myofibril.length``), against full at the scene's own solver settings.
+Time, "end to end": the transient runner's own wall time for the scene, what
+``summary.json`` reports as ``wall_time_s`` (bind, build, start equilibrium,
+prediction, solve, output signals and metrics; not Python start-up, file writing or
+plots); for linear and equilibrium_path, build + equilibrium path + the level, as auto
+runs them. Every level of a scene is timed once cold, then in ``--repeats`` rounds that
+run every level once each, so the shared machine's load falls on all of them alike; the
+median is reported, and each level's ratio to full's median.
 
 Usage::
 
     python benchmarks/fidelity.py --out out/bench/fidelity.json [--repeats 3] [--quick]
+        [--only step-50g-n30-auto ...]
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import re
 import statistics
@@ -35,7 +46,18 @@ from sarcomere.scenarios import dynamic, parse_scenario
 from sarcomere.scenarios.loader import packaged_scenarios
 
 LEVELS = (*FIDELITIES, "linear", "equilibrium_path", "auto")
-SIGNAL = "myofibril.length"
+LONG_CHAIN_LEVELS = ("full", "grouped", "symmetric", "auto")
+PACKAGED = (
+    "step-50g",
+    "step-50g-auto",
+    "ramp-50g",
+    "sine-sweep-50g",
+    "vent-0g",
+    "dither-50g-auto",
+    "step-50g-n30-auto",
+    "ramp-50g-n60-auto",
+    "cycle-50g-n60-auto",
+)
 
 
 def _packaged(name: str) -> str:
@@ -44,8 +66,8 @@ def _packaged(name: str) -> str:
 
 def scenes(quick: bool) -> dict[str, str]:
     """Scene name -> TOML text (fidelity set per level later)."""
-    out = {n: _packaged(n) for n in ("step-50g", "step-50g-auto", "ramp-50g", "sine-sweep-50g")}
-    out["vent-0g"] = _packaged("vent-0g")
+    names = PACKAGED[:6] if quick else PACKAGED
+    out = {n: _packaged(n) for n in names}
     out["small-sweep-50g (3 kPa)"] = out["sine-sweep-50g"].replace(
         'amplitude = "0.03 MPa"', 'amplitude = "3 kPa"'
     )
@@ -54,9 +76,8 @@ def scenes(quick: bool) -> dict[str, str]:
         .replace('duration = "2 s"', 'duration = "10 s"')
         .replace('stop_time = "2.5 s"', 'stop_time = "10.5 s"')
     )
-    for n in (10,) if quick else (10, 30):
-        for base in ("step-50g", "ramp-50g"):
-            out[f"{base} n={n}"] = re.sub(r"(?m)^n = 3$", f"n = {n}", out[base])
+    for base in ("step-50g", "ramp-50g"):
+        out[f"{base} n=10"] = re.sub(r"(?m)^n = 3$", "n = 10", out[base])
     return out
 
 
@@ -67,61 +88,79 @@ def _with_level(text: str, level: str) -> str:
     return text
 
 
-def _timed(fn, repeats: int):
-    fn()  # cold: CasADi Functions built
-    walls, out = [], None
-    for _ in range(repeats):
-        tic = time.perf_counter()
-        out = fn()
-        walls.append(time.perf_counter() - tic)
-    return out, statistics.median(walls)
-
-
-def _ladder_level(text: str, level: str):
+def _ladder_level(text: str, level: str, signals: list[str]):
     """Run linear or equilibrium_path the way ``auto`` does: build full, path, level."""
     sc = parse_scenario(_with_level(text, "full"), "scene.toml")
     b = dynamic.bind(sc)
     full = b.build("full")
     inputs, wanted, grid = dynamic._prepare(sc, b, full)
     name = next(iter(inputs))
-    path = ladder.equilibrium_path(full, name, inputs[name](grid), b.overrides)
+    nodes = dynamic.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
+    path = ladder.equilibrium_path(full, name, inputs[name](grid), b.overrides, nodes)
     run = ladder.run_linear if level == "linear" else ladder.run_equilibrium_path
-    return run(full, path, inputs, grid, [SIGNAL])
+    return run(full, path, inputs, grid, signals), {}
 
 
-def study(repeats: int, quick: bool) -> dict:
+def _runner(text: str, level: str):
+    """The transient runner on the scene at ``level``: (result, auto report or {})."""
+    sc = parse_scenario(_with_level(text, level), "scene.toml")
+    out = dynamic.run_transient(sc, Path("."))
+    rep = out.extra.get("fidelity_auto", {})
+    extra = {}
+    if rep:
+        extra = {
+            "chosen": rep["chosen"],
+            "predicted_error": rep["predicted_error"][rep["chosen"]],
+            "predicted": rep["predicted_error"],
+            "predicted_against": rep["predicted_against"],
+        }
+    return out.results["main"], extra
+
+
+def _signals(text: str) -> list[str]:
+    sc = parse_scenario(_with_level(text, "full"), "scene.toml")
+    return list(sc.outputs.signals) or ["myofibril.length"]
+
+
+def study(repeats: int, quick: bool, only: list[str] | None = None) -> dict:
     rows = {}
     for scene, text in scenes(quick).items():
-        ref = None
-        row = {}
-        for level in LEVELS:
+        if only and scene not in only:
+            continue
+        signals = _signals(text)
+        long_chain = int(re.search(r"(?m)^n = (\d+)$", text).group(1)) >= 30
+        levels = LONG_CHAIN_LEVELS if long_chain else LEVELS
+        calls, row, walls = {}, {}, {}
+        for level in levels:
+            if level in ("linear", "equilibrium_path"):
+                calls[level] = lambda t=text, lv=level, s=signals: _ladder_level(t, lv, s)
+            else:
+                calls[level] = lambda t=text, lv=level: _runner(t, lv)
+        results = {}
+        for level in levels:  # cold: CasADi Functions, imports
             try:
-                if level in ("linear", "equilibrium_path"):
-                    res, wall = _timed(lambda t=text, lv=level: _ladder_level(t, lv), repeats)
-                    extra = {}
-                else:
-                    sc = parse_scenario(_with_level(text, level), "scene.toml")
-                    out, wall = _timed(lambda sc=sc: dynamic.run_transient(sc, Path(".")), repeats)
-                    res = out.results["main"]
-                    extra = {}
-                    if level == "auto":
-                        rep = out.extra["fidelity_auto"]
-                        extra = {
-                            "chosen": rep["chosen"],
-                            "predicted_error": rep["predicted_error"][rep["chosen"]],
-                            "predicted": rep["predicted_error"],
-                        }
+                results[level] = calls[level]()
+                walls[level] = []
             except SarcomereError as exc:
                 row[level] = {"failed": " ".join(str(exc).split())[:200]}
-                continue
-            if level == "full":
-                ref = res[SIGNAL]
-            err = float(np.max(np.abs(res[SIGNAL] - ref)) / np.ptp(ref))
+        for _ in range(repeats):  # rounds of every level: side by side
+            for level in walls:
+                gc.collect()  # no level pays for the garbage of the one before
+                tic = time.perf_counter()
+                results[level] = calls[level]()
+                walls[level].append(time.perf_counter() - tic)
+        ref = results["full"][0]
+        for level in walls:
+            res, extra = results[level]
+            err = max(float(np.max(np.abs(res[n] - ref[n])) / np.ptp(ref[n])) for n in signals)
+            wall = statistics.median(walls[level])
             row[level] = {"error": err, "wall_time_s": wall, **extra}
-            print(f"{scene:28s} {level:17s} error {err:9.2e} time {wall * 1e3:8.1f} ms {extra}")
-        for rec in row.values():
-            if "wall_time_s" in rec:
-                rec["speedup_vs_full"] = row["full"]["wall_time_s"] / rec["wall_time_s"]
+            row[level]["speedup_vs_full"] = statistics.median(walls["full"]) / wall
+            print(
+                f"{scene:26s} {level:17s} error {err:9.2e} time {wall * 1e3:8.1f} ms "
+                f"x{row[level]['speedup_vs_full']:5.2f} {extra.get('chosen', '')}",
+                flush=True,
+            )
         rows[scene] = row
     return rows
 
@@ -130,9 +169,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench/fidelity.json"))
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--quick", action="store_true", help="n = 10 only, no n = 30")
+    parser.add_argument("--quick", action="store_true", help="no chains of 30 and more")
+    parser.add_argument("--only", nargs="+", help="these scenes alone")
     args = parser.parse_args()
-    rows = study(args.repeats, args.quick)
+    rows = study(args.repeats, args.quick, args.only)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
 

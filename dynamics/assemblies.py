@@ -51,12 +51,14 @@ HOOK_MASS_KG = 1.0e-3
 
 FIDELITIES = (*CHAIN_LEVELS, "grouped", "symmetric")
 """Dynamic fidelity levels (see :data:`CHAIN_LEVELS` and docs/model.md); "grouped" is
-:data:`GROUPS` representative units in series with the bodies' inertia
-(:class:`~.components.aps.GroupedMyofibril`, all n units when n <= GROUPS), "symmetric"
-one representative unit for n identical units."""
+:data:`GROUPS` groups of units in series, two representative half-groups each, with the
+bodies' inertia and the weight gradient (:class:`~.components.aps.GroupedMyofibril`,
+all n units when n <= GROUPS), "symmetric" one representative unit for n identical
+units."""
 
 GROUPS = 3
-"""Groups of the "grouped" level: its cost is that of a chain of 3 whatever n."""
+"""Groups of the "grouped" level: its cost is that of a chain of at most 6 units
+whatever n."""
 
 G_DEFAULT = Ambient().g
 """Default gravity of the set-ups [m/s^2] (the environment's default)."""
@@ -90,7 +92,7 @@ N_WHY = {
 }
 
 
-def _chain(n, p: APSParams, fidelity: str, flow_law: str):
+def _chain(n, p: APSParams, fidelity: str, flow_law: str, groups: int = GROUPS):
     if fidelity not in FIDELITIES:
         raise ParameterError("fidelity", fidelity, f"one of {FIDELITIES}")
     if isinstance(n, int) and n > N_LIMITS[fidelity]:
@@ -100,7 +102,7 @@ def _chain(n, p: APSParams, fidelity: str, flow_law: str):
     if flow_law not in FLOW_LAWS:
         raise ParameterError("flow_law", flow_law, f"one of {tuple(FLOW_LAWS)}")
     if fidelity == "grouped":
-        return GroupedMyofibril("myofibril", n, p, min(GROUPS, n), flow_law)
+        return GroupedMyofibril("myofibril", n, p, min(groups, n), flow_law)
     if fidelity == "symmetric":
         return SymmetricMyofibril("myofibril", n, p, flow_law)
     return Myofibril("myofibril", n, p, level=fidelity, flow_law=flow_law)
@@ -111,14 +113,16 @@ def _end_mass(myo) -> float:
     return myo.end_mass if isinstance(myo, GroupedMyofibril) else 0.0
 
 
-def _frame_regulator_chain(setup, n, params, fidelity, regulator_tau, g, saturate, flow_law):
+def _frame_regulator_chain(
+    setup, n, params, fidelity, regulator_tau, g, saturate, flow_law, groups=GROUPS
+):
     """The part both set-ups share: the environment, the chain hung from the frame, fed by
     the regulator."""
     if params is not None and not isinstance(params, APSParams):
         raise ParameterError("params", params, "an APSParams or None (the paper's APS)")
     tau = _si(regulator_tau, "s", "regulator_tau", 0.0, closed=False)
     g = _si(g, "m/s^2", "g", 0.0, closed=False)
-    myo = _chain(n, params or APSParams.from_paper(), fidelity, flow_law)
+    myo = _chain(n, params or APSParams.from_paper(), fidelity, flow_law, groups)
     sys = System(f"{setup}_n{n}_{fidelity}")
     sys.add(Environment(g=g))
     frame = sys.add(Fixed("frame"))
@@ -138,16 +142,17 @@ def hanging_load(
     g: float | str = G_DEFAULT,
     saturate: bool = True,
     flow_law: str = "iso6358",
+    groups: int = GROUPS,
 ) -> Model:
     """Myofibril of ``n`` APS hanging from the frame, a load mass [kg] at its lower end.
 
     ``saturate``: the regulator clamps its command to ``[0, p_max]`` (plants; False for
     optimisers, which use the input's bounds). ``flow_law``: "iso6358" (exact) or
-    "smooth" (C1, for optimisers).
+    "smooth" (C1, for optimisers). ``groups``: of the "grouped" level.
     """
     load = _si(load_kg, "kg", "load_kg", 0.0)
     sys, myo, mf = _frame_regulator_chain(
-        "hanging", n, params, fidelity, regulator_tau, g, saturate, flow_law
+        "hanging", n, params, fidelity, regulator_tau, g, saturate, flow_law, groups
     )
     end = sys.add(
         Mass("load", m=HOOK_MASS_KG + load + _end_mass(myo), s_start=myo.rest_length_expr)
@@ -161,10 +166,11 @@ def hanging_rest_position(
     params: APSParams | None = None,
     fidelity: str = "full",
     g: float | str = G_DEFAULT,
+    groups: int = GROUPS,
 ) -> float:
     """Position [m] of the chain's hook below the frame when it hangs at rest at 0 MPa with
     no load (the 1 g hook only): where the isometric experiment attaches its sensor."""
-    model = hanging_load(n, params, 0.0, fidelity, g=g)
+    model = hanging_load(n, params, 0.0, fidelity, g=g, groups=groups)
     return solve_equilibrium(model, {"regulator.p_cmd": 0.0})["load.s"]
 
 
@@ -179,6 +185,7 @@ def isometric(
     g: float | str = G_DEFAULT,
     saturate: bool = True,
     flow_law: str = "iso6358",
+    groups: int = GROUPS,
 ) -> Model:
     """Myofibril between the frame and a force sensor on a fixture.
 
@@ -186,11 +193,11 @@ def isometric(
     the sensor is attached there without pre-tension: the fixture position ``length``
     [m] defaults to :func:`hanging_rest_position` (the model's own equilibrium), so the
     sensor reads zero at 0 MPa. ``fixture_stiffness`` None means rigid; otherwise a
-    one-sided spring [N/m] with ``fixture_gap`` [m] of play. ``saturate`` and
-    ``flow_law`` as :func:`hanging_load`.
+    one-sided spring [N/m] with ``fixture_gap`` [m] of play. ``saturate``,
+    ``flow_law`` and ``groups`` as :func:`hanging_load`.
     """
     if length is None:
-        L = hanging_rest_position(n, params, fidelity, g)
+        L = hanging_rest_position(n, params, fidelity, g, groups)
     else:
         L = _si(length, "m", "length", 0.0, closed=False)
     gap = _si(fixture_gap, "m", "fixture_gap", 0.0)
@@ -199,7 +206,7 @@ def isometric(
             "fixture_gap", fixture_gap, "0 with a rigid fixture", "play needs fixture_stiffness"
         )
     sys, myo, mf = _frame_regulator_chain(
-        "isometric", n, params, fidelity, regulator_tau, g, saturate, flow_law
+        "isometric", n, params, fidelity, regulator_tau, g, saturate, flow_law, groups
     )
     sensor = sys.add(ForceSensor("sensor"))
     fix = sys.add(Fixed("fixture", s0=L))

@@ -12,8 +12,9 @@
 
 Both use only the Model's own Functions (equilibrium residual, exact linearisation); they
 hold no physics of their own. What each leaves out, and the predicted error of that, is
-:func:`predict`: computed from the equilibria along the input's range before anything is
-simulated.
+:func:`predict_linear` and :func:`predict_path`: computed from the equilibria along the
+input's range before anything is simulated; :func:`predict_reduced` compares a reduced
+chain with a reference chain the same way (:func:`chain_response`).
 """
 
 from __future__ import annotations
@@ -80,11 +81,13 @@ def equilibrium_path(
     u: np.ndarray,
     params: Mapping[str, object] | None = None,
     nodes: int = PATH_NODES,
+    guess: Equilibrium | None = None,
 ) -> Path:
-    """Equilibria of ``model`` at ``nodes`` values spanning the input samples ``u``."""
+    """Equilibria of ``model`` at ``nodes`` values spanning the input samples ``u``, by
+    continuation from ``guess`` (an equilibrium of ``model``; default: its start values)."""
     lo, hi = float(np.min(u)), float(np.max(u))
     values = np.linspace(lo, hi, nodes) if hi > lo else np.array([lo])
-    eqs, guess = [], None
+    eqs = []
     for v in values:
         guess = solve_equilibrium(model, {input_name: float(v)}, params, guess=guess)
         eqs.append(guess)
@@ -168,66 +171,157 @@ def _path_response(
     return path.static(signals, u) + dev
 
 
-def predict(
+def predict_linear(
     model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> dict[str, float]:
-    """Predicted error of ``linear`` and ``equilibrium_path``: max over ``signals`` of the
-    error relative to the output's span, from the equilibria along the input's range and
-    their linearisations, before any nonlinear simulation.
-
-    * ``linear`` leaves out the static nonlinearity: ``e_lin = max |y_eq(u) - y_op - K du|``.
-    * ``equilibrium_path`` leaves out how ``A`` and ``C`` change between path nodes and
-      the nonlinearity of the deviation ``xi``: the first is estimated by running the
-      deviation on every second node (nearest-node scheduling converges to first order in
-      the node spacing, so the difference estimates the error of the full set), the
-      second as ``e_lin d`` with ``d`` the deviation's size over the span (the static
-      nonlinearity met by a deviation of that size; conservative for slow scenes, where
-      it is of order ``d^2``).
-    """
+) -> np.ndarray:
+    """Predicted error of ``linear`` per signal (relative to the output's span): the
+    static nonlinearity it leaves out, ``max |y_eq(u) - y_op - K du|`` over the input's
+    samples, from the equilibria along the input's range."""
     name, sig = _single_input(inputs)
     signals = list(signals)
     u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
     op, i = path.operating_point, model.input_names.index(name)
     K = static_gain(model, op, signals)[:, i]
     y_static = path.static(signals, u)
-    span = np.maximum(np.ptp(y_static, axis=0), 1e-300)
     y_lin = np.array([op[n] for n in signals]) + np.outer(u - op.u[i], K)
-    e_lin = np.max(np.abs(y_static - y_lin), axis=0) / span
+    return np.max(np.abs(y_static - y_lin), axis=0) / _span(y_static)
+
+
+def _span(y: np.ndarray) -> np.ndarray:
+    return np.maximum(np.ptp(y, axis=0), 1e-300)
+
+
+def predict_path(
+    model: Model,
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals,
+    e_lin: np.ndarray | None = None,
+) -> float:
+    """Predicted error of ``equilibrium_path`` (max over ``signals``, relative to the
+    span): it leaves out how ``A`` and ``C`` change between path nodes and the
+    nonlinearity of the deviation ``xi``. The first is estimated by running the deviation
+    on every second node (nearest-node scheduling converges to first order in the node
+    spacing, so the difference estimates the error of the full set), the second as
+    ``e_lin d`` with ``d`` the deviation's size over the span and ``e_lin``
+    (:func:`predict_linear`, computed when not given) the static nonlinearity met by a
+    deviation of that size (conservative for slow scenes, where it is of order ``d^2``).
+    """
+    _, sig = _single_input(inputs)
+    signals = list(signals)
+    if e_lin is None:
+        e_lin = predict_linear(model, path, inputs, t_out, signals)
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    y_static = path.static(signals, u)
+    span = _span(y_static)
     every = range(len(path.nodes))
     Y = _path_response(model, path, inputs, t_out, signals, every)
     d = np.max(np.abs(Y - y_static), axis=0) / span
     coarse = _path_response(model, path, inputs, t_out, signals, every[::2])
     e_sched = np.max(np.abs(Y - coarse), axis=0) / span
-    return {"linear": float(e_lin.max()), "equilibrium_path": float(np.max(e_sched + e_lin * d))}
+    return float(np.max(e_sched + e_lin * d))
 
 
-def predict_reduced(
-    reduced: Model,
-    full: Model,
+def path_jump_bound(
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals,
+    e_lin: np.ndarray,
+) -> float:
+    """A lower bound of :func:`predict_path` from the input alone: where the input jumps
+    (a step), the state cannot, so the deviation from the path right after the jump is
+    the jump of the static response, ``d >= |y_eq(u+) - y_eq(u-)| / span``, and the
+    error term ``e_lin d`` is at least ``e_lin`` times that; zero (up to round-off) for
+    continuous inputs."""
+    _, sig = _single_input(inputs)
+    signals = list(signals)
+    t0, tf = float(t_out[0]), float(t_out[-1])
+    bps = np.asarray(sig.breakpoints(t0, tf) if hasattr(sig, "breakpoints") else [], float)
+    if not bps.size:
+        return 0.0
+    after = np.asarray(sig(bps), float) * np.ones(len(bps))
+    before = np.asarray(sig(np.nextafter(bps, -np.inf)), float) * np.ones(len(bps))
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    span = _span(path.static(signals, u))
+    jump = np.abs(path.static(signals, after) - path.static(signals, before))
+    return float(np.max(e_lin * np.max(jump, axis=0) / span))
+
+
+def predict(
+    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
+) -> dict[str, float]:
+    """Predicted error of ``linear`` and ``equilibrium_path`` (:func:`predict_linear`,
+    :func:`predict_path`): max over ``signals`` of the error relative to the output's
+    span, from the equilibria along the input's range and their linearisations, before
+    any nonlinear simulation."""
+    e_lin = predict_linear(model, path, inputs, t_out, signals)
+    e_path = predict_path(model, path, inputs, t_out, signals, e_lin)
+    return {"linear": float(e_lin.max()), "equilibrium_path": e_path}
+
+
+@dataclass
+class ChainResponse:
+    """What a reduced chain's prediction compares, on the scene's output grid.
+
+    Attributes
+    ----------
+    static : numpy.ndarray
+        ``y_eq(u(t))`` of the signals, shape (len(t), ny), from the chain's own path.
+    dynamic : numpy.ndarray
+        The linearised dynamic part ``y_lin - (y_op + K du)`` at the path's operating
+        point, same shape.
+    """
+
+    static: np.ndarray
+    dynamic: np.ndarray
+
+
+def chain_response(
+    model: Model,
     path: Path,
     inputs: Mapping[str, object],
     t_out: np.ndarray,
     signals: Sequence[str],
-    params: Mapping[str, object] | None = None,
-) -> float:
-    """Predicted error of a reduced chain level (``symmetric``, ``grouped``) against
-    ``full``: its static error on the full model's equilibrium path plus the difference
-    of the two linearised dynamic parts ``y_lin - (y_op + K du)``, both relative to
-    the span of the full model's static response; the nonlinear interplay of the two is
-    left out."""
+) -> ChainResponse:
+    """The static and linearised dynamic response of a chain model on its ``path``."""
     name, sig = _single_input(inputs)
+    signals = list(signals)
     u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
-    red = equilibrium_path(reduced, name, u, params, nodes=len(path.nodes))
-    y_full = path.static(signals, u)
-    span = np.maximum(np.ptp(y_full, axis=0), 1e-300)
-    e_static = np.max(np.abs(red.static(signals, u) - y_full), axis=0) / span
+    op, i = path.operating_point, model.input_names.index(name)
+    K = static_gain(model, op, signals)[:, i]
+    lin = simulate_linear(model, op, inputs, t_out, signals)
+    y_op = np.array([op[n] for n in signals])
+    dyn = np.column_stack([lin[n] for n in signals]) - (y_op + np.outer(u - op.u[i], K))
+    return ChainResponse(path.static(signals, u), dyn)
 
-    def dynamic(model: Model, p: Path) -> np.ndarray:
-        op, i = p.operating_point, model.input_names.index(name)
-        K = static_gain(model, op, signals)[:, i]
-        lin = simulate_linear(model, op, inputs, t_out, signals)
-        y_op = np.array([op[n] for n in signals])
-        return np.column_stack([lin[n] for n in signals]) - (y_op + np.outer(u - op.u[i], K))
 
-    e_dyn = np.max(np.abs(dynamic(reduced, red) - dynamic(full, path)), axis=0) / span
+def predict_reduced(reduced: ChainResponse, reference: ChainResponse) -> float:
+    """Predicted difference of a reduced chain (``symmetric``, ``grouped``) to a
+    reference chain (``full``, or a grouped chain as a convergence estimate), both
+    :func:`chain_response` on paths with the same nodes: the difference of the statics
+    plus that of the linearised dynamic parts, each relative to the span of the
+    reference's static response (max over time, then over the signals); the nonlinear
+    interplay of the two is left out."""
+    span = _span(reference.static)
+    e_static = np.max(np.abs(reduced.static - reference.static), axis=0) / span
+    e_dyn = np.max(np.abs(reduced.dynamic - reference.dynamic), axis=0) / span
     return float(np.max(e_static + e_dyn))
+
+
+def static_difference(
+    reduced: Path,
+    reference: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals: Sequence[str],
+) -> float:
+    """The static part of :func:`predict_reduced` alone, from the two chains' paths (no
+    linearisation): a lower bound of the prediction, enough to rule a chain out."""
+    _, sig = _single_input(inputs)
+    signals = list(signals)
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    y_ref = reference.static(signals, u)
+    diff = np.max(np.abs(reduced.static(signals, u) - y_ref), axis=0) / _span(y_ref)
+    return float(np.max(diff))

@@ -37,13 +37,14 @@ from sarcomere.dynamics import fidelity as ladder
 from sarcomere.dynamics.assemblies import (
     FIDELITIES,
     FLOW_LAWS,
+    GROUPS,
     N_LIMITS,
     N_WHY,
     hanging_load,
     isometric,
 )
-from sarcomere.dynamics.components.aps import APSParams
-from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.components.aps import APSParams, GroupedMyofibril, chain_end_names
+from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
@@ -88,14 +89,17 @@ class Binding:
         n: int | None = None,
         flow_law: str | None = None,
         saturate: bool = True,
+        groups: int = GROUPS,
     ) -> Model:
         """Flatten the model for one fidelity level (optionally another n, another flow law,
-        or an unclamped regulator for optimisers)."""
+        an unclamped regulator for optimisers, or another number of groups of the
+        "grouped" level)."""
         n = self.n if n is None else n
         common = {
             "regulator_tau": self.regulator_tau,
             "saturate": saturate,
             "flow_law": self.flow_law if flow_law is None else flow_law,
+            "groups": groups,
         }
         if self.setup == "isometric":
             return isometric(
@@ -277,7 +281,7 @@ def check_n(sc: Scenario, path: tuple, n: float, fidelity: str) -> None:
     """Refuse an n that is not a whole number >= 1 or above the level's :data:`N_LIMITS`."""
     if n != round(n) or n < 1:
         raise sc.error(path, f"{n:g} is not a whole number of units >= 1")
-    level = "full" if fidelity == "auto" else fidelity  # auto runs full as its reference
+    level = "full" if fidelity == "auto" else fidelity  # auto may end at full
     if n > N_LIMITS[level]:
         others = ", ".join(f"{k} {v}" for k, v in N_LIMITS.items())
         raise sc.error(
@@ -477,12 +481,20 @@ def _prepare(sc: Scenario, b: Binding, model: Model) -> tuple[dict, list[str], n
     return inputs, wanted, grid
 
 
-def _simulate(sc: Scenario, b: Binding, fid: str, model: Model | None = None):
+def _simulate(
+    sc: Scenario,
+    b: Binding,
+    fid: str,
+    model: Model | None = None,
+    guess: Equilibrium | None = None,
+):
+    """Build (unless given) and simulate from the start equilibrium, found by
+    continuation from ``guess`` (an equilibrium of ``model``) where one is known."""
     model = b.build(fid) if model is None else model
     inputs, wanted, grid = _prepare(sc, b, model)
     sim = sc.simulation
     u0 = {k: float(sig(sim.start_time)) for k, sig in inputs.items()}
-    start = solve_equilibrium(model, u0, b.overrides)
+    start = solve_equilibrium(model, u0, b.overrides, guess=guess)
     res = simulate(
         model,
         sim.stop_time,
@@ -555,8 +567,82 @@ def _rise_time(t: np.ndarray, y: np.ndarray) -> float:
     return float(t[i90] - t[i10])
 
 
-#: The levels "auto" considers, cheapest first (docs/numerics.md, scene x level table).
-AUTO_LADDER = ("linear", "equilibrium_path", "symmetric", "grouped", "full")
+#: The levels "auto" considers, cheapest first: the reduced chains (their cost does not
+#: grow with n), the two levels on the full model that integrate nothing, then full
+#: (docs/numerics.md, scene x level table).
+AUTO_LADDER = ("symmetric", "grouped", "linear", "equilibrium_path", "full")
+
+#: Equilibria along the command's range when a reduced chain is compared with its
+#: reference (statics on a cubic spline; the equilibrium path level uses
+#: :data:`~sarcomere.dynamics.fidelity.PATH_NODES`). The predictions of the step, ramp
+#: and slow cycles at n = 10, 30, 60 are the same to 3 digits with 9 nodes: the largest
+#: static difference sits at the range's ends, which are nodes.
+REDUCED_PATH_NODES = 5
+
+#: Equilibria along the command's range for the ``linear`` level's prediction (the static
+#: nonlinearity over the range) and its operating point (the middle one).
+LINEAR_PATH_NODES = 5
+
+
+class _Ladder:
+    """The models, equilibrium paths and chain responses of one auto run, each built
+    once."""
+
+    def __init__(self, sc: Scenario, b: Binding, inputs: dict, grid: np.ndarray) -> None:
+        self.sc, self.b, self.inputs, self.grid = sc, b, inputs, grid
+        self.care = list(sc.outputs.signals) or ["myofibril.length"]
+        self.models: dict[tuple[str, int], Model] = {}
+        self.paths: dict[tuple[str, int, int], ladder.Path] = {}
+        self.responses: dict[tuple[str, int], ladder.ChainResponse] = {}
+
+    def model(self, level: str, groups: int = GROUPS) -> Model:
+        key = (level, groups if level == "grouped" else 0)
+        if key not in self.models:
+            self.models[key] = self.b.build(level, groups=groups)
+        return self.models[key]
+
+    def path(self, level: str, nodes: int, groups: int = GROUPS) -> ladder.Path:
+        key = (level, groups if level == "grouped" else 0, nodes)
+        if key not in self.paths:
+            u = self.inputs[P_CMD](self.grid)
+            m = self.model(level, groups)
+            guess = self.known(level, groups)
+            self.paths[key] = ladder.equilibrium_path(m, P_CMD, u, self.b.overrides, nodes, guess)
+        return self.paths[key]
+
+    def known(self, level: str, groups: int = GROUPS) -> Equilibrium | None:
+        """An equilibrium of the model already found (a continuation start: long chains
+        need seconds of settling to find their first one)."""
+        key = (level, groups if level == "grouped" else 0)
+        return next((p.equilibria[0] for k, p in self.paths.items() if k[:2] == key), None)
+
+    def static_difference(self, level: str, ref_groups: int) -> float:
+        """The static part of a reduced chain's prediction against grouped with
+        ``ref_groups`` groups (:func:`~sarcomere.dynamics.fidelity.static_difference`)."""
+        return ladder.static_difference(
+            self.path(level, REDUCED_PATH_NODES),
+            self.path("grouped", REDUCED_PATH_NODES, ref_groups),
+            self.inputs,
+            self.grid,
+            self.care,
+        )
+
+    def response(self, level: str, groups: int = GROUPS) -> ladder.ChainResponse:
+        key = (level, groups if level == "grouped" else 0)
+        if key not in self.responses:
+            path = self.path(level, REDUCED_PATH_NODES, groups)
+            m = self.model(level, groups)
+            self.responses[key] = ladder.chain_response(m, path, self.inputs, self.grid, self.care)
+        return self.responses[key]
+
+
+#: A signal of one unit of the full chain (the reduced chains have those of the ends).
+_UNIT_SIGNAL = re.compile(r"^myofibril\.(aps|tube|actin)\d+\.")
+
+
+def grouped_units(n: int, groups: int = GROUPS) -> int:
+    """Representative units of the "grouped" level of an n-unit chain (its cost)."""
+    return GroupedMyofibril.units(n, min(groups, n))
 
 
 def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
@@ -565,61 +651,126 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
 
     Error: max over the scenario's ``[outputs] signals`` (default ``myofibril.length``)
     of ``max |y - y_full| / span(y_full)``. Predictions (:mod:`sarcomere.dynamics.fidelity`,
-    before any nonlinear simulation): from the full model's equilibria along the
-    command's range and its exact linearisation, ``linear`` by its static nonlinearity,
-    ``equilibrium_path`` by how the lag changes along the path, ``symmetric`` and
-    ``grouped`` by their static and linearised dynamic difference to ``full``. A scene
-    with more than one varying input, or a level without a signal the scene cares
-    about, is predicted invalid. The choice depends on the scene alone, never on timings.
+    before any nonlinear simulation), each from the statics along the command's range
+    and exact linearisations, built only when the cheaper levels are ruled out:
+
+    * ``symmetric`` against ``grouped`` (what it drops: the weight gradient and the body
+      inertia);
+    * ``grouped`` (:data:`GROUPS` groups) against grouped with one group fewer: the
+      change when the groups grow, a convergence estimate that needs no full model
+      (conservative while the error falls at least like ``groups^-1.7``; measured
+      about ``groups^-2`` on steps);
+    * ``linear`` by the static nonlinearity of the full model over the command's range,
+      ``equilibrium_path`` by how the lag changes along the path (ruled out at once
+      when the command's jumps alone, times linear's error, exceed the tolerance:
+      :func:`~sarcomere.dynamics.fidelity.path_jump_bound`).
+
+    The reduced chains are considered only where grouped has fewer representative units
+    than the chain (n > 2 :data:`GROUPS`), and the two levels on the full model only
+    where it does not (n <= 2 :data:`GROUPS`): beyond, their equilibria, Jacobians and
+    matrix exponentials of the full model cost more than running it (measured 3x at
+    n = 10, 17x at n = 30). A scene with more than one varying input, or a level without
+    a signal the scene cares about, is predicted invalid. The choice depends on the
+    scene (its n included) alone, never on timings.
     """
     tic = time.perf_counter()
     tol = sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01
     care = list(sc.outputs.signals) or ["myofibril.length"]
     named = {*care, *(n for names in sc.outputs.plots.values() for n in names)}
-    full = b.build("full")
-    inputs, wanted, grid = _prepare(sc, b, full)
+    if sc.simulation is None:
+        raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
+    grid = time_grid(sc.simulation)
+    reduces = grouped_units(b.n) < b.n
+    first = "symmetric" if reduces else "full"  # the first model the ladder needs
+    cheap = b.build(first)
+    inputs = _inputs(sc, cheap)
+    _check_commands(sc, cheap, b.overrides, inputs, grid)
+    run = _Ladder(sc, b, inputs, grid)
+    run.models[first, 0] = cheap
     predicted: dict[str, float] = {}
     why: dict[str, str] = {}
-    path = None
+    against: dict[str, str] = {}
+    if not reduces:
+        for level in ("symmetric", "grouped"):
+            why[level] = (
+                f"not cheaper at n = {b.n}: grouped has {grouped_units(b.n)} representative "
+                "units, and a prediction against full costs more than it saves"
+            )
+    else:
+        for level in ("linear", "equilibrium_path"):
+            why[level] = (
+                f"not cheaper at n = {b.n}: the full model's equilibria, exact Jacobians and "
+                "matrix exponentials cost more than its run (3x at n = 10, 17x at n = 30)"
+            )
+    unit_signals = sorted(
+        n
+        for n in named
+        if _UNIT_SIGNAL.match(n) and n.removeprefix("myofibril.") not in chain_end_names(b.n)
+    )
+    if reduces and unit_signals:  # known without building them
+        for level in ("symmetric", "grouped"):
+            why[level] = f"has no signal {unit_signals} (it names the chain ends only)"
     if list(inputs) != [P_CMD]:
-        why["linear"] = why["equilibrium_path"] = "needs the pressure command as only input"
-    for level in AUTO_LADDER:  # cheapest first; stop at the first predicted within tol
-        if level == "full":
-            predicted[level] = 0.0
-        elif level in why:
-            continue
-        elif level in ("linear", "equilibrium_path"):
-            if path is None:
-                u = inputs[P_CMD](grid)
-                path = ladder.equilibrium_path(full, P_CMD, u, b.overrides)
-                predicted.update(ladder.predict(full, path, inputs, grid, care))
-        elif path is None:
+        for level in AUTO_LADDER[:-1]:
             why[level] = "its prediction needs the pressure command as only input"
-        else:
-            model = b.build(level)
-            lacking = sorted(n for n in named if n not in model.signal_names)
+    chosen, e_lin, path = "full", None, None
+    for level in AUTO_LADDER[:-1]:  # cheapest first; stop at the first predicted within tol
+        if level in why:
+            continue
+        if level in ("symmetric", "grouped"):
+            lacking = sorted(n for n in named if n not in run.model(level).signal_names)
             if lacking:
                 why[level] = f"has no signal {lacking}"
                 continue
-            predicted[level] = ladder.predict_reduced(
-                model, full, path, inputs, grid, care, b.overrides
+            ref = GROUPS - 1 if level == "grouped" else GROUPS
+            against[level] = f"grouped ({ref} groups)"
+            predicted[level] = run.static_difference(level, ref)
+            if predicted[level] > tol:  # a lower bound already beyond: no linearisation
+                against[level] += ", static part alone"
+            else:
+                predicted[level] = ladder.predict_reduced(
+                    run.response(level), run.response("grouped", ref)
+                )
+        elif level == "linear":
+            full, path = run.model("full"), run.path("full", LINEAR_PATH_NODES)
+            against[level] = "full"
+            e_lin = ladder.predict_linear(full, path, inputs, grid, care)
+            predicted[level] = float(e_lin.max())
+        else:
+            bound = (
+                0.0 if e_lin is None else ladder.path_jump_bound(path, inputs, grid, care, e_lin)
             )
-        if predicted.get(level, math.inf) <= tol:
+            against[level] = "full"
+            if bound > tol:
+                against[level] += " (lower bound: the command's jumps times linear's error)"
+                predicted[level] = bound
+            else:
+                full, path = run.model("full"), run.path("full", ladder.PATH_NODES)
+                predicted[level] = ladder.predict_path(full, path, inputs, grid, care)
+        if predicted[level] <= tol:
             chosen = level
             break
+    if chosen == "full":
+        predicted["full"] = 0.0
     if chosen in ("linear", "equilibrium_path"):
-        run = ladder.run_linear if chosen == "linear" else ladder.run_equilibrium_path
-        res = run(full, path, inputs, grid, wanted)
+        nodes = LINEAR_PATH_NODES if chosen == "linear" else ladder.PATH_NODES
+        full, path = run.model("full"), run.path("full", nodes)
+        wanted = _prepare(sc, b, full)[1]
+        step = ladder.run_linear if chosen == "linear" else ladder.run_equilibrium_path
+        res = step(full, path, inputs, grid, wanted)
     else:
-        res = _simulate(sc, b, chosen, full if chosen == "full" else None)[1]
+        res = _simulate(sc, b, chosen, run.model(chosen), run.known(chosen))[1]
     report = {
         "chosen": chosen,
         "tolerance": tol,
         "signals": care,
         "predicted_error": {f: predicted.get(f) for f in AUTO_LADDER},
+        "predicted_against": against,
         "not_predicted": why,
         "wall_time_s": time.perf_counter() - tic,
     }
+    if chosen == "grouped":
+        report["groups"] = GROUPS
     return chosen, res, report
 
 

@@ -80,6 +80,26 @@ def _substitute(expr: cs.SX, known: dict[str, cs.SX]) -> cs.SX:
     return cs.substitute(expr, cs.vertcat(*syms), cs.vertcat(*[known[s.name()] for s in syms]))
 
 
+def _substitute_all(
+    exprs: dict[str, cs.SX], known: dict[str, cs.SX], symbols: dict[str, cs.SX]
+) -> dict[str, cs.SX]:
+    """``exprs`` with every unknown in ``known`` (whose definitions are free of them)
+    replaced, in one pass over the shared expression graph."""
+    if not exprs or not known:
+        return dict(exprs)
+    out = cs.substitute(list(exprs.values()), [symbols[n] for n in known], list(known.values()))
+    return dict(zip(exprs, out, strict=True))
+
+
+def _resolve(known: dict[str, cs.SX], symbols: dict[str, cs.SX]) -> dict[str, cs.SX]:
+    """Definitions in solve (BLT) order, each in terms of earlier ones, rewritten in terms
+    of the states, the algebraic unknowns kept, inputs and parameters (one ordered pass)."""
+    if not known:
+        return known
+    defs, _ = cs.substitute_inplace([symbols[n] for n in known], list(known.values()), [], False)
+    return dict(zip(known, defs, strict=True))
+
+
 def _linear_coefficient(e: cs.SX, v: cs.SX, others: cs.SX) -> cs.SX | None:
     """Coefficient of ``v`` if ``e`` is linear in ``v`` with a coefficient free of ``others``."""
     slope = cs.jacobian(e, v)
@@ -209,7 +229,7 @@ def _resolve_time_derivatives(
         R = cs.solve(cs.SX.eye(len(names)) - J, cs.substitute(R, w, cs.SX.zeros(w.shape)))
     out = dict(known)
     out.update({n: R[i] for i, n in enumerate(names)})
-    return {k: _substitute(v, out) for k, v in out.items()}
+    return _substitute_all(out, {n: out[n] for n in names}, c.symbols)
 
 
 def flatten(name: str, c: Collected) -> Model:
@@ -231,8 +251,10 @@ def flatten(name: str, c: Collected) -> Model:
         residuals = cs.vertcat(*[e for e, _ in eqs])
         unknowns = cs.vertcat(*[c.symbols[v] for v in unknown_names])
         origins = [o for _, o in eqs]
+        # Block equations keep the unknowns of earlier blocks as symbols (known, in BLT
+        # order); one ordered pass resolves the definitions afterwards.
         for eq_idx, var_idx in _blocks(residuals, unknowns, origins, unknown_names):
-            block = [_substitute(eqs[i][0], known) for i in eq_idx]
+            block = [eqs[i][0] for i in eq_idx]
             if len(block) == 1:
                 v = c.symbols[unknown_names[var_idx[0]]]
                 slope = cs.jacobian(block[0], v)
@@ -250,16 +272,18 @@ def flatten(name: str, c: Collected) -> Model:
                 )
             kept_eqs.extend(block)
             kept_vars.extend(v.name() for v in block_vars)
-    ders = {k: _substitute(e, known) for k, e in c.ders.items()}
+    known = _resolve(known, c.symbols)
+    ders = _substitute_all(c.ders, known, c.symbols)
     if c.time_derivatives:
         known = _resolve_time_derivatives(c, known, ders)
-        ders = {k: _substitute(e, known) for k, e in ders.items()}
-    outputs = {k: _substitute(e, known) for k, e in c.outputs.items()}
-    energies = {k: _substitute(e, known) for k, e in c.energies.items()}
-    dissip = {k: _substitute(e, known) for k, e in c.dissipations.items()}
+        ders = _substitute_all(ders, known, c.symbols)
+    outputs = _substitute_all(c.outputs, known, c.symbols)
+    energies = _substitute_all(c.energies, known, c.symbols)
+    dissip = _substitute_all(c.dissipations, known, c.symbols)
     # Equations kept for the algebraic part may use unknowns solved later in BLT order.
-    kept_eqs = [_substitute(e, known) for e in kept_eqs]
-    solved = {k: _substitute(e, known) for k, e in known.items()}
+    kept = _substitute_all(dict(enumerate(kept_eqs)), known, c.symbols)
+    kept_eqs = list(kept.values())
+    solved = known
     model = Model(
         name=name,
         variables=variables,

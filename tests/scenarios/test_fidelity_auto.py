@@ -11,7 +11,7 @@ SCENE = """
 kind = "transient"
 [model]
 fidelity = "{fidelity}"
-n = 3
+n = {n}
 [model.options]
 setup = "hanging"
 load = "50 g"
@@ -31,16 +31,16 @@ SMALL_CHIRP = (
 STEP = 'type = "step"\nfinal = "0.1 MPa"\ntime = "0.1 s"'
 
 
-def _scene(fidelity: str, command: str, stop: str) -> str:
+def _scene(fidelity: str, command: str, stop: str, n: int = 3) -> str:
     tolerance = 'tolerance = "1 %"\n' if fidelity == "auto" else ""
-    return SCENE.format(fidelity=fidelity, command=command, stop=stop, tolerance=tolerance)
+    return SCENE.format(fidelity=fidelity, command=command, stop=stop, tolerance=tolerance, n=n)
 
 
-def _both(tmp_path, command, stop):
+def _both(tmp_path, command, stop, n=3):
     """(auto run, full run, measured error of the auto run's length against full)."""
     out = {}
     for fid in ("auto", "full"):
-        text = _scene(fid, command, stop)
+        text = _scene(fid, command, stop, n)
         out[fid] = run(parse_scenario(text, f"{fid}.toml"), tmp_path / fid, quiet=True)
     a, f = (out[k].results["main"]["myofibril.length"] for k in ("auto", "full"))
     return out["auto"], out["full"], float(np.max(np.abs(a - f)) / np.ptp(f))
@@ -66,16 +66,35 @@ def test_small_sweep_runs_the_linear_level_within_tolerance(tmp_path):
     assert error < 0.01  # measured 0.59 %, predicted 0.53 %
 
 
-def test_step_runs_the_grouped_level_and_rules_out_the_others_by_prediction(tmp_path):
-    auto, _, error = _both(tmp_path, STEP, "2 s")
-    assert auto.fidelity == "grouped"  # predicted 0.48 %: the bodies keep their inertia
-    assert error < 0.01  # measured 0.40 %
-    pred = auto.extra["fidelity_auto"]["predicted_error"]
-    assert pred["linear"] > 0.05 and pred["equilibrium_path"] > 0.1 and pred["symmetric"] > 0.05
+def test_step_on_a_long_chain_runs_the_grouped_level_without_a_full_model(tmp_path, monkeypatch):
+    built = []
+    build = dynamic.Binding.build
+    monkeypatch.setattr(
+        dynamic.Binding, "build", lambda self, fid, **k: built.append(fid) or build(self, fid, **k)
+    )
+    auto, _, error = _both(tmp_path, STEP, "2 s", n=10)
+    assert auto.fidelity == "grouped"  # predicted 0.57 %: weight gradient and inertia kept
+    assert error < 0.01  # measured 0.37 %
+    assert built.count("full") == 1  # the full run of _both only
+    report = auto.extra["fidelity_auto"]
+    assert report["predicted_error"]["symmetric"] > 0.05  # against grouped: 65 %
+    assert report["predicted_against"]["grouped"] == "grouped (2 groups)"
+    assert report["groups"] == 3
+    # beyond n = 6 the levels on the full model cost more than its run: not predicted
+    assert "not cheaper at n = 10" in report["not_predicted"]["equilibrium_path"]
+
+
+def test_short_chain_does_not_predict_the_reduced_chains(tmp_path):
+    """At n = 3 grouped is the chain itself, and symmetric could only be predicted
+    against full, which costs more than running full."""
+    out = run(parse_scenario(_scene("auto", STEP, "2 s"), "t.toml"), tmp_path, quiet=True)
+    assert out.fidelity == "full"  # linear 9.5 % and equilibrium path 10 % predicted
+    why = out.extra["fidelity_auto"]["not_predicted"]
+    assert "not cheaper at n = 3" in why["grouped"] and "not cheaper" in why["symmetric"]
 
 
 def test_a_cared_signal_the_level_lacks_rules_it_out(tmp_path):
-    text = _scene("auto", STEP, "2 s").replace(
+    text = _scene("auto", STEP, "2 s", n=10).replace(
         '["myofibril.length"]', '["myofibril.length", "myofibril.aps3.chamber.p_gauge"]'
     )
     out = run(parse_scenario(text, "t.toml"), tmp_path, quiet=True)
