@@ -19,7 +19,9 @@ prediction, solve, output signals and metrics; not Python start-up, file writing
 plots); for linear and equilibrium_path, build + equilibrium path + the level, as auto
 runs them. Every level of a scene is timed once cold, then in ``--repeats`` rounds that
 run every level once each, so the shared machine's load falls on all of them alike; the
-median is reported, and each level's ratio to full's median.
+median is reported, and each level's ratio to full's median. BLAS/LAPACK run with the
+threads the CLI uses (``SARCOMERE_BLAS_THREADS``, default 1; scenarios/threads.py);
+``--blas-threads default`` leaves the libraries' own pools.
 
 Usage::
 
@@ -30,6 +32,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import re
@@ -44,6 +47,7 @@ from sarcomere.dynamics.assemblies import FIDELITIES
 from sarcomere.dynamics.errors import SarcomereError
 from sarcomere.scenarios import dynamic, parse_scenario
 from sarcomere.scenarios.loader import packaged_scenarios
+from sarcomere.scenarios.threads import limited_blas
 
 LEVELS = (*FIDELITIES, "linear", "equilibrium_path", "auto")
 LONG_CHAIN_LEVELS = ("full", "grouped", "symmetric", "auto")
@@ -171,8 +175,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="no chains of 30 and more")
     parser.add_argument("--only", nargs="+", help="these scenes alone")
+    parser.add_argument(
+        "--blas-threads", choices=("cli", "default"), default="cli", help="BLAS thread pools"
+    )
     args = parser.parse_args()
-    rows = study(args.repeats, args.quick, args.only)
+    with limited_blas() if args.blas_threads == "cli" else contextlib.nullcontext():
+        rows = study(args.repeats, args.quick, args.only)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
 

@@ -20,6 +20,7 @@ from .loader import load_scenario, packaged_scenarios
 from .outdir import check_out_dir
 from .output import version
 from .runner import run
+from .threads import limited_blas
 
 
 @dataclass(frozen=True)
@@ -120,7 +121,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``sarcomere`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
     try:
-        return args.handler(args)
+        with limited_blas():
+            return args.handler(args)
     except SarcomereError as exc:
         message = " ".join(str(exc).split())
         print(f"error: {message}", file=sys.stderr)
