@@ -45,7 +45,7 @@ from ..errors import ParameterError
 from ..modeling.model import Model
 from ..signals import Staircase, Step
 from ..units import to_si
-from . import fixed_step, guard, scipy_methods, sundials  # noqa: F401  (register the methods)
+from . import fixed_step, guard, radau, scipy_methods, sundials  # noqa: F401  (register the methods)
 from .common import HELD, InputLaw, method_options, require_step, segment_w
 from .settings import METHODS, Segment, SolverSettings
 
