@@ -153,7 +153,7 @@ def _build(model: Model, law: InputLaw) -> Library:
         gen.add(jac)
         gen.generate(tmp + os.sep)
         so = Path(tmp) / "radau.so"
-        cmd = [cc, "-shared", "-fPIC", "-O2", "-std=c11", str(SOURCE)]
+        cmd = [cc, "-shared", "-fPIC", "-O2", "-fcx-limited-range", "-std=c11", str(SOURCE)]
         cmd += [str(Path(tmp) / "sm_model.c"), "-o", str(so), "-lm"]
         done = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if done.returncode != 0:

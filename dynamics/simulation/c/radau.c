@@ -72,88 +72,63 @@ static int jac(Model *m, double t, const double *x, double *J)
     return 0;
 }
 
-/* LU with partial pivoting of the column-major n x n matrix a, in place. */
-static int lu_real(int n, double *a, int *piv)
-{
-    for (int k = 0; k < n; ++k) {
-        int q = k;
-        double big = fabs(a[k + k * n]);
-        for (int i = k + 1; i < n; ++i)
-            if (fabs(a[i + k * n]) > big) big = fabs(a[i + k * n]), q = i;
-        piv[k] = q;
-        if (big == 0.0) return 1;
-        if (q != k)
-            for (int j = 0; j < n; ++j) {
-                double s = a[k + j * n];
-                a[k + j * n] = a[q + j * n];
-                a[q + j * n] = s;
-            }
-        double inv = 1.0 / a[k + k * n];
-        for (int i = k + 1; i < n; ++i) a[i + k * n] *= inv;
-        for (int j = k + 1; j < n; ++j) {
-            double akj = a[k + j * n];
-            if (akj != 0.0)
-                for (int i = k + 1; i < n; ++i) a[i + j * n] -= a[i + k * n] * akj;
-        }
+/* LU with partial pivoting of the column-major n x n matrix a, in place (LAPACK's
+ * layout: unit L below the diagonal, U on and above, row k swapped with piv[k] at step
+ * k). The updates skip the zeros of the multipliers' column: the model's Jacobian is
+ * sparse (a chain), so most of them are. nz: n ints of workspace. */
+#define SM_LU(NAME, T, ABS)                                                           \
+    static int NAME(int n, T *a, int *piv, int *nz)                                  \
+    {                                                                                 \
+        for (int k = 0; k < n; ++k) {                                                 \
+            T *ak = a + k * n;                                                        \
+            int q = k;                                                                \
+            double big = ABS(ak[k]);                                                  \
+            for (int i = k + 1; i < n; ++i)                                           \
+                if (ABS(ak[i]) > big) big = ABS(ak[i]), q = i;                        \
+            piv[k] = q;                                                               \
+            if (big == 0.0) return 1;                                                 \
+            if (q != k)                                                               \
+                for (int j = 0; j < n; ++j) {                                         \
+                    T s = a[k + j * n];                                               \
+                    a[k + j * n] = a[q + j * n];                                      \
+                    a[q + j * n] = s;                                                 \
+                }                                                                     \
+            T inv = 1.0 / ak[k];                                                      \
+            int m = 0;                                                                \
+            for (int i = k + 1; i < n; ++i)                                           \
+                if (ak[i] != 0.0) ak[i] *= inv, nz[m++] = i;                          \
+            for (int j = k + 1; j < n && m; ++j) {                                    \
+                T akj = a[k + j * n], *aj = a + j * n;                                \
+                if (akj != 0.0)                                                       \
+                    for (int r = 0; r < m; ++r) aj[nz[r]] -= ak[nz[r]] * akj;         \
+            }                                                                         \
+        }                                                                             \
+        return 0;                                                                     \
     }
-    return 0;
-}
 
-static void solve_real(int n, const double *a, const int *piv, double *b)
-{
-    for (int k = 0; k < n; ++k) {  /* the row swaps of the factorisation, in order */
-        double s = b[piv[k]];
-        b[piv[k]] = b[k];
-        b[k] = s;
+/* Solve with the factors of SM_LU: the row swaps in order, then L and U. */
+#define SM_SOLVE(NAME, T)                                                             \
+    static void NAME(int n, const T *a, const int *piv, T *b)                         \
+    {                                                                                 \
+        for (int k = 0; k < n; ++k) {                                                 \
+            T s = b[piv[k]];                                                          \
+            b[piv[k]] = b[k];                                                         \
+            b[k] = s;                                                                 \
+        }                                                                             \
+        for (int k = 0; k < n; ++k)                                                   \
+            if (b[k] != 0.0)                                                          \
+                for (int i = k + 1; i < n; ++i) b[i] -= a[i + k * n] * b[k];          \
+        for (int k = n - 1; k >= 0; --k) {                                            \
+            b[k] /= a[k + k * n];                                                     \
+            if (b[k] != 0.0)                                                          \
+                for (int i = 0; i < k; ++i) b[i] -= a[i + k * n] * b[k];              \
+        }                                                                             \
     }
-    for (int k = 0; k < n; ++k)
-        for (int i = k + 1; i < n; ++i) b[i] -= a[i + k * n] * b[k];
-    for (int k = n - 1; k >= 0; --k) {
-        b[k] /= a[k + k * n];
-        for (int i = 0; i < k; ++i) b[i] -= a[i + k * n] * b[k];
-    }
-}
 
-static int lu_complex(int n, double complex *a, int *piv)
-{
-    for (int k = 0; k < n; ++k) {
-        int q = k;
-        double big = cabs(a[k + k * n]);
-        for (int i = k + 1; i < n; ++i)
-            if (cabs(a[i + k * n]) > big) big = cabs(a[i + k * n]), q = i;
-        piv[k] = q;
-        if (big == 0.0) return 1;
-        if (q != k)
-            for (int j = 0; j < n; ++j) {
-                double complex s = a[k + j * n];
-                a[k + j * n] = a[q + j * n];
-                a[q + j * n] = s;
-            }
-        double complex inv = 1.0 / a[k + k * n];
-        for (int i = k + 1; i < n; ++i) a[i + k * n] *= inv;
-        for (int j = k + 1; j < n; ++j) {
-            double complex akj = a[k + j * n];
-            if (akj != 0.0)
-                for (int i = k + 1; i < n; ++i) a[i + j * n] -= a[i + k * n] * akj;
-        }
-    }
-    return 0;
-}
-
-static void solve_complex(int n, const double complex *a, const int *piv, double complex *b)
-{
-    for (int k = 0; k < n; ++k) {  /* the row swaps of the factorisation, in order */
-        double complex s = b[piv[k]];
-        b[piv[k]] = b[k];
-        b[k] = s;
-    }
-    for (int k = 0; k < n; ++k)
-        for (int i = k + 1; i < n; ++i) b[i] -= a[i + k * n] * b[k];
-    for (int k = n - 1; k >= 0; --k) {
-        b[k] /= a[k + k * n];
-        for (int i = 0; i < k; ++i) b[i] -= a[i + k * n] * b[k];
-    }
-}
+SM_LU(lu_real, double, fabs)
+SM_LU(lu_complex, double complex, cabs)
+SM_SOLVE(solve_real, double)
+SM_SOLVE(solve_complex, double complex)
 
 /* Root mean square of v / s over m entries (s repeats with period n). */
 static double rms(int m, int n, const double *v, const double *s)
@@ -206,7 +181,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     size_t nn = (size_t)n * n;
     double *dbl = malloc(sizeof(double) * (2 * nn + 28 * (size_t)n + (size_t)sz_w + 1));
     double complex *cplx = malloc(sizeof(double complex) * (nn + n));
-    int *ints = malloc(sizeof(int) * (2 * (size_t)n + (size_t)sz_iw + 1));
+    int *ints = malloc(sizeof(int) * (3 * (size_t)n + (size_t)sz_iw + 1));
     const double **arg = malloc(sizeof(double *) * (sz_arg + 1));
     double **res = malloc(sizeof(double *) * (sz_res + 1));
     if (!dbl || !cplx || !ints || !arg || !res) {
@@ -218,7 +193,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     double *Z = err + n, *W = Z + 3 * n, *dW = W + 3 * n, *F = dW + 3 * n, *Q = F + 3 * n;
     double *Qold = Q + 3 * n, *rr = Qold + 3 * n, *ypoly = rr + n, *cw = ypoly + n;
     double complex *LUc = cplx, *rc = LUc + nn;
-    int *piv_r = ints, *piv_c = ints + n, *iw = ints + 2 * n;
+    int *piv_r = ints, *piv_c = ints + n, *nzw = ints + 2 * n, *iw = ints + 3 * n;
     Model m = {n, w, p, arg, res, iw, cw, stats};
 
     int code = SM_OK, k_out = 0;
@@ -269,7 +244,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
                 LUc[i + i * n] += mc;
             }
             stats[ST_LU] += 1;
-            if (lu_real(n, LUr, piv_r) || lu_complex(n, LUc, piv_c)) {
+            if (lu_real(n, LUr, piv_r, nzw) || lu_complex(n, LUc, piv_c, nzw)) {
                 h *= 0.5;  /* singular iteration matrix: try a smaller step */
                 lu_ok = 0;
                 continue;
