@@ -109,9 +109,6 @@ def _packed() -> np.ndarray:
     )
 
 
-_DOUBLE_P = ctypes.POINTER(ctypes.c_double)
-
-
 @dataclass(frozen=True)
 class Library:
     """A compiled integrator for one model and input law.
@@ -161,30 +158,12 @@ def _build(model: Model, law: InputLaw) -> Library:
         handle = ctypes.CDLL(str(so))  # loaded: the file may go
     fn = handle.sm_radau
     fn.restype = ctypes.c_int
-    fn.argtypes = [
-        ctypes.c_int,
-        _DOUBLE_P,
-        _DOUBLE_P,
-        ctypes.c_double,
-        _DOUBLE_P,
-        ctypes.c_int,
-        _DOUBLE_P,
-        _DOUBLE_P,
-        _DOUBLE_P,
-        _DOUBLE_P,
-        ctypes.c_long,
-        ctypes.c_int,
-        _DOUBLE_P,
-        _DOUBLE_P,
-    ]
+    ptr, i32, f64 = ctypes.c_void_p, ctypes.c_int, ctypes.c_double
+    fn.argtypes = [i32, ptr, ptr, f64, ptr, i32, ptr, ptr, ptr, ptr, ctypes.c_long, i32, ptr, ptr]
     return Library(model.nx, fn, handle, time.perf_counter() - tic)
 
 
 _TABLEAU = _packed()
-
-
-def _ptr(a: np.ndarray):
-    return a.ctypes.data_as(_DOUBLE_P)
 
 
 def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
@@ -199,29 +178,29 @@ def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
     if not (isinstance(newton, int) and 1 <= newton <= 50):
         raise ParameterError("solver.options.max_newton", newton, "an integer in [1, 50]")
     lib = library(m, seg.law)
-    n, times = m.nx, np.ascontiguousarray(seg.times, dtype=float)
+    times = np.ascontiguousarray(seg.times, dtype=float)
     x = np.array(seg.x0, dtype=float)
-    X = np.empty((len(times), n))
+    X = np.empty((len(times), m.nx))
     w = np.ascontiguousarray(seg.w, dtype=float)
     p = np.ascontiguousarray(seg.p, dtype=float)
     opt = np.array([s.rtol, s.atol, first or 0.0, hmax])
     stats = np.zeros(len(_STATS))
     t_fail = np.zeros(1)
     code = lib.run(
-        n,
-        _ptr(w),
-        _ptr(p),
+        m.nx,
+        w.ctypes.data,
+        p.ctypes.data,
         float(seg.t0),
-        _ptr(x),
+        x.ctypes.data,
         len(times),
-        _ptr(times),
-        _ptr(X),
-        _ptr(_TABLEAU),
-        _ptr(opt),
+        times.ctypes.data,
+        X.ctypes.data,
+        _TABLEAU.ctypes.data,
+        opt.ctypes.data,
         int(s.max_steps),
-        int(newton),
-        _ptr(stats),
-        _ptr(t_fail),
+        newton,
+        stats.ctypes.data,
+        t_fail.ctypes.data,
     )
     add_stats(seg.stats, **{k: int(v) for k, v in zip(_STATS, stats, strict=True)}, n_segments=1)
     if code:
