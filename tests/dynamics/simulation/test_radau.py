@@ -15,6 +15,7 @@ from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.component import Component, System
 from sarcomere.dynamics.signals import Sine, Step
 from sarcomere.dynamics.simulation import radau
+from sarcomere.dynamics.simulation.common import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.dynamics.studies import workprecision as wp
@@ -224,3 +225,10 @@ def test_compiled_once_per_model_and_input_law(oscillator, monkeypatch):
     simulate(model, 1.0, {"lag.u": Sine(amplitude=1.0, frequency=1.0)}, settings=s)
     simulate(model, 1.0, {"lag.u": Sine(amplitude=1.0, frequency=1.0)}, settings=s)
     assert len(builds) == 2  # a signal: its own library, once
+
+
+def test_unit_costs_are_timed_in_the_library(oscillator):
+    p, x = oscillator.parameters(), oscillator.x0()
+    costs = radau.unit_costs(oscillator, HELD, 0.0, x, np.zeros(0), p, h=1e-2, reps=50)
+    assert set(costs) == {"rhs", "jac", "lu", "solve", "solve_real"}
+    assert all(0 < v < 1e-3 for v in costs.values()), costs
