@@ -110,8 +110,7 @@ def simulate(
     if unknown:
         raise ParameterError("signals", unknown[:5], f"signals of model '{model.name}'")
     _check_size(len(t_out), model, wanted, max_values)
-    sim = Simulator(model, settings)
-    sim.reset(x0, z0, params, t0=float(t_out[0]))
+    sim = Simulator(model, settings, x0=x0, z0=z0, params=params, t0=float(t_out[0]))
     tic = _time.perf_counter()
     X, Z, U = sim.advance(inputs, t_out, progress)
     wall = _time.perf_counter() - tic
