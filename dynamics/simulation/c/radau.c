@@ -74,12 +74,29 @@ static int jac(Model *m, double t, const double *x, double *J)
     return 0;
 }
 
+/* The factors' row swaps and nonzero pattern: column k of the strict lower part holds
+ * rows li[lp[k]..lp[k+1]), of the strict upper part rows ui[up[k]..up[k+1]). */
+typedef struct {
+    int *piv, *lp, *li, *up, *ui;
+} Factor;
+
+/* Carve a Factor for size n out of mem; returns the rest of mem. */
+static int *factor_init(Factor *f, int n, int *mem)
+{
+    f->piv = mem;
+    f->lp = f->piv + n;
+    f->up = f->lp + n + 1;
+    f->li = f->up + n + 1;
+    f->ui = f->li + (size_t)n * n;
+    return f->ui + (size_t)n * n;
+}
+
 /* LU with partial pivoting of the column-major n x n matrix a, in place (LAPACK's
  * layout: unit L below the diagonal, U on and above, row k swapped with piv[k] at step
- * k). The updates skip the zeros of the multipliers' column: the model's Jacobian is
- * sparse (a chain), so most of them are. nz: n ints of workspace. */
+ * k), and the pattern of the factors for the solves. The model's Jacobian is sparse (a
+ * chain): the updates and the solves skip its zeros. nz: n ints of workspace. */
 #define SM_LU(NAME, T, ABS)                                                           \
-    static int NAME(int n, T *a, int *piv, int *nz)                                  \
+    static int NAME(int n, T *a, Factor *f, int *nz)                                 \
     {                                                                                 \
         for (int k = 0; k < n; ++k) {                                                 \
             T *ak = a + k * n;                                                        \
@@ -87,7 +104,7 @@ static int jac(Model *m, double t, const double *x, double *J)
             double big = ABS(ak[k]);                                                  \
             for (int i = k + 1; i < n; ++i)                                           \
                 if (ABS(ak[i]) > big) big = ABS(ak[i]), q = i;                        \
-            piv[k] = q;                                                               \
+            f->piv[k] = q;                                                            \
             if (big == 0.0) return 1;                                                 \
             if (q != k)                                                               \
                 for (int j = 0; j < n; ++j) {                                         \
@@ -105,42 +122,59 @@ static int jac(Model *m, double t, const double *x, double *J)
                     for (int r = 0; r < m; ++r) aj[nz[r]] -= ak[nz[r]] * akj;         \
             }                                                                         \
         }                                                                             \
+        int nl = 0, nu = 0;                                                           \
+        for (int k = 0; k < n; ++k) {                                                 \
+            f->lp[k] = nl;                                                            \
+            f->up[k] = nu;                                                            \
+            for (int i = 0; i < k; ++i)                                               \
+                if (a[i + k * n] != 0.0) f->ui[nu++] = i;                             \
+            for (int i = k + 1; i < n; ++i)                                           \
+                if (a[i + k * n] != 0.0) f->li[nl++] = i;                             \
+        }                                                                             \
+        f->lp[n] = nl;                                                                \
+        f->up[n] = nu;                                                                \
         return 0;                                                                     \
     }
 
 /* Solve with the factors of SM_LU: the row swaps in order, then L and U. */
 #define SM_SOLVE(NAME, T)                                                             \
-    static void NAME(int n, const T *a, const int *piv, T *b)                         \
+    static void NAME(int n, const T *a, const Factor *f, T *b)                        \
     {                                                                                 \
         for (int k = 0; k < n; ++k) {                                                 \
-            T s = b[piv[k]];                                                          \
-            b[piv[k]] = b[k];                                                         \
+            T s = b[f->piv[k]];                                                       \
+            b[f->piv[k]] = b[k];                                                      \
             b[k] = s;                                                                 \
         }                                                                             \
-        for (int k = 0; k < n; ++k)                                                   \
-            if (b[k] != 0.0)                                                          \
-                for (int i = k + 1; i < n; ++i) b[i] -= a[i + k * n] * b[k];          \
+        for (int k = 0; k < n; ++k) {                                                 \
+            T bk = b[k];                                                              \
+            const T *ak = a + k * n;                                                  \
+            for (int r = f->lp[k]; r < f->lp[k + 1]; ++r) b[f->li[r]] -= ak[f->li[r]] * bk; \
+        }                                                                             \
         for (int k = n - 1; k >= 0; --k) {                                            \
-            b[k] /= a[k + k * n];                                                     \
-            if (b[k] != 0.0)                                                          \
-                for (int i = 0; i < k; ++i) b[i] -= a[i + k * n] * b[k];              \
+            const T *ak = a + k * n;                                                  \
+            T bk = b[k] /= ak[k];                                                     \
+            for (int r = f->up[k]; r < f->up[k + 1]; ++r) b[f->ui[r]] -= ak[f->ui[r]] * bk; \
         }                                                                             \
     }
 
+/* |re| + |im|: the pivot size of LAPACK's complex LU, without a square root */
+static inline double abs1(double complex z) { return fabs(creal(z)) + fabs(cimag(z)); }
+
 SM_LU(lu_real, double, fabs)
-SM_LU(lu_complex, double complex, cabs)
+SM_LU(lu_complex, double complex, abs1)
 SM_SOLVE(solve_real, double)
 SM_SOLVE(solve_complex, double complex)
 
-/* Root mean square of v / s over m entries (s repeats with period n). */
-static double rms(int m, int n, const double *v, const double *s)
+/* Root mean square of v / s over b blocks of n entries (s: n entries, for every block). */
+static double rms(int b, int n, const double *v, const double *s)
 {
     double acc = 0.0;
-    for (int i = 0; i < m; ++i) {
-        double r = v[i] / s[i % n];
-        acc += r * r;
-    }
-    return sqrt(acc / m);
+    for (int k = 0; k < b; ++k, v += n)
+        for (int i = 0; i < n; ++i) {
+            double r = v[i] / s[i];
+            acc += r * r;
+        }
+    return sqrt(acc / ((double)b * n));
 }
 
 /* The method constants, in the order radau.py packs them. */
@@ -155,9 +189,9 @@ typedef struct {
 /* Integrate x' = f(t, x; w, p) from t0 to tout[nout - 1], writing x at every tout[k]
  * (increasing, > t0) into xout[k * n ...].
  *   x          in: state at t0; out: state at the last accepted time
- *   cst        the Tableau (33 doubles)
+ *   cst        the Tableau (36 doubles)
  *   opt        rtol, atol, first step (0: automatic), max step
- *   max_steps  accepted-step limit; max_newton: Newton iterations per attempt
+ *   max_steps  accepted-step limit of this call; max_newton: Newton iterations per attempt
  *   stats      ST_N counters, added to
  *   t_fail     time reached when a failure is returned
  * Returns one of the SM_ codes. */
@@ -183,7 +217,8 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     size_t nn = (size_t)n * n;
     double *dbl = malloc(sizeof(double) * (2 * nn + 28 * (size_t)n + (size_t)sz_w + 1));
     double complex *cplx = malloc(sizeof(double complex) * (nn + n));
-    int *ints = malloc(sizeof(int) * (3 * (size_t)n + (size_t)sz_iw + 1));
+    size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
+    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)n + (size_t)sz_iw + 1));
     const double **arg = malloc(sizeof(double *) * (sz_arg + 1));
     double **res = malloc(sizeof(double *) * (sz_res + 1));
     if (!dbl || !cplx || !ints || !arg || !res) {
@@ -195,7 +230,8 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     double *Z = err + n, *W = Z + 3 * n, *dW = W + 3 * n, *F = dW + 3 * n, *Q = F + 3 * n;
     double *Qold = Q + 3 * n, *rr = Qold + 3 * n, *ypoly = rr + n, *cw = ypoly + n;
     double complex *LUc = cplx, *rc = LUc + nn;
-    int *piv_r = ints, *piv_c = ints + n, *nzw = ints + 2 * n, *iw = ints + 3 * n;
+    Factor fr, fc;
+    int *nzw = factor_init(&fc, n, factor_init(&fr, n, ints)), *iw = nzw + n;
     Model m = {n, w, p, arg, res, iw, cw, stats};
 
     int code = SM_OK, k_out = 0;
@@ -211,13 +247,13 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     double h = opt[2];
     if (!(h > 0)) {
         for (int i = 0; i < n; ++i) scale[i] = atol + fabs(y[i]) * rtol;
-        double d0 = rms(n, n, y, scale), d1 = rms(n, n, f0, scale);
+        double d0 = rms(1, n, y, scale), d1 = rms(1, n, f0, scale);
         double h0 = (d0 < 1e-5 || d1 < 1e-5) ? 1e-6 : 0.01 * d0 / d1;
         h0 = fmin(h0, t_end - t);
         for (int i = 0; i < n; ++i) tmp[i] = y[i] + h0 * f0[i];
         if (rhs(&m, t + h0, tmp, err)) { code = SM_RHS; goto done; }
         for (int i = 0; i < n; ++i) tmp[i] = err[i] - f0[i];
-        double d2 = rms(n, n, tmp, scale) / h0;
+        double d2 = rms(1, n, tmp, scale) / h0;
         double h1 = (d1 <= 1e-15 && d2 <= 1e-15) ? fmax(1e-6, h0 * 1e-3)
                                                    : pow(0.01 / fmax(d1, d2), 0.25);
         h = fmin(100 * h0, h1);
@@ -225,9 +261,10 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
 
     int lu_ok = 0, have_poly = 0, first = 1, rejected = 0, fails = 0;
     double faccon = 1.0;
+    long steps = 0;
     double h_lu = 0, t_poly = 0, h_poly = 0, h_old = -1, err_old = -1;
     while (t < t_end) {
-        if (stats[ST_STEPS] >= (double)max_steps && max_steps > 0) {
+        if (steps >= max_steps) {
             code = SM_MAX_STEPS;
             break;
         }
@@ -246,7 +283,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
                 LUc[i + i * n] += mc;
             }
             stats[ST_LU] += 1;
-            if (lu_real(n, LUr, piv_r, nzw) || lu_complex(n, LUc, piv_c, nzw)) {
+            if (lu_real(n, LUr, &fr, nzw) || lu_complex(n, LUc, &fc, nzw)) {
                 h *= 0.5;  /* singular iteration matrix: try a smaller step */
                 lu_ok = 0;
                 continue;
@@ -256,17 +293,16 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
         }
 
         /* start from the previous step's collocation polynomial, or from zero */
-        for (int i = 0; i < 3; ++i)
-            for (int j = 0; j < n; ++j) {
-                double zij = 0.0;
-                if (have_poly) {
-                    double s = (t + tb.c[i] * h - t_poly) / h_poly, sk = s;
-                    zij = ypoly[j];
-                    for (int k = 0; k < 3; ++k, sk *= s) zij += Qold[k * n + j] * sk;
-                    zij -= y[j];
-                }
-                Z[i * n + j] = zij;
+        for (int i = 0; i < 3; ++i) {
+            double *zi = Z + i * n;
+            if (!have_poly) {
+                memset(zi, 0, sizeof(double) * n);
+                continue;
             }
+            double s = (t + tb.c[i] * h - t_poly) / h_poly, s2 = s * s, s3 = s2 * s;
+            for (int j = 0; j < n; ++j)
+                zi[j] = ypoly[j] + Qold[j] * s + Qold[n + j] * s2 + Qold[2 * n + j] * s3 - y[j];
+        }
         for (int i = 0; i < 3; ++i)
             for (int j = 0; j < n; ++j)
                 W[i * n + j] = tb.TI[3 * i] * Z[j] + tb.TI[3 * i + 1] * Z[n + j]
@@ -295,14 +331,14 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
                 rc[j] = (g1 - (mu_c_re * w1 - mu_c_im * w2) / h)
                       + I * (g2 - (mu_c_re * w2 + mu_c_im * w1) / h);
             }
-            solve_real(n, LUr, piv_r, rr);
-            solve_complex(n, LUc, piv_c, rc);
+            solve_real(n, LUr, &fr, rr);
+            solve_complex(n, LUc, &fc, rc);
             for (int j = 0; j < n; ++j) {
                 dW[j] = rr[j];
                 dW[n + j] = creal(rc[j]);
                 dW[2 * n + j] = cimag(rc[j]);
             }
-            double nrm = rms(3 * n, n, dW, scale);
+            double nrm = rms(3, n, dW, scale);
             if (k > 0) {  /* contraction rate: geometric mean of the last two ratios */
                 double thq = nrm / norm_old;
                 theta = k == 1 ? thq : sqrt(thq * thq_old);
@@ -340,19 +376,20 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
         /* embedded error estimate */
         for (int j = 0; j < n; ++j) {
             ynew[j] = y[j] + Z[2 * n + j];
-            scale[j] = atol + fmax(fabs(y[j]), fabs(ynew[j])) * rtol;
+            double big = fabs(y[j]) > fabs(ynew[j]) ? fabs(y[j]) : fabs(ynew[j]);
+            scale[j] = atol + big * rtol;
             tmp[j] = (tb.e[0] * Z[j] + tb.e[1] * Z[n + j] + tb.e[2] * Z[2 * n + j]) / h;
             err[j] = f0[j] + tmp[j];
         }
-        solve_real(n, LUr, piv_r, err);
-        double en = rms(n, n, err, scale);
+        solve_real(n, LUr, &fr, err);
+        double en = rms(1, n, err, scale);
         if (en >= 1 && (first || rejected)) {
             for (int j = 0; j < n; ++j) rr[j] = y[j] + err[j];
             if (rhs(&m, t, rr, err)) { en = 2.0; }
             else {
                 for (int j = 0; j < n; ++j) err[j] += tmp[j];
-                solve_real(n, LUr, piv_r, err);
-                en = rms(n, n, err, scale);
+                solve_real(n, LUr, &fr, err);
+                en = rms(1, n, err, scale);
             }
         }
         en = fmax(en, 1e-10);
@@ -388,11 +425,12 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
         h_poly = h;
         have_poly = 1;
         stats[ST_STEPS] += 1;
+        ++steps;
 
         int refresh_jac = theta > 1e-3;
         factor = fmin(10.0, safety * factor);
         if (rejected) factor = fmin(factor, 1.0);
-        if (!refresh_jac && factor >= 1.0 && factor < 1.2) factor = 1.0;
+        if (!refresh_jac && factor < 1.2) factor = 1.0;
         t = t_new;
         memcpy(y, ynew, sizeof(double) * n);
         *t_fail = t;
@@ -436,7 +474,8 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
     size_t nn = (size_t)n * n;
     double *dbl = malloc(sizeof(double) * (2 * nn + 2 * (size_t)n + (size_t)(sz_w > w2 ? sz_w : w2) + 1));
     double complex *cplx = malloc(sizeof(double complex) * (nn + n));
-    int *ints = malloc(sizeof(int) * (3 * (size_t)n + (size_t)(sz_iw > i2 ? sz_iw : i2) + 1));
+    size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
+    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)n + (size_t)(sz_iw > i2 ? sz_iw : i2) + 1));
     const double **arg = malloc(sizeof(double *) * ((sz_arg > a2 ? sz_arg : a2) + 1));
     double **res = malloc(sizeof(double *) * ((sz_res > r2 ? sz_res : r2) + 1));
     double stats[ST_N] = {0};
@@ -444,8 +483,9 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
     if (!dbl || !cplx || !ints || !arg || !res) { code = SM_NO_MEMORY; goto done; }
     double *J = dbl, *LUr = J + nn, *f = LUr + nn, *b = f + n, *cw = b + n;
     double complex *LUc = cplx, *bc = LUc + nn;
-    int *piv_r = ints, *piv_c = ints + n, *nzw = ints + 2 * n;
-    Model m = {n, w, p, arg, res, ints + 3 * n, cw, stats};
+    Factor fr, fc;
+    int *nzw = factor_init(&fc, n, factor_init(&fr, n, ints));
+    Model m = {n, w, p, arg, res, nzw + n, cw, stats};
     double tic = seconds();
     for (int k = 0; k < reps; ++k)
         if (rhs(&m, t, x, f)) { code = SM_RHS; goto done; }
@@ -461,7 +501,7 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
             LUr[i + i * n] += tb.mu_r / h;
             LUc[i + i * n] += (tb.mu_cr + I * tb.mu_ci) / h;
         }
-        if (lu_real(n, LUr, piv_r, nzw) || lu_complex(n, LUc, piv_c, nzw)) {
+        if (lu_real(n, LUr, &fr, nzw) || lu_complex(n, LUc, &fc, nzw)) {
             code = SM_STEP_TOO_SMALL;
             goto done;
         }
@@ -470,14 +510,14 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
     tic = seconds();
     for (int k = 0; k < reps; ++k) {
         for (int i = 0; i < n; ++i) b[i] = f[i], bc[i] = f[i] + I * f[i];
-        solve_real(n, LUr, piv_r, b);
-        solve_complex(n, LUc, piv_c, bc);
+        solve_real(n, LUr, &fr, b);
+        solve_complex(n, LUc, &fc, bc);
     }
     out[3] = (seconds() - tic) / reps;
     tic = seconds();
     for (int k = 0; k < reps; ++k) {
         for (int i = 0; i < n; ++i) b[i] = f[i];
-        solve_real(n, LUr, piv_r, b);
+        solve_real(n, LUr, &fr, b);
     }
     out[4] = (seconds() - tic) / reps;
 done:
