@@ -232,3 +232,21 @@ def test_unit_costs_are_timed_in_the_library(oscillator):
     costs = radau.unit_costs(oscillator, HELD, 0.0, x, np.zeros(0), p, h=1e-2, reps=50)
     assert set(costs) == {"rhs", "jac", "lu", "solve", "solve_real"}
     assert all(0 < v < 1e-3 for v in costs.values()), costs
+
+
+class Blowup(Component):
+    """``dx/dt = x^2`` from ``x = 1``: infinite at t = 1 s."""
+
+    def build(self, b) -> None:
+        x = b.state("x", 1.0, "1", "blows up at t = 1 s")
+        b.der(x, x**2)
+
+
+def test_blow_up_is_an_error_near_the_singularity_never_nan():
+    sys = System("blowup")
+    sys.add(Blowup("b"))
+    model = sys.flatten()
+    with pytest.raises(SolverError, match="radau: ") as info:
+        simulate(model, 2.0, settings=SolverSettings("radau", 1e-6, 1e-9))
+    assert abs(info.value.time - 1.0) < 1e-6, info.value.time  # the blow-up time
+    assert 1e6 < info.value.state["b.x"] < np.inf  # the last finite state, far up
