@@ -74,8 +74,8 @@ static int jac(Model *m, double t, const double *x, double *J)
     return 0;
 }
 
-/* The factors' row swaps and nonzero pattern: column k of the strict lower part holds
- * rows li[lp[k]..lp[k+1]), of the strict upper part rows ui[up[k]..up[k+1]). */
+/* The factors' row swaps and nonzero pattern: the multipliers of column k sit in rows
+ * li[lp[k]..lp[k+1]), the strict upper part of row k of U in columns ui[up[k]..up[k+1]). */
 typedef struct {
     int *piv, *lp, *li, *up, *ui;
 } Factor;
@@ -91,13 +91,21 @@ static int *factor_init(Factor *f, int n, int *mem)
     return f->ui + (size_t)n * n;
 }
 
-/* LU with partial pivoting of the column-major n x n matrix a, in place (LAPACK's
- * layout: unit L below the diagonal, U on and above, row k swapped with piv[k] at step
- * k), and the pattern of the factors for the solves. The model's Jacobian is sparse (a
- * chain): the updates and the solves skip its zeros. nz: n ints of workspace. */
+/* Doubles (or complex numbers) an LU of size n works in: SM_LU_SIZE(n). */
+#define SM_LU_SIZE(n) (3 * (size_t)(n) * (n) + (n))
+
+/* LU with partial pivoting of the column-major n x n matrix a (the first n*n of
+ * SM_LU_SIZE(n) entries; overwritten), LINPACK's way: at step k rows k and piv[k] are
+ * swapped from column k on, so the multipliers of column k are final once computed. The
+ * model's Jacobian is sparse (a chain): the updates skip its zeros, and the factors are
+ * packed for the solves as they are found: the multipliers of column k (rows in the
+ * Factor, values at a + n*n), the strict upper part of row k of U (columns in the Factor,
+ * values at a + 2 n*n) and the inverse diagonal (a + 3 n*n). */
 #define SM_LU(NAME, T, ABS)                                                           \
-    static int NAME(int n, T *a, Factor *f, int *nz)                                 \
+    static int NAME(int n, T *a, Factor *f)                                           \
     {                                                                                 \
+        T *lv = a + (size_t)n * n, *uv = lv + (size_t)n * n, *dv = uv + (size_t)n * n; \
+        int nl = 0, nu = 0;                                                           \
         for (int k = 0; k < n; ++k) {                                                 \
             T *ak = a + k * n;                                                        \
             int q = k;                                                                \
@@ -107,53 +115,43 @@ static int *factor_init(Factor *f, int n, int *mem)
             f->piv[k] = q;                                                            \
             if (big == 0.0) return 1;                                                 \
             if (q != k)                                                               \
-                for (int j = 0; j < n; ++j) {                                         \
+                for (int j = k; j < n; ++j) {                                         \
                     T s = a[k + j * n];                                               \
                     a[k + j * n] = a[q + j * n];                                      \
                     a[q + j * n] = s;                                                 \
                 }                                                                     \
-            T inv = 1.0 / ak[k];                                                      \
-            int m = 0;                                                                \
+            T inv = dv[k] = 1.0 / ak[k];                                              \
+            int l0 = f->lp[k] = nl;                                                   \
             for (int i = k + 1; i < n; ++i)                                           \
-                if (ak[i] != 0.0) ak[i] *= inv, nz[m++] = i;                          \
-            for (int j = k + 1; j < n && m; ++j) {                                    \
-                T akj = a[k + j * n], *aj = a + j * n;                                \
-                if (akj != 0.0)                                                       \
-                    for (int r = 0; r < m; ++r) aj[nz[r]] -= ak[nz[r]] * akj;         \
-            }                                                                         \
-        }                                                                             \
-        int nl = 0, nu = 0;                                                           \
-        for (int k = 0; k < n; ++k) {                                                 \
-            f->lp[k] = nl;                                                            \
+                if (ak[i] != 0.0) lv[nl] = ak[i] *= inv, f->li[nl++] = i;             \
             f->up[k] = nu;                                                            \
-            for (int i = 0; i < k; ++i)                                               \
-                if (a[i + k * n] != 0.0) f->ui[nu++] = i;                             \
-            for (int i = k + 1; i < n; ++i)                                           \
-                if (a[i + k * n] != 0.0) f->li[nl++] = i;                             \
+            for (int j = k + 1; j < n; ++j) {                                         \
+                T akj = a[k + j * n], *aj = a + j * n;                                \
+                if (akj == 0.0) continue;                                             \
+                uv[nu] = akj, f->ui[nu++] = j;                                        \
+                for (int r = l0; r < nl; ++r) aj[f->li[r]] -= lv[r] * akj;            \
+            }                                                                         \
         }                                                                             \
         f->lp[n] = nl;                                                                \
         f->up[n] = nu;                                                                \
         return 0;                                                                     \
     }
 
-/* Solve with the factors of SM_LU: the row swaps in order, then L and U. */
+/* Solve with the factors of SM_LU: each swap, then its column of L; then U by rows. */
 #define SM_SOLVE(NAME, T)                                                             \
     static void NAME(int n, const T *a, const Factor *f, T *b)                        \
     {                                                                                 \
+        const T *lv = a + (size_t)n * n, *uv = lv + (size_t)n * n, *dv = uv + (size_t)n * n; \
         for (int k = 0; k < n; ++k) {                                                 \
-            T s = b[f->piv[k]];                                                       \
+            T bk = b[f->piv[k]];                                                      \
             b[f->piv[k]] = b[k];                                                      \
-            b[k] = s;                                                                 \
-        }                                                                             \
-        for (int k = 0; k < n; ++k) {                                                 \
-            T bk = b[k];                                                              \
-            const T *ak = a + k * n;                                                  \
-            for (int r = f->lp[k]; r < f->lp[k + 1]; ++r) b[f->li[r]] -= ak[f->li[r]] * bk; \
+            b[k] = bk;                                                                \
+            for (int r = f->lp[k]; r < f->lp[k + 1]; ++r) b[f->li[r]] -= lv[r] * bk;  \
         }                                                                             \
         for (int k = n - 1; k >= 0; --k) {                                            \
-            const T *ak = a + k * n;                                                  \
-            T bk = b[k] /= ak[k];                                                     \
-            for (int r = f->up[k]; r < f->up[k + 1]; ++r) b[f->ui[r]] -= ak[f->ui[r]] * bk; \
+            T bk = b[k];                                                              \
+            for (int r = f->up[k]; r < f->up[k + 1]; ++r) bk -= uv[r] * b[f->ui[r]];  \
+            b[k] = bk * dv[k];                                                        \
         }                                                                             \
     }
 
@@ -215,23 +213,23 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     sz_w = sz_w > w2 ? sz_w : w2;
 
     size_t nn = (size_t)n * n;
-    double *dbl = malloc(sizeof(double) * (2 * nn + 28 * (size_t)n + (size_t)sz_w + 1));
-    double complex *cplx = malloc(sizeof(double complex) * (nn + n));
+    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 28 * (size_t)n + (size_t)sz_w + 1));
+    double complex *cplx = malloc(sizeof(double complex) * (SM_LU_SIZE(n) + n));
     size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
-    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)n + (size_t)sz_iw + 1));
+    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)sz_iw + 1));
     const double **arg = malloc(sizeof(double *) * (sz_arg + 1));
     double **res = malloc(sizeof(double *) * (sz_res + 1));
     if (!dbl || !cplx || !ints || !arg || !res) {
         free(dbl), free(cplx), free(ints), free(arg), free(res);
         return SM_NO_MEMORY;
     }
-    double *J = dbl, *LUr = J + nn, *y = LUr + nn;
+    double *J = dbl, *LUr = J + nn, *y = LUr + SM_LU_SIZE(n);
     double *f0 = y + n, *ynew = f0 + n, *scale = ynew + n, *tmp = scale + n, *err = tmp + n;
     double *Z = err + n, *W = Z + 3 * n, *dW = W + 3 * n, *F = dW + 3 * n, *Q = F + 3 * n;
     double *Qold = Q + 3 * n, *rr = Qold + 3 * n, *ypoly = rr + n, *cw = ypoly + n;
-    double complex *LUc = cplx, *rc = LUc + nn;
+    double complex *LUc = cplx, *rc = LUc + SM_LU_SIZE(n);
     Factor fr, fc;
-    int *nzw = factor_init(&fc, n, factor_init(&fr, n, ints)), *iw = nzw + n;
+    int *iw = factor_init(&fc, n, factor_init(&fr, n, ints));
     Model m = {n, w, p, arg, res, iw, cw, stats};
 
     int code = SM_OK, k_out = 0;
@@ -283,7 +281,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
                 LUc[i + i * n] += mc;
             }
             stats[ST_LU] += 1;
-            if (lu_real(n, LUr, &fr, nzw) || lu_complex(n, LUc, &fc, nzw)) {
+            if (lu_real(n, LUr, &fr) || lu_complex(n, LUc, &fc)) {
                 h *= 0.5;  /* singular iteration matrix: try a smaller step */
                 lu_ok = 0;
                 continue;
@@ -472,20 +470,19 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
     sm_rhs_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
     sm_jac_work(&a2, &r2, &i2, &w2);
     size_t nn = (size_t)n * n;
-    double *dbl = malloc(sizeof(double) * (2 * nn + 2 * (size_t)n + (size_t)(sz_w > w2 ? sz_w : w2) + 1));
-    double complex *cplx = malloc(sizeof(double complex) * (nn + n));
+    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 2 * (size_t)n + (size_t)(sz_w > w2 ? sz_w : w2) + 1));
+    double complex *cplx = malloc(sizeof(double complex) * (SM_LU_SIZE(n) + n));
     size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
-    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)n + (size_t)(sz_iw > i2 ? sz_iw : i2) + 1));
+    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)(sz_iw > i2 ? sz_iw : i2) + 1));
     const double **arg = malloc(sizeof(double *) * ((sz_arg > a2 ? sz_arg : a2) + 1));
     double **res = malloc(sizeof(double *) * ((sz_res > r2 ? sz_res : r2) + 1));
     double stats[ST_N] = {0};
     int code = SM_OK;
     if (!dbl || !cplx || !ints || !arg || !res) { code = SM_NO_MEMORY; goto done; }
-    double *J = dbl, *LUr = J + nn, *f = LUr + nn, *b = f + n, *cw = b + n;
-    double complex *LUc = cplx, *bc = LUc + nn;
+    double *J = dbl, *LUr = J + nn, *f = LUr + SM_LU_SIZE(n), *b = f + n, *cw = b + n;
+    double complex *LUc = cplx, *bc = LUc + SM_LU_SIZE(n);
     Factor fr, fc;
-    int *nzw = factor_init(&fc, n, factor_init(&fr, n, ints));
-    Model m = {n, w, p, arg, res, nzw + n, cw, stats};
+    Model m = {n, w, p, arg, res, factor_init(&fc, n, factor_init(&fr, n, ints)), cw, stats};
     double tic = seconds();
     for (int k = 0; k < reps; ++k)
         if (rhs(&m, t, x, f)) { code = SM_RHS; goto done; }
@@ -501,7 +498,7 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
             LUr[i + i * n] += tb.mu_r / h;
             LUc[i + i * n] += (tb.mu_cr + I * tb.mu_ci) / h;
         }
-        if (lu_real(n, LUr, &fr, nzw) || lu_complex(n, LUc, &fc, nzw)) {
+        if (lu_real(n, LUr, &fr) || lu_complex(n, LUc, &fc)) {
             code = SM_STEP_TOO_SMALL;
             goto done;
         }
