@@ -228,7 +228,7 @@ class Simulator:
                 "solver.method",
                 self.settings.method,
                 sorted(k for k, v in METHODS.items() if v.step_function is not None),
-                "scipy's solvers are not CasADi Functions",
+                "scipy's solvers and the compiled radau are not CasADi Functions",
             )
         return make(self.model, self.settings)
 

@@ -250,3 +250,8 @@ def test_blow_up_is_an_error_near_the_singularity_never_nan():
         simulate(model, 2.0, settings=SolverSettings("radau", 1e-6, 1e-9))
     assert abs(info.value.time - 1.0) < 1e-6, info.value.time  # the blow-up time
     assert 1e6 < info.value.state["b.x"] < np.inf  # the last finite state, far up
+
+
+def test_no_step_function(oscillator):
+    with pytest.raises(ParameterError, match="compiled radau are not CasADi Functions"):
+        Simulator(oscillator, SolverSettings("radau")).step_function()
