@@ -343,7 +343,9 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
                 thq_old = thq;
                 if (theta >= 0.99) break;
                 faccon = theta / (1 - theta);
-                if (faccon * nrm * pow(theta, max_newton - 2 - k) >= newton_tol) break;
+                double left = faccon * nrm;  /* the error left after the remaining iterations */
+                for (int r = k + 2; r < max_newton; ++r) left *= theta;
+                if (left >= newton_tol) break;
             }
             norm_old = fmax(nrm, DBL_EPSILON);
             for (int i = 0; i < 3 * n; ++i) W[i] += dW[i];
@@ -392,8 +394,9 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
         }
         en = fmax(en, 1e-10);
         double safety = 0.9 * (2 * max_newton + 1) / (2 * max_newton + iters);
-        double mult = (h_old > 0 && err_old > 0) ? h / h_old * pow(err_old / en, 0.25) : 1.0;
-        double factor = fmin(1.0, mult) * pow(en, -0.25);  /* Gustafsson's predictor */
+        double root4 = sqrt(sqrt(en));  /* en^(1/4): the error estimate is O(h^4) */
+        double mult = (h_old > 0 && err_old > 0) ? h / h_old * sqrt(sqrt(err_old)) / root4 : 1.0;
+        double factor = fmin(1.0, mult) / root4;  /* Gustafsson's predictor */
         if (en > 1) {
             h *= fmax(0.2, safety * factor);
             rejected = 1;
