@@ -10,9 +10,9 @@ input law (``Model.cached``), loaded with ctypes. One call integrates a whole se
 so Python is paid per segment, not per step.
 
 Why: the model's oscillatory modes lie 73-80 deg from the negative real axis, outside
-the stability sectors of BDF4/BDF5, so CVODES needs 4-5x the steps of an A-stable
-order-5 method at equal accuracy (``BENCHMARKS.md``). Explicit ODEs only (``nz = 0``);
-the LU is dense (``n_x`` up to a few hundred).
+the stability sectors of BDF4/BDF5, so CVODES needs 6-9x the steps of this A-stable
+order-5 method at equal accuracy (``BENCHMARKS.md``, section 1). Explicit ODEs only
+(``nz = 0``); the LU is dense but skips the Jacobian's zeros (``docs/numerics.md``).
 """
 
 from __future__ import annotations
@@ -122,6 +122,8 @@ class Library:
         Number of states.
     run, costs : ctypes functions
         ``sm_radau`` and ``sm_radau_costs`` (see ``c/radau.c``).
+    handle : ctypes.CDLL
+        The loaded library (kept so it stays loaded).
     build_s : float
         Code generation and compile time [s].
     """
