@@ -1,4 +1,5 @@
-"""Speed of the CasADi CVODES path against scipy's Radau at equal accuracy.
+"""Speed of the CasADi path (CVODES, compiled Radau IIA) against scipy's Radau at equal
+accuracy.
 
 Scenario: n = 3 APS, 50 g, pressure step 0 -> 0.1 MPa at 0.1 s, 2 s, 201 saved points
 (:func:`sarcomere.dynamics.studies.workprecision.scenarios`). Accuracy: the l2 error of
@@ -8,7 +9,9 @@ half decades, every point timed as the median of ``--repeats`` warm calls of
 ``simulate``, and the wall time at error 1e-6 is interpolated log-log.
 
 Then the CVODES path is taken apart (cold call, integrator, output evaluation,
-restart) and a compiled right-hand side (CasADi ``jit`` with gcc -O2) is measured.
+restart) and a compiled right-hand side (CasADi ``jit`` with gcc -O2) is measured, and
+the compiled Radau IIA (``radau``) is split into its per-step costs
+(:func:`dissect_radau`).
 Last, why BDF needs more steps than Radau (:func:`bdf_steps`): CVODES steps at error 1e-6
 per maximum BDF order, with the exact flow law and its C1 variant, and the angles of the
 model's oscillatory eigenvalues against the stability sectors of BDF of each order.
@@ -30,6 +33,7 @@ import numpy as np
 
 from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.simulation import radau
 from sarcomere.dynamics.simulation.common import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.sundials import integrator
@@ -38,6 +42,7 @@ from sarcomere.dynamics.studies import workprecision as wp
 TARGET = 1e-6
 TOLERANCES = tuple(10.0 ** (-k / 2) for k in range(5, 17))
 SOLVERS = {
+    "radau (compiled Radau IIA, C + CasADi-generated RHS and Jacobian)": ("radau", ()),
     "cvodes": ("cvodes", ()),
     "cvodes, compiled RHS (jit, gcc -O2)": (
         "cvodes",
@@ -92,6 +97,55 @@ def equal_accuracy(sc: wp.Scenario, ref: wp.Reference, repeats: int) -> dict:
     return out
 
 
+PAIRED = ("radau", "cvodes", "scipy_radau_numpy")
+
+
+def paired(sc: wp.Scenario, acc: dict, repeats: int) -> dict:
+    """The headline ratio, timed interleaved: for each of :data:`PAIRED` the two sweep
+    points that bracket error 1e-6 (their errors from the sweep), then ``repeats`` rounds
+    in which every one of those runs is called once, so machine load hits all methods
+    alike; medians per point, interpolated log-log at 1e-6. Wall time and the process's
+    CPU time (``time.process_time``: what the call itself used, robust to other jobs on
+    a shared machine, which stretch a 200 ms call more often than a 2 ms one)."""
+    runs = {}
+    for label, (method, options) in SOLVERS.items():
+        if method not in PAIRED or options or method in runs:
+            continue
+        pts = [q for q in acc[label]["points"] if q["status"] == "ok"]
+        for a, b in zip(pts[:-1], pts[1:], strict=False):
+            if min(a["error_l2"], b["error_l2"]) <= TARGET <= max(a["error_l2"], b["error_l2"]):
+                runs[method] = [dict(a), dict(b)]
+                break
+    walls: dict[tuple[str, int], list[float]] = {}
+    cpus: dict[tuple[str, int], list[float]] = {}
+    for _ in range(repeats + 1):  # the first round is warm-up
+        for method, pts in runs.items():
+            for i, q in enumerate(pts):
+                s = SolverSettings(method, q["rtol"], q["rtol"] * wp.ATOL_PER_RTOL)
+                tic, cpu = time.perf_counter(), time.process_time()
+                sc.run(s)
+                walls.setdefault((method, i), []).append(time.perf_counter() - tic)
+                cpus.setdefault((method, i), []).append(time.process_time() - cpu)
+    out = {}
+    for method, pts in runs.items():
+        recs = [{**q, "method": method} for q in pts]
+        for i, q in enumerate(recs):
+            q["wall_time_s"] = statistics.median(walls[method, i][1:])
+            q["cpu_time_s"] = statistics.median(cpus[method, i][1:])
+        cpu_recs = [{**q, "wall_time_s": q["cpu_time_s"]} for q in recs]
+        out[method] = {
+            "wall_at_1em6_s": wp.wall_at_error(recs, method, TARGET),
+            "cpu_at_1em6_s": wp.wall_at_error(cpu_recs, method, TARGET),
+            "points": recs,
+        }
+    for key in ("wall", "cpu"):
+        base = out.get("scipy_radau_numpy", {}).get(f"{key}_at_1em6_s")
+        for v in out.values():
+            t = v[f"{key}_at_1em6_s"]
+            v[f"speedup_vs_scipy_radau_numpy_{key}"] = base / t if base and t else None
+    return out
+
+
 def dissect_cvodes(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
     """Where the time of one ``simulate`` call with CVODES goes."""
     model, x0 = sc.setup()
@@ -143,6 +197,74 @@ def dissect_cvodes(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
     out["no_restart_error_l2"] = wp.state_errors(wp.states(res_nr, model), ref)[1]
     out["restart_error_l2"] = wp.state_errors(wp.states(res, model), ref)[1]
     return out
+
+
+def dissect_radau(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
+    """Where the time of one ``simulate`` call with ``radau`` goes: ``simulate`` in
+    total, the method's share (``meta["wall_time_s"]``), the two compiled integrator
+    calls alone, and inside them the counted RHS, Jacobian, LU and solve calls times
+    their unit costs (:func:`radau.unit_costs`, timed inside the library); the rest of
+    the C time is the integrator's own vector work and outputs."""
+    model, x0 = sc.setup()
+    settings = SolverSettings("radau", rtol, rtol * wp.ATOL_PER_RTOL)
+    tic = time.perf_counter()
+    sc.run(settings)
+    cold = time.perf_counter() - tic
+    lib = radau.library(model, HELD)
+    totals, methods = [], []
+    for _ in range(repeats):
+        tic = time.perf_counter()
+        res = sc.run(settings)
+        totals.append(time.perf_counter() - tic)
+        methods.append(res.meta["wall_time_s"])
+    counts = {k: res.meta[k] for k in res.meta if k.startswith("n_")}
+    p = model.parameters()
+    tb, grid = sc.command.time, sc.t_out
+    segments = [
+        (0.0, float(sc.command(0.0)), grid[(grid > 0) & (grid <= tb)]),
+        (tb, float(sc.command(tb)), grid[grid > tb]),
+    ]
+
+    def direct() -> None:  # the two ctypes calls simulate makes, arguments prepared here
+        x = np.array(x0, dtype=float)
+        for t0, u, times in segments:
+            w, X = np.array([u]), np.empty((len(times), model.nx))
+            opt = np.array([settings.rtol, settings.atol, 0.0, np.inf])
+            st, tf = np.zeros(7), np.zeros(1)
+            code = lib.run(
+                model.nx, w.ctypes.data, p.ctypes.data, t0, x.ctypes.data, len(times),
+                times.ctypes.data, X.ctypes.data, radau._TABLEAU.ctypes.data,
+                opt.ctypes.data, settings.max_steps, 7, st.ctypes.data, tf.ctypes.data,
+            )  # fmt: skip
+            assert code == 0, code
+
+    c_calls = median_wall(direct, repeats)[1]
+    unit = radau.unit_costs(model, HELD, 1.0, x0, np.array([sc.command(1.0)]), p, 0.02)
+    n_attempts = counts["n_steps"] + counts["n_rejected"] + counts["n_newton_fail"]
+    parts = {
+        "rhs": counts["n_rhs"] * unit["rhs"],
+        "jacobian": counts["n_jac"] * unit["jac"],
+        "lu_pairs": counts["n_lu"] * unit["lu"],
+        "newton_solves": counts["n_newton"] * unit["solve"],
+        "error_solves": n_attempts * unit["solve_real"],
+    }
+    parts["integrator_own_work_and_outputs"] = c_calls - sum(parts.values())
+    total, method = statistics.median(totals), statistics.median(methods)
+    return {
+        "rtol": rtol,
+        "cold_s": cold,
+        "build_s": lib.build_s,
+        "simulate_total_s": total,
+        "method_s": method,
+        "c_calls_s": c_calls,
+        "python_around_c_s": method - c_calls,
+        "simulate_outside_method_s": total - method,
+        "counts": counts,
+        "unit_costs_s": unit,
+        "c_parts_s": parts,
+        "per_step_us": {k: 1e6 * v / counts["n_steps"] for k, v in parts.items()},
+        "c_per_step_us": 1e6 * c_calls / counts["n_steps"],
+    }
 
 
 def _output_costs(model, res, repeats: int) -> dict:
@@ -305,20 +427,29 @@ def main() -> None:
         k: (v["wall_at_1em6_s"] / cv if v["wall_at_1em6_s"] and cv else None)
         for k, v in acc.items()
     }
+    pair = paired(sc, acc, args.repeats)
+    for method, v in pair.items():
+        print(f"paired {method:20s} at 1e-6: wall {v['wall_at_1em6_s']}, cpu "
+              f"{v['cpu_at_1em6_s']}; speedup vs scipy_radau_numpy: wall "
+              f"{v['speedup_vs_scipy_radau_numpy_wall']}, cpu "
+              f"{v['speedup_vs_scipy_radau_numpy_cpu']}")  # fmt: skip
     dis = dissect_cvodes(sc, 1e-6, args.repeats)
+    dis_radau = dissect_radau(sc, 10**-4.5, args.repeats)
     bdf = bdf_steps(sc)
     result = {
         "scenario": sc.description,
         "target_error_l2": TARGET,
         "equal_accuracy": acc,
         "ratio_to_cvodes": ratios,
+        "paired": pair,
         "cvodes_dissection": dis,
+        "radau_dissection": dis_radau,
         "bdf_steps": bdf,
         "reference_crosscheck": ref.crosscheck,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1))
-    print(json.dumps({"ratio_to_cvodes": ratios, "cvodes_dissection": dis}, indent=1))
+    print(json.dumps({"ratio_to_cvodes": ratios, "radau_dissection": dis_radau}, indent=1))
 
 
 if __name__ == "__main__":

@@ -45,7 +45,7 @@ from ..errors import ParameterError
 from ..modeling.model import Model
 from ..signals import Staircase, Step
 from ..units import to_si
-from . import fixed_step, guard, scipy_methods, sundials  # noqa: F401  (register the methods)
+from . import fixed_step, guard, radau, scipy_methods, sundials  # noqa: F401  (register the methods)
 from .common import HELD, InputLaw, method_options, require_step, segment_w
 from .settings import METHODS, Segment, SolverSettings
 
@@ -104,6 +104,8 @@ class Simulator:
         A flattened model.
     settings : SolverSettings, optional
         Method and tolerances; default CVODES at rtol 1e-6.
+    x0, z0, params, t0 : keyword, optional
+        The start point, as in :meth:`reset`.
 
     Attributes
     ----------
@@ -130,12 +132,20 @@ class Simulator:
     (0.2, True)
     """
 
-    def __init__(self, model: Model, settings: SolverSettings | None = None) -> None:
+    def __init__(
+        self,
+        model: Model,
+        settings: SolverSettings | None = None,
+        *,
+        x0: np.ndarray | Mapping[str, float] | None = None,
+        z0: np.ndarray | Mapping[str, float] | None = None,
+        params: Mapping[str, object] | None = None,
+        t0: float = 0.0,
+    ) -> None:
         self.model = model
         self.settings = settings or SolverSettings()
         self._scheme = guard.SCHEMES.get(self.settings.method)
-        self._buffers: dict[tuple, _Buffer] = {}
-        self.reset()
+        self.reset(x0, z0, params, t0)
 
     # --- state ---------------------------------------------------------------------
     def reset(
@@ -151,14 +161,18 @@ class Simulator:
         """
         m = self.model
         self.p = m.parameters(params)
-        self._x = _vector(m, "x0", x0, m.x0(), m.state_names)
+        # the start values at the default parameters (as Model.x0() etc.), in one call
+        x_start, z_start, u_start = (
+            np.array(v, dtype=float).reshape(-1) for v in m.function("start").call([m.parameters()])
+        )
+        self._x = _vector(m, "x0", x0, x_start, m.state_names)
         m.check_finite(self._x, "x")
-        self._z = _vector(m, "z0", z0, m.z0(), m.alg_names)
+        self._z = _vector(m, "z0", z0, z_start, m.alg_names)
         if not math.isfinite(t0):
             raise ParameterError("t0", t0, "a finite time [s]")
         self._t = float(t0)
-        self._inputs = [_Const(float(v)) for v in m.u0()]
-        self._u = m.u0()
+        self._inputs = [_Const(float(v)) for v in u_start]
+        self._u = u_start
         self._limit: tuple | None = None
         self.stats: dict = {}
 
@@ -194,13 +208,9 @@ class Simulator:
         self, names: tuple[str, ...], X: np.ndarray, Z: np.ndarray, U: np.ndarray
     ) -> np.ndarray:
         """Signals ``names`` at the points (columns) of ``X, Z, U``: (names, points)."""
-        n = X.shape[1]
-        key = (names, n)
-        call = self._buffers.get(key)
-        if call is None:
-            if len(self._buffers) > 16:
-                self._buffers.clear()
-            call = self._buffers[key] = _Buffer(self.model.signals_function(list(names), n))
+        n, m = X.shape[1], self.model
+        key = ("signals_buffer", names, n)  # on the model: shared by every simulator
+        call = m.cached(key, lambda: _Buffer(m.signals_function(list(names), n)))
         P = np.broadcast_to(self.p[:, None], (len(self.p), n))
         return call(X, Z, U, P).reshape(n, len(names)).T
 
@@ -218,7 +228,7 @@ class Simulator:
                 "solver.method",
                 self.settings.method,
                 sorted(k for k, v in METHODS.items() if v.step_function is not None),
-                "scipy's solvers are not CasADi Functions",
+                "scipy's solvers and the compiled radau are not CasADi Functions",
             )
         return make(self.model, self.settings)
 

@@ -1,0 +1,526 @@
+/* Adaptive 3-stage Radau IIA (order 5, stiffly accurate, L-stable) for x' = f(t, x).
+ *
+ * The algorithm of Hairer & Wanner, Solving ODEs II, section IV.8 (RADAU5), written
+ * anew for sarcomere:
+ *   - the collocation system is solved by a simplified Newton iteration in the
+ *     variables W = T^-1 Z, where T^-1 A^-1 T is one real eigenvalue and one complex
+ *     pair: one real and one complex LU of size n per Jacobian or step-size change;
+ *   - the Jacobian is reused across steps while the Newton iteration converges fast;
+ *   - the error is the embedded estimate (the extra real solve), refined by one more
+ *     right-hand side after a first or rejected step;
+ *   - the step size is predicted by Gustafsson's controller;
+ *   - outputs come from the collocation polynomial of each accepted step.
+ * f and its dense Jacobian are CasADi-generated functions compiled into the same library:
+ *   sm_rhs(t, x, w, p) -> f      sm_jac(t, x, w, p) -> df/dx (dense, column-major)
+ * The method constants (T, T^-1, eigenvalues, nodes, error weights, dense-output matrix)
+ * are computed by the Python side and passed in.
+ */
+#define _POSIX_C_SOURCE 199309L /* clock_gettime */
+#include <complex.h>
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+int sm_rhs(const double **arg, double **res, int *iw, double *w, int mem);
+int sm_rhs_work(int *sz_arg, int *sz_res, int *sz_iw, int *sz_w);
+int sm_jac(const double **arg, double **res, int *iw, double *w, int mem);
+int sm_jac_work(int *sz_arg, int *sz_res, int *sz_iw, int *sz_w);
+
+/* Return codes (the Python side turns them into SolverError messages). */
+enum { SM_OK = 0, SM_MAX_STEPS = 1, SM_STEP_TOO_SMALL = 2, SM_NEWTON = 3, SM_JAC = 4,
+       SM_NO_MEMORY = 5, SM_RHS = 6 };
+
+/* Statistics slots. */
+enum { ST_STEPS, ST_REJECTED, ST_RHS, ST_JAC, ST_LU, ST_NEWTON, ST_NEWTON_FAIL, ST_N };
+
+typedef struct {
+    int n;
+    const double *w, *p;
+    const double **arg;
+    double **res;
+    int *iw;
+    double *cw;
+    double *stats;
+} Model;
+
+/* f(t, x) into f; nonzero if the call fails or f is not finite. */
+static int rhs(Model *m, double t, const double *x, double *f)
+{
+    m->arg[0] = &t;
+    m->arg[1] = x;
+    m->arg[2] = m->w;
+    m->arg[3] = m->p;
+    m->res[0] = f;
+    m->stats[ST_RHS] += 1;
+    if (sm_rhs(m->arg, m->res, m->iw, m->cw, 0)) return 1;
+    for (int i = 0; i < m->n; ++i)
+        if (!isfinite(f[i])) return 1;
+    return 0;
+}
+
+static int jac(Model *m, double t, const double *x, double *J)
+{
+    m->arg[0] = &t;
+    m->arg[1] = x;
+    m->arg[2] = m->w;
+    m->arg[3] = m->p;
+    m->res[0] = J;
+    m->stats[ST_JAC] += 1;
+    if (sm_jac(m->arg, m->res, m->iw, m->cw, 0)) return 1;
+    for (int i = 0; i < m->n * m->n; ++i)
+        if (!isfinite(J[i])) return 1;
+    return 0;
+}
+
+/* The factors' row swaps and nonzero pattern: the multipliers of column k sit in rows
+ * li[lp[k]..lp[k+1]), the strict upper part of row k of U in columns ui[up[k]..up[k+1]). */
+typedef struct {
+    int *piv, *lp, *li, *up, *ui;
+} Factor;
+
+/* Carve a Factor for size n out of mem; returns the rest of mem. */
+static int *factor_init(Factor *f, int n, int *mem)
+{
+    f->piv = mem;
+    f->lp = f->piv + n;
+    f->up = f->lp + n + 1;
+    f->li = f->up + n + 1;
+    f->ui = f->li + (size_t)n * n;
+    return f->ui + (size_t)n * n;
+}
+
+/* Doubles (or complex numbers) an LU of size n works in: SM_LU_SIZE(n). */
+#define SM_LU_SIZE(n) (3 * (size_t)(n) * (n) + (n))
+
+/* LU with partial pivoting of the column-major n x n matrix a (the first n*n of
+ * SM_LU_SIZE(n) entries; overwritten), LINPACK's way: at step k rows k and piv[k] are
+ * swapped from column k on, so the multipliers of column k are final once computed. The
+ * model's Jacobian is sparse (a chain): the updates skip its zeros, and the factors are
+ * packed for the solves as they are found: the multipliers of column k (rows in the
+ * Factor, values at a + n*n), the strict upper part of row k of U (columns in the Factor,
+ * values at a + 2 n*n) and the inverse diagonal (a + 3 n*n). */
+#define SM_LU(NAME, T, ABS)                                                           \
+    static int NAME(int n, T *a, Factor *f)                                           \
+    {                                                                                 \
+        T *lv = a + (size_t)n * n, *uv = lv + (size_t)n * n, *dv = uv + (size_t)n * n; \
+        int nl = 0, nu = 0;                                                           \
+        for (int k = 0; k < n; ++k) {                                                 \
+            T *ak = a + k * n;                                                        \
+            int q = k;                                                                \
+            double big = ABS(ak[k]);                                                  \
+            for (int i = k + 1; i < n; ++i)                                           \
+                if (ABS(ak[i]) > big) big = ABS(ak[i]), q = i;                        \
+            f->piv[k] = q;                                                            \
+            if (big == 0.0) return 1;                                                 \
+            if (q != k)                                                               \
+                for (int j = k; j < n; ++j) {                                         \
+                    T s = a[k + j * n];                                               \
+                    a[k + j * n] = a[q + j * n];                                      \
+                    a[q + j * n] = s;                                                 \
+                }                                                                     \
+            T inv = dv[k] = 1.0 / ak[k];                                              \
+            int l0 = f->lp[k] = nl;                                                   \
+            for (int i = k + 1; i < n; ++i)                                           \
+                if (ak[i] != 0.0) lv[nl] = ak[i] *= inv, f->li[nl++] = i;             \
+            f->up[k] = nu;                                                            \
+            for (int j = k + 1; j < n; ++j) {                                         \
+                T akj = a[k + j * n], *aj = a + j * n;                                \
+                if (akj == 0.0) continue;                                             \
+                uv[nu] = akj, f->ui[nu++] = j;                                        \
+                for (int r = l0; r < nl; ++r) aj[f->li[r]] -= lv[r] * akj;            \
+            }                                                                         \
+        }                                                                             \
+        f->lp[n] = nl;                                                                \
+        f->up[n] = nu;                                                                \
+        return 0;                                                                     \
+    }
+
+/* Solve with the factors of SM_LU: each swap, then its column of L; then U by rows. */
+#define SM_SOLVE(NAME, T)                                                             \
+    static void NAME(int n, const T *a, const Factor *f, T *b)                        \
+    {                                                                                 \
+        const T *lv = a + (size_t)n * n, *uv = lv + (size_t)n * n, *dv = uv + (size_t)n * n; \
+        for (int k = 0; k < n; ++k) {                                                 \
+            T bk = b[f->piv[k]];                                                      \
+            b[f->piv[k]] = b[k];                                                      \
+            b[k] = bk;                                                                \
+            for (int r = f->lp[k]; r < f->lp[k + 1]; ++r) b[f->li[r]] -= lv[r] * bk;  \
+        }                                                                             \
+        for (int k = n - 1; k >= 0; --k) {                                            \
+            T bk = b[k];                                                              \
+            for (int r = f->up[k]; r < f->up[k + 1]; ++r) bk -= uv[r] * b[f->ui[r]];  \
+            b[k] = bk * dv[k];                                                        \
+        }                                                                             \
+    }
+
+/* |re| + |im|: the pivot size of LAPACK's complex LU, without a square root */
+static inline double abs1(double complex z) { return fabs(creal(z)) + fabs(cimag(z)); }
+
+SM_LU(lu_real, double, fabs)
+SM_LU(lu_complex, double complex, abs1)
+SM_SOLVE(solve_real, double)
+SM_SOLVE(solve_complex, double complex)
+
+/* Root mean square of v / s over b blocks of n entries (s: n entries, for every block). */
+static double rms(int b, int n, const double *v, const double *s)
+{
+    double acc = 0.0;
+    for (int k = 0; k < b; ++k, v += n)
+        for (int i = 0; i < n; ++i) {
+            double r = v[i] / s[i];
+            acc += r * r;
+        }
+    return sqrt(acc / ((double)b * n));
+}
+
+/* The method constants, in the order radau.py packs them. */
+typedef struct {
+    double T[9], TI[9];  /* row-major */
+    double mu_r, mu_cr, mu_ci;  /* eigenvalues of A^-1: real, complex (mu_cr + i mu_ci) */
+    double c[3];  /* nodes */
+    double e[3];  /* error weights on Z / h */
+    double P[9];  /* dense output: Q_k = sum_i Z_i P[i][k], x(t0 + s h) = x0 + sum_k Q_k s^(k+1) */
+} Tableau;
+
+/* Integrate x' = f(t, x; w, p) from t0 to tout[nout - 1], writing x at every tout[k]
+ * (increasing, > t0) into xout[k * n ...].
+ *   x          in: state at t0; out: state at the last accepted time
+ *   cst        the Tableau (36 doubles)
+ *   opt        rtol, atol, first step (0: automatic), max step
+ *   max_steps  accepted-step limit of this call; max_newton: Newton iterations per attempt
+ *   stats      ST_N counters, added to
+ *   t_fail     time reached when a failure is returned
+ * Returns one of the SM_ codes. */
+int sm_radau(int n, const double *w, const double *p, double t0, double *x, int nout,
+             const double *tout, double *xout, const double *cst, const double *opt,
+             long max_steps, int max_newton, double *stats, double *t_fail)
+{
+    Tableau tb;
+    memcpy(&tb, cst, sizeof tb);
+    const double rtol = opt[0], atol = opt[1], hmax = opt[3];
+    const double t_end = tout[nout - 1];
+    const double newton_tol = fmax(10 * DBL_EPSILON / rtol, fmin(0.03, sqrt(rtol)));
+    const double mu_c_re = tb.mu_cr, mu_c_im = tb.mu_ci;
+
+    int sz_arg, sz_res, sz_iw, sz_w, a2, r2, i2, w2;
+    sm_rhs_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
+    sm_jac_work(&a2, &r2, &i2, &w2);
+    sz_arg = sz_arg > a2 ? sz_arg : a2;
+    sz_res = sz_res > r2 ? sz_res : r2;
+    sz_iw = sz_iw > i2 ? sz_iw : i2;
+    sz_w = sz_w > w2 ? sz_w : w2;
+
+    size_t nn = (size_t)n * n;
+    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 28 * (size_t)n + (size_t)sz_w + 1));
+    double complex *cplx = malloc(sizeof(double complex) * (SM_LU_SIZE(n) + n));
+    size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
+    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)sz_iw + 1));
+    const double **arg = malloc(sizeof(double *) * (sz_arg + 1));
+    double **res = malloc(sizeof(double *) * (sz_res + 1));
+    if (!dbl || !cplx || !ints || !arg || !res) {
+        free(dbl), free(cplx), free(ints), free(arg), free(res);
+        return SM_NO_MEMORY;
+    }
+    double *J = dbl, *LUr = J + nn, *y = LUr + SM_LU_SIZE(n);
+    double *f0 = y + n, *ynew = f0 + n, *scale = ynew + n, *tmp = scale + n, *err = tmp + n;
+    double *Z = err + n, *W = Z + 3 * n, *dW = W + 3 * n, *F = dW + 3 * n, *Q = F + 3 * n;
+    double *Qold = Q + 3 * n, *rr = Qold + 3 * n, *ypoly = rr + n, *cw = ypoly + n;
+    double complex *LUc = cplx, *rc = LUc + SM_LU_SIZE(n);
+    Factor fr, fc;
+    int *iw = factor_init(&fc, n, factor_init(&fr, n, ints));
+    Model m = {n, w, p, arg, res, iw, cw, stats};
+
+    int code = SM_OK, k_out = 0;
+    double t = t0;
+    memcpy(y, x, sizeof(double) * n);
+    *t_fail = t0;
+
+    if (rhs(&m, t, y, f0)) { code = SM_RHS; goto done; }
+    if (jac(&m, t, y, J)) { code = SM_JAC; goto done; }
+    int current_jac = 1;
+
+    /* initial step (Hairer, Norsett & Wanner I, II.4) for the order-3 error estimate */
+    double h = opt[2];
+    if (!(h > 0)) {
+        for (int i = 0; i < n; ++i) scale[i] = atol + fabs(y[i]) * rtol;
+        double d0 = rms(1, n, y, scale), d1 = rms(1, n, f0, scale);
+        double h0 = (d0 < 1e-5 || d1 < 1e-5) ? 1e-6 : 0.01 * d0 / d1;
+        h0 = fmin(h0, t_end - t);
+        for (int i = 0; i < n; ++i) tmp[i] = y[i] + h0 * f0[i];
+        if (rhs(&m, t + h0, tmp, err)) { code = SM_RHS; goto done; }
+        for (int i = 0; i < n; ++i) tmp[i] = err[i] - f0[i];
+        double d2 = rms(1, n, tmp, scale) / h0;
+        double h1 = (d1 <= 1e-15 && d2 <= 1e-15) ? fmax(1e-6, h0 * 1e-3)
+                                                   : pow(0.01 / fmax(d1, d2), 0.25);
+        h = fmin(100 * h0, h1);
+    }
+
+    int lu_ok = 0, have_poly = 0, first = 1, rejected = 0, fails = 0;
+    double faccon = 1.0;
+    long steps = 0;
+    double h_lu = 0, t_poly = 0, h_poly = 0, h_old = -1, err_old = -1;
+    while (t < t_end) {
+        if (steps >= max_steps) {
+            code = SM_MAX_STEPS;
+            break;
+        }
+        double hmin = 10 * DBL_EPSILON * fmax(fabs(t), fabs(t_end - t0));
+        h = fmin(h, hmax);
+        if (h < hmin) { code = SM_STEP_TOO_SMALL; break; }
+        if (t + 1.0001 * h >= t_end) h = t_end - t;  /* land on the end, no sliver step */
+        if (!lu_ok || h != h_lu) {
+            double complex mc = (mu_c_re + I * mu_c_im) / h;
+            for (size_t i = 0; i < nn; ++i) {
+                LUr[i] = -J[i];
+                LUc[i] = -J[i];
+            }
+            for (int i = 0; i < n; ++i) {
+                LUr[i + i * n] += tb.mu_r / h;
+                LUc[i + i * n] += mc;
+            }
+            stats[ST_LU] += 1;
+            if (lu_real(n, LUr, &fr) || lu_complex(n, LUc, &fc)) {
+                h *= 0.5;  /* singular iteration matrix: try a smaller step */
+                lu_ok = 0;
+                continue;
+            }
+            lu_ok = 1;
+            h_lu = h;
+        }
+
+        /* start from the previous step's collocation polynomial, or from zero */
+        for (int i = 0; i < 3; ++i) {
+            double *zi = Z + i * n;
+            if (!have_poly) {
+                memset(zi, 0, sizeof(double) * n);
+                continue;
+            }
+            double s = (t + tb.c[i] * h - t_poly) / h_poly, s2 = s * s, s3 = s2 * s;
+            for (int j = 0; j < n; ++j)
+                zi[j] = ypoly[j] + Qold[j] * s + Qold[n + j] * s2 + Qold[2 * n + j] * s3 - y[j];
+        }
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < n; ++j)
+                W[i * n + j] = tb.TI[3 * i] * Z[j] + tb.TI[3 * i + 1] * Z[n + j]
+                             + tb.TI[3 * i + 2] * Z[2 * n + j];
+        for (int i = 0; i < n; ++i) scale[i] = atol + fabs(y[i]) * rtol;
+
+        /* simplified Newton iteration on the transformed collocation system; the
+         * convergence test faccon * |dW| <= tol carries faccon over from the last step */
+        int converged = 0, iters = 0;
+        double theta = 0, thq_old = 0, norm_old = 0;
+        for (int k = 0; k < max_newton; ++k) {
+            int bad = 0;
+            for (int i = 0; i < 3 && !bad; ++i) {
+                for (int j = 0; j < n; ++j) tmp[j] = y[j] + Z[i * n + j];
+                bad = rhs(&m, t + tb.c[i] * h, tmp, F + i * n);
+            }
+            iters = k + 1;
+            if (bad) break;
+            for (int j = 0; j < n; ++j) {
+                double g0 = tb.TI[0] * F[j] + tb.TI[1] * F[n + j] + tb.TI[2] * F[2 * n + j];
+                double g1 = tb.TI[3] * F[j] + tb.TI[4] * F[n + j] + tb.TI[5] * F[2 * n + j];
+                double g2 = tb.TI[6] * F[j] + tb.TI[7] * F[n + j] + tb.TI[8] * F[2 * n + j];
+                double w1 = W[n + j], w2 = W[2 * n + j];
+                rr[j] = g0 - tb.mu_r / h * W[j];
+                /* g - mu_c / h * (w1 + i w2) */
+                rc[j] = (g1 - (mu_c_re * w1 - mu_c_im * w2) / h)
+                      + I * (g2 - (mu_c_re * w2 + mu_c_im * w1) / h);
+            }
+            solve_real(n, LUr, &fr, rr);
+            solve_complex(n, LUc, &fc, rc);
+            for (int j = 0; j < n; ++j) {
+                dW[j] = rr[j];
+                dW[n + j] = creal(rc[j]);
+                dW[2 * n + j] = cimag(rc[j]);
+            }
+            double nrm = rms(3, n, dW, scale);
+            if (k > 0) {  /* contraction rate: geometric mean of the last two ratios */
+                double thq = nrm / norm_old;
+                theta = k == 1 ? thq : sqrt(thq * thq_old);
+                thq_old = thq;
+                if (theta >= 0.99) break;
+                faccon = theta / (1 - theta);
+                double left = faccon * nrm;  /* the error left after the remaining iterations */
+                for (int r = k + 2; r < max_newton; ++r) left *= theta;
+                if (left >= newton_tol) break;
+            }
+            norm_old = fmax(nrm, DBL_EPSILON);
+            for (int i = 0; i < 3 * n; ++i) W[i] += dW[i];
+            for (int i = 0; i < 3; ++i)
+                for (int j = 0; j < n; ++j)
+                    Z[i * n + j] = tb.T[3 * i] * W[j] + tb.T[3 * i + 1] * W[n + j]
+                                 + tb.T[3 * i + 2] * W[2 * n + j];
+            if (faccon * nrm <= newton_tol) {
+                converged = 1;
+                break;
+            }
+        }
+        stats[ST_NEWTON] += iters;
+        if (!converged) {
+            stats[ST_NEWTON_FAIL] += 1;
+            if (!current_jac) {  /* first a fresh Jacobian at the same step size */
+                if (jac(&m, t, y, J)) { code = SM_JAC; break; }
+                current_jac = 1;
+                lu_ok = 0;
+                continue;
+            }
+            if (++fails > 10) { code = SM_NEWTON; break; }
+            h *= 0.5;
+            rejected = 1;
+            continue;
+        }
+
+        /* embedded error estimate */
+        for (int j = 0; j < n; ++j) {
+            ynew[j] = y[j] + Z[2 * n + j];
+            double big = fabs(y[j]) > fabs(ynew[j]) ? fabs(y[j]) : fabs(ynew[j]);
+            scale[j] = atol + big * rtol;
+            tmp[j] = (tb.e[0] * Z[j] + tb.e[1] * Z[n + j] + tb.e[2] * Z[2 * n + j]) / h;
+            err[j] = f0[j] + tmp[j];
+        }
+        solve_real(n, LUr, &fr, err);
+        double en = rms(1, n, err, scale);
+        if (en >= 1 && (first || rejected)) {
+            for (int j = 0; j < n; ++j) rr[j] = y[j] + err[j];
+            if (rhs(&m, t, rr, err)) { en = 2.0; }
+            else {
+                for (int j = 0; j < n; ++j) err[j] += tmp[j];
+                solve_real(n, LUr, &fr, err);
+                en = rms(1, n, err, scale);
+            }
+        }
+        en = fmax(en, 1e-10);
+        double safety = 0.9 * (2 * max_newton + 1) / (2 * max_newton + iters);
+        double root4 = sqrt(sqrt(en));  /* en^(1/4): the error estimate is O(h^4) */
+        double mult = (h_old > 0 && err_old > 0) ? h / h_old * sqrt(sqrt(err_old)) / root4 : 1.0;
+        double factor = fmin(1.0, mult) / root4;  /* Gustafsson's predictor */
+        if (en > 1) {
+            h *= fmax(0.2, safety * factor);
+            rejected = 1;
+            stats[ST_REJECTED] += 1;
+            continue;
+        }
+
+        /* accepted: outputs from the collocation polynomial through (t, t + h] */
+        double t_new = (h == t_end - t) ? t_end : t + h;
+        for (int k = 0; k < 3; ++k)
+            for (int j = 0; j < n; ++j)
+                Q[k * n + j] = Z[j] * tb.P[k] + Z[n + j] * tb.P[3 + k] + Z[2 * n + j] * tb.P[6 + k];
+        for (; k_out < nout && tout[k_out] <= t_new; ++k_out) {
+            double *xo = xout + (size_t)k_out * n;
+            if (tout[k_out] == t_new) {
+                memcpy(xo, ynew, sizeof(double) * n);
+                continue;
+            }
+            double s = (tout[k_out] - t) / h, sk = s;
+            memcpy(xo, y, sizeof(double) * n);
+            for (int k = 0; k < 3; ++k, sk *= s)
+                for (int j = 0; j < n; ++j) xo[j] += Q[k * n + j] * sk;
+        }
+        memcpy(Qold, Q, sizeof(double) * 3 * n);
+        memcpy(ypoly, y, sizeof(double) * n);
+        t_poly = t;
+        h_poly = h;
+        have_poly = 1;
+        stats[ST_STEPS] += 1;
+        ++steps;
+
+        int refresh_jac = theta > 1e-3;
+        factor = fmin(10.0, safety * factor);
+        if (rejected) factor = fmin(factor, 1.0);
+        if (!refresh_jac && factor < 1.2) factor = 1.0;
+        t = t_new;
+        memcpy(y, ynew, sizeof(double) * n);
+        *t_fail = t;
+        if (rhs(&m, t, y, f0)) { code = SM_RHS; break; }
+        if (refresh_jac) {
+            if (jac(&m, t, y, J)) { code = SM_JAC; break; }
+            lu_ok = 0;
+        }
+        current_jac = refresh_jac;
+        h_old = h;
+        err_old = en;
+        h *= factor;
+        first = rejected = fails = 0;
+        faccon = pow(fmax(faccon, DBL_EPSILON), 0.8);
+    }
+done:
+    memcpy(x, y, sizeof(double) * n);
+    if (code != SM_OK) *t_fail = t;
+    free(dbl), free(cplx), free(ints), free(arg), free(res);
+    return code;
+}
+
+static double seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+
+/* What the parts of a step cost, for the benchmark: the mean time [s] over reps of one
+ * right-hand side, one Jacobian, one pair of LUs (real and complex, step h), one pair
+ * of solves and one real solve, at (t, x), into out[0..4]. Returns an SM_ code. */
+int sm_radau_costs(int n, const double *w, const double *p, double t, const double *x,
+                   double h, const double *cst, int reps, double *out)
+{
+    Tableau tb;
+    memcpy(&tb, cst, sizeof tb);
+    int sz_arg, sz_res, sz_iw, sz_w, a2, r2, i2, w2;
+    sm_rhs_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
+    sm_jac_work(&a2, &r2, &i2, &w2);
+    size_t nn = (size_t)n * n;
+    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 2 * (size_t)n + (size_t)(sz_w > w2 ? sz_w : w2) + 1));
+    double complex *cplx = malloc(sizeof(double complex) * (SM_LU_SIZE(n) + n));
+    size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
+    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)(sz_iw > i2 ? sz_iw : i2) + 1));
+    const double **arg = malloc(sizeof(double *) * ((sz_arg > a2 ? sz_arg : a2) + 1));
+    double **res = malloc(sizeof(double *) * ((sz_res > r2 ? sz_res : r2) + 1));
+    double stats[ST_N] = {0};
+    int code = SM_OK;
+    if (!dbl || !cplx || !ints || !arg || !res) { code = SM_NO_MEMORY; goto done; }
+    double *J = dbl, *LUr = J + nn, *f = LUr + SM_LU_SIZE(n), *b = f + n, *cw = b + n;
+    double complex *LUc = cplx, *bc = LUc + SM_LU_SIZE(n);
+    Factor fr, fc;
+    Model m = {n, w, p, arg, res, factor_init(&fc, n, factor_init(&fr, n, ints)), cw, stats};
+    double tic = seconds();
+    for (int k = 0; k < reps; ++k)
+        if (rhs(&m, t, x, f)) { code = SM_RHS; goto done; }
+    out[0] = (seconds() - tic) / reps;
+    tic = seconds();
+    for (int k = 0; k < reps; ++k)
+        if (jac(&m, t, x, J)) { code = SM_JAC; goto done; }
+    out[1] = (seconds() - tic) / reps;
+    tic = seconds();
+    for (int k = 0; k < reps; ++k) {
+        for (size_t i = 0; i < nn; ++i) LUr[i] = -J[i], LUc[i] = -J[i];
+        for (int i = 0; i < n; ++i) {
+            LUr[i + i * n] += tb.mu_r / h;
+            LUc[i + i * n] += (tb.mu_cr + I * tb.mu_ci) / h;
+        }
+        if (lu_real(n, LUr, &fr) || lu_complex(n, LUc, &fc)) {
+            code = SM_STEP_TOO_SMALL;
+            goto done;
+        }
+    }
+    out[2] = (seconds() - tic) / reps;
+    tic = seconds();
+    for (int k = 0; k < reps; ++k) {
+        for (int i = 0; i < n; ++i) b[i] = f[i], bc[i] = f[i] + I * f[i];
+        solve_real(n, LUr, &fr, b);
+        solve_complex(n, LUc, &fc, bc);
+    }
+    out[3] = (seconds() - tic) / reps;
+    tic = seconds();
+    for (int k = 0; k < reps; ++k) {
+        for (int i = 0; i < n; ++i) b[i] = f[i];
+        solve_real(n, LUr, &fr, b);
+    }
+    out[4] = (seconds() - tic) / reps;
+done:
+    free(dbl), free(cplx), free(ints), free(arg), free(res);
+    return code;
+}

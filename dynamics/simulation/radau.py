@@ -1,0 +1,253 @@
+"""``radau``: a compiled adaptive Radau IIA method (3 stages, order 5) on the CasADi side.
+
+The integrator is C (``c/radau.c``, the RADAU5 algorithm of Hairer & Wanner): simplified
+Newton on the collocation system split into one real and one complex linear system,
+Jacobian reuse across steps, the embedded error estimate, Gustafsson's step-size
+predictor and outputs from the collocation polynomial. The model's right-hand side under
+the input law and its dense Jacobian (``casadi.jacobian`` of the same expression) are
+generated to C by CasADi and compiled with it into one shared library per model and
+input law (``Model.cached``), loaded with ctypes. One call integrates a whole segment,
+so Python is paid per segment, not per step.
+
+Why: the model's oscillatory modes lie 73-80 deg from the negative real axis, outside
+the stability sectors of BDF4/BDF5, so CVODES needs 6-9x the steps of this A-stable
+order-5 method at equal accuracy (``BENCHMARKS.md``, section 1). Explicit ODEs only
+(``nz = 0``); the LU is dense but skips the Jacobian's zeros (``docs/numerics.md``).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as cs
+import numpy as np
+
+from ..errors import ParameterError, SolverError
+from ..modeling.model import Model
+from .common import InputLaw, law_dae, method_options, require_ode
+from .settings import Segment, add_stats, register_method
+
+SOURCE = Path(__file__).parent / "c" / "radau.c"
+"""The integrator's C source (package data)."""
+
+_CAUSES = {
+    1: "too many steps (max_steps reached)",
+    2: "step size became too small (below 10 machine epsilons of t)",
+    3: "Newton iteration failed to converge repeatedly (11 step halvings)",
+    4: "Jacobian evaluation failed (NaN or inf)",
+    5: "out of memory",
+    6: "right-hand side evaluation failed (NaN or inf)",
+}
+CFLAGS = ("-O3", "-fno-math-errno", "-fcx-limited-range", "-std=c11")
+"""Compiler flags: no errno from sqrt/pow and C99's NaN-recovery in complex products
+left out (neither is ever relied on here): inline arithmetic, 8 % faster at n = 3."""
+_STATS = ("n_steps", "n_rejected", "n_rhs", "n_jac", "n_lu", "n_newton", "n_newton_fail")
+_DEFAULTS = {"first_step": None, "max_step": np.inf, "max_newton": 7}
+
+
+def tableau() -> dict[str, np.ndarray]:
+    """The Radau IIA (3 stages) constants the C integrator takes, computed from ``A``.
+
+    Returns
+    -------
+    dict
+        ``A``, ``c`` (nodes), ``T`` and ``TI = T^-1`` with
+        ``TI A^-1 T = [[mu_r, 0, 0], [0, a, -b], [0, b, a]]``, ``mu_r``, ``mu_c = a + ib``,
+        ``e`` (error weights: ``err = (mu_r/h - J)^-1 (f0 + sum_i e_i Z_i / h)``) and
+        ``P`` (dense output: ``x(t + s h) = x + sum_k (sum_i Z_i P[i, k]) s^(k+1)``).
+    """
+    s6 = np.sqrt(6.0)
+    c = np.array([(4 - s6) / 10, (4 + s6) / 10, 1.0])
+    # collocation: A[i, j] = integral_0^c_i of the Lagrange polynomial l_j
+    V = np.vander(c, 3, increasing=True)  # V[i, k] = c_i^k
+    coef = np.linalg.inv(V)  # l_j(s) = sum_k coef[k, j] s^k
+    A = np.array(
+        [
+            [sum(coef[k, j] * ci ** (k + 1) / (k + 1) for k in range(3)) for j in range(3)]
+            for ci in c
+        ]
+    )
+    Ainv = np.linalg.inv(A)
+    lam, vec = np.linalg.eig(Ainv)
+    r = int(np.argmin(np.abs(lam.imag)))
+    q = int(np.argmin(lam.imag))  # Hairer's sign convention for T
+    v_r = np.real(vec[:, r]) / np.linalg.norm(vec[:, r])
+    v_r *= np.sign(v_r[2])
+    v_c = vec[:, q] / vec[2, q]  # last component 1: T[2] = [., 1, 0]
+    T = np.column_stack([v_r, v_c.real, v_c.imag])
+    mu_c = complex(np.conj(lam[q]))
+    # error weights: the embedded method's difference, e = gamma0 * [(13+7s6), ...]
+    e = np.array([-13 - 7 * s6, -13 + 7 * s6, -1.0]) / 3
+    P = np.linalg.inv(np.vander(c, 4, increasing=True)[:, 1:]).T
+    return {
+        "A": A,
+        "c": c,
+        "T": T,
+        "TI": np.linalg.inv(T),
+        "mu_r": float(lam[r].real),
+        "mu_c": mu_c,
+        "e": e,
+        "P": P,
+    }
+
+
+def _packed() -> np.ndarray:
+    t = tableau()
+    return np.concatenate(
+        [
+            t["T"].ravel(),
+            t["TI"].ravel(),
+            [t["mu_r"], t["mu_c"].real, t["mu_c"].imag],
+            t["c"],
+            t["e"],
+            t["P"].ravel(),
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class Library:
+    """A compiled integrator for one model and input law.
+
+    Attributes
+    ----------
+    n : int
+        Number of states.
+    run, costs : ctypes functions
+        ``sm_radau`` and ``sm_radau_costs`` (see ``c/radau.c``).
+    handle : ctypes.CDLL
+        The loaded library (kept so it stays loaded).
+    build_s : float
+        Code generation and compile time [s].
+    """
+
+    n: int
+    run: ctypes._CFuncPtr
+    costs: ctypes._CFuncPtr
+    handle: ctypes.CDLL
+    build_s: float
+
+
+def library(model: Model, law: InputLaw) -> Library:
+    """The compiled integrator of ``model`` under ``law`` (built once, memoised on the
+    model by the law)."""
+    return model.cached(("radau", law.key()), lambda: _build(model, law))
+
+
+def _build(model: Model, law: InputLaw) -> Library:
+    tic = time.perf_counter()
+    d = law_dae(model, law)
+    args = [d.t, d.x, d.w, d.p]
+    # common subexpressions merged (cs.cse): 34 % fewer operations at n = 3
+    rhs = cs.Function("sm_rhs", args, [cs.cse(cs.densify(d.ode))])
+    jac = cs.Function("sm_jac", args, [cs.cse(cs.densify(cs.jacobian(d.ode, d.x)))])
+    cc = shutil.which(os.environ.get("CC", "gcc"))
+    if cc is None:
+        raise SolverError("radau: no C compiler found: install gcc or set CC")
+    with tempfile.TemporaryDirectory(prefix="sarcomere-radau-") as tmp:
+        gen = cs.CodeGenerator("sm_model.c", {"casadi_int": "int"})
+        gen.add(rhs)
+        gen.add(jac)
+        gen.generate(tmp + os.sep)
+        so = Path(tmp) / "radau.so"
+        cmd = [cc, "-shared", "-fPIC", *CFLAGS, str(SOURCE)]
+        cmd += [str(Path(tmp) / "sm_model.c"), "-o", str(so), "-lm"]
+        done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            raise SolverError(f"radau: the C compiler failed: {done.stderr[-2000:]}")
+        handle = ctypes.CDLL(str(so))  # loaded: the file may go
+    fn = handle.sm_radau
+    fn.restype = ctypes.c_int
+    ptr, i32, f64 = ctypes.c_void_p, ctypes.c_int, ctypes.c_double
+    fn.argtypes = [i32, ptr, ptr, f64, ptr, i32, ptr, ptr, ptr, ptr, ctypes.c_long, i32, ptr, ptr]
+    costs = handle.sm_radau_costs
+    costs.restype = ctypes.c_int
+    costs.argtypes = [i32, ptr, ptr, f64, ptr, f64, ptr, i32, ptr]
+    return Library(model.nx, fn, costs, handle, time.perf_counter() - tic)
+
+
+_TABLEAU = _packed()
+
+
+def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
+    s, m = seg.settings, seg.model
+    require_ode(m, s)
+    opts = method_options(s, _DEFAULTS)
+    first, hmax, newton = opts["first_step"], float(opts["max_step"]), opts["max_newton"]
+    if first is not None and not (np.isfinite(first) and first > 0):
+        raise ParameterError("solver.options.first_step", first, "(0, inf) s, or None")
+    if not hmax > 0:
+        raise ParameterError("solver.options.max_step", hmax, "(0, inf] s")
+    if not (isinstance(newton, int) and 1 <= newton <= 50):
+        raise ParameterError("solver.options.max_newton", newton, "an integer in [1, 50]")
+    lib = library(m, seg.law)
+    times = np.ascontiguousarray(seg.times, dtype=float)
+    x = np.array(seg.x0, dtype=float)
+    X = np.empty((len(times), m.nx))
+    w = np.ascontiguousarray(seg.w, dtype=float)
+    p = np.ascontiguousarray(seg.p, dtype=float)
+    opt = np.array([s.rtol, s.atol, first or 0.0, hmax])
+    stats = np.zeros(len(_STATS))
+    t_fail = np.zeros(1)
+    code = lib.run(
+        m.nx,
+        w.ctypes.data,
+        p.ctypes.data,
+        float(seg.t0),
+        x.ctypes.data,
+        len(times),
+        times.ctypes.data,
+        X.ctypes.data,
+        _TABLEAU.ctypes.data,
+        opt.ctypes.data,
+        int(s.max_steps),
+        newton,
+        stats.ctypes.data,
+        t_fail.ctypes.data,
+    )
+    add_stats(seg.stats, **{k: int(v) for k, v in zip(_STATS, stats, strict=True)}, n_segments=1)
+    if code:
+        raise seg.fail(_CAUSES.get(code, f"error code {code}"), float(t_fail[0]), x)
+    return X, np.zeros((len(times), 0))
+
+
+def unit_costs(
+    model: Model,
+    law: InputLaw,
+    t: float,
+    x: np.ndarray,
+    w: np.ndarray,
+    p: np.ndarray,
+    h: float,
+    reps: int = 2000,
+) -> dict[str, float]:
+    """Mean cost [s] of the parts of a step at ``(t, x)``, timed inside the compiled
+    library: ``rhs`` (one right-hand side), ``jac`` (one Jacobian), ``lu`` (the real and
+    the complex LU at step ``h``), ``solve`` (one real and one complex solve: a Newton
+    iteration) and ``solve_real`` (one real solve: the error estimate)."""
+    lib = library(model, law)
+    arrays = [np.ascontiguousarray(a, dtype=float) for a in (w, p, x)]
+    out = np.zeros(5)
+    code = lib.costs(
+        model.nx,
+        *(a.ctypes.data for a in arrays[:2]),
+        float(t),
+        arrays[2].ctypes.data,
+        float(h),
+        _TABLEAU.ctypes.data,
+        int(reps),
+        out.ctypes.data,
+    )
+    if code:
+        raise SolverError(f"radau: {_CAUSES.get(code, code)} at t = {t:g} s")
+    return dict(zip(("rhs", "jac", "lu", "solve", "solve_real"), out.tolist(), strict=True))
+
+
+register_method("radau")(_run)
