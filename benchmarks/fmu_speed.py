@@ -15,6 +15,7 @@
 Usage::
 
     python benchmarks/fmu_speed.py --out out/bench/fmu_speed.json [--repeats 7]
+    python benchmarks/fmu_speed.py --scenario path/to/scene.toml   # another model, e.g. a level
 """
 
 from __future__ import annotations
@@ -101,11 +102,11 @@ int main(int argc, char** argv) {
 """
 
 
-def run(repeats: int, out: Path | None) -> dict:
+def run(repeats: int, out: Path | None, scenario: str = "step-50g") -> dict:
     tmp = Path(tempfile.mkdtemp(prefix="fmu-bench-"))
     fmu = tmp / "step-50g.fmu"
     tic = time.perf_counter()
-    assert cli(["export-fmu", "step-50g", "--out", str(fmu)]) == 0
+    assert cli(["export-fmu", scenario, "--out", str(fmu)]) == 0
     export_s = time.perf_counter() - tic
     md = read_model_description(fmu)
     with zipfile.ZipFile(fmu) as zf:
@@ -185,8 +186,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, help="JSON file for the results")
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument(
+        "--scenario", default="step-50g", help="scenario file or packaged name (its model)"
+    )
     args = parser.parse_args()
-    for key, value in run(args.repeats, args.out).items():
+    for key, value in run(args.repeats, args.out, args.scenario).items():
         print(f"{key:28s} {value:.4g}" if isinstance(value, float) else f"{key:28s} {value}")
 
 

@@ -20,6 +20,7 @@ import math
 from .components.aps import (
     CHAIN_LEVELS,
     FLOW_LAWS,
+    INSTANT_LEVELS,
     APSParams,
     GroupedMyofibril,
     Myofibril,
@@ -49,12 +50,14 @@ HOOK_MASS_KG = 1.0e-3
 """Mass of the load hook and clip [kg] (estimate); the load mass adds to it, so the
 "0 g" experiment still has a defined bottom end."""
 
-FIDELITIES = (*CHAIN_LEVELS, "grouped", "symmetric")
+FIDELITIES = (*CHAIN_LEVELS, "grouped", "symmetric", *INSTANT_LEVELS)
 """Dynamic fidelity levels (see :data:`CHAIN_LEVELS` and docs/model.md); "grouped" is
 :data:`GROUPS` groups of units in series, two representative half-groups each, with the
 bodies' inertia and the weight gradient (:class:`~.components.aps.GroupedMyofibril`,
 all n units when n <= GROUPS), "symmetric" one representative unit for n identical
-units."""
+units; "instant_pneumatics" and "instant_quasi_static" the mechanics of "full" and
+"quasi_static" with every chamber at the regulator's outlet pressure
+(:data:`~.components.aps.INSTANT_LEVELS`: no air masses, no tubes)."""
 
 GROUPS = 3
 """Groups of the "grouped" level: its cost is that of a chain of at most 6 units
@@ -79,6 +82,8 @@ N_LIMITS = {
     "static_chain": 20,
     "grouped": 2000,
     "symmetric": 2000,
+    "instant_pneumatics": 175,
+    "instant_quasi_static": 60,
 }
 """Longest chain each level handles, measured on a 50 g step (each well under a minute;
 see ``N_WHY`` for what fails one step up). Set-ups refuse a longer chain at once."""
@@ -89,6 +94,8 @@ N_WHY = {
     "static_chain": "its equilibrium does not converge past about n = 20",
     "grouped": "its groups are symmetric chains; n = 2000 measured like 'symmetric'",
     "symmetric": "its start equilibrium fails at n = 5000",
+    "instant_pneumatics": "its start equilibrium fails at n = 200 (n = 175: 9 s)",
+    "instant_quasi_static": "as quasi_static: at n = 80 its loop of rates is refused",
 }
 
 
@@ -105,6 +112,8 @@ def _chain(n, p: APSParams, fidelity: str, flow_law: str, groups: int = GROUPS):
         return GroupedMyofibril("myofibril", n, p, min(groups, n), flow_law)
     if fidelity == "symmetric":
         return SymmetricMyofibril("myofibril", n, p, flow_law)
+    if fidelity in INSTANT_LEVELS:
+        return Myofibril("myofibril", n, p, INSTANT_LEVELS[fidelity], flow_law, instant=True)
     return Myofibril("myofibril", n, p, level=fidelity, flow_law=flow_law)
 
 

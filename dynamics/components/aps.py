@@ -28,7 +28,7 @@ from ..params import experimental_geometry, get_material, yeoh_energy
 from ..params.core import format_range
 from .environment import ENVIRONMENT
 from .mechanical import Damper, Fixed, Mass, Node, ViscousNode
-from .pneumatic import THERMAL, Chamber, Restriction
+from .pneumatic import THERMAL, Chamber, InstantChamber, Restriction
 
 
 def _f(default, unit: str, low: float, high: float, source: str, description: str, **kw):
@@ -347,8 +347,10 @@ class APS(Component):
     body centre), ``exp`` (the expansion flange the actins hang on).
     ``quasi_static=True`` drops the expansion inertia (the expansion becomes a first-order
     viscous state); ``massless_body=True`` makes the body a weighted massless node (its
-    position an algebraic unknown). After building, ``temperature`` is the chamber air's
-    temperature and ``position`` the body's position (symbols, for the parent).
+    position an algebraic unknown); ``instant=True`` makes the chamber an
+    :class:`~.pneumatic.InstantChamber` (its pressure that of ``port``, no air-mass
+    state). After building, ``temperature`` is the chamber air's temperature and
+    ``position`` the body's position (symbols, for the parent).
     """
 
     def __init__(
@@ -357,14 +359,19 @@ class APS(Component):
         p: APSParams,
         quasi_static: bool = False,
         massless_body: bool = False,
+        instant: bool = False,
     ) -> None:
         super().__init__(name)
         self.p, self.quasi_static, self.massless_body = p, quasi_static, massless_body
+        self.instant = instant
 
     def build(self, b: Builder) -> None:
         p = self.p
         ground = b.add(Fixed("ground"))
-        gas = Chamber("chamber", V0=p.V0, A=p.A_p, thermal=p.thermal, tau_heat=p.tau_heat)
+        if self.instant:
+            gas = InstantChamber("chamber", V0=p.V0, A=p.A_p)
+        else:
+            gas = Chamber("chamber", V0=p.V0, A=p.A_p, thermal=p.thermal, tau_heat=p.tau_heat)
         chamber = b.add(gas)
         self.temperature = gas.temperature
         yeoh = b.add(YeohSpring("yeoh", p))
@@ -400,6 +407,12 @@ CHAIN_LEVELS = {  # level -> (massless SPA expansion, massless bodies)
 order, viscous; explicit ODE); massless SPA and bodies (undamped threads; the body
 positions are algebraic: an index-1 DAE)."""
 
+INSTANT_LEVELS = {"instant_pneumatics": "full", "instant_quasi_static": "quasi_static"}
+"""Levels with instant pneumatics -> the :data:`CHAIN_LEVELS` level of their mechanics:
+every chamber an :class:`~.pneumatic.InstantChamber` at the manifold's pressure (no
+air-mass states, no tubes), which removes the chamber filling modes (0.37 ms, the
+stiffest of the chain); see docs/model.md."""
+
 CHAIN_DAMPING = {"full": "tension_only", "quasi_static": "gated", "static_chain": "none"}
 """Thread damping of each level (:data:`THREAD_DAMPING`): the massless expansion of
 "quasi_static" puts the band's rate inside the tension, which needs the linear form; the
@@ -413,9 +426,11 @@ class Myofibril(Component):
     ``flange_b`` (bottom hook, to the load or the fixture). Output ``length`` [m]:
     ``flange_b.s - flange_a.s``. ``params`` is one APSParams for identical units or a
     list of ``n``. ``level`` is one of :data:`CHAIN_LEVELS`, ``flow_law`` one of
-    :data:`FLOW_LAWS`. The bodies start at their geometric rest positions below
-    ``flange_a`` (expressions of the thread parameters); after building,
-    ``rest_length_expr`` is the geometric length as such an expression.
+    :data:`FLOW_LAWS`. ``instant=True``: every chamber at the manifold's pressure
+    (:class:`~.pneumatic.InstantChamber`, no tubes; :data:`INSTANT_LEVELS`). The bodies
+    start at their geometric rest positions below ``flange_a`` (expressions of the thread
+    parameters); after building, ``rest_length_expr`` is the geometric length as such an
+    expression.
     """
 
     def __init__(
@@ -425,8 +440,12 @@ class Myofibril(Component):
         params: APSParams | list[APSParams],
         level: str = "full",
         flow_law: str = "iso6358",
+        instant: bool = False,
     ) -> None:
         super().__init__(name)
+        if not isinstance(instant, bool):
+            raise ParameterError("instant", instant, "True or False")
+        self.instant = instant
         if not (isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 10_000):
             raise ParameterError("n", n, "an integer in [1, 10000]")
         plist = list(params) if isinstance(params, list | tuple) else [params] * n
@@ -442,8 +461,15 @@ class Myofibril(Component):
         units = []
         massless_expansion, massless_body = CHAIN_LEVELS[self.level]
         for i, p in enumerate(self.params):
-            aps = APS(f"aps{i + 1}", p, massless_expansion, massless_body)
+            aps = APS(f"aps{i + 1}", p, massless_expansion, massless_body, self.instant)
             unit = b.add(aps)
+            if self.instant:  # no tube: the chamber takes the manifold's pressure
+                if i == 0:
+                    b.expose("port", unit.port)
+                else:
+                    b.connect(b.ports["port"], unit.port)
+                units.append((aps, unit))
+                continue
             tube = b.add(
                 Restriction(
                     f"tube{i + 1}",

@@ -263,11 +263,52 @@ class Chamber(Component):
             b.output("T", T, "K", "air temperature", low=0.0)
         b.der(m, port.m_flow)
         b.equation(port.p, p)
-        b.equation(wall.f, -(p - p_amb) * A)
-        b.output("p", p, "Pa", "absolute pressure", low=0.0)
-        b.output("p_gauge", p - p_amb, "Pa", "gauge pressure")
-        b.output("V", V, "m^3", "volume")
+        _pressed_wall(b, wall, p, p_amb, A, V)
         b.energy("gas", e_gas + p_amb * V)
+
+
+def _pressed_wall(b: Builder, wall, p: cs.SX, p_amb: cs.SX, A: cs.SX, V: cs.SX) -> None:
+    """The wall force ``(p - p_amb) dV/ds`` (virtual work) of a chamber at pressure ``p``
+    [Pa] with volume ``V`` [m^3] and ``A = dV/ds`` [m^2] on ``wall``, and its outputs
+    ``p``, ``p_gauge``, ``V``."""
+    b.equation(wall.f, -(p - p_amb) * A)
+    b.output("p", p, "Pa", "absolute pressure", low=0.0)
+    b.output("p_gauge", p - p_amb, "Pa", "gauge pressure")
+    b.output("V", V, "m^3", "volume")
+
+
+class InstantChamber(Component):
+    """A chamber whose air follows its supply at once: no storage, no air-mass state.
+
+    The limit of :class:`Chamber` fed through a tube whose filling time constant
+    ``V / (R T dm_flow/dp)`` (0.37 ms for the APS) is short against everything else: the
+    pressure ``p`` is the port's pressure (the supply's, e.g. the regulator's outlet
+    ``p_amb + p_out``), the wall force and the outputs ``p``, ``p_gauge``, ``V`` as
+    :class:`Chamber`'s. The mass flow is not modelled: the port draws none, so the tube
+    before it carries none and is left out. No temperature (the force depends on the
+    pressure only); :attr:`temperature` is the ambient one. Stored energy ``-(p - p_amb) V``
+    [J]: the potential of the supply's constant gauge pressure on the wall, so the energy
+    balance holds while the supply pressure is constant; a change ``dp`` of the supply
+    pressure changes it by ``-V dp``, work of the supply that the dissipation does not
+    count (in :class:`Chamber` the supply's work arrives with the air through the tube).
+    """
+
+    def __init__(self, name: str, V0: float, A: float) -> None:
+        super().__init__(name)
+        self.V0, self.A = V0, A
+
+    def build(self, b: Builder) -> None:
+        env = b.outer(ENVIRONMENT)
+        p_amb = env["p"]
+        self.temperature = env["T"]
+        V0 = b.parameter("V0", self.V0, "m^3", "volume at s = 0", low=1e-15)
+        A = b.parameter("A", self.A, "m^2", "effective area dV/ds of the moving wall", low=0.0)
+        port, wall = b.port("port", PNEUMATIC), b.port("flange", FLANGE)
+        V = V0 + A * wall.s
+        p = port.p
+        b.equation(port.m_flow, 0.0)
+        _pressed_wall(b, wall, p, p_amb, A, V)
+        b.energy("gas", -(p - p_amb) * V)
 
 
 class Cap(Component):
