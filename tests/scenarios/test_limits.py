@@ -48,7 +48,7 @@ def test_max_values_is_configurable(tmp_path):
 
 @pytest.mark.parametrize(
     ("fid", "n", "limit"),
-    [("full", 201, 200), ("auto", 1000, 200), ("symmetric", 10000, 2000)],
+    [("full", 176, 175), ("auto", 1000, 175), ("symmetric", 10000, 2000)],
 )
 def test_n_above_the_measured_limit_is_refused_at_once(tmp_path, fid, n, limit):
     extra = '[outputs]\ntolerance = "1 %"' if fid == "auto" else ""
