@@ -23,6 +23,12 @@ from .ports import Port, PortKind
 from .variables import Collected, Kind, Var
 
 
+def _sx(expr) -> cs.SX:
+    """``expr`` as an SX (an SX itself, not a copy: a conversion costs as much as an
+    arithmetic operation)."""
+    return expr if isinstance(expr, cs.SX) else cs.SX(expr)
+
+
 class Handle:
     """What ``Builder.add`` returns: a built child, giving access to its ports and symbols."""
 
@@ -73,6 +79,7 @@ class Builder:
         sym = cs.SX.sym(full)
         self._c.variables[full] = Var(**{**var.__dict__, "name": full})
         self._c.symbols[full] = sym
+        self._c.children.setdefault(self.path, {})[local] = full
         self.symbols[local] = sym
         return sym
 
@@ -140,7 +147,7 @@ class Builder:
             s.name()
             for s in cs.symvar(start)
             if getattr(self._c.variables.get(s.name()), "kind", None) is not Kind.PARAMETER
-            or not cs.is_equal(self._c.symbols[s.name()], s)
+            or self._c.symbols[s.name()].element_hash() != s.element_hash()  # the same node
         ]
         if others:
             raise ModelError(
@@ -156,7 +163,7 @@ class Builder:
             return None
         pars = cs.symvar(start)
         vals = [self._c.variables[s.name()].value for s in pars]
-        val = abs(float(cs.evalf(cs.substitute(start, cs.vertcat(*pars), cs.vertcat(*vals)))))
+        val = abs(float(cs.evalf(cs.substitute(start, cs.vertcat(*pars), cs.DM(vals)))))
         return val if 0.0 < val < math.inf else 1.0
 
     def port(self, name: str, kind: PortKind) -> Port:
@@ -196,13 +203,10 @@ class Builder:
         components that use it (e.g. ``Environment("ambient")``); the result maps its local
         parameter names to their symbols, so every user shares one parameter each.
         """
-        prefix = f"{name}."
         found = {
-            full[len(prefix) :]: sym
-            for full, sym in self._c.symbols.items()
-            if full.startswith(prefix)
-            and "." not in full[len(prefix) :]
-            and self._c.variables[full].kind == "parameter"
+            local: self._c.symbols[full]
+            for local, full in self._c.children.get(name, {}).items()
+            if "." not in local and self._c.variables[full].kind == "parameter"
         }
         if not found:
             raise ModelError(
@@ -219,7 +223,7 @@ class Builder:
             raise ModelError(f"der() of '{name}', which is not a state")
         if name in self._c.ders:
             raise ModelError(f"derivative of '{name}' given twice")
-        self._c.ders[name] = cs.SX(rhs)
+        self._c.ders[name] = _sx(rhs)
 
     def der_of(self, name: str, expr: cs.SX, unit: str, description: str) -> cs.SX:
         """A variable equal to ``d expr / dt``, ``expr`` a function of the states only.
@@ -228,12 +232,12 @@ class Builder:
         it by ``d expr/dx . dx/dt`` once ``expr`` is known in terms of the states.
         """
         sym = self._new(name, Var(name, Kind.DERIVATIVE, unit, description))
-        self._c.time_derivatives[sym.name()] = cs.SX(expr)
+        self._c.time_derivatives[sym.name()] = _sx(expr)
         return sym
 
     def equation(self, lhs: cs.SX, rhs: cs.SX | float = 0.0) -> None:
         """``lhs == rhs`` (stored as the residual ``lhs - rhs``)."""
-        self._c.equations.append((cs.SX(lhs) - rhs, self.path or "<system>"))
+        self._c.equations.append((_sx(lhs) - rhs, self.path or "<system>"))
 
     def output(
         self,
@@ -258,15 +262,15 @@ class Builder:
         self._c.variables[full] = Var(
             full, Kind.OUTPUT, unit, description, low=low, high=high, nominal=nominal
         )
-        self._c.outputs[full] = cs.SX(expr)
+        self._c.outputs[full] = _sx(expr)
 
     def energy(self, name: str, expr: cs.SX) -> None:
         """A stored energy term [J] (kinetic, potential, elastic or gas)."""
-        self._c.energies[f"{self.path}.{name}"] = cs.SX(expr)
+        self._c.energies[f"{self.path}.{name}"] = _sx(expr)
 
     def dissipation(self, name: str, expr: cs.SX) -> None:
         """A dissipated power term [W], >= 0 (damping, throttling)."""
-        self._c.dissipations[f"{self.path}.{name}"] = cs.SX(expr)
+        self._c.dissipations[f"{self.path}.{name}"] = _sx(expr)
 
     # --- composition ---------------------------------------------------------------
     def add(self, component: Component) -> Handle:

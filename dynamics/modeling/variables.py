@@ -113,3 +113,5 @@ class Collected:
     energies: dict[str, cs.SX] = field(default_factory=dict)
     time_derivatives: dict[str, cs.SX] = field(default_factory=dict)
     dissipations: dict[str, cs.SX] = field(default_factory=dict)
+    children: dict[str, dict[str, str]] = field(default_factory=dict)
+    """Instance path -> {local name: full name} of the variables declared there."""
