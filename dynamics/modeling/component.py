@@ -237,7 +237,9 @@ class Builder:
 
     def equation(self, lhs: cs.SX, rhs: cs.SX | float = 0.0) -> None:
         """``lhs == rhs`` (stored as the residual ``lhs - rhs``)."""
-        self._c.equations.append((_sx(lhs) - rhs, self.path or "<system>"))
+        lhs = _sx(lhs)
+        sides = (lhs, rhs) if isinstance(rhs, cs.SX) else None
+        self._c.equations.append((lhs - rhs, self.path or "<system>", sides))
 
     def output(
         self,

@@ -10,7 +10,8 @@ Steps, as a Modelica tool does them:
 3. Block-lower-triangular order: strongly connected components of the
    equation-dependency graph (scipy), ordered topologically (graphlib).
 4. Each scalar block that is linear in its unknown is solved symbolically and
-   substituted forward. Larger blocks (algebraic loops) are torn: equations linear in
+   substituted forward (aliases, definitions ``v = rhs`` and flow balances, most
+   blocks, read off their equation's form without differentiating). Larger blocks (algebraic loops) are torn: equations linear in
    one of the loop's unknowns (aliases, force balances) are solved and substituted;
    what remains stays as the algebraic part ``0 = g(x, z, u, p)`` of a semi-explicit
    DAE (a structurally or numerically singular remainder is a ModelError).
@@ -38,8 +39,12 @@ from ..errors import ModelError
 from .model import Model
 from .variables import Collected, Var
 
+Equation = tuple[cs.SX, str, object]
+"""Residual, origin, and its form: ``(lhs, rhs)`` for ``lhs - rhs``, a list of flows for
+their sum, or None (see :func:`_direct_solutions`)."""
 
-def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[tuple[cs.SX, str]]:
+
+def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[Equation]:
     parent: dict[int, int] = {id(p): id(p) for p in c.ports}
 
     def find(i: int) -> int:
@@ -59,8 +64,10 @@ def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[tuple
         where = "connect(" + ", ".join(p.path for p in members) + ")"
         first = members[0]
         for other in members[1:]:
-            eqs.append((other.potential - first.potential, where))
-        eqs.append((sum((p.flow for p in members), cs.SX(0)), where))
+            pair = (other.potential, first.potential)
+            eqs.append((pair[0] - pair[1], where, pair))
+        flows = [p.flow for p in members]
+        eqs.append((sum(flows, cs.SX(0)), where, flows))
     return eqs
 
 
@@ -71,13 +78,6 @@ def _share_start(variables: dict[str, Var], names: list[str]) -> None:
     if given:
         for n in names:
             variables[n] = replace(variables[n], start=given[0].start, nominal=given[0].nominal)
-
-
-def _substitute(expr: cs.SX, known: dict[str, cs.SX]) -> cs.SX:
-    syms = [s for s in cs.symvar(expr) if s.name() in known]
-    if not syms:
-        return expr
-    return cs.substitute(expr, cs.vertcat(*syms), cs.vertcat(*[known[s.name()] for s in syms]))
 
 
 def _substitute_all(
@@ -150,7 +150,7 @@ def _tear(
 def _structurally_regular(eqs: list[cs.SX], unknowns: list[cs.SX]) -> bool:
     if not eqs:
         return True
-    jac = cs.jacobian(cs.vertcat(*eqs), cs.vertcat(*unknowns)).sparsity()
+    jac = cs.jacobian_sparsity(cs.vertcat(*eqs), cs.vertcat(*unknowns))
     rows, cols = jac.get_triplet()
     n = len(eqs)
     inc = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
@@ -160,7 +160,7 @@ def _structurally_regular(eqs: list[cs.SX], unknowns: list[cs.SX]) -> bool:
 def _blocks(residuals: cs.SX, unknowns: cs.SX, origins: list[str], names: list[str]):
     """Matching + SCCs: a list of blocks (equation indices, unknown indices) in solve order."""
     n = unknowns.numel()
-    jac = cs.jacobian(residuals, unknowns).sparsity()
+    jac = cs.jacobian_sparsity(residuals, unknowns)
     rows, cols = jac.get_triplet()
     inc = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
     match = maximum_bipartite_matching(inc, perm_type="column")  # eq -> unknown
@@ -190,6 +190,44 @@ def _blocks(residuals: cs.SX, unknowns: cs.SX, origins: list[str], names: list[s
     return [(members[k], [int(match[i]) for i in members[k]]) for k in order]
 
 
+def _is(e: cs.SX, v: cs.SX) -> bool:
+    """``e`` is the scalar symbol ``v`` itself."""
+    return e.is_scalar() and e.is_symbolic() and e.element_hash() == v.element_hash()
+
+
+def _direct_solutions(
+    eqs: list[Equation], blocks: list, unknowns: cs.SX, names: list[str], symbols
+) -> dict[int, cs.SX]:
+    """Solutions of the scalar blocks that need no differentiation: ``v - rhs`` or
+    ``lhs - v`` with the other side free of ``v`` (and not a constant) gives that side,
+    a flow sum with ``v`` in it minus the sum of the other flows. Block index -> solution:
+    the expression the general path (``-e(v = 0) / (de/dv)``) simplifies to."""
+    out: dict[int, cs.SX] = {}
+    sides: dict[int, tuple[cs.SX, int]] = {}
+    for k, (eq_idx, var_idx) in enumerate(blocks):
+        form = eqs[eq_idx[0]][2] if len(eq_idx) == 1 else None
+        if form is None:
+            continue
+        v = symbols[names[var_idx[0]]]
+        if isinstance(form, list):  # a flow sum: distinct flow symbols
+            mine = [f.element_hash() == v.element_hash() for f in form]
+            if sum(mine) == 1:
+                out[k] = -sum((f for f, m in zip(form, mine, strict=True) if not m), cs.SX(0))
+            continue
+        lhs, rhs = form
+        for mine, other in ((lhs, rhs), (rhs, lhs)):
+            if _is(mine, v) and not other.is_constant():
+                sides[k] = (other, var_idx[0])
+                break
+    if sides:
+        dep = cs.jacobian_sparsity(cs.vertcat(*[o for o, _ in sides.values()]), unknowns)
+        uses = set(zip(*dep.get_triplet(), strict=True))
+        for row, (k, (other, col)) in enumerate(sides.items()):
+            if (row, col) not in uses:
+                out[k] = other
+    return out
+
+
 MAX_RATE_LOOP = 64
 """Largest linear loop of ``der_of`` rates solved symbolically (a dense solve)."""
 
@@ -206,17 +244,18 @@ def _resolve_time_derivatives(
     x = cs.vertcat(*[c.symbols[n] for n in ders])
     f = cs.vertcat(*ders.values())
     params = {n for n, v in c.variables.items() if v.kind in ("parameter", "input")}
-    names = list(c.time_derivatives)
-    rates = []
-    for name in names:
-        e = _substitute(c.time_derivatives[name], known)
-        others = {s.name() for s in cs.symvar(e) if s.name() not in ders} - params
-        if others:
-            raise ModelError(
-                f"'{name}' needs the time derivative of an expression of {sorted(others)}, "
-                "which are not states: attach the element to masses or viscous nodes"
-            )
-        rates.append(cs.mtimes(cs.jacobian(e, x), f))
+    exprs = _substitute_all(c.time_derivatives, known, c.symbols)
+    names = list(exprs)
+    allowed = params.union(ders)
+    if any(s.name() not in allowed for s in cs.symvar(cs.vertcat(*exprs.values()))):
+        for name, e in exprs.items():
+            others = {s.name() for s in cs.symvar(e)} - allowed
+            if others:
+                raise ModelError(
+                    f"'{name}' needs the time derivative of an expression of {sorted(others)}, "
+                    "which are not states: attach the element to masses or viscous nodes"
+                )
+    rates = [cs.mtimes(cs.jacobian(exprs[name], x), f) for name in names]
     w = cs.vertcat(*[c.symbols[n] for n in names])
     R = cs.vertcat(*rates)
     if cs.depends_on(R, w):
@@ -248,13 +287,18 @@ def flatten(name: str, c: Collected) -> Model:
     kept_eqs: list[cs.SX] = []
     kept_vars: list[str] = []
     if eqs:
-        residuals = cs.vertcat(*[e for e, _ in eqs])
+        residuals = cs.vertcat(*[e[0] for e in eqs])
         unknowns = cs.vertcat(*[c.symbols[v] for v in unknown_names])
-        origins = [o for _, o in eqs]
+        origins = [e[1] for e in eqs]
+        blocks = _blocks(residuals, unknowns, origins, unknown_names)
+        direct = _direct_solutions(eqs, blocks, unknowns, unknown_names, c.symbols)
         # Block equations keep the unknowns of earlier blocks as symbols (known, in BLT
         # order); one ordered pass resolves the definitions afterwards.
-        for eq_idx, var_idx in _blocks(residuals, unknowns, origins, unknown_names):
+        for k, (eq_idx, var_idx) in enumerate(blocks):
             block = [eqs[i][0] for i in eq_idx]
+            if k in direct:
+                known[unknown_names[var_idx[0]]] = direct[k]
+                continue
             if len(block) == 1:
                 v = c.symbols[unknown_names[var_idx[0]]]
                 slope = cs.jacobian(block[0], v)
@@ -273,15 +317,16 @@ def flatten(name: str, c: Collected) -> Model:
             kept_eqs.extend(block)
             kept_vars.extend(v.name() for v in block_vars)
     known = _resolve(known, c.symbols)
-    ders = _substitute_all(c.ders, known, c.symbols)
+    ders = c.ders
     if c.time_derivatives:
-        known = _resolve_time_derivatives(c, known, ders)
-        ders = _substitute_all(ders, known, c.symbols)
-    outputs = _substitute_all(c.outputs, known, c.symbols)
-    energies = _substitute_all(c.energies, known, c.symbols)
-    dissip = _substitute_all(c.dissipations, known, c.symbols)
+        known = _resolve_time_derivatives(c, known, _substitute_all(ders, known, c.symbols))
     # Equations kept for the algebraic part may use unknowns solved later in BLT order.
-    kept = _substitute_all(dict(enumerate(kept_eqs)), known, c.symbols)
+    parts = (ders, c.outputs, c.energies, c.dissipations, dict(enumerate(kept_eqs)))
+    joint = {(i, k): e for i, part in enumerate(parts) for k, e in part.items()}
+    joint = _substitute_all(joint, known, c.symbols)  # one pass for all of them
+    ders, outputs, energies, dissip, kept = (
+        {k: joint[i, k] for k in part} for i, part in enumerate(parts)
+    )
     kept_eqs = list(kept.values())
     solved = known
     model = Model(
