@@ -46,7 +46,10 @@ class Equilibrium:
 
 
 def _residual(m: Model) -> tuple[cs.SX, cs.SX, cs.SX]:
-    """``w = [x; z]``, ``r = [ode; alg]`` and its Jacobian in ``w``."""
+    """``w = [x; z]``, ``r = [ode; alg]`` and its Jacobian in ``w`` (the model's own
+    ``d ode / dx`` for an explicit ODE)."""
+    if not m.nz:
+        return m.x, m.ode, m._jacobian("ode", "x")
     w = cs.vertcat(m.x, m.z)
     r = cs.vertcat(m.ode, m.alg)
     return w, r, cs.jacobian(r, w)
@@ -57,6 +60,20 @@ def _row_scales(J: cs.SX, scale: cs.SX) -> cs.SX:
     weighted = cs.mtimes(cs.fabs(J), cs.diag(scale))
     rows = [cs.mmax(weighted[i, :]) for i in range(J.size1())]
     return 1.0 / cs.fmax(cs.vertcat(*rows), 1e-300) if rows else cs.SX(0, 1)
+
+
+def _row_scales_of(J, scale: np.ndarray) -> np.ndarray:
+    """:func:`_row_scales` of a numeric sparse Jacobian: the same numbers (``fmax``
+    skips NaN; a row with structural zeros counts a 0), without a symbolic loop over rows."""
+    R = J.tocsr()
+    counts = np.diff(R.indptr)
+    rows = np.zeros(R.shape[0])
+    filled = counts > 0
+    if R.nnz:
+        weighted = np.abs(R.data) * scale[R.indices]
+        top = np.fmax.reduceat(weighted, R.indptr[:-1][filled])
+        rows[filled] = np.where(counts[filled] < R.shape[1], np.fmax(top, 0.0), top)
+    return 1.0 / np.fmax(rows, 1e-300)
 
 
 def residual_function(model: Model) -> cs.Function:
@@ -117,10 +134,9 @@ class _Newton:
     def __init__(self, model: Model) -> None:
         m = model
         w, r, J = _residual(m)
-        scale = cs.SX.sym("scale", w.numel())
         self.model = m
         self.F = cs.Function("F", [w, m.u, m.p], [r])
-        self.J = cs.Function("J", [w, m.u, m.p, scale], [J, _row_scales(J, scale)])
+        self.J = cs.Function("J", [w, m.u, m.p], [J])
         self.sig = m.function("signals")
 
     def residual(self, w, u, p) -> np.ndarray:
@@ -131,8 +147,8 @@ class _Newton:
         scale = np.maximum(np.abs(w), 1e-6)
         for it in range(1, max_iter + 1):
             r = self.residual(w, u, p)
-            Jdm, rsdm = self.J(w, u, p, scale)
-            J, rs = Jdm.sparse().tocsc(), np.array(rsdm).ravel()
+            J = self.J(w, u, p).sparse().tocsc()
+            rs = _row_scales_of(J, scale)
             norm = np.linalg.norm(r * rs, np.inf)
             if not np.isfinite(norm):
                 raise _Fail("residual is not finite", norm, it)

@@ -11,8 +11,9 @@ Steps, as a Modelica tool does them:
    equation-dependency graph (scipy), ordered topologically (graphlib).
 4. Each scalar block that is linear in its unknown is solved symbolically and
    substituted forward (aliases, definitions ``v = rhs`` and flow balances, most
-   blocks, read off their equation's form without differentiating). Larger blocks (algebraic loops) are torn: equations linear in
-   one of the loop's unknowns (aliases, force balances) are solved and substituted;
+   blocks, read off their equation's form without differentiating). Larger blocks
+   (algebraic loops) are torn: equations linear in one of the loop's unknowns (aliases,
+   force balances) are solved and substituted;
    what remains stays as the algebraic part ``0 = g(x, z, u, p)`` of a semi-explicit
    DAE (a structurally or numerically singular remainder is a ModelError).
 5. Velocities asked for with ``Builder.der_of`` (dampers) become ``d expr/dx . f``; a
