@@ -247,14 +247,20 @@ class YeohSpring(Component):
         src = f"paper, Yeoh fit of material '{p.material}'"
         C1, C2, C3 = (aps_parameter(b, p, k, source=src) for k in ("C1", "C2", "C3"))
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
-        lam = 1.0 + (fb.s - fa.s) / L_r
-        energy = A_r * L_r * yeoh_energy(lam, C1, C2, C3)
-        force = cs.gradient(energy, fb.s)
+        lam, energy, force = laws.apply(_yeoh, [fa.s, fb.s, A_r, L_r, C1, C2, C3])
         b.equation(fb.f, force)
         b.equation(fa.f, -force)
         b.output("lambda", lam, "1", "stretch of the restoring element", low=0.0)
         b.output("f", force, "N", "restoring force")
         b.energy("elastic", energy)
+
+
+def _yeoh(s_a, s_b, A_r, L_r, C1, C2, C3) -> list:
+    """Stretch ``1 + (s_b - s_a)/L_r`` [1], energy ``A_r L_r W`` [J] and force on
+    ``flange_b`` (its gradient in ``s_b``) [N] of the restoring element."""
+    lam = 1.0 + (s_b - s_a) / L_r
+    energy = A_r * L_r * yeoh_energy(lam, C1, C2, C3)
+    return [lam, energy, cs.gradient(energy, s_b)]
 
 
 THREAD_DAMPING = ("tension_only", "gated", "none")
