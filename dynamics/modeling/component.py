@@ -130,7 +130,7 @@ class Builder:
     ) -> cs.SX:
         full = f"{self.path}.{name}" if self.path else name
         start = self._start(full, start)
-        nominal = self._nominal(start) if nominal is None else nominal
+        self._track_nominal(full, start, nominal)
         return self._new(
             name, Var(name, kind, unit, description, start, low, high, nominal=nominal)
         )
@@ -156,15 +156,14 @@ class Builder:
             )
         return start
 
-    def _nominal(self, start: float | cs.SX) -> float | None:
-        """``|start|`` at the parameter defaults (1 if that is 0) for an expression start;
-        None (``Var`` derives it) for a float."""
-        if not isinstance(start, cs.SX):
-            return None
-        pars = cs.symvar(start)
-        vals = [self._c.variables[s.name()].value for s in pars]
-        val = abs(float(cs.evalf(cs.substitute(start, cs.vertcat(*pars), cs.DM(vals)))))
-        return val if 0.0 < val < math.inf else 1.0
+    def _track_nominal(self, full: str, start: float | cs.SX, nominal: float | None) -> None:
+        """An expression start without a nominal: flattening sets the nominal to
+        ``|start|`` at the parameter defaults (all such starts in one evaluation; ``Var``
+        holds 1 until then). A float start: ``Var`` derives it."""
+        if isinstance(start, cs.SX) and nominal is None:
+            self._c.start_nominals[full] = start
+        else:
+            self._c.start_nominals.pop(full, None)
 
     def port(self, name: str, kind: PortKind) -> Port:
         """A connector with potential and flow unknowns named ``<path>.<name>.<var>``."""
@@ -192,7 +191,7 @@ class Builder:
         [unit] follows the new start unless given."""
         name = sym.name()
         start = self._start(name, value)
-        nominal = self._nominal(start) if nominal is None else nominal
+        self._track_nominal(name, start, nominal)
         var = self._c.variables[name]
         self._c.variables[name] = Var(**{**var.__dict__, "start": start, "nominal": nominal})
 

@@ -29,6 +29,7 @@ Storage components (masses, chambers) alternating with transport components
 from __future__ import annotations
 
 import graphlib
+import math
 from dataclasses import replace
 
 import casadi as cs
@@ -72,6 +73,20 @@ def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[Equat
     return eqs
 
 
+def _start_nominals(c: Collected, variables: dict[str, Var]) -> None:
+    """Nominal values of the expression starts declared without one: ``|start|`` at the
+    parameter defaults (1 where that is 0 or not finite), all in one evaluation."""
+    if not c.start_nominals:
+        return
+    starts = cs.vertcat(*c.start_nominals.values())
+    pars = cs.symvar(starts)
+    values = cs.DM([variables[s.name()].value for s in pars])
+    at_defaults = np.array(cs.evalf(cs.substitute(starts, cs.vertcat(*pars), values)))
+    for name, v in zip(c.start_nominals, at_defaults.ravel(), strict=True):
+        val = abs(float(v))
+        variables[name] = replace(variables[name], nominal=val if 0.0 < val < math.inf else 1.0)
+
+
 def _share_start(variables: dict[str, Var], names: list[str]) -> None:
     """Give every potential of a connection set the start value (a nonzero float or a
     parameter expression) and nominal value one of them declares."""
@@ -88,8 +103,10 @@ def _substitute_all(
     replaced, in one pass over the shared expression graph."""
     if not exprs or not known:
         return dict(exprs)
-    out = cs.substitute(list(exprs.values()), [symbols[n] for n in known], list(known.values()))
-    return dict(zip(exprs, out, strict=True))
+    # vectors, not lists: CasADi converts a list element by element (several times slower)
+    syms = cs.vertcat(*[symbols[n] for n in known])
+    out = cs.substitute(cs.vertcat(*exprs.values()), syms, cs.vertcat(*known.values()))
+    return dict(zip(exprs, cs.vertsplit(out), strict=True))
 
 
 def _resolve(known: dict[str, cs.SX], symbols: dict[str, cs.SX]) -> dict[str, cs.SX]:
@@ -97,8 +114,9 @@ def _resolve(known: dict[str, cs.SX], symbols: dict[str, cs.SX]) -> dict[str, cs
     of the states, the algebraic unknowns kept, inputs and parameters (one ordered pass)."""
     if not known:
         return known
-    defs, _ = cs.substitute_inplace([symbols[n] for n in known], list(known.values()), [], False)
-    return dict(zip(known, defs, strict=True))
+    syms, defs = cs.vertcat(*[symbols[n] for n in known]), cs.vertcat(*known.values())
+    (defs,), _ = cs.substitute_inplace([syms], [defs], [], False)
+    return dict(zip(known, cs.vertsplit(defs), strict=True))
 
 
 def _linear_coefficient(e: cs.SX, v: cs.SX, others: cs.SX) -> cs.SX | None:
@@ -278,6 +296,7 @@ def flatten(name: str, c: Collected) -> Model:
     if missing:
         raise ModelError(f"states without a derivative equation: {missing}")
     variables = dict(c.variables)  # the Model's own copy: the System stays as declared
+    _start_nominals(c, variables)
     eqs = list(c.equations) + _connection_equations(c, variables)
     unknown_names = [v for v, var in c.variables.items() if var.kind == "algebraic"]
     if len(eqs) != len(unknown_names):

@@ -114,5 +114,7 @@ class Collected:
     energies: dict[str, cs.SX] = field(default_factory=dict)
     time_derivatives: dict[str, cs.SX] = field(default_factory=dict)
     dissipations: dict[str, cs.SX] = field(default_factory=dict)
+    start_nominals: dict[str, cs.SX] = field(default_factory=dict)
+    """Variables whose nominal is ``|start|`` at the parameter defaults, set at flattening."""
     children: dict[str, dict[str, str]] = field(default_factory=dict)
     """Instance path -> {local name: full name} of the variables declared there."""
