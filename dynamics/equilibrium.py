@@ -333,15 +333,21 @@ def out_of_domain(model: Model, values: np.ndarray, names: list[str] | None = No
     ``values``: the signals ``names`` (default ``model.signal_names``), shape
     (n_signals, n_points).
     """
-    for i, name in enumerate(model.signal_names if names is None else names):
-        var = model.variables[name]
-        if var.low == -np.inf and var.high == np.inf:
-            continue
-        row = values[i]
-        out = np.flatnonzero((row < var.low) | (row > var.high))
-        if out.size:
-            return (
-                f"{name} = {row[out[0]]:.4g} {var.unit} is outside its physical domain "
-                f"[{var.low:.4g}, {var.high:.4g}] ({var.description})"
-            )
-    return ""
+    names = model.signal_names if names is None else names
+    low, high = model.cached(
+        ("domain", *names),
+        lambda: (
+            np.array([model.variables[n].low for n in names])[:, None],
+            np.array([model.variables[n].high for n in names])[:, None],
+        ),
+    )
+    bad = np.flatnonzero(np.any((values < low) | (values > high), axis=1))
+    if not bad.size:
+        return ""
+    i = int(bad[0])
+    name, var, row = names[i], model.variables[names[i]], values[i]
+    out = np.flatnonzero((row < var.low) | (row > var.high))
+    return (
+        f"{name} = {row[out[0]]:.4g} {var.unit} is outside its physical domain "
+        f"[{var.low:.4g}, {var.high:.4g}] ({var.description})"
+    )
