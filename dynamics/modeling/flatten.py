@@ -96,27 +96,34 @@ def _share_start(variables: dict[str, Var], names: list[str]) -> None:
             variables[n] = replace(variables[n], start=given[0].start, nominal=given[0].nominal)
 
 
-def _substitute_all(
-    exprs: dict[str, cs.SX], known: dict[str, cs.SX], symbols: dict[str, cs.SX]
-) -> dict[str, cs.SX]:
-    """``exprs`` with every unknown in ``known`` (whose definitions are free of them)
-    replaced, in one pass over the shared expression graph."""
-    if not exprs or not known:
-        return dict(exprs)
-    # vectors, not lists: CasADi converts a list element by element (several times slower)
-    syms = cs.vertcat(*[symbols[n] for n in known])
-    out = cs.substitute(cs.vertcat(*exprs.values()), syms, cs.vertcat(*known.values()))
-    return dict(zip(exprs, cs.vertsplit(out), strict=True))
+class _Solved:
+    """Solved unknowns as vectors of their symbols and definitions, built once (CasADi
+    converts a list element by element, several times slower than a vector)."""
+
+    def __init__(self, names: list[str], syms: cs.SX, defs: cs.SX) -> None:
+        self.names, self.syms, self.defs = names, syms, defs
+
+    def as_dict(self) -> dict[str, cs.SX]:
+        """Name -> definition."""
+        return dict(zip(self.names, cs.vertsplit(self.defs), strict=True)) if self.names else {}
+
+    def substitute(self, exprs: dict) -> dict:
+        """``exprs`` with every solved unknown replaced (the definitions are free of
+        them), in one pass over the shared expression graph."""
+        if not exprs or not self.names:
+            return dict(exprs)
+        out = cs.substitute(cs.vertcat(*exprs.values()), self.syms, self.defs)
+        return dict(zip(exprs, cs.vertsplit(out), strict=True))
 
 
-def _resolve(known: dict[str, cs.SX], symbols: dict[str, cs.SX]) -> dict[str, cs.SX]:
+def _resolve(known: dict[str, cs.SX], symbols: dict[str, cs.SX]) -> _Solved:
     """Definitions in solve (BLT) order, each in terms of earlier ones, rewritten in terms
     of the states, the algebraic unknowns kept, inputs and parameters (one ordered pass)."""
     if not known:
-        return known
+        return _Solved([], cs.SX(0, 1), cs.SX(0, 1))
     syms, defs = cs.vertcat(*[symbols[n] for n in known]), cs.vertcat(*known.values())
     (defs,), _ = cs.substitute_inplace([syms], [defs], [], False)
-    return dict(zip(known, cs.vertsplit(defs), strict=True))
+    return _Solved(list(known), syms, defs)
 
 
 def _linear_coefficient(e: cs.SX, v: cs.SX, others: cs.SX) -> cs.SX | None:
@@ -251,9 +258,7 @@ MAX_RATE_LOOP = 64
 """Largest linear loop of ``der_of`` rates solved symbolically (a dense solve)."""
 
 
-def _resolve_time_derivatives(
-    c: Collected, known: dict[str, cs.SX], ders: dict[str, cs.SX]
-) -> dict[str, cs.SX]:
+def _resolve_time_derivatives(c: Collected, solved: _Solved, ders: dict[str, cs.SX]) -> _Solved:
     """Replace each ``der_of`` variable ``w = d expr/dt`` by ``d expr/dx . f(x, w, ...)``.
 
     ``expr`` must be a function of the states. Where the rates depend on each other
@@ -263,7 +268,7 @@ def _resolve_time_derivatives(
     x = cs.vertcat(*[c.symbols[n] for n in ders])
     f = cs.vertcat(*ders.values())
     params = {n for n, v in c.variables.items() if v.kind in ("parameter", "input")}
-    exprs = _substitute_all(c.time_derivatives, known, c.symbols)
+    exprs = solved.substitute(c.time_derivatives)
     names = list(exprs)
     allowed = params.union(ders)
     if any(s.name() not in allowed for s in cs.symvar(cs.vertcat(*exprs.values()))):
@@ -285,9 +290,8 @@ def _resolve_time_derivatives(
                 f"than {MAX_RATE_LOOP}: give the elements inertia (choose another level)"
             )
         R = cs.solve(cs.SX.eye(len(names)) - J, cs.substitute(R, w, cs.SX.zeros(w.shape)))
-    out = dict(known)
-    out.update({n: R[i] for i, n in enumerate(names)})
-    return _substitute_all(out, {n: out[n] for n in names}, c.symbols)
+    defs = cs.substitute(cs.vertcat(solved.defs, R), w, R)
+    return _Solved(solved.names + names, cs.vertcat(solved.syms, w), defs)
 
 
 def flatten(name: str, c: Collected) -> Model:
@@ -336,19 +340,18 @@ def flatten(name: str, c: Collected) -> Model:
                 )
             kept_eqs.extend(block)
             kept_vars.extend(v.name() for v in block_vars)
-    known = _resolve(known, c.symbols)
+    solved = _resolve(known, c.symbols)
     ders = c.ders
     if c.time_derivatives:
-        known = _resolve_time_derivatives(c, known, _substitute_all(ders, known, c.symbols))
+        solved = _resolve_time_derivatives(c, solved, solved.substitute(ders))
     # Equations kept for the algebraic part may use unknowns solved later in BLT order.
     parts = (ders, c.outputs, c.energies, c.dissipations, dict(enumerate(kept_eqs)))
     joint = {(i, k): e for i, part in enumerate(parts) for k, e in part.items()}
-    joint = _substitute_all(joint, known, c.symbols)  # one pass for all of them
+    joint = solved.substitute(joint)  # one pass for all of them
     ders, outputs, energies, dissip, kept = (
         {k: joint[i, k] for k in part} for i, part in enumerate(parts)
     )
     kept_eqs = list(kept.values())
-    solved = known
     model = Model(
         name=name,
         variables=variables,
@@ -356,7 +359,7 @@ def flatten(name: str, c: Collected) -> Model:
         ders=ders,
         alg=kept_eqs,
         alg_vars=kept_vars,
-        solved=solved,
+        solved=solved.as_dict(),
         outputs=outputs,
         energies=energies,
         dissipations=dissip,
