@@ -67,17 +67,21 @@ class Builder:
         self._children: set[str] = set()
 
     # --- declarations -------------------------------------------------------------
+    def _full(self, local: str) -> str:
+        return f"{self.path}.{local}" if self.path else local
+
     def _new(self, local: str, var: Var) -> cs.SX:
         if not NAME.match(local):
             raise ModelError(f"variable name '{local}' in '{self.path}' must be {NAME_RULE}")
         return self._declare(local, var)
 
     def _declare(self, local: str, var: Var) -> cs.SX:
+        """A new symbol for ``var`` (named with its full path already)."""
         if local in self.symbols:
             raise ModelError(f"variable '{local}' declared twice in '{self.path}'")
-        full = f"{self.path}.{local}" if self.path else local
+        full = var.name
         sym = cs.SX.sym(full)
-        self._c.variables[full] = Var(**{**var.__dict__, "name": full})
+        self._c.variables[full] = var
         self._c.symbols[full] = sym
         self._c.children.setdefault(self.path, {})[local] = full
         self.symbols[local] = sym
@@ -97,10 +101,10 @@ class Builder:
         """A named model parameter [unit] with default ``value`` (checked against the range)
         and scaling magnitude ``nominal`` [unit] (default ``|value|``, or 1 for 0)."""
         value = float(value)
-        full = f"{self.path}.{name}" if self.path else name
+        full = self._full(name)
         if not (low <= value <= high) or math.isnan(value):
             raise ParameterError(full, value, f"[{low:g}, {high:g}] {unit}")
-        var = Var(name, Kind.PARAMETER, unit, description, value, low, high, value, source, nominal)
+        var = Var(full, Kind.PARAMETER, unit, description, value, low, high, value, source, nominal)
         return self._new(name, var)
 
     def state(
@@ -128,11 +132,11 @@ class Builder:
     def _unknown(
         self, name, kind, unit, description, start, low=-math.inf, high=math.inf, nominal=None
     ) -> cs.SX:
-        full = f"{self.path}.{name}" if self.path else name
+        full = self._full(name)
         start = self._start(full, start)
         self._track_nominal(full, start, nominal)
         return self._new(
-            name, Var(name, kind, unit, description, start, low, high, nominal=nominal)
+            name, Var(full, kind, unit, description, start, low, high, nominal=nominal)
         )
 
     def _start(self, full: str, start: float | cs.SX) -> float | cs.SX:
@@ -171,13 +175,24 @@ class Builder:
             raise ModelError(f"port '{name}' declared twice in '{self.path}'")
         if not NAME.match(name):
             raise ModelError(f"port name '{name}' in '{self.path}' must be {NAME_RULE}")
+        pot_name, flow_name = f"{name}.{kind.potential}", f"{name}.{kind.flow}"
         pot = self._declare(
-            f"{name}.{kind.potential}",
-            Var("", Kind.ALGEBRAIC, kind.potential_unit, f"{kind.name} {name}: {kind.potential}"),
+            pot_name,
+            Var(
+                self._full(pot_name),
+                Kind.ALGEBRAIC,
+                kind.potential_unit,
+                f"{kind.name} {name}: {kind.potential}",
+            ),
         )
         flow = self._declare(
-            f"{name}.{kind.flow}",
-            Var("", Kind.ALGEBRAIC, kind.flow_unit, f"{kind.name} {name}: {kind.flow} (into)"),
+            flow_name,
+            Var(
+                self._full(flow_name),
+                Kind.ALGEBRAIC,
+                kind.flow_unit,
+                f"{kind.name} {name}: {kind.flow} (into)",
+            ),
         )
         p = Port(kind, f"{self.path}.{name}" if self.path else name, pot, flow)
         self.ports[name] = p
@@ -230,7 +245,7 @@ class Builder:
         Used where a transport element needs a velocity (a damper): flattening replaces
         it by ``d expr/dx . dx/dt`` once ``expr`` is known in terms of the states.
         """
-        sym = self._new(name, Var(name, Kind.DERIVATIVE, unit, description))
+        sym = self._new(name, Var(self._full(name), Kind.DERIVATIVE, unit, description))
         self._c.time_derivatives[sym.name()] = _sx(expr)
         return sym
 
@@ -255,7 +270,7 @@ class Builder:
         ``low``/``high`` bound its physical domain: equilibria and simulations that leave
         it are reported, not returned. ``nominal``: its scaling magnitude [unit].
         """
-        full = f"{self.path}.{name}" if self.path else name
+        full = self._full(name)
         if not NAME.match(name):
             raise ModelError(f"output name '{name}' in '{self.path}' must be {NAME_RULE}")
         if full in self._c.outputs or full in self._c.variables:
