@@ -69,8 +69,14 @@ def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[Equat
             pair = (other.potential, first.potential)
             eqs.append((pair[0] - pair[1], where, pair))
         flows = [p.flow for p in members]
-        eqs.append((sum(flows, cs.SX(0)), where, flows))
+        eqs.append((_sum(flows), where, flows))
     return eqs
+
+
+def _sum(terms: list[cs.SX]) -> cs.SX:
+    """``0 + t1 + t2 + ...``, the same expression as ``sum(terms, SX(0))`` (CasADi drops
+    the ``0 +``) with one operation less."""
+    return sum(terms[1:], terms[0]) if terms else cs.SX(0)
 
 
 def _start_nominals(c: Collected, variables: dict[str, Var]) -> None:
@@ -216,9 +222,9 @@ def _blocks(residuals: cs.SX, unknowns: cs.SX, origins: list[str], names: list[s
     return [(members[k], [int(match[i]) for i in members[k]]) for k in order]
 
 
-def _is(e: cs.SX, v: cs.SX) -> bool:
-    """``e`` is the scalar symbol ``v`` itself."""
-    return e.is_scalar() and e.is_symbolic() and e.element_hash() == v.element_hash()
+def _is(e: cs.SX, v: int) -> bool:
+    """``e`` is the scalar symbol whose element hash is ``v``."""
+    return e.is_symbolic() and e.is_scalar() and e.element_hash() == v
 
 
 def _direct_solutions(
@@ -234,11 +240,11 @@ def _direct_solutions(
         form = eqs[eq_idx[0]][2] if len(eq_idx) == 1 else None
         if form is None:
             continue
-        v = symbols[names[var_idx[0]]]
+        v = symbols[names[var_idx[0]]].element_hash()
         if isinstance(form, list):  # a flow sum: distinct flow symbols
-            mine = [f.element_hash() == v.element_hash() for f in form]
+            mine = [f.element_hash() == v for f in form]
             if sum(mine) == 1:
-                out[k] = -sum((f for f, m in zip(form, mine, strict=True) if not m), cs.SX(0))
+                out[k] = -_sum([f for f, m in zip(form, mine, strict=True) if not m])
             continue
         lhs, rhs = form
         for mine, other in ((lhs, rhs), (rhs, lhs)):
