@@ -319,7 +319,7 @@ class Actin(Component):
         per_v = 2.0 / len(exps)  # two V's in series: k_s; one V alone: 2 k_s
         e = fb.s - fa.s - L_geo
         if self.damping == "none":
-            e_rate = cs.SX(0)  # not used
+            e_rate = cs.SX(0)  # undamped: no rate (the dissipation below is 0, not declared)
         else:  # needs the stretch rate: the band's ends must be masses
             e_rate = b.der_of("e_rate", e, "m/s", "stretch rate of the I-band")
         tension, dissipation, energy = laws.apply(
