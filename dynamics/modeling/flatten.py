@@ -212,14 +212,16 @@ def _blocks(residuals: cs.SX, unknowns: cs.SX, origins: list[str], names: list[s
     ncomp, labels = connected_components(dep, directed=True, connection="strong")
     comp_deps: dict[int, set[int]] = {k: set() for k in range(ncomp)}
     d = dep.tocoo()
-    for i, j in zip(d.row, d.col, strict=True):
-        if labels[i] != labels[j]:
-            comp_deps[labels[i]].add(labels[j])
+    # Python ints, not numpy scalars (the same sets, in the same order, built faster)
+    for a, b in zip(labels[d.row].tolist(), labels[d.col].tolist(), strict=True):
+        if a != b:
+            comp_deps[a].add(b)
     members: dict[int, list[int]] = {}
-    for i, lab in enumerate(labels):
+    for i, lab in enumerate(labels.tolist()):
         members.setdefault(lab, []).append(i)
     order = graphlib.TopologicalSorter(comp_deps).static_order()
-    return [(members[k], [int(match[i]) for i in members[k]]) for k in order]
+    matched = match.tolist()
+    return [(members[k], [matched[i] for i in members[k]]) for k in order]
 
 
 def _is(e: cs.SX, v: int) -> bool:
