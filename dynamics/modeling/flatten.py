@@ -98,8 +98,11 @@ def _share_start(variables: dict[str, Var], names: list[str]) -> None:
     parameter expression) and nominal value one of them declares."""
     given = [v for v in (variables[n] for n in names) if isinstance(v.start, cs.SX) or v.start]
     if given:
+        start, nominal = given[0].start, given[0].nominal
         for n in names:
-            variables[n] = replace(variables[n], start=given[0].start, nominal=given[0].nominal)
+            v = variables[n]
+            if v.start is not start or v.nominal != nominal:  # else it has them already
+                variables[n] = replace(v, start=start, nominal=nominal)
 
 
 class _Solved:
