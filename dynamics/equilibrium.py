@@ -63,17 +63,15 @@ def _row_scales(J: cs.SX, scale: cs.SX) -> cs.SX:
     return 1.0 / cs.fmax(cs.vertcat(*rows), 1e-300) if rows else cs.SX(0, 1)
 
 
-def _row_scales_of(J, scale: np.ndarray) -> np.ndarray:
+def _row_scales_of(J: sp.csc_matrix, scale: np.ndarray) -> np.ndarray:
     """:func:`_row_scales` of a numeric sparse Jacobian: the same numbers (``fmax``
     skips NaN; a row with structural zeros counts a 0), without a symbolic loop over rows."""
-    R = J.tocsr()
-    counts = np.diff(R.indptr)
-    rows = np.zeros(R.shape[0])
-    filled = counts > 0
-    if R.nnz:
-        weighted = np.abs(R.data) * scale[R.indices]
-        top = np.fmax.reduceat(weighted, R.indptr[:-1][filled])
-        rows[filled] = np.where(counts[filled] < R.shape[1], np.fmax(top, 0.0), top)
+    n_rows, n_cols = J.shape
+    columns = np.repeat(np.arange(n_cols), np.diff(J.indptr))
+    top = np.full(n_rows, np.nan)
+    np.fmax.at(top, J.indices, np.abs(J.data) * scale[columns])
+    counts = np.bincount(J.indices, minlength=n_rows)
+    rows = np.where(counts < n_cols, np.fmax(top, 0.0), top)
     return 1.0 / np.fmax(rows, 1e-300)
 
 
