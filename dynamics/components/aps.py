@@ -16,6 +16,7 @@ an energy, so ``p dV`` work, elastic energy and gravity balance exactly.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, fields, replace
 
@@ -197,6 +198,7 @@ class APSParams:
         return self.A_band + 2 * self.r1_rest
 
 
+@functools.cache  # a class's fields do not change; every APS asks for a dozen
 def _field(name: str):
     for f in fields(APSParams):
         if f.name == name and "unit" in f.metadata:
