@@ -16,12 +16,14 @@ an energy, so ``p dV`` work, elastic energy and gravity balance exactly.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, fields, replace
 
 import casadi as cs
 
 from ..errors import ParameterError
+from ..modeling import laws
 from ..modeling.component import Builder, Component
 from ..modeling.ports import FLANGE
 from ..params import experimental_geometry, get_material, yeoh_energy
@@ -196,6 +198,7 @@ class APSParams:
         return self.A_band + 2 * self.r1_rest
 
 
+@functools.cache  # a class's fields do not change; every APS asks for a dozen
 def _field(name: str):
     for f in fields(APSParams):
         if f.name == name and "unit" in f.metadata:
@@ -246,14 +249,20 @@ class YeohSpring(Component):
         src = f"paper, Yeoh fit of material '{p.material}'"
         C1, C2, C3 = (aps_parameter(b, p, k, source=src) for k in ("C1", "C2", "C3"))
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
-        lam = 1.0 + (fb.s - fa.s) / L_r
-        energy = A_r * L_r * yeoh_energy(lam, C1, C2, C3)
-        force = cs.gradient(energy, fb.s)
+        lam, energy, force = laws.apply(_yeoh, [fa.s, fb.s, A_r, L_r, C1, C2, C3])
         b.equation(fb.f, force)
         b.equation(fa.f, -force)
         b.output("lambda", lam, "1", "stretch of the restoring element", low=0.0)
         b.output("f", force, "N", "restoring force")
         b.energy("elastic", energy)
+
+
+def _yeoh(s_a, s_b, A_r, L_r, C1, C2, C3) -> list:
+    """Stretch ``1 + (s_b - s_a)/L_r`` [1], energy ``A_r L_r W`` [J] and force on
+    ``flange_b`` (its gradient in ``s_b``) [N] of the restoring element."""
+    lam = 1.0 + (s_b - s_a) / L_r
+    energy = A_r * L_r * yeoh_energy(lam, C1, C2, C3)
+    return [lam, energy, cs.gradient(energy, s_b)]
 
 
 THREAD_DAMPING = ("tension_only", "gated", "none")
@@ -298,12 +307,10 @@ class Actin(Component):
             if present:
                 fl = b.port(side, FLANGE)
                 exps.append(fl)
-                L_geo = L_geo + 0.5 * A + thread_height(fl.s, l, w0)
-                L_rest = L_rest + 0.5 * A + thread_height(0.0, l, w0)
-                cos_theta = cs.fmin(cs.fmax((w0 + fl.s) / l, -1.0), 1.0)
+                L_geo, L_rest, theta = laws.apply(_band_side, [L_geo, L_rest, fl.s, l, w0, A])
                 b.output(
                     f"theta_{side[-1]}",
-                    cs.acos(cos_theta),
+                    theta,
                     "rad",
                     "thread angle, cos(theta) = 2 r2 / l (paper); at its lower bound the thread "
                     "is pulled straight, at its upper bound the anchors meet",
@@ -312,23 +319,16 @@ class Actin(Component):
                 )
         self.rest_length = L_rest  # taut length at zero expansion [m], for start values
         per_v = 2.0 / len(exps)  # two V's in series: k_s; one V alone: 2 k_s
-        k = per_v * k_s
         e = fb.s - fa.s - L_geo
-        r = cs.sqrt(e**2 + eps**2)
-        spring = 0.5 * (e + r)  # softplus(e)
         if self.damping == "none":
-            tension = k * spring
+            e_rate = cs.SX(0)  # undamped: no rate (the dissipation below is 0, not declared)
         else:  # needs the stretch rate: the band's ends must be masses
             e_rate = b.der_of("e_rate", e, "m/s", "stretch rate of the I-band")
-            if self.damping == "tension_only":
-                # a Kelvin-Voigt band that can only pull: T = k softplus(e + (c/k) de/dt):
-                # taut, T = k e + c de/dt; slack, it neither pushes nor damps. The power
-                # T de/dt minus the elastic rate k softplus(e) de/dt is >= 0.
-                ed = e + c_s / k_s * e_rate
-                tension = k * 0.5 * (ed + cs.sqrt(ed**2 + eps**2))
-            else:  # "gated": linear in the rate, damping times the softplus slope
-                tension = k * spring + per_v * c_s * 0.5 * (1.0 + e / r) * e_rate
-            b.dissipation("damping", (tension - k * spring) * e_rate)
+        tension, dissipation, energy = laws.apply(
+            _band_tension, [e, e_rate, k_s, c_s, eps], per_v=per_v, damping=self.damping
+        )
+        if self.damping != "none":
+            b.dissipation("damping", dissipation)
         b.equation(fb.f, tension)
         b.equation(fa.f, -tension)
         for fl in exps:  # generalised force on the expansion: T de/dd
@@ -336,8 +336,40 @@ class Actin(Component):
         b.output("T", tension, "N", "thread tension (I-band)")
         b.output("e", e, "m", "stretch beyond the taut length (negative: slack)")
         b.output("L_geo", L_geo, "m", "taut length of the I-band")
-        # energy of k softplus: integral of (e + sqrt(e^2 + eps^2))/2 de
-        b.energy("elastic", 0.25 * k * (e**2 + e * r + eps**2 * cs.asinh(e / eps)))
+        b.energy("elastic", energy)
+
+
+def _band_side(L_geo, L_rest, d, l, w0, A) -> list:
+    """One side of an I-band (its SPA's expansion ``d``): the taut and rest lengths with
+    that side's ``A/2 + r1`` added, and the thread angle, ``cos(theta) = 2 r2 / l``."""
+    cos_theta = cs.fmin(cs.fmax((w0 + d) / l, -1.0), 1.0)
+    return [
+        L_geo + 0.5 * A + thread_height(d, l, w0),
+        L_rest + 0.5 * A + thread_height(0.0, l, w0),
+        cs.acos(cos_theta),
+    ]
+
+
+def _band_tension(e, e_rate, k_s, c_s, eps, per_v: float, damping: str) -> list:
+    """Tension [N], dissipated power [W] and elastic energy [J] of an I-band of ``per_v``
+    times the stiffness ``k_s`` at stretch ``e`` and stretch rate ``e_rate`` (see
+    :class:`Actin`)."""
+    k = per_v * k_s
+    r = cs.sqrt(e**2 + eps**2)
+    spring = 0.5 * (e + r)  # softplus(e)
+    if damping == "none":
+        tension = k * spring
+    elif damping == "tension_only":
+        # a Kelvin-Voigt band that can only pull: T = k softplus(e + (c/k) de/dt):
+        # taut, T = k e + c de/dt; slack, it neither pushes nor damps. The power
+        # T de/dt minus the elastic rate k softplus(e) de/dt is >= 0.
+        ed = e + c_s / k_s * e_rate
+        tension = k * 0.5 * (ed + cs.sqrt(ed**2 + eps**2))
+    else:  # "gated": linear in the rate, damping times the softplus slope
+        tension = k * spring + per_v * c_s * 0.5 * (1.0 + e / r) * e_rate
+    # energy of k softplus: integral of (e + sqrt(e^2 + eps^2))/2 de
+    energy = 0.25 * k * (e**2 + e * r + eps**2 * cs.asinh(e / eps))
+    return [tension, (tension - k * spring) * e_rate, energy]
 
 
 class APS(Component):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import casadi as cs
 
+from ..modeling import laws
 from ..modeling.component import Builder, Component
 from ..modeling.ports import FLANGE
 from .environment import ENVIRONMENT
@@ -71,10 +72,16 @@ class Mass(Component):
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         b.equation(fa.s, s)
         b.equation(fb.s, s)
+        acceleration, kinetic, gravity = laws.apply(_point_mass, [fa.f, fb.f, m, g, s, v])
         b.der(s, v)
-        b.der(v, (fa.f + fb.f) / m + g)
-        b.energy("kinetic", 0.5 * m * v**2)
-        b.energy("gravity", -m * g * s)
+        b.der(v, acceleration)
+        b.energy("kinetic", kinetic)
+        b.energy("gravity", gravity)
+
+
+def _point_mass(f_a, f_b, m, g, s, v) -> list:
+    """Acceleration [m/s^2], kinetic and gravitational energy [J] of a point mass."""
+    return [(f_a + f_b) / m + g, 0.5 * m * v**2, -m * g * s]
 
 
 class Node(Component):

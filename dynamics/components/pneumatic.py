@@ -15,6 +15,7 @@ import math
 import casadi as cs
 
 from ..errors import ParameterError
+from ..modeling import laws
 from ..modeling.component import Builder, Component
 from ..modeling.ports import FLANGE, PNEUMATIC
 from .environment import ENVIRONMENT
@@ -178,11 +179,18 @@ class Restriction(Component):
         )
         pa, pb = b.port("port_a", PNEUMATIC), b.port("port_b", PNEUMATIC)
         T_b = T_amb if self.T_b is None else self.T_b
-        T_up = cs.if_else(pa.p >= pb.p, T_amb, T_b)
-        q = iso6358_flow(pa.p, pb.p, C, bc, rl, rho0, smooth=self.smooth) * cs.sqrt(T0 / T_up)
+        args = [pa.p, pb.p, C, bc, rl, rho0, T0, T_amb, T_b]
+        (q,) = laws.apply(_restriction_flow, args, smooth=self.smooth)
         b.equation(pa.m_flow, q)
         b.equation(pb.m_flow, -q)
         b.output("m_flow", q, "kg/s", "mass flow from port_a to port_b")
+
+
+def _restriction_flow(p_a, p_b, C, b_crit, r_lam, rho0, T0, T_amb, T_b, smooth: bool) -> list:
+    """:func:`iso6358_flow` [kg/s] times ``sqrt(T0 / T_up)``, the upstream temperature
+    ``T_amb`` (side a upstream) or ``T_b`` (see :class:`Restriction`)."""
+    T_up = cs.if_else(p_a >= p_b, T_amb, T_b)
+    return [iso6358_flow(p_a, p_b, C, b_crit, r_lam, rho0, smooth=smooth) * cs.sqrt(T0 / T_up)]
 
 
 class Chamber(Component):
@@ -227,13 +235,12 @@ class Chamber(Component):
         m = b.state("m_air", 0.0, "kg", "air mass in the chamber", low=0.0)
         b.set_start(m, V0 * (p_amb + self.p_start_gauge) / (R * T_amb))
         port, wall = b.port("port", PNEUMATIC), b.port("flange", FLANGE)
-        V = V0 + A * wall.s
         if self.thermal == "isothermal":
             T = T_amb
             self.temperature = T
-            p = m * R * T / V
-            e_gas = m * R * T * (cs.log(p / p_amb) - 1.0)
+            V, p, e_gas = laws.apply(_isothermal_air, [m, wall.s, V0, A, R, T, p_amb])
         else:
+            V = V0 + A * wall.s
             # state: the potential temperature theta = T (rho_amb / rho)^(gamma - 1) [K], the
             # temperature at the ambient density after an isentropic change; it is constant
             # while the air only expands, is compressed or vents, and the energy balance
@@ -263,18 +270,33 @@ class Chamber(Component):
             b.output("T", T, "K", "air temperature", low=0.0)
         b.der(m, port.m_flow)
         b.equation(port.p, p)
-        _pressed_wall(b, wall, p, p_amb, A, V)
-        b.energy("gas", e_gas + p_amb * V)
+        b.energy("gas", _pressed_wall(b, wall, p, V, e_gas, p_amb, A))
 
 
-def _pressed_wall(b: Builder, wall, p: cs.SX, p_amb: cs.SX, A: cs.SX, V: cs.SX) -> None:
-    """The wall force ``(p - p_amb) dV/ds`` (virtual work) of a chamber at pressure ``p``
-    [Pa] with volume ``V`` [m^3] and ``A = dV/ds`` [m^2] on ``wall``, and its outputs
-    ``p``, ``p_gauge``, ``V``."""
-    b.equation(wall.f, -(p - p_amb) * A)
+def _isothermal_air(m, s, V0, A, R, T, p_amb) -> list:
+    """Volume ``V0 + A s`` [m^3], pressure ``m R T / V`` [Pa] and the gas energy
+    ``m R T (ln(p / p_amb) - 1)`` [J] of air at the temperature ``T``."""
+    V = V0 + A * s
+    p = m * R * T / V
+    return [V, p, m * R * T * (cs.log(p / p_amb) - 1.0)]
+
+
+def _wall(p, V, e_gas, p_amb, A) -> list:
+    """The force on the chamber's wall flange ``-(p - p_amb) A`` [N] (virtual work), the
+    gauge pressure [Pa] and the stored energy ``e_gas + p_amb V`` [J]."""
+    return [-(p - p_amb) * A, p - p_amb, e_gas + p_amb * V]
+
+
+def _pressed_wall(b: Builder, wall, p, V, e_gas, p_amb, A) -> cs.SX:
+    """The wall force of a chamber at pressure ``p`` [Pa] with volume ``V`` [m^3], gas
+    energy ``e_gas`` [J] and ``A = dV/ds`` [m^2] on ``wall`` (:func:`_wall`), and its
+    outputs ``p``, ``p_gauge``, ``V``; returns the stored energy [J]."""
+    force, p_gauge, energy = laws.apply(_wall, [p, V, e_gas, p_amb, A])
+    b.equation(wall.f, force)
     b.output("p", p, "Pa", "absolute pressure", low=0.0)
-    b.output("p_gauge", p - p_amb, "Pa", "gauge pressure")
+    b.output("p_gauge", p_gauge, "Pa", "gauge pressure")
     b.output("V", V, "m^3", "volume")
+    return energy
 
 
 class InstantChamber(Component):
@@ -307,8 +329,8 @@ class InstantChamber(Component):
         V = V0 + A * wall.s
         p = port.p
         b.equation(port.m_flow, 0.0)
-        _pressed_wall(b, wall, p, p_amb, A, V)
-        b.energy("gas", -(p - p_amb) * V)
+        # no air: the stored energy e_gas + p_amb V of the wall law is -(p - p_amb) V
+        b.energy("gas", _pressed_wall(b, wall, p, V, -p * V, p_amb, A))
 
 
 class Cap(Component):

@@ -23,6 +23,12 @@ from .ports import Port, PortKind
 from .variables import Collected, Kind, Var
 
 
+def _sx(expr) -> cs.SX:
+    """``expr`` as an SX (an SX itself, not a copy: a conversion costs as much as an
+    arithmetic operation)."""
+    return expr if isinstance(expr, cs.SX) else cs.SX(expr)
+
+
 class Handle:
     """What ``Builder.add`` returns: a built child, giving access to its ports and symbols."""
 
@@ -61,18 +67,23 @@ class Builder:
         self._children: set[str] = set()
 
     # --- declarations -------------------------------------------------------------
+    def _full(self, local: str) -> str:
+        return f"{self.path}.{local}" if self.path else local
+
     def _new(self, local: str, var: Var) -> cs.SX:
         if not NAME.match(local):
             raise ModelError(f"variable name '{local}' in '{self.path}' must be {NAME_RULE}")
         return self._declare(local, var)
 
     def _declare(self, local: str, var: Var) -> cs.SX:
+        """A new symbol for ``var`` (named with its full path already)."""
         if local in self.symbols:
             raise ModelError(f"variable '{local}' declared twice in '{self.path}'")
-        full = f"{self.path}.{local}" if self.path else local
+        full = var.name
         sym = cs.SX.sym(full)
-        self._c.variables[full] = Var(**{**var.__dict__, "name": full})
+        self._c.variables[full] = var
         self._c.symbols[full] = sym
+        self._c.children.setdefault(self.path, {})[local] = full
         self.symbols[local] = sym
         return sym
 
@@ -90,10 +101,10 @@ class Builder:
         """A named model parameter [unit] with default ``value`` (checked against the range)
         and scaling magnitude ``nominal`` [unit] (default ``|value|``, or 1 for 0)."""
         value = float(value)
-        full = f"{self.path}.{name}" if self.path else name
+        full = self._full(name)
         if not (low <= value <= high) or math.isnan(value):
             raise ParameterError(full, value, f"[{low:g}, {high:g}] {unit}")
-        var = Var(name, Kind.PARAMETER, unit, description, value, low, high, value, source, nominal)
+        var = Var(full, Kind.PARAMETER, unit, description, value, low, high, value, source, nominal)
         return self._new(name, var)
 
     def state(
@@ -121,11 +132,11 @@ class Builder:
     def _unknown(
         self, name, kind, unit, description, start, low=-math.inf, high=math.inf, nominal=None
     ) -> cs.SX:
-        full = f"{self.path}.{name}" if self.path else name
+        full = self._full(name)
         start = self._start(full, start)
-        nominal = self._nominal(start) if nominal is None else nominal
+        self._track_nominal(full, start, nominal)
         return self._new(
-            name, Var(name, kind, unit, description, start, low, high, nominal=nominal)
+            name, Var(full, kind, unit, description, start, low, high, nominal=nominal)
         )
 
     def _start(self, full: str, start: float | cs.SX) -> float | cs.SX:
@@ -140,7 +151,7 @@ class Builder:
             s.name()
             for s in cs.symvar(start)
             if getattr(self._c.variables.get(s.name()), "kind", None) is not Kind.PARAMETER
-            or not cs.is_equal(self._c.symbols[s.name()], s)
+            or self._c.symbols[s.name()].element_hash() != s.element_hash()  # the same node
         ]
         if others:
             raise ModelError(
@@ -149,15 +160,14 @@ class Builder:
             )
         return start
 
-    def _nominal(self, start: float | cs.SX) -> float | None:
-        """``|start|`` at the parameter defaults (1 if that is 0) for an expression start;
-        None (``Var`` derives it) for a float."""
-        if not isinstance(start, cs.SX):
-            return None
-        pars = cs.symvar(start)
-        vals = [self._c.variables[s.name()].value for s in pars]
-        val = abs(float(cs.evalf(cs.substitute(start, cs.vertcat(*pars), cs.vertcat(*vals)))))
-        return val if 0.0 < val < math.inf else 1.0
+    def _track_nominal(self, full: str, start: float | cs.SX, nominal: float | None) -> None:
+        """An expression start without a nominal: flattening sets the nominal to
+        ``|start|`` at the parameter defaults (all such starts in one evaluation; ``Var``
+        holds 1 until then). A float start: ``Var`` derives it."""
+        if isinstance(start, cs.SX) and nominal is None:
+            self._c.start_nominals[full] = start
+        else:
+            self._c.start_nominals.pop(full, None)
 
     def port(self, name: str, kind: PortKind) -> Port:
         """A connector with potential and flow unknowns named ``<path>.<name>.<var>``."""
@@ -165,13 +175,24 @@ class Builder:
             raise ModelError(f"port '{name}' declared twice in '{self.path}'")
         if not NAME.match(name):
             raise ModelError(f"port name '{name}' in '{self.path}' must be {NAME_RULE}")
+        pot_name, flow_name = f"{name}.{kind.potential}", f"{name}.{kind.flow}"
         pot = self._declare(
-            f"{name}.{kind.potential}",
-            Var("", Kind.ALGEBRAIC, kind.potential_unit, f"{kind.name} {name}: {kind.potential}"),
+            pot_name,
+            Var(
+                self._full(pot_name),
+                Kind.ALGEBRAIC,
+                kind.potential_unit,
+                f"{kind.name} {name}: {kind.potential}",
+            ),
         )
         flow = self._declare(
-            f"{name}.{kind.flow}",
-            Var("", Kind.ALGEBRAIC, kind.flow_unit, f"{kind.name} {name}: {kind.flow} (into)"),
+            flow_name,
+            Var(
+                self._full(flow_name),
+                Kind.ALGEBRAIC,
+                kind.flow_unit,
+                f"{kind.name} {name}: {kind.flow} (into)",
+            ),
         )
         p = Port(kind, f"{self.path}.{name}" if self.path else name, pot, flow)
         self.ports[name] = p
@@ -185,7 +206,7 @@ class Builder:
         [unit] follows the new start unless given."""
         name = sym.name()
         start = self._start(name, value)
-        nominal = self._nominal(start) if nominal is None else nominal
+        self._track_nominal(name, start, nominal)
         var = self._c.variables[name]
         self._c.variables[name] = Var(**{**var.__dict__, "start": start, "nominal": nominal})
 
@@ -196,13 +217,10 @@ class Builder:
         components that use it (e.g. ``Environment("ambient")``); the result maps its local
         parameter names to their symbols, so every user shares one parameter each.
         """
-        prefix = f"{name}."
         found = {
-            full[len(prefix) :]: sym
-            for full, sym in self._c.symbols.items()
-            if full.startswith(prefix)
-            and "." not in full[len(prefix) :]
-            and self._c.variables[full].kind == "parameter"
+            local: self._c.symbols[full]
+            for local, full in self._c.children.get(name, {}).items()
+            if "." not in local and self._c.variables[full].kind == "parameter"
         }
         if not found:
             raise ModelError(
@@ -219,7 +237,7 @@ class Builder:
             raise ModelError(f"der() of '{name}', which is not a state")
         if name in self._c.ders:
             raise ModelError(f"derivative of '{name}' given twice")
-        self._c.ders[name] = cs.SX(rhs)
+        self._c.ders[name] = _sx(rhs)
 
     def der_of(self, name: str, expr: cs.SX, unit: str, description: str) -> cs.SX:
         """A variable equal to ``d expr / dt``, ``expr`` a function of the states only.
@@ -227,13 +245,15 @@ class Builder:
         Used where a transport element needs a velocity (a damper): flattening replaces
         it by ``d expr/dx . dx/dt`` once ``expr`` is known in terms of the states.
         """
-        sym = self._new(name, Var(name, Kind.DERIVATIVE, unit, description))
-        self._c.time_derivatives[sym.name()] = cs.SX(expr)
+        sym = self._new(name, Var(self._full(name), Kind.DERIVATIVE, unit, description))
+        self._c.time_derivatives[sym.name()] = _sx(expr)
         return sym
 
     def equation(self, lhs: cs.SX, rhs: cs.SX | float = 0.0) -> None:
         """``lhs == rhs`` (stored as the residual ``lhs - rhs``)."""
-        self._c.equations.append((cs.SX(lhs) - rhs, self.path or "<system>"))
+        lhs = _sx(lhs)
+        sides = (lhs, rhs) if isinstance(rhs, cs.SX) else None
+        self._c.equations.append((lhs - rhs, self.path or "<system>", sides))
 
     def output(
         self,
@@ -250,7 +270,7 @@ class Builder:
         ``low``/``high`` bound its physical domain: equilibria and simulations that leave
         it are reported, not returned. ``nominal``: its scaling magnitude [unit].
         """
-        full = f"{self.path}.{name}" if self.path else name
+        full = self._full(name)
         if not NAME.match(name):
             raise ModelError(f"output name '{name}' in '{self.path}' must be {NAME_RULE}")
         if full in self._c.outputs or full in self._c.variables:
@@ -258,15 +278,15 @@ class Builder:
         self._c.variables[full] = Var(
             full, Kind.OUTPUT, unit, description, low=low, high=high, nominal=nominal
         )
-        self._c.outputs[full] = cs.SX(expr)
+        self._c.outputs[full] = _sx(expr)
 
     def energy(self, name: str, expr: cs.SX) -> None:
         """A stored energy term [J] (kinetic, potential, elastic or gas)."""
-        self._c.energies[f"{self.path}.{name}"] = cs.SX(expr)
+        self._c.energies[f"{self.path}.{name}"] = _sx(expr)
 
     def dissipation(self, name: str, expr: cs.SX) -> None:
         """A dissipated power term [W], >= 0 (damping, throttling)."""
-        self._c.dissipations[f"{self.path}.{name}"] = cs.SX(expr)
+        self._c.dissipations[f"{self.path}.{name}"] = _sx(expr)
 
     # --- composition ---------------------------------------------------------------
     def add(self, component: Component) -> Handle:

@@ -10,8 +10,10 @@ Steps, as a Modelica tool does them:
 3. Block-lower-triangular order: strongly connected components of the
    equation-dependency graph (scipy), ordered topologically (graphlib).
 4. Each scalar block that is linear in its unknown is solved symbolically and
-   substituted forward. Larger blocks (algebraic loops) are torn: equations linear in
-   one of the loop's unknowns (aliases, force balances) are solved and substituted;
+   substituted forward (aliases, definitions ``v = rhs`` and flow balances, most
+   blocks, read off their equation's form without differentiating). Larger blocks
+   (algebraic loops) are torn: equations linear in one of the loop's unknowns (aliases,
+   force balances) are solved and substituted;
    what remains stays as the algebraic part ``0 = g(x, z, u, p)`` of a semi-explicit
    DAE (a structurally or numerically singular remainder is a ModelError).
 5. Velocities asked for with ``Builder.der_of`` (dampers) become ``d expr/dx . f``; a
@@ -27,6 +29,7 @@ Storage components (masses, chambers) alternating with transport components
 from __future__ import annotations
 
 import graphlib
+import math
 from dataclasses import replace
 
 import casadi as cs
@@ -38,8 +41,12 @@ from ..errors import ModelError
 from .model import Model
 from .variables import Collected, Var
 
+Equation = tuple[cs.SX, str, object]
+"""Residual, origin, and its form: ``(lhs, rhs)`` for ``lhs - rhs``, a list of flows for
+their sum, or None (see :func:`_direct_solutions`)."""
 
-def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[tuple[cs.SX, str]]:
+
+def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[Equation]:
     parent: dict[int, int] = {id(p): id(p) for p in c.ports}
 
     def find(i: int) -> int:
@@ -59,9 +66,31 @@ def _connection_equations(c: Collected, variables: dict[str, Var]) -> list[tuple
         where = "connect(" + ", ".join(p.path for p in members) + ")"
         first = members[0]
         for other in members[1:]:
-            eqs.append((other.potential - first.potential, where))
-        eqs.append((sum((p.flow for p in members), cs.SX(0)), where))
+            pair = (other.potential, first.potential)
+            eqs.append((pair[0] - pair[1], where, pair))
+        flows = [p.flow for p in members]
+        eqs.append((_sum(flows), where, flows))
     return eqs
+
+
+def _sum(terms: list[cs.SX]) -> cs.SX:
+    """``0 + t1 + t2 + ...``, the same expression as ``sum(terms, SX(0))`` (CasADi drops
+    the ``0 +``) with one operation less."""
+    return sum(terms[1:], terms[0]) if terms else cs.SX(0)
+
+
+def _start_nominals(c: Collected, variables: dict[str, Var]) -> None:
+    """Nominal values of the expression starts declared without one: ``|start|`` at the
+    parameter defaults (1 where that is 0 or not finite), all in one evaluation."""
+    if not c.start_nominals:
+        return
+    starts = cs.vertcat(*c.start_nominals.values())
+    pars = cs.symvar(starts)
+    values = cs.DM([variables[s.name()].value for s in pars])
+    at_defaults = np.array(cs.evalf(cs.substitute(starts, cs.vertcat(*pars), values)))
+    for name, v in zip(c.start_nominals, at_defaults.ravel(), strict=True):
+        val = abs(float(v))
+        variables[name] = replace(variables[name], nominal=val if 0.0 < val < math.inf else 1.0)
 
 
 def _share_start(variables: dict[str, Var], names: list[str]) -> None:
@@ -69,35 +98,41 @@ def _share_start(variables: dict[str, Var], names: list[str]) -> None:
     parameter expression) and nominal value one of them declares."""
     given = [v for v in (variables[n] for n in names) if isinstance(v.start, cs.SX) or v.start]
     if given:
+        start, nominal = given[0].start, given[0].nominal
         for n in names:
-            variables[n] = replace(variables[n], start=given[0].start, nominal=given[0].nominal)
+            v = variables[n]
+            if v.start is not start or v.nominal != nominal:  # else it has them already
+                variables[n] = replace(v, start=start, nominal=nominal)
 
 
-def _substitute(expr: cs.SX, known: dict[str, cs.SX]) -> cs.SX:
-    syms = [s for s in cs.symvar(expr) if s.name() in known]
-    if not syms:
-        return expr
-    return cs.substitute(expr, cs.vertcat(*syms), cs.vertcat(*[known[s.name()] for s in syms]))
+class _Solved:
+    """Solved unknowns as vectors of their symbols and definitions, built once (CasADi
+    converts a list element by element, several times slower than a vector)."""
+
+    def __init__(self, names: list[str], syms: cs.SX, defs: cs.SX) -> None:
+        self.names, self.syms, self.defs = names, syms, defs
+
+    def as_dict(self) -> dict[str, cs.SX]:
+        """Name -> definition."""
+        return dict(zip(self.names, cs.vertsplit(self.defs), strict=True)) if self.names else {}
+
+    def substitute(self, exprs: dict) -> dict:
+        """``exprs`` with every solved unknown replaced (the definitions are free of
+        them), in one pass over the shared expression graph."""
+        if not exprs or not self.names:
+            return dict(exprs)
+        out = cs.substitute(cs.vertcat(*exprs.values()), self.syms, self.defs)
+        return dict(zip(exprs, cs.vertsplit(out), strict=True))
 
 
-def _substitute_all(
-    exprs: dict[str, cs.SX], known: dict[str, cs.SX], symbols: dict[str, cs.SX]
-) -> dict[str, cs.SX]:
-    """``exprs`` with every unknown in ``known`` (whose definitions are free of them)
-    replaced, in one pass over the shared expression graph."""
-    if not exprs or not known:
-        return dict(exprs)
-    out = cs.substitute(list(exprs.values()), [symbols[n] for n in known], list(known.values()))
-    return dict(zip(exprs, out, strict=True))
-
-
-def _resolve(known: dict[str, cs.SX], symbols: dict[str, cs.SX]) -> dict[str, cs.SX]:
+def _resolve(known: dict[str, cs.SX], symbols: dict[str, cs.SX]) -> _Solved:
     """Definitions in solve (BLT) order, each in terms of earlier ones, rewritten in terms
     of the states, the algebraic unknowns kept, inputs and parameters (one ordered pass)."""
     if not known:
-        return known
-    defs, _ = cs.substitute_inplace([symbols[n] for n in known], list(known.values()), [], False)
-    return dict(zip(known, defs, strict=True))
+        return _Solved([], cs.SX(0, 1), cs.SX(0, 1))
+    syms, defs = cs.vertcat(*[symbols[n] for n in known]), cs.vertcat(*known.values())
+    (defs,), _ = cs.substitute_inplace([syms], [defs], [], False)
+    return _Solved(list(known), syms, defs)
 
 
 def _linear_coefficient(e: cs.SX, v: cs.SX, others: cs.SX) -> cs.SX | None:
@@ -150,7 +185,7 @@ def _tear(
 def _structurally_regular(eqs: list[cs.SX], unknowns: list[cs.SX]) -> bool:
     if not eqs:
         return True
-    jac = cs.jacobian(cs.vertcat(*eqs), cs.vertcat(*unknowns)).sparsity()
+    jac = cs.jacobian_sparsity(cs.vertcat(*eqs), cs.vertcat(*unknowns))
     rows, cols = jac.get_triplet()
     n = len(eqs)
     inc = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
@@ -160,7 +195,7 @@ def _structurally_regular(eqs: list[cs.SX], unknowns: list[cs.SX]) -> bool:
 def _blocks(residuals: cs.SX, unknowns: cs.SX, origins: list[str], names: list[str]):
     """Matching + SCCs: a list of blocks (equation indices, unknown indices) in solve order."""
     n = unknowns.numel()
-    jac = cs.jacobian(residuals, unknowns).sparsity()
+    jac = cs.jacobian_sparsity(residuals, unknowns)
     rows, cols = jac.get_triplet()
     inc = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
     match = maximum_bipartite_matching(inc, perm_type="column")  # eq -> unknown
@@ -180,23 +215,61 @@ def _blocks(residuals: cs.SX, unknowns: cs.SX, origins: list[str], names: list[s
     ncomp, labels = connected_components(dep, directed=True, connection="strong")
     comp_deps: dict[int, set[int]] = {k: set() for k in range(ncomp)}
     d = dep.tocoo()
-    for i, j in zip(d.row, d.col, strict=True):
-        if labels[i] != labels[j]:
-            comp_deps[labels[i]].add(labels[j])
+    # Python ints, not numpy scalars (the same sets, in the same order, built faster)
+    for a, b in zip(labels[d.row].tolist(), labels[d.col].tolist(), strict=True):
+        if a != b:
+            comp_deps[a].add(b)
     members: dict[int, list[int]] = {}
-    for i, lab in enumerate(labels):
+    for i, lab in enumerate(labels.tolist()):
         members.setdefault(lab, []).append(i)
     order = graphlib.TopologicalSorter(comp_deps).static_order()
-    return [(members[k], [int(match[i]) for i in members[k]]) for k in order]
+    matched = match.tolist()
+    return [(members[k], [matched[i] for i in members[k]]) for k in order]
+
+
+def _is(e: cs.SX, v: int) -> bool:
+    """``e`` is the scalar symbol whose element hash is ``v``."""
+    return e.is_symbolic() and e.is_scalar() and e.element_hash() == v
+
+
+def _direct_solutions(
+    eqs: list[Equation], blocks: list, unknowns: cs.SX, names: list[str], symbols
+) -> dict[int, cs.SX]:
+    """Solutions of the scalar blocks that need no differentiation: ``v - rhs`` or
+    ``lhs - v`` with the other side free of ``v`` (and not a constant) gives that side,
+    a flow sum with ``v`` in it minus the sum of the other flows. Block index -> solution:
+    the expression the general path (``-e(v = 0) / (de/dv)``) simplifies to."""
+    out: dict[int, cs.SX] = {}
+    sides: dict[int, tuple[cs.SX, int]] = {}
+    for k, (eq_idx, var_idx) in enumerate(blocks):
+        form = eqs[eq_idx[0]][2] if len(eq_idx) == 1 else None
+        if form is None:
+            continue
+        v = symbols[names[var_idx[0]]].element_hash()
+        if isinstance(form, list):  # a flow sum: distinct flow symbols
+            mine = [f.element_hash() == v for f in form]
+            if sum(mine) == 1:
+                out[k] = -_sum([f for f, m in zip(form, mine, strict=True) if not m])
+            continue
+        lhs, rhs = form
+        for mine, other in ((lhs, rhs), (rhs, lhs)):
+            if _is(mine, v) and not other.is_constant():
+                sides[k] = (other, var_idx[0])
+                break
+    if sides:
+        dep = cs.jacobian_sparsity(cs.vertcat(*[o for o, _ in sides.values()]), unknowns)
+        uses = set(zip(*dep.get_triplet(), strict=True))
+        for row, (k, (other, col)) in enumerate(sides.items()):
+            if (row, col) not in uses:
+                out[k] = other
+    return out
 
 
 MAX_RATE_LOOP = 64
 """Largest linear loop of ``der_of`` rates solved symbolically (a dense solve)."""
 
 
-def _resolve_time_derivatives(
-    c: Collected, known: dict[str, cs.SX], ders: dict[str, cs.SX]
-) -> dict[str, cs.SX]:
+def _resolve_time_derivatives(c: Collected, solved: _Solved, ders: dict[str, cs.SX]) -> _Solved:
     """Replace each ``der_of`` variable ``w = d expr/dt`` by ``d expr/dx . f(x, w, ...)``.
 
     ``expr`` must be a function of the states. Where the rates depend on each other
@@ -206,17 +279,18 @@ def _resolve_time_derivatives(
     x = cs.vertcat(*[c.symbols[n] for n in ders])
     f = cs.vertcat(*ders.values())
     params = {n for n, v in c.variables.items() if v.kind in ("parameter", "input")}
-    names = list(c.time_derivatives)
-    rates = []
-    for name in names:
-        e = _substitute(c.time_derivatives[name], known)
-        others = {s.name() for s in cs.symvar(e) if s.name() not in ders} - params
-        if others:
-            raise ModelError(
-                f"'{name}' needs the time derivative of an expression of {sorted(others)}, "
-                "which are not states: attach the element to masses or viscous nodes"
-            )
-        rates.append(cs.mtimes(cs.jacobian(e, x), f))
+    exprs = solved.substitute(c.time_derivatives)
+    names = list(exprs)
+    allowed = params.union(ders)
+    if any(s.name() not in allowed for s in cs.symvar(cs.vertcat(*exprs.values()))):
+        for name, e in exprs.items():
+            others = {s.name() for s in cs.symvar(e)} - allowed
+            if others:
+                raise ModelError(
+                    f"'{name}' needs the time derivative of an expression of {sorted(others)}, "
+                    "which are not states: attach the element to masses or viscous nodes"
+                )
+    rates = [cs.mtimes(cs.jacobian(exprs[name], x), f) for name in names]
     w = cs.vertcat(*[c.symbols[n] for n in names])
     R = cs.vertcat(*rates)
     if cs.depends_on(R, w):
@@ -227,9 +301,8 @@ def _resolve_time_derivatives(
                 f"than {MAX_RATE_LOOP}: give the elements inertia (choose another level)"
             )
         R = cs.solve(cs.SX.eye(len(names)) - J, cs.substitute(R, w, cs.SX.zeros(w.shape)))
-    out = dict(known)
-    out.update({n: R[i] for i, n in enumerate(names)})
-    return _substitute_all(out, {n: out[n] for n in names}, c.symbols)
+    defs = cs.substitute(cs.vertcat(solved.defs, R), w, R)
+    return _Solved(solved.names + names, cs.vertcat(solved.syms, w), defs)
 
 
 def flatten(name: str, c: Collected) -> Model:
@@ -238,6 +311,7 @@ def flatten(name: str, c: Collected) -> Model:
     if missing:
         raise ModelError(f"states without a derivative equation: {missing}")
     variables = dict(c.variables)  # the Model's own copy: the System stays as declared
+    _start_nominals(c, variables)
     eqs = list(c.equations) + _connection_equations(c, variables)
     unknown_names = [v for v, var in c.variables.items() if var.kind == "algebraic"]
     if len(eqs) != len(unknown_names):
@@ -248,13 +322,18 @@ def flatten(name: str, c: Collected) -> Model:
     kept_eqs: list[cs.SX] = []
     kept_vars: list[str] = []
     if eqs:
-        residuals = cs.vertcat(*[e for e, _ in eqs])
+        residuals = cs.vertcat(*[e[0] for e in eqs])
         unknowns = cs.vertcat(*[c.symbols[v] for v in unknown_names])
-        origins = [o for _, o in eqs]
+        origins = [e[1] for e in eqs]
+        blocks = _blocks(residuals, unknowns, origins, unknown_names)
+        direct = _direct_solutions(eqs, blocks, unknowns, unknown_names, c.symbols)
         # Block equations keep the unknowns of earlier blocks as symbols (known, in BLT
         # order); one ordered pass resolves the definitions afterwards.
-        for eq_idx, var_idx in _blocks(residuals, unknowns, origins, unknown_names):
+        for k, (eq_idx, var_idx) in enumerate(blocks):
             block = [eqs[i][0] for i in eq_idx]
+            if k in direct:
+                known[unknown_names[var_idx[0]]] = direct[k]
+                continue
             if len(block) == 1:
                 v = c.symbols[unknown_names[var_idx[0]]]
                 slope = cs.jacobian(block[0], v)
@@ -272,18 +351,18 @@ def flatten(name: str, c: Collected) -> Model:
                 )
             kept_eqs.extend(block)
             kept_vars.extend(v.name() for v in block_vars)
-    known = _resolve(known, c.symbols)
-    ders = _substitute_all(c.ders, known, c.symbols)
+    solved = _resolve(known, c.symbols)
+    ders = c.ders
     if c.time_derivatives:
-        known = _resolve_time_derivatives(c, known, ders)
-        ders = _substitute_all(ders, known, c.symbols)
-    outputs = _substitute_all(c.outputs, known, c.symbols)
-    energies = _substitute_all(c.energies, known, c.symbols)
-    dissip = _substitute_all(c.dissipations, known, c.symbols)
+        solved = _resolve_time_derivatives(c, solved, solved.substitute(ders))
     # Equations kept for the algebraic part may use unknowns solved later in BLT order.
-    kept = _substitute_all(dict(enumerate(kept_eqs)), known, c.symbols)
+    parts = (ders, c.outputs, c.energies, c.dissipations, dict(enumerate(kept_eqs)))
+    joint = {(i, k): e for i, part in enumerate(parts) for k, e in part.items()}
+    joint = solved.substitute(joint)  # one pass for all of them
+    ders, outputs, energies, dissip, kept = (
+        {k: joint[i, k] for k in part} for i, part in enumerate(parts)
+    )
     kept_eqs = list(kept.values())
-    solved = known
     model = Model(
         name=name,
         variables=variables,
@@ -291,7 +370,7 @@ def flatten(name: str, c: Collected) -> Model:
         ders=ders,
         alg=kept_eqs,
         alg_vars=kept_vars,
-        solved=solved,
+        solved=solved.as_dict(),
         outputs=outputs,
         energies=energies,
         dissipations=dissip,

@@ -196,10 +196,10 @@ class Model:
                 "dae_jac",
                 s,
                 [
-                    cs.jacobian(self.ode, self.x),
-                    cs.jacobian(self.ode, self.z),
-                    cs.jacobian(self.alg, self.x),
-                    cs.jacobian(self.alg, self.z),
+                    self._jacobian("ode", "x"),
+                    self._jacobian("ode", "z"),
+                    self._jacobian("alg", "x"),
+                    self._jacobian("alg", "z"),
                 ],
                 _ARGS,
                 ["ode_x", "ode_z", "alg_x", "alg_z"],
@@ -243,21 +243,26 @@ class Model:
             cache[key] = self._linear("linearization", self._signals[rows])
         return cache[key]
 
+    def _jacobian(self, of: str, wrt: str) -> cs.SX:
+        """``d of / d wrt`` (``of`` "ode" or "alg", ``wrt`` "x", "z" or "u"), computed once
+        per model: linearisations, "dae_jac" and equilibria share it."""
+        return self.cached(
+            ("jacobian", of, wrt), lambda: cs.jacobian(getattr(self, of), getattr(self, wrt))
+        )
+
     def _linear(self, name: str, h: cs.SX) -> cs.Function:
         """``A, B, C, D`` of ``(ode, h)`` with ``z`` eliminated (implicit function theorem)."""
-        jac = {
-            (e, v): cs.jacobian(expr, sym)
-            for e, expr in (("f", self.ode), ("h", h))
-            for v, sym in (("x", self.x), ("u", self.u))
-        }
+        jac = {("f", v): self._jacobian("ode", v) for v in ("x", "u")}
+        jac.update({("h", v): cs.jacobian(h, sym) for v, sym in (("x", self.x), ("u", self.u))})
         if self.nz:
             # dz/d[x, u] = -g_z^{-1} [g_x, g_u]
             g_xu = cs.jacobian(self.alg, cs.vertcat(self.x, self.u))
             dz = -cs.solve(cs.jacobian(self.alg, self.z), g_xu)
             for e, expr in (("f", self.ode), ("h", h)):
                 through_z = cs.mtimes(cs.jacobian(expr, self.z), dz)
-                jac[e, "x"] += through_z[:, : self.nx]
-                jac[e, "u"] += through_z[:, self.nx :]
+                # not +=: the shared Jacobians stay as they are
+                jac[e, "x"] = jac[e, "x"] + through_z[:, : self.nx]
+                jac[e, "u"] = jac[e, "u"] + through_z[:, self.nx :]
         out = [jac["f", "x"], jac["f", "u"], jac["h", "x"], jac["h", "u"]]
         return cs.Function(name, self._syms, out, _ARGS, ["A", "B", "C", "D"])
 

@@ -106,10 +106,15 @@ class Collected:
     variables: dict[str, Var] = field(default_factory=dict)
     symbols: dict[str, cs.SX] = field(default_factory=dict)
     ders: dict[str, cs.SX] = field(default_factory=dict)
-    equations: list[tuple[cs.SX, str]] = field(default_factory=list)
+    equations: list[tuple[cs.SX, str, tuple[cs.SX, cs.SX] | None]] = field(default_factory=list)
+    """Residual, origin, and ``(lhs, rhs)`` of a residual ``lhs - rhs`` of two expressions."""
     outputs: dict[str, cs.SX] = field(default_factory=dict)
     ports: list[Port] = field(default_factory=list)
     connections: list[tuple[Port, Port]] = field(default_factory=list)
     energies: dict[str, cs.SX] = field(default_factory=dict)
     time_derivatives: dict[str, cs.SX] = field(default_factory=dict)
     dissipations: dict[str, cs.SX] = field(default_factory=dict)
+    start_nominals: dict[str, cs.SX] = field(default_factory=dict)
+    """Variables whose nominal is ``|start|`` at the parameter defaults, set at flattening."""
+    children: dict[str, dict[str, str]] = field(default_factory=dict)
+    """Instance path -> {local name: full name} of the variables declared there."""
