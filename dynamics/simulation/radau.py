@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
 from .common import InputLaw, law_dae, method_options, require_ode
-from .settings import Segment, add_stats, register_method
+from .settings import Segment, SolverSettings, add_stats, register_method
 
 SOURCE = Path(__file__).parent / "c" / "radau.c"
 """The integrator's C source (package data)."""
@@ -176,9 +176,8 @@ def _build(model: Model, law: InputLaw) -> Library:
 _TABLEAU = _packed()
 
 
-def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
-    s, m = seg.settings, seg.model
-    require_ode(m, s)
+def _options(s: SolverSettings) -> tuple[np.ndarray, int]:
+    """The checked options: ``[rtol, atol, first_step or 0, max_step]`` and max_newton."""
     opts = method_options(s, _DEFAULTS)
     first, hmax, newton = opts["first_step"], float(opts["max_step"]), opts["max_newton"]
     if first is not None and not (np.isfinite(first) and first > 0):
@@ -187,17 +186,24 @@ def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
         raise ParameterError("solver.options.max_step", hmax, "(0, inf] s")
     if not (isinstance(newton, int) and 1 <= newton <= 50):
         raise ParameterError("solver.options.max_newton", newton, "an integer in [1, 50]")
+    return np.array([s.rtol, s.atol, first or 0.0, hmax]), newton
+
+
+def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
+    s, m = seg.settings, seg.model
+    require_ode(m, s)
+    opt, newton = m.cached(("radau_options", s.key), lambda: _options(s))  # read only
     lib = library(m, seg.law)
+    nx = lib.n
     times = np.ascontiguousarray(seg.times, dtype=float)
     x = np.array(seg.x0, dtype=float)
-    X = np.empty((len(times), m.nx))
+    X = np.empty((len(times), nx))
     w = np.ascontiguousarray(seg.w, dtype=float)
     p = np.ascontiguousarray(seg.p, dtype=float)
-    opt = np.array([s.rtol, s.atol, first or 0.0, hmax])
     stats = np.zeros(len(_STATS))
     t_fail = np.zeros(1)
     code = lib.run(
-        m.nx,
+        nx,
         w.ctypes.data,
         p.ctypes.data,
         float(seg.t0),

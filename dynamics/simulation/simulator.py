@@ -53,6 +53,10 @@ CHUNK_POINTS = 1000
 """Most output points per method call: long runs are integrated in pieces of this many
 points (the method restarts there), so progress can be reported and memory stays flat."""
 
+EXPAND_LIMIT = 100_000
+"""Most instructions of a signals Function expanded over its output points (about
+10 ms to build, once per model, signals and grid size); larger ones stay maps."""
+
 
 @dataclass(frozen=True)
 class _Const:
@@ -161,10 +165,8 @@ class Simulator:
         """
         m = self.model
         self.p = m.parameters(params)
-        # the start values at the default parameters (as Model.x0() etc.), in one call
-        x_start, z_start, u_start = (
-            np.array(v, dtype=float).reshape(-1) for v in m.function("start").call([m.parameters()])
-        )
+        # the start values at the default parameters (as Model.x0() etc.): fixed per model
+        x_start, z_start, u_start = m.cached(("start_values",), lambda: _start_values(m))
         self._x = _vector(m, "x0", x0, x_start, m.state_names)
         m.check_finite(self._x, "x")
         self._z = _vector(m, "z0", z0, z_start, m.alg_names)
@@ -172,7 +174,7 @@ class Simulator:
             raise ParameterError("t0", t0, "a finite time [s]")
         self._t = float(t0)
         self._inputs = [_Const(float(v)) for v in u_start]
-        self._u = u_start
+        self._u = u_start.copy()
         self._limit: tuple | None = None
         self.stats: dict = {}
 
@@ -210,9 +212,8 @@ class Simulator:
         """Signals ``names`` at the points (columns) of ``X, Z, U``: (names, points)."""
         n, m = X.shape[1], self.model
         key = ("signals_buffer", names, n)  # on the model: shared by every simulator
-        call = m.cached(key, lambda: _Buffer(m.signals_function(list(names), n)))
-        P = np.broadcast_to(self.p[:, None], (len(self.p), n))
-        return call(X, Z, U, P).reshape(n, len(names)).T
+        call = m.cached(key, lambda: _Buffer(_points_function(m, names, n)))
+        return call(X, Z, U, self.p).reshape(n, len(names)).T
 
     def signal(self, name: str) -> float:
         """One named signal [SI] at the current point."""
@@ -357,12 +358,10 @@ class Simulator:
     def _check_domain(self, seg: Segment, X: np.ndarray, Z: np.ndarray, U: np.ndarray) -> None:
         """Refuse the first output point where a bounded signal leaves ``[low, high]``."""
         m = self.model
-        names = m.bounded_signal_names
+        names, low, high = m.cached(("domain",), lambda: _domain(m))
         if not names:
             return
-        S = self._signals_at(tuple(names), X.T, Z.T, U.T)
-        low = np.array([m.variables[k].low for k in names])[:, None]
-        high = np.array([m.variables[k].high for k in names])[:, None]
+        S = self._signals_at(names, X.T, Z.T, U.T)
         out = (S < low) | (S > high) | ~np.isfinite(S)
         if not out.any():
             return
@@ -438,6 +437,29 @@ class Simulator:
             if not math.isfinite(v):
                 raise ParameterError(name, float(v), "a finite number")
         return [_Const(float(v)) for v in vec]
+
+
+def _start_values(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``x0``, ``z0`` and ``u0`` at the default parameters, in one call."""
+    start = model.function("start").call([model.parameters()])
+    return tuple(np.array(v, dtype=float).reshape(-1) for v in start)
+
+
+def _domain(model: Model) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """The bounded signals and their ``low`` and ``high`` as (signals, 1) columns."""
+    names = tuple(model.bounded_signal_names)
+    low = np.array([model.variables[k].low for k in names])[:, None]
+    high = np.array([model.variables[k].high for k in names])[:, None]
+    return names, low, high
+
+
+def _points_function(model: Model, names: tuple[str, ...], n: int) -> cs.Function:
+    """``signals(X, Z, U, p)`` at ``n`` points (columns of ``X, Z, U``), ``p`` shared.
+    Expanded into one SX Function (no call per point: half the time of a map, same
+    operations) while it stays under :data:`EXPAND_LIMIT` instructions."""
+    f = model.signals_function(list(names))
+    mapped = f.map("signals", "serial", n, [3], [])
+    return mapped.expand() if f.n_instructions() * n <= EXPAND_LIMIT else mapped
 
 
 def _signal(model: Model, name: str, spec: object):

@@ -189,6 +189,28 @@ def test_simulate_names_the_signal_and_time_where_the_domain_is_left():
     assert info.value.state["lag.x"] > 0.5e5
 
 
+def test_signals_expanded_over_the_points_equal_the_mapped_ones(monkeypatch):
+    """Small signal Functions are expanded over the output points, larger ones mapped:
+    the same values bit for bit, and the same domain error at the same time."""
+    from sarcomere.dynamics.simulation import simulator
+
+    results, errors = [], []
+    for limit in (simulator.EXPAND_LIMIT, 0):
+        monkeypatch.setattr(simulator, "EXPAND_LIMIT", limit)
+        model = lag_model(x_high=0.5e5)  # a fresh model: nothing cached
+        is_sx = simulator._points_function(model, ("lag.x", "lag.u"), 7).is_a("SXFunction")
+        assert is_sx == (limit > 0)
+        ramp = Ramp(final=4e4, duration=0.5, start=0.1)
+        results.append(simulate(model, 1.0, {"lag.u": ramp}, output_interval=0.01))
+        with pytest.raises(SolverError, match="lag.x") as info:
+            simulate(model, 1.0, {"lag.u": Step(final=1e5, time=0.3)}, output_interval=0.01)
+        errors.append((str(info.value), info.value.time))
+    for name in ("lag.x", "lag.u"):
+        np.testing.assert_array_equal(results[0][name], results[1][name])
+    assert errors[0] == errors[1]
+    assert errors[0][1] == pytest.approx(0.44)
+
+
 def test_a_step_that_leaves_the_domain_fails_at_its_end_and_stays_at_its_start():
     model = lag_model(x_high=0.5e5)
     sim = Simulator(model)
