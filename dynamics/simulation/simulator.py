@@ -53,9 +53,10 @@ CHUNK_POINTS = 1000
 """Most output points per method call: long runs are integrated in pieces of this many
 points (the method restarts there), so progress can be reported and memory stays flat."""
 
-EXPAND_LIMIT = 100_000
-"""Most instructions of a signals Function expanded over its output points (about
-10 ms to build, once per model, signals and grid size); larger ones stay maps."""
+EXPAND_LIMIT = 60_000
+"""Most instructions of a signals Function expanded over its output points (up to some
+30 ms to build and 2.5 MB held, once per model, signals and grid size; enough for the 17
+bounded signals of the n = 3 chain at 501 points); larger ones stay maps."""
 
 
 @dataclass(frozen=True)
