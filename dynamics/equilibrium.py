@@ -24,6 +24,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .errors import ParameterError, SolverError
+from .modeling.buffered import BufferedCall
 from .modeling.model import Model
 from .units import to_si
 
@@ -127,26 +128,6 @@ def newton_function(model: Model, iterations: int = 30) -> cs.Function:
     )
 
 
-class _Call:
-    """A CasADi Function of dense vectors called through bound numpy buffers
-    (``Function.buffer``): about 1 us per call instead of tens of us of conversions."""
-
-    def __init__(self, F: cs.Function) -> None:
-        self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
-        self.out = np.zeros(F.nnz_out(0))
-        self.buf, self.trigger = F.buffer()
-        for i, arr in enumerate(self.args):
-            self.buf.set_arg(i, memoryview(arr))
-        self.buf.set_res(0, memoryview(self.out))
-
-    def __call__(self, *vectors: np.ndarray) -> np.ndarray:
-        """The first output's nonzeros (a copy)."""
-        for arr, value in zip(self.args, vectors, strict=True):
-            arr[:] = value
-        self.trigger()
-        return self.out.copy()
-
-
 class _Newton:
     """Cached residual and Jacobian Functions of one model."""
 
@@ -154,8 +135,8 @@ class _Newton:
         m = model
         w, r, J = _residual(m)
         self.model = m
-        self.F = _Call(cs.Function("F", [w, m.u, m.p], [r]))
-        self.J = _Call(cs.Function("J", [w, m.u, m.p], [J]))
+        self.F = BufferedCall(cs.Function("F", [w, m.u, m.p], [r]))
+        self.J = BufferedCall(cs.Function("J", [w, m.u, m.p], [J]))
         pattern = J.sparsity()  # the Jacobian's nonzeros, as CasADi's own sparse() gives
         self.pattern = (np.array(pattern.row()), np.array(pattern.colind()), pattern.shape)
         self.sig = m.function("signals")

@@ -42,6 +42,7 @@ import casadi as cs
 import numpy as np
 
 from ..errors import ParameterError
+from ..modeling.buffered import BufferedCall
 from ..modeling.model import Model
 from ..signals import Staircase, Step
 from ..units import to_si
@@ -78,26 +79,6 @@ class _Const:
 
 _HELD_TYPES = (_Const, Step, Staircase)
 """Signals constant between their breakpoints (right-continuous): integrated as held."""
-
-
-class _Buffer:
-    """Repeated calls of a CasADi Function on bound numpy arrays (``Function.buffer``):
-    about 1 us of call overhead instead of some 30 us of conversions per argument."""
-
-    def __init__(self, F: cs.Function) -> None:
-        self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
-        self.out = np.zeros(F.nnz_out(0))
-        self.buf, self.trigger = F.buffer()
-        for i, arr in enumerate(self.args):
-            self.buf.set_arg(i, memoryview(arr))
-        self.buf.set_res(0, memoryview(self.out))
-
-    def __call__(self, *columns: np.ndarray) -> np.ndarray:
-        """Arguments as (rows, points) arrays; the output's nonzeros (column-major)."""
-        for arr, value in zip(self.args, columns, strict=True):
-            arr[:] = np.ravel(value, order="F")
-        self.trigger()
-        return self.out.copy()
 
 
 class Simulator:
@@ -213,7 +194,7 @@ class Simulator:
         """Signals ``names`` at the points (columns) of ``X, Z, U``: (names, points)."""
         n, m = X.shape[1], self.model
         key = ("signals_buffer", names, n)  # on the model: shared by every simulator
-        call = m.cached(key, lambda: _Buffer(_points_function(m, names, n)))
+        call = m.cached(key, lambda: BufferedCall(_points_function(m, names, n)))
         return call(X, Z, U, self.p).reshape(n, len(names)).T
 
     def signal(self, name: str) -> float:
