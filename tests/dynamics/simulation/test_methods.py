@@ -11,7 +11,6 @@ import pytest
 import sarcomere.dynamics.simulation.fixed_step as methods
 import sarcomere.dynamics.simulation.guard as guard
 from sarcomere.dynamics.assemblies import hanging_load
-from sarcomere.dynamics.components.mechanical import Damper, Fixed, Mass, Spring
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.component import Component, System
@@ -30,36 +29,10 @@ def settings(method: str) -> SolverSettings:
     return SolverSettings(method, rtol=1e-8, atol=1e-11)
 
 
-# --- a damped oscillator: m x'' + d x' + c x = 0 ----------------------------------------
-M_KG, C_N_M, D_NS_M, X0_M = 1.0, 100.0, 2.0, 0.1
-
-
-@pytest.fixture(scope="module")
-def oscillator():
-    sys = System("oscillator")
-    fix = sys.add(Fixed("fix"))
-    spring = sys.add(Spring("spring", c=C_N_M))
-    damper = sys.add(Damper("damper", d=D_NS_M))
-    mass = sys.add(Mass("mass", m=M_KG, g=0.0, s_start=X0_M))
-    sys.connect(fix.flange, spring.flange_a)
-    sys.connect(spring.flange_b, mass.flange_a)
-    sys.connect(fix.flange, damper.flange_a)
-    sys.connect(damper.flange_b, mass.flange_b)
-    return sys.flatten()
-
-
-def oscillator_exact(t: np.ndarray) -> np.ndarray:
-    """Position [m] of the underdamped oscillator released from X0_M at rest."""
-    w0 = math.sqrt(C_N_M / M_KG)
-    zeta = D_NS_M / (2 * math.sqrt(C_N_M * M_KG))
-    wd = w0 * math.sqrt(1 - zeta**2)
-    return X0_M * np.exp(-zeta * w0 * t) * (np.cos(wd * t) + zeta * w0 / wd * np.sin(wd * t))
-
-
 @pytest.mark.parametrize("method", ADAPTIVE + list(FIXED))
-def test_oscillator_matches_closed_form(oscillator, method):
+def test_oscillator_matches_closed_form(oscillator, oscillator_error, method):
     res = simulate(oscillator, 1.0, settings=settings(method), output_interval=0.01)
-    err = np.max(np.abs(res["mass.s"] - oscillator_exact(res["time"]))) / X0_M
+    err = oscillator_error(res)
     assert err < BOUND.get(method, 1e-5), err
     assert res.meta["n_steps"] > 0
 
