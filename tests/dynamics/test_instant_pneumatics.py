@@ -90,45 +90,6 @@ def test_step_response_within_the_measured_error_of_full():
         np.testing.assert_array_equal(res["myofibril.aps1.chamber.p_gauge"], res["regulator.p_out"])
 
 
-def _kicked(model, patterns, t_final, dt):
-    """Kick the load at the 0.05 MPa equilibrium (the supply pressure constant); parameters
-    matching ``patterns`` set to 0. Returns times, stored energy E [J], dissipation D [W]."""
-    eq = solve_equilibrium(model, {P: 0.05e6})
-    x0 = eq.x.copy()
-    x0[model.state_names.index("load.v")] = 0.05
-    over = {n: 0.0 for n in model.param_names if any(fnmatch(n, p) for p in patterns)}
-    res = simulate(
-        model,
-        t_final,
-        inputs={P: 0.05e6},
-        x0=x0,
-        params=over,
-        output_interval=dt,
-        settings=SolverSettings(rtol=1e-11, atol=1e-14),
-    )
-    n = len(res.index)
-    E, D = model.function("energy").map(n)(
-        np.array([res[k] for k in model.state_names]),
-        np.zeros((0, n)),
-        np.full((1, n), 0.05e6),
-        np.repeat(model.parameters(over)[:, None], n, 1),
-    )[:2]
-    return np.asarray(res.index), np.array(E).ravel(), np.array(D).ravel()
-
-
-def test_energy_balance_holds_at_constant_supply_pressure():
-    """The chambers' energy ``-(p - p_amb) V`` (the supply's potential): conserved without
-    damping, and the dissipation accounts for the loss with it."""
-    m = hanging_load(2, load_kg=0.02, fidelity="instant_pneumatics")
-    _, E, D = _kicked(m, ("*.loss.d", "*.actin*.c_s"), 0.3, 1e-3)
-    assert np.ptp(E) < 1e-6 * 0.5 * (0.001 + 0.02) * 0.05**2
-    assert np.max(D) == 0.0
-    t, E, D = _kicked(m, (), 0.2, 2e-5)
-    dissipated = np.sum(0.5 * (D[1:] + D[:-1]) * np.diff(t))
-    assert E[0] - E[-1] > 0
-    assert dissipated == pytest.approx(E[0] - E[-1], rel=2e-3)
-
-
 def test_bad_instant_option_is_refused():
     with pytest.raises(ParameterError, match=r"instant.*'yes'.*True or False"):
         Myofibril("m", 3, APSParams.from_paper(), instant="yes")

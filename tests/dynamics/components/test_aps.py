@@ -115,20 +115,25 @@ def _kicked_run(m, patterns, t_final, dt, extra=None):
 ADIABATIC = ("*.chamber.tau_heat",)  # 1e12 s: no wall heat (the finite default fixes the start)
 
 
-@pytest.mark.parametrize("thermal", ["isothermal", "adiabatic"])
-def test_energy_conserved_with_sealed_chambers_and_no_damping(thermal):
+# chambers: isothermal and adiabatic air, and the instant level's supply potential
+# -(p - p_amb) V (conserved while the supply pressure is constant, as here)
+CHAMBERS = [("isothermal", "full"), ("adiabatic", "full"), ("isothermal", "instant_pneumatics")]
+
+
+@pytest.mark.parametrize(("thermal", "fidelity"), CHAMBERS)
+def test_energy_conserved_with_sealed_chambers_and_no_damping(thermal, fidelity):
     p = APSParams.from_paper(thermal=thermal)
-    m = hanging_load(2, p, load_kg=0.02)
+    m = hanging_load(2, p, load_kg=0.02, fidelity=fidelity)
     _, E, D = _kicked_run(m, SEALED + UNDAMPED, 0.3, 1e-3, _set(m, ADIABATIC, 1e12))
     kinetic0 = 0.5 * (0.001 + 0.02) * 0.05**2
     assert np.ptp(E) < 1e-6 * kinetic0
     assert np.max(D) == 0.0
 
 
-@pytest.mark.parametrize("thermal", ["isothermal", "adiabatic"])
-def test_dissipation_accounts_for_energy_loss(thermal):
+@pytest.mark.parametrize(("thermal", "fidelity"), CHAMBERS)
+def test_dissipation_accounts_for_energy_loss(thermal, fidelity):
     p = APSParams.from_paper(thermal=thermal)
-    m = hanging_load(2, p, load_kg=0.02)
+    m = hanging_load(2, p, load_kg=0.02, fidelity=fidelity)
     res, E, D = _kicked_run(m, SEALED, 0.2, 2e-5, _set(m, ADIABATIC, 1e12))
     dissipated = np.sum(0.5 * (D[1:] + D[:-1]) * np.diff(res.index))
     loss = E[0] - E[-1]
