@@ -29,3 +29,21 @@ def checkout_untouched():
     yield
     after = _status()
     assert after == before, f"the tests changed the checkout:\n{after}"
+
+
+@pytest.fixture(scope="session")
+def drawn_png():
+    """``check(path)``: the file is a PNG plot with something drawn on it (decoded, at least
+    200 x 200 pixels, 1-90 % of them not the white background, more than a handful of
+    colours: an empty or blank figure fails)."""
+    from matplotlib import image
+
+    def check(path: Path) -> None:
+        img = image.imread(path)  # raises on a file that is not an image
+        assert img.ndim == 3 and min(img.shape[:2]) >= 200, img.shape
+        rgb = img[..., :3].reshape(-1, 3)
+        inked = (rgb < 0.98).any(axis=1).mean()
+        assert 0.01 < inked < 0.9, f"{path.name}: {inked:.3%} of the pixels drawn"
+        assert len(set(map(tuple, (rgb * 255).round().astype(int)))) > 8, path.name
+
+    return check
