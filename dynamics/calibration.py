@@ -10,12 +10,15 @@ Targets (paper, Results):
 * 3 APS, 100 g, 0 MPa: ``L / L' = 1.07``;
 
 with ``L`` the hanging chain's length (what the paper's camera measured) and ``L'`` the
-undeformed rest length ``n (A + 2 r1')`` (:func:`rest_length_undeformed`: 164.94 mm for
-3 APS), in both ratios. The paper denotes with an apostrophe "the initial configuration
-... without any myosin deformation", models it as ``L' = n (A' + I')`` (Modeling), and
-measured it "in advance" as 165 mm (Results, Concentric Contraction): the undeformed
-length to 0.04 %, whereas the chain hanging under its own weight is longer (168.2 mm in
-this model; docs/paper.md, "Rest length").
+model's own length at 0 MPa without load (hanging under its own weight and the 1 g hook)
+in both ratios: the paper's strain ``(L[P, load] - L[0, load]) / L[0, 0]`` is normalised
+by that length, and its 0 g curve ends at -12.5 % = 0.875 - 1. The alternative, ``L'`` the
+undeformed ``n (A + 2 r1')`` (:func:`rest_length_undeformed`, 164.94 mm: the 165 mm the
+paper "measured in advance"), has no physical fit (:func:`rest_length_study`): the two
+length ratios then give an isometric force of 0.48 N or more for any thread stiffness,
+against 0.315 N. So the hanging chain is 170.6 mm against the measured 165 mm: a
+contradiction in the paper's numbers for SPA bodies of about 8.6 g, stated in
+docs/paper.md, "Rest length".
 
 Fitted: the effective pneumatic area ``A_p``, the restoring cross-section ``A_r`` and
 the I-band series stiffness ``k_s``, in log space. The three targets and every
@@ -27,10 +30,12 @@ check (:func:`evaluate`: every equilibrium re-solved from scratch) meets the tar
 :data:`VERIFY_RTOL`; a failure raises :class:`SolverError` with the step reached.
 
 Region of convergence: every start with each fitted parameter within a factor
-:data:`START_REGION` = (0.5, 2) of the packaged value converges to the same parameters
-(tested from the 8 corners and fixed-seed random starts, tests/dynamics/test_calibration.py);
-the fit is unique there (the sensitivity matrix is non-singular at the solution and every
-start lands on the same point to 1e-9).
+:data:`START_REGION` = (0.5, 2) of its packaged value converges to the same parameters
+(tested from the 8 corners and fixed-seed random starts in
+tests/dynamics/test_calibration.py, each in 1-2 continuation steps and 6-27 Newton
+iterations). The fit is unique there: every start lands on the same point to 1e-11, and
+the sensitivity matrix at it is non-singular (singular values 1.0, 0.088, 0.022). Seven
+of the eight corners of the wider (0.25, 4) box converge too; (4, 0.25, 4) stalls.
 
 Identifiability is judged from the sensitivities of the targets to every candidate
 parameter at the solution and their singular values.

@@ -74,6 +74,11 @@ def handler(args: argparse.Namespace) -> int:
         f"{', '.join(f'{s:.3g}' for s in res.singular_values)}"
     )
     print(f"  no influence on these targets: {', '.join(res.not_identifiable)}")
+    print(
+        f"  3-APS rest length: L' = {1e3 * record['rest_length_hanging_n3_m']:.1f} mm hanging "
+        f"(the ratios' L'), {1e3 * record['rest_length_undeformed_n3_m']:.2f} mm undeformed; "
+        "measured 165 mm (docs/paper.md, 'Rest length')"
+    )
     written = "calibration.json" + (
         ", family.json, family.csv, concentric-family.png" if members else ""
     )
