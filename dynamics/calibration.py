@@ -63,7 +63,8 @@ TARGETS = {
     "length_ratio_100g_0MPa": 1.07,
 }
 """Paper's measured values (Results: Isometric and Concentric Contraction); the length
-ratios are ``L / L'`` with ``L'`` the undeformed length (:func:`rest_length_undeformed`)."""
+ratios are ``L / L'`` with ``L'`` the chain hanging at 0 MPa without load (module
+docstring; :data:`REST_LENGTHS`)."""
 
 START_REGION = (0.5, 2.0)
 """Factors on each fitted parameter's packaged value between which every start converges
@@ -76,6 +77,10 @@ independently (:func:`evaluate`)."""
 NEWTON_TOL = 1e-11
 """Convergence of the fit's Newton method: max-norm of the scaled residual (equilibrium
 rows per their largest Jacobian entry, targets relative)."""
+
+STALL_TOL = 1e-9
+"""A Newton iteration that can make no more progress (rounding) is accepted at this
+scaled residual, and reported as stalled; :func:`fit`'s verification still applies."""
 
 FITTED = {  # APSParams field -> model parameter pattern
     "A_p": "*.chamber.A",
@@ -251,8 +256,10 @@ def fit(
     :data:`TARGETS`, as many as parameters) from ``start``; ``rest_length`` as
     :func:`evaluate`. Newton continuation, verified by :func:`evaluate` to
     :data:`VERIFY_RTOL` (module docstring); raises :class:`SolverError` otherwise."""
-    if len(fitted) != len(targets):
-        raise ParameterError("targets", targets, f"{len(fitted)} targets for {fitted}")
+    if not set(fitted) <= set(FITTED):
+        raise ParameterError("fitted", fitted, f"names from {tuple(FITTED)}")
+    if not set(targets) <= set(TARGETS) or len(targets) != len(fitted):
+        raise ParameterError("targets", targets, f"{len(fitted)} names from {tuple(TARGETS)}")
     system = _System(start, fitted, targets, rest_length)
     v, path = _continuation(system, verbose)
     values = {k: float(np.exp(v[i])) for i, k in enumerate(fitted)}
@@ -267,10 +274,11 @@ def fit(
             f"re-solved from scratch (worst relative target residual {worst:.3g} > "
             f"{VERIFY_RTOL:g}: another equilibrium branch)"
         )
+    stalled = f" (stalled, accepted below {STALL_TOL:g})" if path.residual > NEWTON_TOL else ""
     status = (
         f"converged: Newton continuation in {path.steps} step(s), {path.iterations} "
-        f"iterations, scaled residual {path.residual:.2g}; verified by equilibrium solves "
-        f"from scratch (worst relative target residual {worst:.2g})"
+        f"iterations, scaled residual {path.residual:.2g}{stalled}; verified by equilibrium "
+        f"solves from scratch (worst relative target residual {worst:.2g})"
     )
     return Fit(p_fit, values, achieved, residuals, status, path.iterations, path.steps)
 
@@ -387,20 +395,25 @@ def _continuation(system: _System, verbose: bool) -> tuple[np.ndarray, _Path]:
 
 def _newton(system: _System, v: np.ndarray, goal: np.ndarray):
     """Damped Newton on ``R(v, goal) = 0``: backtracking on ``|R|_2`` (a non-finite trial
-    point counts as worse); converged at ``max |R| <= NEWTON_TOL``. Returns (solution or
-    None, iterations, scaled residual)."""
+    point counts as worse); converged at ``max |R| <= NEWTON_TOL``, or stalled (no more
+    progress) at ``max |R| <= STALL_TOL``. Returns (solution or None, iterations, scaled
+    residual)."""
     with np.errstate(over="ignore", invalid="ignore"):
         return _damped_newton(system, v, goal)
 
 
 def _damped_newton(system: _System, v: np.ndarray, goal: np.ndarray):
     R, J = (np.array(a) for a in system.residual(v, goal))
-    merit = float(np.linalg.norm(R))
+    merit, norm = float(np.linalg.norm(R)), float(np.max(np.abs(R)))
+
+    def stalled(it: int):  # no more progress: accept only below STALL_TOL
+        return (v if norm <= STALL_TOL else None), it, norm
+
     for it in range(1, MAX_NEWTON + 1):
         try:
             dv = np.linalg.solve(J, -R.ravel())
         except np.linalg.LinAlgError:
-            return None, it, float(np.max(np.abs(R)))
+            return stalled(it)
         lam = 1.0
         while lam >= 1e-4:
             trial = v + lam * dv
@@ -410,12 +423,12 @@ def _damped_newton(system: _System, v: np.ndarray, goal: np.ndarray):
                 break
             lam /= 2
         else:
-            return None, it, float(np.max(np.abs(R)))
+            return stalled(it)
         v, R, J, merit = trial, R_t, J_t, m_t
         norm = float(np.max(np.abs(R)))
         if norm <= NEWTON_TOL:
             return v, it, norm
-    return None, MAX_NEWTON, float(np.max(np.abs(R)))
+    return stalled(MAX_NEWTON)
 
 
 def sensitivities(p: APSParams, rel_step: float = 1e-4) -> tuple[dict, list[float], list[str]]:
