@@ -9,12 +9,36 @@ Targets (paper, Results):
 * 3 APS, no load, 0.1 MPa: ``L / L' = 0.875``;
 * 3 APS, 100 g, 0 MPa: ``L / L' = 1.07``;
 
-with ``L'`` the model's own length at 0 MPa and no load (the experiment's rest state).
+with ``L`` the hanging chain's length (what the paper's camera measured) and ``L'`` the
+model's own length at 0 MPa without load (hanging under its own weight and the 1 g hook)
+in both ratios: the paper's strain ``(L[P, load] - L[0, load]) / L[0, 0]`` is normalised
+by that length, and its 0 g curve ends at -12.5 % = 0.875 - 1. The alternative, ``L'`` the
+undeformed ``n (A + 2 r1')`` (:func:`rest_length_undeformed`, 164.94 mm: the 165 mm the
+paper "measured in advance"), has no physical fit (:func:`rest_length_study`): the two
+length ratios then give an isometric force of 0.48 N or more for any thread stiffness,
+against 0.315 N. So the hanging chain is 170.6 mm against the measured 165 mm: a
+contradiction in the paper's numbers for SPA bodies of about 8.6 g, stated in
+docs/paper.md, "Rest length".
+
 Fitted: the effective pneumatic area ``A_p``, the restoring cross-section ``A_r`` and
-the I-band series stiffness ``k_s`` (in log space). One CasADi ``nlpsol`` (IPOPT) solve
-with every equilibrium as an equality constraint and exact derivatives. Identifiability
-is judged from the sensitivities of the targets to every candidate parameter at the
-solution (implicit function theorem, exact Jacobians) and their singular values.
+the I-band series stiffness ``k_s``, in log space. The three targets and every
+equilibrium they need form one square system in the log-parameters and the equilibria's
+states (exact CasADi Jacobian), solved by a damped Newton method with continuation in
+the targets: from the targets the start parameters achieve, straight to the paper's,
+halving a step that does not converge. The result is accepted only after an independent
+check (:func:`evaluate`: every equilibrium re-solved from scratch) meets the targets to
+:data:`VERIFY_RTOL`; a failure raises :class:`SolverError` with the step reached.
+
+Region of convergence: every start with each fitted parameter within a factor
+:data:`START_REGION` = (0.5, 2) of its packaged value converges to the same parameters
+(tested from the 8 corners and fixed-seed random starts in
+tests/dynamics/test_calibration.py, each in 1-2 continuation steps and 6-27 Newton
+iterations). The fit is unique there: every start lands on the same point to 1e-11, and
+the sensitivity matrix at it is non-singular (singular values 1.0, 0.088, 0.022). Seven
+of the eight corners of the wider (0.25, 4) box converge too; (4, 0.25, 4) stalls.
+
+Identifiability is judged from the sensitivities of the targets to every candidate
+parameter at the solution and their singular values.
 """
 
 from __future__ import annotations
@@ -28,7 +52,7 @@ import numpy as np
 from .assemblies import hanging_load, isometric
 from .components.aps import APSParams
 from .equilibrium import solve_equilibrium
-from .errors import SolverError
+from .errors import ParameterError, SolverError
 from .modeling.model import Model
 
 P_TEST = 1.0e5  # Pa, the paper's maximum test pressure (0.1 MPa)
@@ -38,7 +62,25 @@ TARGETS = {
     "length_ratio_0g_0p1MPa": 0.875,
     "length_ratio_100g_0MPa": 1.07,
 }
-"""Paper's measured values (Results: Isometric and Concentric Contraction)."""
+"""Paper's measured values (Results: Isometric and Concentric Contraction); the length
+ratios are ``L / L'`` with ``L'`` the chain hanging at 0 MPa without load (module
+docstring; :data:`REST_LENGTHS`)."""
+
+START_REGION = (0.5, 2.0)
+"""Factors on each fitted parameter's packaged value between which every start converges
+to the same fit (tested: the corners and fixed-seed random starts)."""
+
+VERIFY_RTOL = 1e-8
+"""Largest relative target residual accepted when the fit's equilibria are re-solved
+independently (:func:`evaluate`)."""
+
+NEWTON_TOL = 1e-11
+"""Convergence of the fit's Newton method: max-norm of the scaled residual (equilibrium
+rows per their largest Jacobian entry, targets relative)."""
+
+STALL_TOL = 1e-9
+"""A Newton iteration that can make no more progress (rounding) is accepted at this
+scaled residual, and reported as stalled; :func:`fit`'s verification still applies."""
 
 FITTED = {  # APSParams field -> model parameter pattern
     "A_p": "*.chamber.A",
@@ -74,6 +116,8 @@ class CalibrationResult:
     singular_values: list[float]
     not_identifiable: list[str]
     status: str
+    iterations: int
+    steps: int
 
     def to_dict(self) -> dict:
         """JSON-ready record with provenance."""
@@ -94,15 +138,20 @@ class CalibrationResult:
             "singular_values": self.singular_values,
             "not_identifiable": self.not_identifiable,
             "status": self.status,
+            "newton_iterations": self.iterations,
+            "continuation_steps": self.steps,
+            "rest_length_undeformed_n3_m": rest_length_undeformed(3, self.params),
+            "rest_length_hanging_n3_m": rest_length_hanging(3, self.params),
         }
 
 
 def _param_expr(model: Model, base: np.ndarray, theta: dict[str, cs.SX], links: dict) -> cs.SX:
-    """Parameter vector with the fitted entries replaced by symbolic values, and the linked
-    entries (``links``: parameter name -> expression) by those expressions."""
+    """Parameter vector with the fitted entries (``theta``: APSParams field -> symbol)
+    replaced by symbolic values, and the linked entries (``links``: parameter name ->
+    expression) by those expressions."""
     entries = []
     for i, name in enumerate(model.param_names):
-        sym = next((theta[k] for k, pat in FITTED.items() if fnmatch.fnmatch(name, pat)), None)
+        sym = next((s for k, s in theta.items() if fnmatch.fnmatch(name, FITTED[k])), None)
         entries.append(links.get(name, sym if sym is not None else cs.SX(base[i])))
     return cs.vertcat(*entries)
 
@@ -126,96 +175,260 @@ def _experiments(p: APSParams):
     ]
 
 
-def _targets(y: dict) -> dict:
+def rest_length_undeformed(n: int, p: APSParams) -> float:
+    """The paper's ``L'`` [m]: ``n (A + 2 r1')``, taut threads, no expansion, no weight
+    (164.94 mm for the paper's 3 APS; measured: 165 mm)."""
+    return n * p.unit_length_rest
+
+
+def rest_length_hanging(n: int, p: APSParams) -> float:
+    """Length [m] of ``n`` APS hanging under their own weight (and the 1 g hook) at 0 MPa:
+    a prediction, longer than :func:`rest_length_undeformed` by the sag."""
+    eq = solve_equilibrium(hanging_load(n, p, load_kg=0.0), {"regulator.p_cmd": 0.0})
+    return eq["myofibril.length"]
+
+
+REST_LENGTHS = ("hanging", "undeformed")
+"""Definitions of ``L'`` in the length ratios: the chain hanging at 0 MPa without load
+(the default: the only one with a physical fit, docs/paper.md "Rest length") or the
+undeformed ``n (A + 2 r1')``."""
+
+
+def _targets(y: dict, p: APSParams, rest_length: str = "hanging") -> dict:
     """Target quantities from the per-experiment outputs (force or length)."""
+    if rest_length not in REST_LENGTHS:
+        raise ParameterError("rest_length", rest_length, f"one of {REST_LENGTHS}")
+    L_rest = y["hang_0g_0"] if rest_length == "hanging" else rest_length_undeformed(3, p)
     return {
         "force_n1_0p1MPa_N": y["iso_p"] - y["iso_0"],
-        "length_ratio_0g_0p1MPa": y["hang_0g_p"] / y["hang_0g_0"],
-        "length_ratio_100g_0MPa": y["hang_100g_0"] / y["hang_0g_0"],
+        "length_ratio_0g_0p1MPa": y["hang_0g_p"] / L_rest,
+        "length_ratio_100g_0MPa": y["hang_100g_0"] / L_rest,
     }
 
 
-def _index(model: Model, name: str) -> int:
-    """Position of a state, algebraic unknown or output in ``vertcat(x, z, y)``."""
-    return (model.state_names + model.alg_names + model.output_names).index(name)
+def _residual_function(model: Model) -> cs.Function:
+    """``[ode; alg]`` as a Function of ``(vertcat(x, z), u, p)``."""
+    w = cs.vertcat(model.x, model.z)
+    return cs.Function("F", [w, model.u, model.p], [cs.vertcat(model.ode, model.alg)])
 
 
-def evaluate(p: APSParams) -> dict[str, float]:
-    """The three target quantities for a parameter set (by equilibrium solves)."""
+def _output_function(model: Model, name: str) -> cs.Function:
+    """A state, algebraic unknown or output by name, as a Function of ``(x, z, u, p)``."""
+    i = (model.state_names + model.alg_names + model.output_names).index(name)
+    sig = cs.vertcat(model.x, model.z, model.y)
+    return cs.Function("Y", [model.x, model.z, model.u, model.p], [sig[i]])
+
+
+def evaluate(p: APSParams, rest_length: str = "hanging") -> dict[str, float]:
+    """The three target quantities for a parameter set (by equilibrium solves from
+    scratch); ``rest_length``: the ``L'`` of the ratios, one of :data:`REST_LENGTHS`."""
     y, guesses = {}, {}
     for key, model, pc, over, out, _ in _experiments(p):
         start = guesses.get(model.name)
         eq = solve_equilibrium(model, {"regulator.p_cmd": pc}, over, guess=start)
         guesses.setdefault(model.name, eq)
         y[key] = eq[out]
-    return _targets(y)
+    return _targets(y, p, rest_length)
+
+
+@dataclass
+class Fit:
+    """A verified solution of the fit: parameters, achieved targets, relative residuals,
+    status, Newton iterations and accepted continuation steps."""
+
+    params: APSParams
+    fitted: dict[str, float]
+    achieved: dict[str, float]
+    residuals: dict[str, float]
+    status: str
+    iterations: int
+    steps: int
+
+
+def fit(
+    start: APSParams,
+    fitted: tuple[str, ...] = tuple(FITTED),
+    targets: tuple[str, ...] = tuple(TARGETS),
+    rest_length: str = "hanging",
+    verbose: bool = False,
+) -> Fit:
+    """Fit the ``fitted`` parameters (keys of :data:`FITTED`) to the ``targets`` (keys of
+    :data:`TARGETS`, as many as parameters) from ``start``; ``rest_length`` as
+    :func:`evaluate`. Newton continuation, verified by :func:`evaluate` to
+    :data:`VERIFY_RTOL` (module docstring); raises :class:`SolverError` otherwise."""
+    if not set(fitted) <= set(FITTED):
+        raise ParameterError("fitted", fitted, f"names from {tuple(FITTED)}")
+    if not set(targets) <= set(TARGETS) or len(targets) != len(fitted):
+        raise ParameterError("targets", targets, f"{len(fitted)} names from {tuple(TARGETS)}")
+    system = _System(start, fitted, targets, rest_length)
+    v, path = _continuation(system, verbose)
+    values = {k: float(np.exp(v[i])) for i, k in enumerate(fitted)}
+    p_fit = replace(start, **values)
+    every = evaluate(p_fit, rest_length)
+    achieved = {k: every[k] for k in targets}
+    residuals = {k: (achieved[k] - TARGETS[k]) / TARGETS[k] for k in targets}
+    worst = max(abs(r) for r in residuals.values())
+    if not worst <= VERIFY_RTOL:
+        raise SolverError(
+            f"calibration failed: the Newton solution does not hold when its equilibria are "
+            f"re-solved from scratch (worst relative target residual {worst:.3g} > "
+            f"{VERIFY_RTOL:g}: another equilibrium branch)"
+        )
+    stalled = f" (stalled, accepted below {STALL_TOL:g})" if path.residual > NEWTON_TOL else ""
+    status = (
+        f"converged: Newton continuation in {path.steps} step(s), {path.iterations} "
+        f"iterations, scaled residual {path.residual:.2g}{stalled}; verified by equilibrium "
+        f"solves from scratch (worst relative target residual {worst:.2g})"
+    )
+    return Fit(p_fit, values, achieved, residuals, status, path.iterations, path.steps)
 
 
 def calibrate(start: APSParams | None = None, verbose: bool = False) -> CalibrationResult:
-    """Fit ``A_p``, ``A_r``, ``k_s`` to :data:`TARGETS` (see module docstring)."""
-    p0 = start or APSParams.from_paper()
-    exps = _experiments(p0)
-    log_theta = cs.SX.sym("log_theta", len(FITTED))
-    theta = {k: cs.exp(log_theta[i]) for i, k in enumerate(FITTED)}
-    ws, w0s, cons, outs, scales = [], [], [], {}, []
-    guesses = {}
-    for key, model, pc, over, out, link in exps:
-        eq = solve_equilibrium(model, {"regulator.p_cmd": pc}, over, guess=guesses.get(model.name))
-        guesses.setdefault(model.name, eq)
-        w_guess = np.concatenate([eq.x, eq.z])
-        scale = np.maximum(np.abs(w_guess), 1e-6)
-        w_hat = cs.SX.sym(f"w_{key}", len(w_guess))
-        w = w_hat * scale
-        pe = _param_expr(model, eq.p, theta, {k: outs[v] for k, v in link.items()})
-        u = cs.DM([pc])
-        F = cs.Function(
-            "F",
-            [cs.vertcat(model.x, model.z), model.u, model.p],
-            [cs.vertcat(model.ode, model.alg)],
-        )
-        Y = cs.Function(
-            "Y",
-            [model.x, model.z, model.u, model.p],
-            [cs.vertcat(model.x, model.z, model.y)[_index(model, out)]],
-        )
-        r = F(w, u, pe)
-        # scale each residual row by its Jacobian magnitude at the guess
-        # (a linked parameter makes r depend on earlier experiments' unknowns too)
-        jac = cs.Function("J", [cs.vertcat(*ws, w_hat), log_theta], [cs.jacobian(r, w_hat)])
-        th0 = np.log([getattr(p0, k) for k in FITTED])
-        Jw = np.abs(np.array(jac(np.concatenate([*w0s, w_guess / scale]), th0)))
-        cons.append(r / np.maximum(Jw.max(axis=1), 1e-300))
-        outs[key] = Y(w[: model.nx], w[model.nx :], u, pe)
-        ws.append(w_hat)
-        w0s.append(w_guess / scale)
-        scales.append(scale)
-    tq = _targets(outs)
-    obj = sum(((tq[k] - v) / v) ** 2 for k, v in TARGETS.items())
-    nlp = {"x": cs.vertcat(log_theta, *ws), "f": obj, "g": cs.vertcat(*cons)}
-    solver = cs.nlpsol(
-        "calibration",
-        "ipopt",
-        nlp,
-        {
-            "ipopt.print_level": 5 if verbose else 0,
-            "ipopt.sb": "yes",
-            "print_time": False,
-            "ipopt.tol": 1e-12,
-            "ipopt.max_iter": 500,
-        },
+    """Fit ``A_p``, ``A_r``, ``k_s`` to :data:`TARGETS` from ``start`` (default: the
+    packaged parameters; any start in :data:`START_REGION`), with identifiability."""
+    f = fit(start or APSParams.from_paper(), verbose=verbose)
+    sens, sv, weak = sensitivities(f.params)
+    return CalibrationResult(
+        f.params,
+        f.fitted,
+        f.achieved,
+        f.residuals,
+        sens,
+        sv,
+        weak,
+        f.status,
+        f.iterations,
+        f.steps,
     )
-    th0 = np.log([getattr(p0, k) for k in FITTED])
-    sol = solver(x0=np.concatenate([th0, *w0s]), lbg=0, ubg=0)
-    status = solver.stats()["return_status"]
-    if not solver.stats()["success"]:
-        raise SolverError(f"calibration failed: IPOPT returned '{status}'")
-    xs = np.array(sol["x"]).ravel()
-    fitted = {k: float(np.exp(xs[i])) for i, k in enumerate(FITTED)}
-    p_fit = replace(p0, **fitted)
-    achieved = evaluate(p_fit)
-    residuals = {k: (achieved[k] - v) / v for k, v in TARGETS.items()}
-    sens, sv, weak = sensitivities(p_fit)
-    return CalibrationResult(p_fit, fitted, achieved, residuals, sens, sv, weak, status)
+
+
+class _System:
+    """The square system ``R(v, T) = 0`` of the fit: every equilibrium (rows scaled by
+    their Jacobian at the start) and the relative target residuals ``(t(v) - T) / T*``;
+    ``v`` = [log-parameters, scaled equilibrium unknowns...]. ``v0`` holds the start
+    parameters and their equilibria, ``t0`` the targets they achieve, ``goal`` the paper's."""
+
+    def __init__(self, p0: APSParams, fitted, targets, rest_length: str) -> None:
+        log_theta = cs.SX.sym("log_theta", len(fitted))
+        theta = {k: cs.exp(log_theta[i]) for i, k in enumerate(fitted)}
+        th0 = np.log([getattr(p0, k) for k in fitted])
+        ws, w0s, cons, outs, guesses = [], [], [], {}, {}
+        for key, model, pc, over, out, link in _experiments(p0):
+            eq = solve_equilibrium(
+                model, {"regulator.p_cmd": pc}, over, guess=guesses.get(model.name)
+            )
+            guesses.setdefault(model.name, eq)
+            w_guess = np.concatenate([eq.x, eq.z])
+            scale = np.maximum(np.abs(w_guess), 1e-6)
+            w_hat = cs.SX.sym(f"w_{key}", len(w_guess))
+            w = w_hat * scale
+            pe = _param_expr(model, eq.p, theta, {k: outs[v] for k, v in link.items()})
+            u = cs.DM([pc])
+            r = _residual_function(model)(w, u, pe)
+            # each row in its own units: divided by its largest Jacobian entry at the start
+            # (a linked parameter makes r depend on earlier experiments' unknowns too)
+            jac = cs.Function("J", [cs.vertcat(*ws, w_hat), log_theta], [cs.jacobian(r, w_hat)])
+            Jw = np.abs(np.array(jac(np.concatenate([*w0s, w_guess / scale]), th0)))
+            cons.append(r / np.maximum(Jw.max(axis=1), 1e-300))
+            outs[key] = _output_function(model, out)(w[: model.nx], w[model.nx :], u, pe)
+            ws.append(w_hat)
+            w0s.append(w_guess / scale)
+        v = cs.vertcat(log_theta, *ws)
+        T = cs.SX.sym("T", len(targets))
+        tq = _targets(outs, p0, rest_length)
+        rows = [(tq[k] - T[i]) / TARGETS[k] for i, k in enumerate(targets)]
+        R = cs.vertcat(*cons, *rows)
+        self.residual = cs.Function("R", [v, T], [R, cs.jacobian(R, v)])
+        achieved = cs.Function("t", [v], [cs.vertcat(*(tq[k] for k in targets))])
+        self.v0 = np.concatenate([th0, *w0s])
+        self.t0 = np.array(achieved(self.v0)).ravel()
+        self.goal = np.array([TARGETS[k] for k in targets])
+
+
+@dataclass
+class _Path:
+    """How the continuation went: accepted steps, Newton iterations in all, final scaled
+    residual (max-norm)."""
+
+    steps: int = 0
+    iterations: int = 0
+    residual: float = np.inf
+
+
+MAX_NEWTON = 20
+"""Newton iterations per continuation step before the step is halved."""
+
+MIN_STEP = 1.0 / 1024
+"""Smallest continuation step (fraction of the way to the targets) before giving up."""
+
+
+def _continuation(system: _System, verbose: bool) -> tuple[np.ndarray, _Path]:
+    """Move the targets from ``system.t0`` to ``system.goal`` in steps (the first tries
+    the whole way), each solved by :func:`_newton` from the last solution; a step that
+    fails is halved, a step that succeeds doubles the next."""
+    t_final = system.goal
+    v, frac, step, path = system.v0, 0.0, 1.0, _Path()
+    while frac < 1.0:
+        nxt = min(1.0, frac + step)
+        goal = system.t0 + nxt * (t_final - system.t0)
+        v_new, its, res = _newton(system, v, goal)
+        path.iterations += its
+        if verbose:
+            print(
+                f"calibration: targets at {100 * nxt:5.1f} %: {its:2d} Newton iterations, "
+                f"scaled residual {res:.2e}" + ("" if v_new is not None else " (halving)")
+            )
+        if v_new is None:
+            step /= 2
+            if step < MIN_STEP:
+                raise SolverError(
+                    f"calibration failed: Newton did not converge (scaled residual {res:.3g} "
+                    f"after {its} iterations); the continuation reached {100 * frac:.3g} % "
+                    f"of the way from the start's targets to the paper's"
+                )
+            continue
+        v, frac, step = v_new, nxt, min(1.0, 2 * step)
+        path.steps += 1
+        path.residual = res
+    return v, path
+
+
+def _newton(system: _System, v: np.ndarray, goal: np.ndarray):
+    """Damped Newton on ``R(v, goal) = 0``: backtracking on ``|R|_2`` (a non-finite trial
+    point counts as worse); converged at ``max |R| <= NEWTON_TOL``, or stalled (no more
+    progress) at ``max |R| <= STALL_TOL``. Returns (solution or None, iterations, scaled
+    residual)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _damped_newton(system, v, goal)
+
+
+def _damped_newton(system: _System, v: np.ndarray, goal: np.ndarray):
+    R, J = (np.array(a) for a in system.residual(v, goal))
+    merit, norm = float(np.linalg.norm(R)), float(np.max(np.abs(R)))
+
+    def stalled(it: int):  # no more progress: accept only below STALL_TOL
+        return (v if norm <= STALL_TOL else None), it, norm
+
+    for it in range(1, MAX_NEWTON + 1):
+        try:
+            dv = np.linalg.solve(J, -R.ravel())
+        except np.linalg.LinAlgError:
+            return stalled(it)
+        lam = 1.0
+        while lam >= 1e-4:
+            trial = v + lam * dv
+            R_t, J_t = (np.array(a) for a in system.residual(trial, goal))
+            m_t = float(np.linalg.norm(R_t))
+            if np.isfinite(m_t) and np.all(np.isfinite(J_t)) and m_t < (1 - 1e-4 * lam) * merit:
+                break
+            lam /= 2
+        else:
+            return stalled(it)
+        v, R, J, merit = trial, R_t, J_t, m_t
+        norm = float(np.max(np.abs(R)))
+        if norm <= NEWTON_TOL:
+            return v, it, norm
+    return stalled(MAX_NEWTON)
 
 
 def sensitivities(p: APSParams, rel_step: float = 1e-4) -> tuple[dict, list[float], list[str]]:
@@ -238,6 +451,31 @@ def sensitivities(p: APSParams, rel_step: float = 1e-4) -> tuple[dict, list[floa
     sv = np.linalg.svd(S[:, [names.index(k) for k in FITTED]], compute_uv=False).tolist()
     weak = [n for n in names if np.max(np.abs(S[:, names.index(n)])) < 1e-6]
     return sens, sv, weak
+
+
+def rest_length_study(
+    k_s_values: tuple[float, ...] = (694.0, 5e3, 1e5, 1e6), eps_slack: float = 1e-6
+) -> list[dict]:
+    """The evidence against ``L'`` undeformed (docs/paper.md, "Rest length"): for each
+    fixed thread stiffness ``k_s`` [N/m], ``A_p`` and ``A_r`` fitted to the two length
+    ratios with ``L' = n (A + 2 r1')``, and the isometric force [N] and hanging rest
+    length [m] that fit gives. ``eps_slack`` [m] small, so that ``k_s eps_slack`` stays
+    below the experiments' tensions up to large ``k_s``."""
+    rows = []
+    for k_s in k_s_values:
+        start = APSParams.from_paper(k_s=float(k_s), eps_slack=eps_slack)
+        f = fit(start, ("A_p", "A_r"), tuple(TARGETS)[1:], rest_length="undeformed")
+        force = evaluate(f.params, "undeformed")["force_n1_0p1MPa_N"]
+        rows.append(
+            {
+                "k_s_N_per_m": float(k_s),
+                "A_p_m2": f.fitted["A_p"],
+                "A_r_m2": f.fitted["A_r"],
+                "force_n1_0p1MPa_N": force,
+                "rest_length_hanging_n3_m": rest_length_hanging(3, f.params),
+            }
+        )
+    return rows
 
 
 CONCENTRIC_LOADS_KG = (0.0, 0.01, 0.02, 0.05, 0.1)

@@ -24,7 +24,8 @@ from .progress import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--out DIR`` (default out/calibration), ``--verbose`` (IPOPT's log) and
+    """``--out DIR`` (default out/calibration), ``--verbose`` (the Newton continuation's
+    log) and
     ``--family`` (also calibrate the L_r family and draw its concentric band)."""
     parser.add_argument(
         "--out",
@@ -32,7 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="output folder for calibration.json (default: out/calibration)",
     )
-    parser.add_argument("--verbose", action="store_true", help="print IPOPT's iterations")
+    parser.add_argument(
+        "--verbose", action="store_true", help="print the Newton continuation's steps"
+    )
     parser.add_argument(
         "--family",
         action="store_true",
@@ -58,7 +61,7 @@ def handler(args: argparse.Namespace) -> int:
         (tmp / "calibration.json").write_text(json.dumps(record, indent=2) + "\n")
         if members is not None:
             _write_family(members, tmp)
-    print(f"calibration: IPOPT {res.status}, {wall:.1f} s")
+    print(f"calibration {res.status}; {wall:.1f} s")
     for name, value in res.fitted.items():
         print(f"  {name:<4} = {value:.6g} {record['fitted'][name]['unit']}")
     for key, target in TARGETS.items():
@@ -71,6 +74,11 @@ def handler(args: argparse.Namespace) -> int:
         f"{', '.join(f'{s:.3g}' for s in res.singular_values)}"
     )
     print(f"  no influence on these targets: {', '.join(res.not_identifiable)}")
+    print(
+        f"  3-APS rest length: L' = {1e3 * record['rest_length_hanging_n3_m']:.1f} mm hanging "
+        f"(the ratios' L'), {1e3 * record['rest_length_undeformed_n3_m']:.2f} mm undeformed; "
+        "measured 165 mm (docs/paper.md, 'Rest length')"
+    )
     written = "calibration.json" + (
         ", family.json, family.csv, concentric-family.png" if members else ""
     )
