@@ -323,7 +323,7 @@ def start_point(
 
 
 def export_fmu(
-    model_or_scenario,
+    model: Model,
     path: str | Path,
     fmi_version: int = 2,
     params: Mapping[str, object] | None = None,
@@ -334,19 +334,19 @@ def export_fmu(
 
     Parameters
     ----------
-    model_or_scenario : Model, str or Path
-        A flattened model (``nz = 0``), or a scenario (file or packaged name, see
-        ``sarcomere list``): its model, parameters, start inputs and experiment.
+    model : Model
+        A flattened model (``nz = 0``). A scenario's model, parameters, start inputs and
+        experiment come from :func:`sarcomere.scenarios.export_fmu.scenario_setup` (what
+        ``sarcomere export-fmu`` does).
     path : str or Path
         The ``.fmu`` file to write (its folder must exist).
     fmi_version : int
         2 or 3.
     params, inputs : mapping, optional
-        Parameter overrides and start inputs by name (a Model only; a scenario brings its
-        own): the FMU's start values, and the operating point its start states are the
-        equilibrium of.
+        Parameter overrides and start inputs by name: the FMU's start values, and the
+        operating point its start states are the equilibrium of.
     experiment : Experiment, optional
-        The default experiment (a Model only).
+        The default experiment.
 
     Returns
     -------
@@ -356,7 +356,7 @@ def export_fmu(
     Raises
     ------
     ParameterError
-        For a bad version, path, parameter or input.
+        For a bad model, version, path, parameter or input.
     FmuError
         If the C compiler fails.
 
@@ -369,17 +369,14 @@ def export_fmu(
     >>> export_fmu(hanging_load(1, load_kg=0.05), out).stat().st_size > 10_000
     True
     """
+    if not isinstance(model, Model):
+        raise ParameterError(
+            "model",
+            model,
+            "a flattened Model",
+            "a scenario's model is built by sarcomere.scenarios.export_fmu.scenario_setup",
+        )
     path = check_target(path, fmi_version)
-    if isinstance(model_or_scenario, Model):
-        model = model_or_scenario
-    else:
-        if params is not None or inputs is not None or experiment is not None:
-            raise ParameterError(
-                "params/inputs/experiment", "given", "None with a scenario (it sets its own)"
-            )
-        from sarcomere.scenarios.export_fmu import scenario_setup  # scenarios sit downstream
-
-        model, params, inputs, experiment = scenario_setup(model_or_scenario)
     codegen.require_ode(model)
     for what, names in (("inputs", model.input_names), ("outputs", model.output_names)):
         if not names:
