@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi3 import FMU3Model, FMU3Slave
+from fmpy.fmi3 import FMU3Model, FMU3Slave, fmi3FMUState
 from fmpy.validation import validate_fmu
 
 from sarcomere.dynamics.assemblies import isometric
@@ -145,9 +145,25 @@ def _started(fmu):
     return fmu
 
 
+def _past_the_stop_time(fmu, vr):
+    fmu.enterInitializationMode(startTime=0.0, stopTime=0.01)
+    fmu.exitInitializationMode()
+    fmu.doStep(0.0, 0.005)
+    fmu.doStep(0.005, 0.0051)
+
+
+def _a_freed_state(fmu, vr):
+    state = _started(fmu).getFMUState()
+    copy = fmi3FMUState(state.value)  # fmpy sets the freed handle to NULL
+    fmu.freeFMUState(state)
+    fmu.setFMUState(copy)  # refused by the registry of live states, never read
+
+
 @pytest.mark.parametrize(
     ("misuse", "message"),
     [
+        (_past_the_stop_time, "ends at t = 0.0101 s, past the stop time 0.01 s given at set-up"),
+        (_a_freed_state, "fmi3SetFMUState: this FMU state was freed already"),
         (lambda f, v: f.doStep(0.0, 0.001), "doStep is not allowed in instantiated"),
         (lambda f, v: f.setFloat64([v["time"]], [1.0]), "time is the independent variable"),
         (lambda f, v: _started(f).getFloat64([len(v)]), "unknown value reference"),
