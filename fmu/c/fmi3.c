@@ -1,6 +1,5 @@
 /* The FMI 3.0 API (Model Exchange and Co-Simulation) on top of instance.c: each function
  * checks its handle and arguments, then calls the instance. No physics here. */
-#include <stdlib.h>
 #include <string.h>
 
 #include "fmi3Functions.h"
