@@ -9,15 +9,16 @@ command step (0.01 -> 0.08 MPa at 0.1 s, a communication point of every step stu
 at the communication points shared with the reference: the Gauss-Seidel, extrapolated run
 at a 0.125 ms step.
 
-**Two-way** (:mod:`sarcomere.fmu.cosim_study`): the muscle (1 APS, a 20 g end mass) and a
-50 g load on a spring, split into two native participants (the end's position drives the
-spring, its tension pulls the end), command 0.02 -> 0.08 MPa at 20 ms, 0.2 s. The error is
+**Two-way** (:mod:`sarcomere.scenarios.studies.cosim_coupling`, the set-ups of
+:mod:`sarcomere.dynamics.assemblies`): the muscle (1 APS, a 20 g hook) and a 50 g load on
+a spring, split into two native participants (the hook's position drives the spring, its
+tension pulls the hook), command 0.02 -> 0.08 MPa at 20 ms, 0.2 s. The error is
 ``max |s - s_ref| / ptp(s_ref)`` of the load's position against the same system as one
 model (CVODES, rtol 1e-10), at the communication points. Then the spring's stiffness is
 swept: a run that fails (a participant leaves the physical domain) or whose error grows
-(:func:`~sarcomere.fmu.cosim_study.diverges`) is unstable, and the linear analysis
-(:func:`~sarcomere.fmu.cosim_study.amplification`) gives the boundary. With hold, the runs
-are repeated with the load as its exported FMU (FMI 2.0, built once, about 3 s of gcc).
+(``diverges``) is unstable, and the linear analysis (``amplification``) gives the
+boundary. With hold, the runs are repeated with the load as its exported FMU (FMI 2.0,
+built once, about 3 s of gcc).
 
 The observed order is the slope of log error against log step between the two smallest
 steps. Writes ``cosim_accuracy.png`` (one-way), ``cosim_two_way.png``,
@@ -54,7 +55,7 @@ from sarcomere.fmu import (  # noqa: E402
     export_fmu,
     open_fmu,
 )
-from sarcomere.fmu import cosim_study as study  # noqa: E402
+from sarcomere.scenarios.studies import cosim_coupling as study  # noqa: E402
 
 ORDERINGS = ("jacobi", "gauss-seidel")
 COMBOS = [(o, i) for o in ORDERINGS for i in ("hold", "extrapolate")]
@@ -124,7 +125,7 @@ def two_way(load_fmu: Path) -> dict:
     """Every ordering and input law with native participants; with hold, also with the
     load as its exported FMU (labels ending in ", load FMU")."""
     finest = TWO_WAY_STEPS[-1]
-    ref = study.monolithic_run(TWO_WAY_C, COMMAND, TWO_WAY_STOP, _grid(finest))["load.s"]
+    ref = study.monolithic_run(TWO_WAY_C, COMMAND, TWO_WAY_STOP, _grid(finest))["mass.s"]
     out = {}
     cases = [(o, i, False) for o, i in COMBOS] + [(o, "hold", True) for o in ORDERINGS]
     for ordering, inputs, fmu in cases:
@@ -141,7 +142,7 @@ def two_way(load_fmu: Path) -> dict:
                     settings=PARTICIPANTS,
                     load_fmu=opened if fmu else None,
                 )
-            e = np.abs(r["load.load.s"] - ref[:: round(h / finest)])
+            e = np.abs(r["load.mass.s"] - ref[:: round(h / finest)])
             errors.append(float(np.max(e) / np.ptp(ref)))
         ratios = [errors[k] / errors[k + 1] for k in range(len(errors) - 1)]
         out[f"{ordering}, {inputs}{', load FMU' if fmu else ''}"] = {
@@ -159,7 +160,7 @@ def stability(load_fmu: Path) -> dict:
     runs = []
     cases = [(o, i, False) for o, i in COMBOS] + [(o, "hold", True) for o in ORDERINGS]
     for c in SWEEP_C:
-        ref = study.monolithic_run(c, COMMAND, TWO_WAY_STOP, _grid(finest))["spring.f"]
+        ref = study.monolithic_run(c, COMMAND, TWO_WAY_STOP, _grid(finest))["sensor.f"]
         for ordering, inputs, fmu in cases:
             for h in SWEEP_STEPS:
                 row = {"c": c, "h": h, "ordering": ordering, "inputs": inputs, "fmu": fmu}
@@ -178,7 +179,7 @@ def stability(load_fmu: Path) -> dict:
                 except CosimError as err:
                     row.update(stable=False, why=f"failed at t = {err.time:.4g} s", error=None)
                 else:
-                    e = np.abs(r["load.spring.f"] - ref[:: round(h / finest)])
+                    e = np.abs(r["load.sensor.f"] - ref[:: round(h / finest)])
                     grows = study.diverges(e)
                     row.update(stable=not grows, why="error grows" if grows else "")
                     row["error"] = float(np.max(e) / study.start_force())

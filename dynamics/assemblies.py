@@ -252,37 +252,42 @@ def force_driven(
     g: float | str = G_DEFAULT,
     saturate: bool = True,
     flow_law: str = "iso6358",
+    hook_kg: float | str = HOOK_MASS_KG,
 ) -> Model:
-    """Myofibril of ``n`` APS hanging from the frame, its lower end (the 1 g hook) free
-    and pulled down by the input force ``pull.f`` [N, along +s]; output ``end.s`` [m], the
-    end's position below the frame. The muscle of a co-simulation whose load is another
-    participant (its force in, the end position out); other arguments as
-    :func:`hanging_load`."""
+    """Myofibril of ``n`` APS hanging from the frame, its lower end (the hook, ``hook_kg``
+    [kg], default 1 g) free and pulled down by the input force ``pull.f`` [N, along +s];
+    output ``end.s`` [m], the end's position below the frame. The muscle of a
+    co-simulation whose load is another participant (its force in, the end position out);
+    other arguments as :func:`hanging_load`."""
     sys, myo, mf = _frame_regulator_chain(
         "force_driven", n, params, fidelity, regulator_tau, g, saturate, flow_law
     )
-    _hook_pulled(sys, myo, mf, sys.add(Force("pull")).flange)
+    _hook_pulled(sys, myo, mf, sys.add(Force("pull")).flange, hook_kg)
     return sys.flatten()
 
 
-def _hook_pulled(sys: System, myo, mf, flange) -> None:
-    """The hook at the chain's end, with the end-position sensor, attached to ``flange``."""
-    hook = sys.add(Mass("hook", m=HOOK_MASS_KG + _end_mass(myo), s_start=myo.rest_length_expr))
+def _hook_pulled(sys: System, myo, mf, flange, hook_kg) -> None:
+    """The hook [kg] at the chain's end, with the end-position sensor, attached to
+    ``flange``."""
+    m = _si(hook_kg, "kg", "hook_kg", 0.0, closed=False) + _end_mass(myo)
+    hook = sys.add(Mass("hook", m=m, s_start=myo.rest_length_expr))
     sys.connect(mf.flange_b, hook.flange_a)
     sys.connect(hook.flange_b, sys.add(PositionSensor("end")).flange)
     sys.connect(hook.flange_b, flange)
 
 
-def _spring_load(sys: System, mass_kg, stiffness, damping, g, s_start) -> object:
-    """Force sensor, spring and mass (damped to the ground) below a flange; returns the
-    sensor's upper flange. ``sensor.f`` [N] is the force the load pulls with."""
+def _spring_load(sys: System, mass_kg, stiffness, damping, g, s_start, rest_length) -> object:
+    """Force sensor, spring (unstretched length ``rest_length`` [m]) and mass (damped to
+    the ground) below a flange; returns the sensor's upper flange. ``sensor.f`` [N] is the
+    force the load pulls with."""
     m = _si(mass_kg, "kg", "mass_kg", 0.0, closed=False)
     k = _si(stiffness, "N/m", "stiffness", 0.0, closed=False)
     d = _si(damping, "N*s/m", "damping", 0.0)
     g = _si(g, "m/s^2", "g", 0.0, closed=False)
+    rest = _si(rest_length, "m", "rest_length", 0.0)
     sensor = sys.add(ForceSensor("sensor"))
-    spring = sys.add(Spring("spring", c=k))
-    mass = sys.add(Mass("mass", m=m, g=g, s_start=s_start))
+    spring = sys.add(Spring("spring", c=k, s_rel0=rest))
+    mass = sys.add(Mass("mass", m=m, g=g, s_start=s_start + rest))
     damper = sys.add(Damper("damper", d=d))
     ground = sys.add(Fixed("ground"))
     sys.connect(sensor.flange_b, spring.flange_a)
@@ -297,14 +302,17 @@ def spring_mass_load(
     stiffness: float | str = SPRING_LOAD["stiffness"],
     damping: float | str = SPRING_LOAD["damping"],
     g: float | str = G_DEFAULT,
+    rest_length: float | str = 0.0,
 ) -> Model:
-    """A mass [kg] hanging on a spring [N/m] whose top is moved to the input position
-    ``drive.s`` [m]; a damper [N*s/m] from the mass to the ground. Output ``sensor.f``
-    [N], the tension at the top (the load's pull on whatever holds it). The load of
-    :func:`force_driven` as a model of its own (defaults :data:`SPRING_LOAD`)."""
+    """A mass [kg] hanging on a spring [N/m, unstretched length ``rest_length`` m] whose
+    top is moved to the input position ``drive.s`` [m]; a damper [N*s/m] from the mass to
+    the ground. Output ``sensor.f`` [N], the tension at the top (the load's pull on
+    whatever holds it). The load of :func:`force_driven` as a model of its own (defaults
+    :data:`SPRING_LOAD`)."""
     sys = System("spring_mass_load")
     drive = sys.add(Position("drive"))
-    sys.connect(drive.flange, _spring_load(sys, mass_kg, stiffness, damping, g, 0.0))
+    top = _spring_load(sys, mass_kg, stiffness, damping, g, 0.0, rest_length)
+    sys.connect(drive.flange, top)
     return sys.flatten()
 
 
@@ -317,6 +325,8 @@ def sprung_load(
     mass_kg: float | str = SPRING_LOAD["mass_kg"],
     stiffness: float | str = SPRING_LOAD["stiffness"],
     damping: float | str = SPRING_LOAD["damping"],
+    hook_kg: float | str = HOOK_MASS_KG,
+    rest_length: float | str = 0.0,
 ) -> Model:
     """:func:`force_driven` with :func:`spring_mass_load` hung from its hook, in one model
     (the monolithic reference of their co-simulation; the same names but ``pull.f`` and
@@ -324,6 +334,6 @@ def sprung_load(
     sys, myo, mf = _frame_regulator_chain(
         "sprung_load", n, params, fidelity, regulator_tau, g, True, "iso6358"
     )
-    top = _spring_load(sys, mass_kg, stiffness, damping, g, myo.rest_length_expr)
-    _hook_pulled(sys, myo, mf, top)
+    top = _spring_load(sys, mass_kg, stiffness, damping, g, myo.rest_length_expr, rest_length)
+    _hook_pulled(sys, myo, mf, top, hook_kg)
     return sys.flatten()

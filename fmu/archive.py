@@ -130,6 +130,19 @@ def _fmi_version(path: Path, folder: Path) -> int:
     raise _fail(path, f"unknown FMI version '{version}' (2.0 or 3.x)")
 
 
+def _not_a_file(path: Path) -> str:
+    """What ``path`` is instead of the FMU file (a .fmu zip archive) expected."""
+    if path.is_dir():
+        what = "a folder"
+    elif path.exists():
+        what = "not a regular file (a device, FIFO or socket)"
+    elif path.is_symlink():
+        what = "a broken symbolic link"
+    else:
+        return "no such file"
+    return f"{what}; expected an FMU file (a .fmu zip archive)"
+
+
 @contextmanager
 def open_fmu(path: str | Path, interface: str = "coSimulation") -> Iterator[OpenedFmu]:
     """Check and extract the FMU at ``path``; the folder is removed when the block ends.
@@ -149,7 +162,7 @@ def open_fmu(path: str | Path, interface: str = "coSimulation") -> Iterator[Open
     """
     path = Path(path)
     if not path.is_file():
-        raise _fail(path, "no such file")
+        raise _fail(path, _not_a_file(path))
     size = path.stat().st_size
     if size > MAX_ARCHIVE_BYTES:
         raise _fail(path, f"{size} bytes, more than {MAX_ARCHIVE_BYTES}")

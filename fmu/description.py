@@ -3,6 +3,10 @@
 Units become FMI unit definitions with SI base-unit exponents (through pint); the
 structure (outputs' and derivatives' dependencies) comes from the sparsity of the exact
 Jacobians, so it lists what each one really depends on.
+
+Value references, in both FMI versions: 0 is ``time`` (a variable of FMI 3.0 only, as in
+the Reference FMUs: no output depends on value reference 0, which OMSimulator requires),
+the model's variables follow from 1 in :class:`~.export.Layout` order (:func:`vr`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,15 @@ _BASE = {
     "[substance]": "mol",
     "[luminosity]": "cd",
 }
+
+TIME_VR = 0
+"""Value reference of ``time`` (FMI 3.0; unused in FMI 2.0)."""
+
+
+def vr(position: int) -> int:
+    """The value reference of the variable at ``position`` in the layout."""
+    return TIME_VR + 1 + position
+
 
 LOG_CATEGORIES = {
     "logStatusError": "errors: refused calls, failed Newton iterations, left physical domains",
@@ -63,10 +76,15 @@ def _num(v: float) -> str:
     return repr(float(v))
 
 
-def _dependencies(deps: list[list[int]], base: int) -> list[str]:
-    """Value references as the attribute text, plus ``base`` (1: FMI 2.0 ScalarVariable
-    indices; 0: FMI 3.0 value references)."""
-    return [" ".join(str(i + base) for i in row) for row in deps]
+def _dependencies(deps: list[list[int]], ref) -> list[str]:
+    """Layout positions as attribute text, each mapped by ``ref`` (FMI 2.0: the 1-based
+    ScalarVariable index; FMI 3.0: the value reference, :func:`vr`)."""
+    return [" ".join(str(ref(i)) for i in row) for row in deps]
+
+
+def _index(position: int) -> int:
+    """FMI 2.0 ScalarVariable index (1-based position in ``ModelVariables``)."""
+    return position + 1
 
 
 def _text(root: ET.Element) -> str:
@@ -131,7 +149,8 @@ def _type_attrs(lay, i: int, row: tuple, fmi_version: int) -> dict:
     attrs = {"unit": unit}
     if group == "der":
         nx = lay.count("x")
-        attrs["derivative"] = str(i - nx + (1 if fmi_version == 2 else 0))
+        state = i - nx  # the state's position
+        attrs["derivative"] = str(_index(state) if fmi_version == 2 else vr(state))
     if math.isfinite(low):
         attrs["min"] = _num(low)
     if math.isfinite(high):
@@ -145,7 +164,8 @@ def _type_attrs(lay, i: int, row: tuple, fmi_version: int) -> dict:
 
 def _var_attrs(lay, i: int, row: tuple, vr_key: str) -> dict:
     name, group, *_, text = row
-    attrs = {"name": name, vr_key: str(i), "description": text, "causality": _CAUSALITY[group]}
+    attrs = {"name": name, vr_key: str(vr(i)), "description": text}
+    attrs["causality"] = _CAUSALITY[group]
     sampled = lay.sample_period is not None
     if group == "p":
         attrs["variability"] = "tunable" if name in lay.tunable else "fixed"
@@ -191,18 +211,18 @@ def _fmi2(lay, ident: str, guid: str, sources, experiment) -> ET.Element:
     ms = ET.SubElement(root, "ModelStructure")
     first_y = lay.first("y")
     outs = ET.SubElement(ms, "Outputs")
-    for k, dep in enumerate(_dependencies(lay.y_dep, 1)):
-        ET.SubElement(outs, "Unknown", {"index": str(first_y + k + 1), "dependencies": dep})
+    for k, dep in enumerate(_dependencies(lay.y_dep, _index)):
+        ET.SubElement(outs, "Unknown", {"index": str(_index(first_y + k)), "dependencies": dep})
     if lay.f_dep:
         first_der = lay.first("der")
         ders = ET.SubElement(ms, "Derivatives")
-        for k, dep in enumerate(_dependencies(lay.f_dep, 1)):
-            attrs = {"index": str(first_der + k + 1), "dependencies": dep}
+        for k, dep in enumerate(_dependencies(lay.f_dep, _index)):
+            attrs = {"index": str(_index(first_der + k)), "dependencies": dep}
             ET.SubElement(ders, "Unknown", attrs)
     init = ET.SubElement(ms, "InitialUnknowns")
     for i, row in enumerate(lay.variables):
         if row[1] in _initial_unknowns(lay):
-            ET.SubElement(init, "Unknown", {"index": str(i + 1)})
+            ET.SubElement(init, "Unknown", {"index": str(_index(i))})
     return root
 
 
@@ -228,26 +248,26 @@ def _fmi3(lay, ident: str, guid: str, experiment) -> ET.Element:
     _log_categories(root)
     _experiment(root, experiment)
     mv = ET.SubElement(root, "ModelVariables")
+    time = {"name": "time", "valueReference": str(TIME_VR)}
+    time.update(causality="independent", variability="continuous", unit="s")
+    ET.SubElement(mv, "Float64", {**time, "description": "simulation time"})
     for i, row in enumerate(lay.variables):
         attrs = _var_attrs(lay, i, row, "valueReference")
         attrs.update(_type_attrs(lay, i, row, 3))
         ET.SubElement(mv, "Float64", attrs)
-    time = {"name": "time", "valueReference": str(len(lay.variables))}
-    time.update(causality="independent", variability="continuous", unit="s")
-    ET.SubElement(mv, "Float64", {**time, "description": "simulation time"})
     ms = ET.SubElement(root, "ModelStructure")
     first_y = lay.first("y")
-    for k, dep in enumerate(_dependencies(lay.y_dep, 0)):
-        ET.SubElement(ms, "Output", {"valueReference": str(first_y + k), "dependencies": dep})
-    for k, dep in enumerate(_dependencies(lay.f_dep, 0)):
-        attrs = {"valueReference": str(lay.first("der") + k), "dependencies": dep}
+    for k, dep in enumerate(_dependencies(lay.y_dep, vr)):
+        ET.SubElement(ms, "Output", {"valueReference": str(vr(first_y + k)), "dependencies": dep})
+    for k, dep in enumerate(_dependencies(lay.f_dep, vr)):
+        attrs = {"valueReference": str(vr(lay.first("der") + k)), "dependencies": dep}
         ET.SubElement(ms, "ContinuousStateDerivative", attrs)
     # stated, not left to the default (all knowns): CasADi's DaeBuilder cannot read the
     # default; the start states are the equilibrium of the inputs and parameters
-    knowns = " ".join(str(i) for i, row in enumerate(lay.variables) if row[1] in ("u", "p"))
+    knowns = " ".join(str(vr(i)) for i, row in enumerate(lay.variables) if row[1] in ("u", "p"))
     for i, row in enumerate(lay.variables):
         if row[1] in _initial_unknowns(lay):
-            attrs = {"valueReference": str(i)}
+            attrs = {"valueReference": str(vr(i))}
             if knowns:
                 attrs["dependencies"] = knowns
             ET.SubElement(ms, "InitialUnknown", attrs)

@@ -8,8 +8,9 @@ compiled with the system C compiler into ``binaries/<platform>/<model>.so`` (thi
 machine's platform: linux64, or x86_64-linux for FMI 3.0), and everything,
 sources included, is zipped into the ``.fmu``.
 
-Value references are the variables' positions in one list: states, state derivatives,
-inputs, outputs, parameters (see :class:`Layout`).
+Value references are the variables' positions in one list (states, state derivatives,
+inputs, outputs, parameters; see :class:`Layout`) plus one: 0 is ``time``
+(:data:`.description.TIME_VR`), which no output depends on.
 """
 
 from __future__ import annotations
@@ -89,9 +90,9 @@ class Layout:
     description)``; ``group`` is "x" (state), "der" (its derivative), "u", "y" or "p".
     ``start`` is None where the variable has no start value (derivatives, outputs).
     ``tunable``: the parameters no start value depends on (see :func:`tunable`).
-    ``y_dep``, ``f_dep``: for each output and each derivative, the value references of
-    the states and inputs it depends on. ``sample_period`` [s]: None for a continuous
-    model, else the period of a sampled system (discrete states, no derivatives,
+    ``y_dep``, ``f_dep``: for each output and each derivative, the positions in
+    ``variables`` of the states and inputs it depends on. ``sample_period`` [s]: None for
+    a continuous model, else the period of a sampled system (discrete states, no derivatives,
     Co-Simulation only; :mod:`.sampled`).
     """
 
@@ -104,7 +105,7 @@ class Layout:
     sample_period: float | None = None
 
     def first(self, group: str) -> int:
-        """Value reference of the first variable of ``group``."""
+        """Position in ``variables`` of the first variable of ``group``."""
         return next(i for i, v in enumerate(self.variables) if v[1] == group)
 
     def count(self, group: str) -> int:
@@ -130,8 +131,9 @@ def tunable(model: Model) -> frozenset[str]:
 
 
 def dependencies(model: Model, expr: cs.SX, first_u: int) -> list[list[int]]:
-    """For each row of ``expr``: the value references of the states and inputs it uses
-    (from the sparsity of its exact Jacobian); the inputs start at ``first_u``."""
+    """For each row of ``expr``: the positions (in :attr:`Layout.variables`) of the states
+    and inputs it uses (from the sparsity of its exact Jacobian); the inputs start at
+    ``first_u``."""
     known = cs.vertcat(model.x, model.u)
     columns = [*range(model.nx), *range(first_u, first_u + len(model.input_names))]
     sp = cs.jacobian(expr, known).sparsity()
@@ -186,8 +188,9 @@ def _c_array(ctype: str, name: str, values: list[str]) -> str:
 def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int) -> tuple[str, str]:
     """``model_data.h`` and ``model_data.c``: sizes, value references, tables, tolerances.
 
-    The tables have one row more than the variables: ``time``, value reference
-    ``SM_VR_TIME``, a variable of the FMI 3.0 description only (``SM_HAS_TIME_VR``)."""
+    The tables are indexed by value reference: row 0 is ``time`` (``SM_VR_TIME``, a
+    variable of the FMI 3.0 description only: ``SM_HAS_TIME_VR``), then the variables."""
+    vr = description.vr
     nx, nder, nu = lay.count("x"), lay.count("der"), lay.count("u")
     ny, np_ = lay.count("y"), lay.count("p")
     sampled = lay.sample_period is not None
@@ -201,13 +204,13 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         "SM_NU": nu,
         "SM_NY": ny,
         "SM_NP": np_,
-        "SM_VR_X": 0,
-        "SM_VR_DER": nx,
-        "SM_VR_U": nx + nder,
-        "SM_VR_Y": nx + nder + nu,
-        "SM_VR_P": nx + nder + nu + ny,
+        "SM_VR_TIME": description.TIME_VR,
+        "SM_VR_X": vr(0),
+        "SM_VR_DER": vr(nx),
+        "SM_VR_U": vr(nx + nder),
+        "SM_VR_Y": vr(nx + nder + nu),
+        "SM_VR_P": vr(nx + nder + nu + ny),
         "SM_NVARS": len(lay.variables),
-        "SM_VR_TIME": len(lay.variables),
         "SM_HAS_TIME_VR": int(fmi_version == 3),
         "SM_SZ_ARG": gen.sz_arg,
         "SM_SZ_RES": gen.sz_res,
@@ -250,9 +253,9 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         "",
         '#include "model_data.h"',
         "",
-        _c_array("char* const", "sm_names", [_c_string(r[0]) for r in rows] + ['"time"']),
-        _c_array("double", "sm_min", [_c_double(r[4]) for r in rows] + ["-INFINITY"]),
-        _c_array("double", "sm_max", [_c_double(r[5]) for r in rows] + ["INFINITY"]),
+        _c_array("char* const", "sm_names", ['"time"'] + [_c_string(r[0]) for r in rows]),
+        _c_array("double", "sm_min", ["-INFINITY"] + [_c_double(r[4]) for r in rows]),
+        _c_array("double", "sm_max", ["INFINITY"] + [_c_double(r[5]) for r in rows]),
         _c_array("double", "sm_x_start", [_c_double(r[3]) for r in group["x"]]),
         _c_array("double", "sm_u_start", [_c_double(r[3]) for r in group["u"]]),
         _c_array("double", "sm_p_start", [_c_double(r[3]) for r in group["p"]]),
@@ -320,7 +323,7 @@ def start_point(
 
 
 def export_fmu(
-    model_or_scenario,
+    model: Model,
     path: str | Path,
     fmi_version: int = 2,
     params: Mapping[str, object] | None = None,
@@ -331,19 +334,19 @@ def export_fmu(
 
     Parameters
     ----------
-    model_or_scenario : Model, str or Path
-        A flattened model (``nz = 0``), or a scenario (file or packaged name, see
-        ``sarcomere list``): its model, parameters, start inputs and experiment.
+    model : Model
+        A flattened model (``nz = 0``). A scenario's model, parameters, start inputs and
+        experiment come from :func:`sarcomere.scenarios.export_fmu.scenario_setup` (what
+        ``sarcomere export-fmu`` does).
     path : str or Path
         The ``.fmu`` file to write (its folder must exist).
     fmi_version : int
         2 or 3.
     params, inputs : mapping, optional
-        Parameter overrides and start inputs by name (a Model only; a scenario brings its
-        own): the FMU's start values, and the operating point its start states are the
-        equilibrium of.
+        Parameter overrides and start inputs by name: the FMU's start values, and the
+        operating point its start states are the equilibrium of.
     experiment : Experiment, optional
-        The default experiment (a Model only).
+        The default experiment.
 
     Returns
     -------
@@ -353,7 +356,7 @@ def export_fmu(
     Raises
     ------
     ParameterError
-        For a bad version, path, parameter or input.
+        For a bad model, version, path, parameter or input.
     FmuError
         If the C compiler fails.
 
@@ -366,17 +369,14 @@ def export_fmu(
     >>> export_fmu(hanging_load(1, load_kg=0.05), out).stat().st_size > 10_000
     True
     """
+    if not isinstance(model, Model):
+        raise ParameterError(
+            "model",
+            model,
+            "a flattened Model",
+            "a scenario's model is built by sarcomere.scenarios.export_fmu.scenario_setup",
+        )
     path = check_target(path, fmi_version)
-    if isinstance(model_or_scenario, Model):
-        model = model_or_scenario
-    else:
-        if params is not None or inputs is not None or experiment is not None:
-            raise ParameterError(
-                "params/inputs/experiment", "given", "None with a scenario (it sets its own)"
-            )
-        from sarcomere.scenarios.export_fmu import scenario_setup  # scenarios sit downstream
-
-        model, params, inputs, experiment = scenario_setup(model_or_scenario)
     codegen.require_ode(model)
     for what, names in (("inputs", model.input_names), ("outputs", model.output_names)):
         if not names:

@@ -6,9 +6,11 @@ a system of several participants (:mod:`.cosim_system`).
 "transient" (the native run; the FMU is exported from the same model, parameters and
 start inputs). ``[simulation] output_interval`` is the communication step. ``[cosim]``:
 
-- ``fmu``: an FMU file (relative to the scene file) of this scene's model; default: the
-  model exported during the run into a temporary folder (a few seconds of gcc), removed
-  afterwards;
+- ``fmu``: an FMU file (relative to the scene file) of this scene's model, checked against
+  it (:func:`model_differences`: the same states, inputs, outputs and parameters by name,
+  and the parameters the scene does not set with the same values; anything else is refused
+  naming what differs); default: the model exported during the run into a temporary
+  folder (a few seconds of gcc), removed afterwards;
 - ``fmi``: 2 or 3, the FMI version of that export (default 2);
 - ``ordering``: "jacobi" or "gauss-seidel" (default "jacobi"), ``inputs``: "hold" or
   "extrapolate" (default "hold"), see :mod:`sarcomere.fmu.cosim`.
@@ -25,11 +27,14 @@ inputs excepted) of ``max |y_fmu - y_native| / max |y_native|``; each signal's v
 from __future__ import annotations
 
 import dataclasses
+import math
 import tempfile
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
 
+from sarcomere.dynamics.modeling.model import Model
 from sarcomere.fmu.archive import open_fmu
 from sarcomere.fmu.cosim import INPUT_LAWS, ORDERINGS, cosimulate
 from sarcomere.fmu.export import FMI_VERSIONS, export_fmu
@@ -54,6 +59,67 @@ def _choice(sc: Scenario, key: str, choices: tuple, default):
     return value
 
 
+PARAM_RTOL = 1e-12
+"""Relative tolerance of an FMU's parameter start value against the scene's model [-]
+(the export writes each value with all its digits)."""
+
+
+def _listed(names: Iterable[str], most: int = 3) -> str:
+    names = sorted(names)
+    more = f" (+{len(names) - most} more)" if len(names) > most else ""
+    return ", ".join(names[:most]) + more
+
+
+def model_differences(description, model: Model, p: np.ndarray, set_by_scene: Mapping) -> list:
+    """What differs between an FMU's model description (fmpy's) and ``model``: the states,
+    inputs, outputs and parameters by name, and the start value of each parameter the scene
+    does not set (``set_by_scene``) against ``p`` [SI]. Empty if the FMU is the model."""
+    variables = description.modelVariables
+    fmu = {
+        "states": {v.derivative.name for v in variables if v.derivative is not None},
+        "inputs": {v.name for v in variables if v.causality == "input"},
+        "outputs": {v.name for v in variables if v.causality == "output"},
+        "parameters": {v.name for v in variables if v.causality == "parameter"},
+    }
+    ours = {
+        "states": set(model.state_names),
+        "inputs": set(model.input_names),
+        "outputs": set(model.output_names),
+        "parameters": set(model.param_names),
+    }
+    out = []
+    for kind, names in fmu.items():
+        extra, missing = names - ours[kind], ours[kind] - names
+        if extra or missing:
+            out.append(
+                f"{kind}: {len(names)} in the FMU, {len(ours[kind])} in the scene's model"
+                + (f"; only in the FMU: {_listed(extra)}" if extra else "")
+                + (f"; only in the scene's model: {_listed(missing)}" if missing else "")
+            )
+    starts = {v.name: v.start for v in variables if v.causality == "parameter"}
+    for i, name in enumerate(model.param_names):
+        if name in set_by_scene or starts.get(name) is None:
+            continue
+        given = float(starts[name])
+        if not math.isclose(given, float(p[i]), rel_tol=PARAM_RTOL, abs_tol=1e-300):
+            unit = model.variables[name].unit
+            out.append(f"{name} = {given:.9g} {unit} in the FMU, {p[i]:.9g} {unit} in the scene")
+    return out
+
+
+def _check_fmu(sc: Scenario, path: Path, model: Model, p: np.ndarray, set_by_scene) -> None:
+    """Refuses an ``fmu`` that is not the scene's model, naming what differs."""
+    with open_fmu(path) as fmu:
+        differences = model_differences(fmu.description, model, p, set_by_scene)
+        name = fmu.description.modelName
+    if differences:
+        raise sc.error(
+            ("cosim", "fmu"),
+            f"{path.name} (model '{name}') is not this scene's model '{model.name}': "
+            + "; ".join(differences),
+        )
+
+
 def run_cosim(sc: Scenario, out_dir: Path) -> RunOutput:
     """Co-simulate the scene's FMU and compare it with the native run (or run a system of
     participants, :func:`~.cosim_system.run_system`)."""
@@ -67,13 +133,15 @@ def run_cosim(sc: Scenario, out_dir: Path) -> RunOutput:
     law = _choice(sc, "inputs", INPUT_LAWS, "hold")
     transient = dataclasses.replace(sc, kind="transient", cosim={})
     model, params, start, experiment = scenario_setup(transient)
+    p = model.parameters(params)
+    si_params = {n: float(p[model.param_names.index(n)]) for n in params}
+    if "fmu" in sc.cosim:  # checked before anything is computed
+        _check_fmu(sc, sc.base_dir / str(sc.cosim["fmu"]), model, p, si_params)
     native_run = run_transient(transient, out_dir)
     native = native_run.results["main"]
     sim = sc.simulation
     step = sim.output_interval or (sim.stop_time - sim.start_time)
     sources = {f"{NAME}.{k}": sig for k, sig in _inputs(sc, model).items()}
-    p = model.parameters(params)
-    si_params = {n: float(p[model.param_names.index(n)]) for n in params}
     with tempfile.TemporaryDirectory(prefix="sarcomere-cosim-") as tmp:
         if "fmu" in sc.cosim:
             path = sc.base_dir / str(sc.cosim["fmu"])

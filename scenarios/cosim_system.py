@@ -308,7 +308,15 @@ def _wired(sc: Scenario, parts: list[Part], connections: list[Connection]) -> tu
         (f"{lo.name}.sensor.f", f"{mu.name}.pull.f"),
         (f"{mu.name}.end.s", f"{lo.name}.drive.s"),
     }
-    if not wiring <= {(c.source, c.target) for c in connections}:
+    given = {(c.source, c.target) for c in connections}
+    if not wiring <= given:
+        missing = ", ".join(f"{a} -> {b}" for a, b in sorted(wiring - given))
+        stray = ", ".join(f"{a} -> {b}" for a, b in sorted(given - wiring))
+        if stray:  # most likely a typo in a connection: blame the connection
+            raise sc.error(
+                ("cosim", "connections"),
+                f'{stray}: not a connection compare = "monolithic-loop" knows; it needs {missing}',
+            )
         raise sc.error(path, f"needs the connections {sorted(wiring)}")
     ratio = pid.dt / sc.simulation.output_interval
     if abs(ratio - round(ratio)) > 1e-9 * ratio:

@@ -5,14 +5,20 @@ The FMU carries the scenario's model (set-up, n, fidelity, ``[parameters]``) wit
 start inputs (the input signals at ``start_time``) and ``[simulation]`` as the default
 experiment; its states start at the equilibrium there. The input signals themselves stay
 with the importer.
+
+``--out``: a missing parent folder is created (as ``run`` does); an existing file is
+replaced only if it is an FMU (a zip archive with a ``modelDescription.xml``) or with
+``--force``; a folder is refused.
 """
 
 from __future__ import annotations
 
 import argparse
+import zipfile
 from pathlib import Path
 
 from sarcomere.dynamics.assemblies import FIDELITIES
+from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.fmu.export import MAX_SUBSTEP_S, Experiment, export_fmu
 
@@ -46,13 +52,45 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", help="scenario file (path/to/file.toml) or packaged name")
     parser.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version")
     parser.add_argument("--out", metavar="X.fmu", help="the FMU to write (default <name>.fmu)")
+    parser.add_argument(
+        "--force", action="store_true", help="replace --out even if it is not an FMU"
+    )
+
+
+def _is_fmu(path: Path) -> bool:
+    """A zip archive holding a ``modelDescription.xml``: what an export may replace."""
+    if not zipfile.is_zipfile(path):
+        return False
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return "modelDescription.xml" in zf.namelist()
+    except (zipfile.BadZipFile, OSError):
+        return False
+
+
+def check_output(out: Path, force: bool) -> None:
+    """``out`` checked for an export: a ``.fmu`` name, not a folder, an existing file only
+    if it is an FMU (or with ``force``)."""
+    if out.is_dir():
+        raise ParameterError("--out", str(out), "a file name ending in .fmu", "it is a folder")
+    if out.suffix != ".fmu":
+        raise ParameterError("--out", str(out), "a file name ending in .fmu")
+    if out.exists() and not force and not _is_fmu(out):
+        raise ParameterError(
+            "--out",
+            str(out),
+            "a new file or an existing FMU",
+            "the file exists and is not an FMU; --force replaces it",
+        )
 
 
 def handler(args: argparse.Namespace) -> int:
     """Export and print the path written."""
     sc = load_scenario(args.scenario)
     out = Path(args.out) if args.out else Path(f"{sc.name}.fmu")
+    check_output(out, args.force)
     model, params, inputs, experiment = scenario_setup(sc)
+    out.parent.mkdir(parents=True, exist_ok=True)  # as `run` creates its folder
     export_fmu(model, out, args.fmi, params, inputs, experiment)
     print(f"wrote {out} ({model.describe()}; FMI {args.fmi}.0, Model Exchange and Co-Simulation)")
     return 0

@@ -1,6 +1,5 @@
 /* The FMI 2.0 API (Model Exchange and Co-Simulation) on top of instance.c: each function
  * checks its handle and arguments, then calls the instance. No physics here. */
-#include <stdlib.h>
 #include <string.h>
 
 #include "fmi2Functions.h"
@@ -72,10 +71,8 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
                                fmi2Real stopTime) {
     (void)toleranceDefined; /* fixed tolerances, stated in the model description */
     (void)tolerance;
-    (void)stopTimeDefined;
-    (void)stopTime;
     CALL(c, "fmi2SetupExperiment", SM_INSTANTIATED);
-    return (fmi2Status)sm_setup(inst, startTime);
+    return (fmi2Status)sm_setup(inst, startTime, stopTimeDefined, stopTime);
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
@@ -151,69 +148,39 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     return no_such(c, "fmi2SetString", nvr);
 }
 
-/* --- FMU state ------------------------------------------------------------------------ */
+/* --- FMU state: handles checked against the registry of live states (instance.c) ------ */
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* FMUstate) {
     CALL(c, "fmi2GetFMUstate", SM_ANY);
-    if (FMUstate == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi2GetFMUstate: FMUstate is NULL");
-        return fmi2Error;
-    }
-    SmValues* s = sm_get_state(inst, (SmValues*)*FMUstate);
-    if (s == NULL) return fmi2Error;
-    *FMUstate = s;
-    return fmi2OK;
+    return (fmi2Status)sm_get_state(inst, (void**)FMUstate, "fmi2GetFMUstate");
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     CALL(c, "fmi2SetFMUstate", SM_ANY);
-    if (FMUstate == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi2SetFMUstate: FMUstate is NULL");
-        return fmi2Error;
-    }
-    return (fmi2Status)sm_set_state(inst, (const SmValues*)FMUstate);
+    return (fmi2Status)sm_set_state(inst, FMUstate, "fmi2SetFMUstate");
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate* FMUstate) {
     CALL(c, "fmi2FreeFMUstate", SM_ANY);
-    if (FMUstate != NULL) {
-        free(*FMUstate);
-        *FMUstate = NULL;
-    }
-    return fmi2OK;
+    return (fmi2Status)sm_free_state(inst, (void**)FMUstate, "fmi2FreeFMUstate");
 }
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t* size) {
     CALL(c, "fmi2SerializedFMUstateSize", SM_ANY);
-    if (FMUstate == NULL || size == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi2SerializedFMUstateSize: NULL argument");
-        return fmi2Error;
-    }
-    *size = sm_serialized_size();
-    return fmi2OK;
+    return (fmi2Status)sm_serialized_size(inst, FMUstate, size, "fmi2SerializedFMUstateSize");
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[],
                                  size_t size) {
     CALL(c, "fmi2SerializeFMUstate", SM_ANY);
-    if (FMUstate == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi2SerializeFMUstate: FMUstate is NULL");
-        return fmi2Error;
-    }
-    return (fmi2Status)sm_serialize(inst, (const SmValues*)FMUstate, serializedState, size);
+    return (fmi2Status)sm_serialize(inst, FMUstate, serializedState, size,
+                                    "fmi2SerializeFMUstate");
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate* FMUstate) {
     CALL(c, "fmi2DeSerializeFMUstate", SM_ANY);
-    if (FMUstate == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi2DeSerializeFMUstate: FMUstate is NULL");
-        return fmi2Error;
-    }
-    SmValues* s = sm_deserialize(inst, serializedState, size);
-    if (s == NULL) return fmi2Error;
-    free(*FMUstate);
-    *FMUstate = s;
-    return fmi2OK;
+    return (fmi2Status)sm_deserialize(inst, serializedState, size, (void**)FMUstate,
+                                      "fmi2DeSerializeFMUstate");
 }
 
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],

@@ -1,6 +1,5 @@
 /* The FMI 3.0 API (Model Exchange and Co-Simulation) on top of instance.c: each function
  * checks its handle and arguments, then calls the instance. No physics here. */
-#include <stdlib.h>
 #include <string.h>
 
 #include "fmi3Functions.h"
@@ -103,9 +102,9 @@ void fmi3FreeInstance(fmi3Instance c) {
 fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefined,
                                        fmi3Float64 tolerance, fmi3Float64 startTime,
                                        fmi3Boolean stopTimeDefined, fmi3Float64 stopTime) {
-    (void)toleranceDefined, (void)tolerance, (void)stopTimeDefined, (void)stopTime;
+    (void)toleranceDefined, (void)tolerance;
     CALL(c, "fmi3EnterInitializationMode", SM_INSTANTIATED);
-    if (sm_setup(inst, startTime) != SM_OK) return fmi3Error;
+    if (sm_setup(inst, startTime, stopTimeDefined, stopTime) != SM_OK) return fmi3Error;
     return (fmi3Status)sm_enter_init(inst);
 }
 
@@ -221,70 +220,39 @@ fmi3Status fmi3GetVariableDependencies(fmi3Instance c, fmi3ValueReference depend
                   "not provided; the model description lists the dependencies");
 }
 
-/* --- FMU state ------------------------------------------------------------------------ */
+/* --- FMU state: handles checked against the registry of live states (instance.c) ------ */
 fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState* FMUState) {
     CALL(c, "fmi3GetFMUState", SM_ANY);
-    if (FMUState == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi3GetFMUState: FMUState is NULL");
-        return fmi3Error;
-    }
-    SmValues* s = sm_get_state(inst, (SmValues*)*FMUState);
-    if (s == NULL) return fmi3Error;
-    *FMUState = s;
-    return fmi3OK;
+    return (fmi3Status)sm_get_state(inst, (void**)FMUState, "fmi3GetFMUState");
 }
 
 fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState FMUState) {
     CALL(c, "fmi3SetFMUState", SM_ANY);
-    if (FMUState == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi3SetFMUState: FMUState is NULL");
-        return fmi3Error;
-    }
-    return (fmi3Status)sm_set_state(inst, (const SmValues*)FMUState);
+    return (fmi3Status)sm_set_state(inst, FMUState, "fmi3SetFMUState");
 }
 
 fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState* FMUState) {
     CALL(c, "fmi3FreeFMUState", SM_ANY);
-    if (FMUState != NULL) {
-        free(*FMUState);
-        *FMUState = NULL;
-    }
-    return fmi3OK;
+    return (fmi3Status)sm_free_state(inst, (void**)FMUState, "fmi3FreeFMUState");
 }
 
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, size_t* size) {
     CALL(c, "fmi3SerializedFMUStateSize", SM_ANY);
-    if (FMUState == NULL || size == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi3SerializedFMUStateSize: NULL argument");
-        return fmi3Error;
-    }
-    *size = sm_serialized_size();
-    return fmi3OK;
+    return (fmi3Status)sm_serialized_size(inst, FMUState, size, "fmi3SerializedFMUStateSize");
 }
 
-fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState,
-                                 fmi3Byte serializedState[], size_t size) {
+fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte serializedState[],
+                                 size_t size) {
     CALL(c, "fmi3SerializeFMUState", SM_ANY);
-    if (FMUState == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi3SerializeFMUState: FMUState is NULL");
-        return fmi3Error;
-    }
-    return (fmi3Status)sm_serialize(inst, (const SmValues*)FMUState, (char*)serializedState,
-                                    size);
+    return (fmi3Status)sm_serialize(inst, FMUState, (char*)serializedState, size,
+                                    "fmi3SerializeFMUState");
 }
 
 fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte serializedState[], size_t size,
                                    fmi3FMUState* FMUState) {
     CALL(c, "fmi3DeserializeFMUState", SM_ANY);
-    if (FMUState == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi3DeserializeFMUState: FMUState is NULL");
-        return fmi3Error;
-    }
-    SmValues* s = sm_deserialize(inst, (const char*)serializedState, size);
-    if (s == NULL) return fmi3Error;
-    free(*FMUState);
-    *FMUState = s;
-    return fmi3OK;
+    return (fmi3Status)sm_deserialize(inst, (const char*)serializedState, size, (void**)FMUState,
+                                      "fmi3DeserializeFMUState");
 }
 
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance c, const fmi3ValueReference unknowns[],

@@ -1,6 +1,7 @@
 /* One FMU instance: modes, argument checks, values and logging (see instance.h). */
 #include "instance.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdatomic.h>
@@ -8,14 +9,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* The owner tag of this FMU's saved states: one object, compared by address. */
-static const char sm_owner[] = SM_GUID;
-
 const char* const sm_category_names[SM_N_CATEGORIES] = {"logStatusError", "logStatusWarning",
                                                         "logSolver", "logCalls"};
 
-/* --- the registry of live instances: a freed or foreign handle is refused, not used ---- */
-#define SM_MAX_INSTANCES 256
+/* --- registries: instances and saved states are used only while listed live, so a freed,
+ * foreign or bogus handle is refused, never read. No fixed cap: the lists grow. ---------- */
 #define SM_FREED_KEPT 64
 typedef struct {
     const void* handle;
@@ -23,10 +21,16 @@ typedef struct {
     SmCallback callback;
     void* log_env;
     char name[64];
-} SmFreed;
-static SmInstance* live[SM_MAX_INSTANCES];
-static SmFreed freed[SM_FREED_KEPT];
-static int freed_next;
+} SmFreed; /* a freed handle and, for an instance, the logger to report its misuse to */
+
+typedef struct {
+    void** live;
+    size_t n, cap;
+    SmFreed freed[SM_FREED_KEPT];
+    int freed_next;
+} SmRegistry;
+
+static SmRegistry instances, states;
 static atomic_flag registry_lock = ATOMIC_FLAG_INIT;
 
 static void lock(void) {
@@ -35,54 +39,70 @@ static void lock(void) {
 }
 static void unlock(void) { atomic_flag_clear(&registry_lock); }
 
-static int registry_add(SmInstance* inst) {
-    int ok = 0;
+/* Adds p (0 if out of memory); a freed handle reused by malloc is no longer "freed". */
+static int registry_add(SmRegistry* r, void* p) {
+    int ok = 1;
     lock();
-    for (int i = 0; i < SM_MAX_INSTANCES && !ok; i++) {
-        if (live[i] == NULL) {
-            live[i] = inst;
-            ok = 1;
+    if (r->n == r->cap) {
+        size_t cap = r->cap ? 2 * r->cap : 16;
+        void** grown = realloc(r->live, cap * sizeof *grown);
+        if (grown == NULL) {
+            ok = 0;
+        } else {
+            r->live = grown;
+            r->cap = cap;
         }
     }
-    for (int i = 0; i < SM_FREED_KEPT; i++) {
-        if (freed[i].handle == inst) freed[i].handle = NULL;
+    if (ok) r->live[r->n++] = p;
+    for (int i = 0; ok && i < SM_FREED_KEPT; i++) {
+        if (r->freed[i].handle == p) r->freed[i].handle = NULL;
     }
     unlock();
     return ok;
 }
 
-static void registry_remove(SmInstance* inst) {
-    lock();
-    for (int i = 0; i < SM_MAX_INSTANCES; i++) {
-        if (live[i] == inst) live[i] = NULL;
+static int find(const SmRegistry* r, const void* p) {
+    for (size_t i = 0; i < r->n; i++) {
+        if (r->live[i] == p) return (int)i;
     }
-    SmFreed* f = &freed[freed_next];
-    freed_next = (freed_next + 1) % SM_FREED_KEPT;
-    f->handle = inst;
-    f->log = inst->log;
-    f->callback = inst->callback;
-    f->log_env = inst->log_env;
-    snprintf(f->name, sizeof f->name, "%s", inst->name);
+    return -1;
+}
+
+/* Removes p, remembering it (and gone's logger, if any) as freed. */
+static void registry_remove(SmRegistry* r, const void* p, const SmFreed* gone) {
+    lock();
+    int i = find(r, p);
+    if (i >= 0) r->live[i] = r->live[--r->n];
+    SmFreed* f = &r->freed[r->freed_next];
+    r->freed_next = (r->freed_next + 1) % SM_FREED_KEPT;
+    *f = *gone;
+    f->handle = p;
     unlock();
 }
 
-SmInstance* sm_lookup(void* handle, const char* function) {
-    SmInstance* found = NULL;
-    SmFreed gone = {0};
+/* 1 if p is live; else 0, and *gone is its freed record (handle NULL if never issued). */
+static int registry_has(const SmRegistry* r, const void* p, SmFreed* gone) {
+    int live = 0;
+    SmFreed none = {0};
+    *gone = none;
     lock();
-    for (int i = 0; i < SM_MAX_INSTANCES && handle != NULL; i++) {
-        if (live[i] == handle) found = live[i];
-    }
-    for (int i = 0; i < SM_FREED_KEPT && found == NULL && handle != NULL; i++) {
-        if (freed[i].handle == handle) gone = freed[i];
+    live = p != NULL && find(r, p) >= 0;
+    for (int i = 0; i < SM_FREED_KEPT && !live && p != NULL; i++) {
+        if (r->freed[i].handle == p) *gone = r->freed[i];
     }
     unlock();
-    if (found == NULL && gone.handle != NULL && gone.log != NULL && gone.callback != NULL) {
+    return live;
+}
+
+SmInstance* sm_lookup(void* handle, const char* function) {
+    SmFreed gone;
+    if (registry_has(&instances, handle, &gone)) return handle;
+    if (gone.handle != NULL && gone.log != NULL && gone.callback != NULL) {
         char msg[SM_MSG];
         snprintf(msg, sizeof msg, "%s: this instance was freed already", function);
         gone.log(gone.callback, gone.log_env, gone.name, SM_ERROR, "logStatusError", msg);
     }
-    return found;
+    return NULL;
 }
 
 /* --- logging -------------------------------------------------------------------------- */
@@ -90,8 +110,9 @@ static void vlog(SmInstance* inst, SmStatus status, int category, const char* fm
     if (inst->log == NULL || inst->callback == NULL || !(category == SM_LOG_ERROR || (inst->categories & category))) return;
     char msg[SM_MSG];
     vsnprintf(msg, sizeof msg, fmt, ap);
-    int index = 0;
-    while ((1 << index) != category) index++;
+    int index = 0; /* the first known category of the bits given; errors if none */
+    while (index < SM_N_CATEGORIES && !(category & (1 << index))) index++;
+    if (index == SM_N_CATEGORIES) index = 0;
     inst->log(inst->callback, inst->log_env, inst->name, status, sm_category_names[index], msg);
 }
 
@@ -162,7 +183,6 @@ SmStatus sm_set_logging(SmInstance* inst, int on, size_t n, const char* const* c
 
 /* --- life cycle ----------------------------------------------------------------------- */
 void sm_reset(SmInstance* inst) {
-    inst->v.owner = sm_owner;
     inst->v.t = 0.0;
     inst->v.t_start = 0.0;
     memcpy(inst->v.x, sm_x_start, sizeof inst->v.x);
@@ -171,6 +191,8 @@ void sm_reset(SmInstance* inst) {
     inst->v.mode = SM_INSTANTIATED;
     inst->v.x_given = 0;
     inst->v.x_solved = 1; /* the start values are the equilibrium at the start point */
+    inst->stop_defined = 0;
+    inst->t_stop = 0.0;
     inst->substeps = 0;
 }
 
@@ -201,9 +223,8 @@ SmInstance* sm_new(const char* name, int cosim, SmLogger log, SmCallback callbac
     inst->log_env = log_env;
     inst->categories = logging_on ? SM_LOG_WARNING : 0;
     sm_reset(inst);
-    if (!registry_add(inst)) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "instantiate: more than %d instances at once",
-               SM_MAX_INSTANCES);
+    if (!registry_add(&instances, inst)) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "instantiate: out of memory");
         free(inst->name);
         free(inst);
         return NULL;
@@ -211,20 +232,35 @@ SmInstance* sm_new(const char* name, int cosim, SmLogger log, SmCallback callbac
     return inst;
 }
 
+static void free_states_of(const SmInstance* inst);
+
 void sm_free(SmInstance* inst) {
-    registry_remove(inst);
+    SmFreed gone = {inst, inst->log, inst->callback, inst->log_env, ""};
+    snprintf(gone.name, sizeof gone.name, "%s", inst->name);
+    free_states_of(inst);
+    registry_remove(&instances, inst, &gone);
     free(inst->name);
     free(inst);
 }
 
-SmStatus sm_setup(SmInstance* inst, double start_time) {
-    if (!isfinite(start_time)) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "setupExperiment: start time %g is not finite",
+SmStatus sm_setup(SmInstance* inst, double start_time, int stop_defined, double stop_time) {
+    const double t_max = SM_TIME_RESOLUTION / DBL_EPSILON;
+    if (!isfinite(start_time) || fabs(start_time) > t_max) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR,
+               "setup: start time %g s is outside the FMU's time range [-%g, %g] s", start_time,
+               t_max, t_max);
+        return SM_ERROR;
+    }
+    if (stop_defined && (!isfinite(stop_time) || stop_time < start_time)) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR,
+               "setup: stop time %g s is not a finite time >= the start time %g s", stop_time,
                start_time);
         return SM_ERROR;
     }
     inst->v.t = start_time;
     inst->v.t_start = start_time;
+    inst->stop_defined = stop_defined != 0;
+    inst->t_stop = stop_defined ? stop_time : 0.0;
     return SM_OK;
 }
 
@@ -267,10 +303,10 @@ static int check_vrs(SmInstance* inst, const unsigned* vr, size_t n, const void*
         return 0;
     }
     for (size_t i = 0; i < n; i++) {
-        if (vr[i] >= SM_NVARS + SM_HAS_TIME_VR) {
+        if (vr[i] > SM_NVARS || (vr[i] == SM_VR_TIME && !SM_HAS_TIME_VR)) {
             sm_log(inst, SM_ERROR, SM_LOG_ERROR,
-                   "%s: unknown value reference %u (this FMU has Float64/Real variables 0 to %d)",
-                   function, vr[i], SM_NVARS - 1 + SM_HAS_TIME_VR);
+                   "%s: unknown value reference %u (this FMU has Float64/Real variables %d to %d)",
+                   function, vr[i], SM_HAS_TIME_VR ? SM_VR_TIME : SM_VR_X, SM_NVARS);
             return 0;
         }
     }
@@ -286,8 +322,8 @@ SmStatus sm_set_reals(SmInstance* inst, const unsigned* vr, size_t n, const doub
     for (size_t i = 0; i < n; i++) { /* check all first: a refused call changes nothing */
         unsigned r = vr[i];
         const char* name = sm_names[r];
-        int is_x = r < SM_VR_DER, is_u = r >= SM_VR_U && r < SM_VR_Y;
-        int is_p = r >= SM_VR_P && r < SM_VR_TIME;
+        int is_x = r >= SM_VR_X && r < SM_VR_DER, is_u = r >= SM_VR_U && r < SM_VR_Y;
+        int is_p = r >= SM_VR_P;
         if (r == SM_VR_TIME) {
             sm_log(inst, SM_ERROR, SM_LOG_ERROR, "set real: time is the independent variable");
             return SM_ERROR;
@@ -323,7 +359,7 @@ SmStatus sm_set_reals(SmInstance* inst, const unsigned* vr, size_t n, const doub
         }
     }
     for (size_t i = 0; i < n; i++) {
-        unsigned r = vr[i];
+        unsigned r = vr[i]; /* a state, an input or a parameter: checked above */
         if (r < SM_VR_DER) {
             inst->v.x[r - SM_VR_X] = value[i];
             inst->v.x_given |= (inst->v.mode & before_run) != 0;
@@ -348,7 +384,9 @@ SmStatus sm_get_reals(SmInstance* inst, const unsigned* vr, size_t n, double* va
     if (inst->v.mode == SM_INIT && settle(inst) != SM_OK) return SM_ERROR;
     for (size_t i = 0; i < n; i++) {
         unsigned r = vr[i];
-        if (r < SM_VR_DER) {
+        if (r == SM_VR_TIME) {
+            value[i] = inst->v.t;
+        } else if (r < SM_VR_DER) {
             value[i] = inst->v.x[r - SM_VR_X];
         } else if (r < SM_VR_U) {
             if (!have_xdot && sm_derivatives(&inst->wk, inst->v.x, inst->v.u, inst->v.p, xdot)) {
@@ -364,29 +402,53 @@ SmStatus sm_get_reals(SmInstance* inst, const unsigned* vr, size_t n, double* va
             }
             have_y = 1;
             value[i] = y[r - SM_VR_Y];
-        } else if (r < SM_VR_TIME) {
-            value[i] = inst->v.p[r - SM_VR_P];
         } else {
-            value[i] = inst->v.t;
+            value[i] = inst->v.p[r - SM_VR_P];
         }
     }
     return SM_OK;
 }
 
 /* --- Co-Simulation -------------------------------------------------------------------- */
+/* Refuses a step that cannot be taken: not a finite h > 0, a t + h that does not advance
+ * time or leaves the FMU's time range, or one past the stop time given at set-up. */
+static int check_step(SmInstance* inst, double t, double h) {
+    const double t_max = SM_TIME_RESOLUTION / DBL_EPSILON;
+    const char* why = NULL;
+    if (!isfinite(h) || !(h > 0.0)) {
+        why = "is not a finite number > 0";
+    } else if (t + h == t) {
+        why = "does not advance the time (below its resolution at t)";
+    } else if (fabs(t + h) > t_max) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR,
+               "doStep: step size %g s ends at t = %g s, outside the FMU's time range [-%g, %g] "
+               "s (where doubles resolve %g s)",
+               h, t + h, t_max, t_max, SM_TIME_RESOLUTION);
+        return 0;
+    } else if (inst->stop_defined && t + h > inst->t_stop + 1e-9 * (1.0 + fabs(inst->t_stop))) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR,
+               "doStep: step size %g s ends at t = %.9g s, past the stop time %.9g s given at "
+               "set-up",
+               h, t + h, inst->t_stop);
+        return 0;
+    }
+    if (why != NULL) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "doStep: step size %g %s", h, why);
+        return 0;
+    }
+    return 1;
+}
+
 SmStatus sm_do_step(SmInstance* inst, double t, double h) {
     char msg[SM_MSG] = "";
     double x[SM_NX];
     if (!sm_allowed(inst, SM_STEP, "doStep")) return SM_ERROR;
-    if (!isfinite(h) || !(h > 0.0)) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "doStep: step size %g is not a finite number > 0", h);
-        return SM_ERROR;
-    }
     if (!isfinite(t) || fabs(t - inst->v.t) > 1e-9 * (1.0 + fabs(t))) {
         sm_log(inst, SM_ERROR, SM_LOG_ERROR,
                "doStep: communication point %.17g is not the FMU's time %.17g", t, inst->v.t);
         return SM_ERROR;
     }
+    if (!check_step(inst, t, h)) return SM_ERROR;
     memcpy(x, inst->v.x, sizeof x);
     if (sm_advance(&inst->wk, x, inst->v.u, inst->v.p, t - inst->v.t_start, h, &inst->substeps,
                    msg)) {
@@ -483,7 +545,7 @@ SmStatus sm_get_directional(SmInstance* inst, const unsigned* unknown, size_t n_
     }
     for (size_t i = 0; i < n_known; i++) {
         unsigned r = known[i];
-        if (r < SM_VR_DER) {
+        if (r >= SM_VR_X && r < SM_VR_DER) {
             dx[r - SM_VR_X] += seed[i];
         } else if (r >= SM_VR_U && r < SM_VR_Y) {
             du[r - SM_VR_U] += seed[i];
@@ -519,40 +581,111 @@ SmStatus sm_get_directional(SmInstance* inst, const unsigned* unknown, size_t n_
 }
 
 /* --- saved states --------------------------------------------------------------------- */
-SmValues* sm_get_state(SmInstance* inst, SmValues* reuse) {
-    SmValues* s = reuse != NULL ? reuse : malloc(sizeof *s);
-    if (s == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "getFMUstate: out of memory");
-        return NULL;
+/* The live state behind handle, or NULL after logging why (NULL, freed, or never issued by
+ * this FMU: another FMU's state or a bogus pointer is never read). */
+static SmState* live_state(SmInstance* inst, const void* handle, const char* function) {
+    SmFreed gone;
+    if (registry_has(&states, handle, &gone)) return (SmState*)handle;
+    sm_log(inst, SM_ERROR, SM_LOG_ERROR, "%s: %s", function,
+           handle == NULL        ? "the FMU state is NULL"
+           : gone.handle != NULL ? "this FMU state was freed already"
+                                 : "not a state of this FMU");
+    return NULL;
+}
+
+/* A new registered state made by inst, or NULL (logged). */
+static SmState* new_state(SmInstance* inst, const char* function) {
+    SmState* s = malloc(sizeof *s);
+    if (s != NULL && !registry_add(&states, s)) {
+        free(s);
+        s = NULL;
     }
-    *s = inst->v;
+    if (s == NULL) sm_log(inst, SM_ERROR, SM_LOG_ERROR, "%s: out of memory", function);
+    if (s != NULL) s->maker = inst;
     return s;
 }
 
-SmStatus sm_set_state(SmInstance* inst, const SmValues* state) {
-    if (state->owner != sm_owner) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "setFMUstate: not a state of this FMU");
-        return SM_ERROR;
+static void drop_state(SmState* s) {
+    SmFreed gone = {0};
+    registry_remove(&states, s, &gone);
+    free(s);
+}
+
+/* Frees the states inst made (fmiFreeInstance frees all memory of the instance). */
+static void free_states_of(const SmInstance* inst) {
+    for (;;) {
+        SmState* mine = NULL;
+        lock();
+        for (size_t i = 0; i < states.n && mine == NULL; i++) {
+            if (((SmState*)states.live[i])->maker == inst) mine = states.live[i];
+        }
+        unlock();
+        if (mine == NULL) return;
+        drop_state(mine);
     }
-    inst->v = *state;
+}
+
+/* The state to write into: *handle if live, a new one if *handle is NULL. */
+static SmState* target_state(SmInstance* inst, void** handle, const char* function) {
+    if (handle == NULL) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "%s: the pointer to the FMU state is NULL",
+               function);
+        return NULL;
+    }
+    return *handle == NULL ? new_state(inst, function) : live_state(inst, *handle, function);
+}
+
+SmStatus sm_get_state(SmInstance* inst, void** handle, const char* function) {
+    SmState* s = target_state(inst, handle, function);
+    if (s == NULL) return SM_ERROR;
+    s->v = inst->v;
+    *handle = s;
+    return SM_OK;
+}
+
+SmStatus sm_set_state(SmInstance* inst, const void* handle, const char* function) {
+    const SmState* s = live_state(inst, handle, function);
+    if (s == NULL) return SM_ERROR;
+    inst->v = s->v;
+    return SM_OK;
+}
+
+SmStatus sm_free_state(SmInstance* inst, void** handle, const char* function) {
+    if (handle == NULL || *handle == NULL) return SM_OK; /* nothing to free */
+    SmState* s = live_state(inst, *handle, function);
+    if (s == NULL) return SM_ERROR;
+    drop_state(s);
+    *handle = NULL;
     return SM_OK;
 }
 
 /* Layout: magic, GUID, then the doubles t, t_start, x, u, p and three ints as doubles. */
 #define SM_MAGIC "sarcomere-fmu-state-2"
 #define SM_N_DOUBLES (2 + SM_NX + SM_NU + SM_NP + 3)
+#define SM_BYTES (sizeof SM_MAGIC + sizeof SM_GUID + SM_N_DOUBLES * sizeof(double))
 
-size_t sm_serialized_size(void) {
-    return sizeof SM_MAGIC + sizeof SM_GUID + SM_N_DOUBLES * sizeof(double);
-}
-
-SmStatus sm_serialize(SmInstance* inst, const SmValues* s, char* bytes, size_t size) {
-    double d[SM_N_DOUBLES];
-    if (bytes == NULL || size != sm_serialized_size()) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "serializeFMUstate: a buffer of %zu bytes is needed",
-               sm_serialized_size());
+SmStatus sm_serialized_size(SmInstance* inst, const void* handle, size_t* size,
+                            const char* function) {
+    if (live_state(inst, handle, function) == NULL) return SM_ERROR;
+    if (size == NULL) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "%s: size is NULL", function);
         return SM_ERROR;
     }
+    *size = SM_BYTES;
+    return SM_OK;
+}
+
+SmStatus sm_serialize(SmInstance* inst, const void* handle, char* bytes, size_t size,
+                      const char* function) {
+    double d[SM_N_DOUBLES];
+    const SmState* state = live_state(inst, handle, function);
+    if (state == NULL) return SM_ERROR;
+    if (bytes == NULL || size != SM_BYTES) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "%s: a buffer of %zu bytes is needed", function,
+               (size_t)SM_BYTES);
+        return SM_ERROR;
+    }
+    const SmValues* s = &state->v;
     d[0] = s->t;
     d[1] = s->t_start;
     memcpy(d + 2, s->x, sizeof s->x);
@@ -567,50 +700,66 @@ SmStatus sm_serialize(SmInstance* inst, const SmValues* s, char* bytes, size_t s
     return SM_OK;
 }
 
-SmValues* sm_deserialize(SmInstance* inst, const char* bytes, size_t size) {
+/* 1 if d is one of the modes (a single bit of SM_ANY), checked before any cast to int. */
+static int is_mode(double d) {
+    for (int mode = 1; mode <= SM_FAILED; mode <<= 1) {
+        if (d == (double)mode) return 1;
+    }
+    return 0;
+}
+
+/* Why the doubles d cannot be a state of this FMU, or NULL. Every range is checked on the
+ * double itself, before a cast. */
+static const char* invalid_values(const double* d) {
+    const double t_max = SM_TIME_RESOLUTION / DBL_EPSILON;
+    for (int i = 0; i < SM_N_DOUBLES; i++) {
+        if (!isfinite(d[i])) return "a value is not finite";
+    }
+    if (fabs(d[0]) > t_max || fabs(d[1]) > t_max) return "a time outside the FMU's time range";
+    if (!is_mode(d[SM_N_DOUBLES - 3])) return "unknown mode";
+    for (int k = 2; k > 0; k--) {
+        double flag = d[SM_N_DOUBLES - k];
+        if (flag != 0.0 && flag != 1.0) return "a flag that is not 0 or 1";
+    }
+    for (int i = 0; i < SM_NP; i++) {
+        double v = d[2 + SM_NX + SM_NU + i];
+        if (v < sm_min[SM_VR_P + i] || v > sm_max[SM_VR_P + i]) return "a parameter out of range";
+    }
+    for (int i = 0; i < SM_NU; i++) {
+        double v = d[2 + SM_NX + i];
+        if (v < sm_min[SM_VR_U + i] || v > sm_max[SM_VR_U + i]) return "an input out of range";
+    }
+    return NULL;
+}
+
+SmStatus sm_deserialize(SmInstance* inst, const char* bytes, size_t size, void** handle,
+                        const char* function) {
     double d[SM_N_DOUBLES];
     const char* why = NULL;
-    if (bytes == NULL || size != sm_serialized_size()) {
+    if (bytes == NULL || size != SM_BYTES) {
         why = "wrong size";
     } else if (memcmp(bytes, SM_MAGIC, sizeof SM_MAGIC) != 0 ||
                memcmp(bytes + sizeof SM_MAGIC, SM_GUID, sizeof SM_GUID) != 0) {
         why = "not a state of this FMU";
     } else {
         memcpy(d, bytes + sizeof SM_MAGIC + sizeof SM_GUID, sizeof d);
-        for (int i = 0; i < SM_N_DOUBLES && why == NULL; i++) {
-            if (!isfinite(d[i])) why = "a value is not finite";
-        }
-    }
-    int mode = why == NULL ? (int)d[SM_N_DOUBLES - 3] : 0;
-    if (why == NULL && (mode != d[SM_N_DOUBLES - 3] || mode <= 0 || mode > SM_FAILED ||
-                        (mode & (mode - 1)) != 0)) {
-        why = "unknown mode";
-    }
-    for (int i = 0; i < SM_NP && why == NULL; i++) {
-        double v = d[2 + SM_NX + SM_NU + i];
-        if (v < sm_min[SM_VR_P + i] || v > sm_max[SM_VR_P + i]) why = "a parameter out of range";
-    }
-    for (int i = 0; i < SM_NU && why == NULL; i++) {
-        double v = d[2 + SM_NX + i];
-        if (v < sm_min[SM_VR_U + i] || v > sm_max[SM_VR_U + i]) why = "an input out of range";
+        why = invalid_values(d);
     }
     if (why != NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "deSerializeFMUstate: refused (%s)", why);
-        return NULL;
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "%s: refused (%s)", function, why);
+        return SM_ERROR;
     }
-    SmValues* s = malloc(sizeof *s);
-    if (s == NULL) {
-        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "deSerializeFMUstate: out of memory");
-        return NULL;
-    }
-    s->owner = sm_owner;
+    SmState* state = target_state(inst, handle, function);
+    if (state == NULL) return SM_ERROR;
+    SmValues* s = &state->v;
     s->t = d[0];
     s->t_start = d[1];
     memcpy(s->x, d + 2, sizeof s->x);
     memcpy(s->u, d + 2 + SM_NX, sizeof s->u);
     memcpy(s->p, d + 2 + SM_NX + SM_NU, sizeof s->p);
-    s->mode = mode;
-    s->x_given = d[SM_N_DOUBLES - 2] != 0;
-    s->x_solved = d[SM_N_DOUBLES - 1] != 0;
-    return s;
+    s->mode = (int)d[SM_N_DOUBLES - 3]; /* a mode: checked above */
+    s->x_given = d[SM_N_DOUBLES - 2] != 0.0;
+    s->x_solved = d[SM_N_DOUBLES - 1] != 0.0;
+    *handle = state;
+    return SM_OK;
 }

@@ -35,7 +35,6 @@ typedef void (*SmLogger)(SmCallback callback, void* env, const char* instance, S
 
 /* Everything a saved FMU state holds. */
 typedef struct {
-    const char* owner; /* the tag of the FMU that made it: a foreign state is refused */
     double t;
     double t_start; /* setupExperiment's start time: sample instants count from it */
     double x[SM_NX];
@@ -54,9 +53,24 @@ typedef struct {
     void* log_env;
     int categories;
     SmValues v;
+    int stop_defined; /* the set-up gave a stop time: no doStep goes past t_stop */
+    double t_stop;
     long substeps; /* Radau substeps (or samples, a sampled system) of the last doStep */
     SmWork wk;
 } SmInstance;
+
+/* A saved state: a copy of the values and the instance that made it (freed with it). Its
+ * handle is used only while the registry of saved states lists it: a freed, foreign or
+ * bogus pointer is refused without being read. */
+typedef struct {
+    SmValues v;
+    const SmInstance* maker;
+} SmState;
+
+/* Time range of the FMU [s]: beyond it doubles no longer resolve SM_TIME_RESOLUTION, and
+ * a doStep whose end lies beyond it is refused (SM_TIME_RESOLUTION / DBL_EPSILON, 4.5e6 s,
+ * 52 days). */
+#define SM_TIME_RESOLUTION 1e-9
 
 SmInstance* sm_new(const char* name, int cosim, SmLogger log, SmCallback callback, void* log_env,
                    int logging_on);
@@ -72,7 +86,8 @@ SmStatus sm_fail(SmInstance* inst, const char* fmt, ...); /* logs, enters SM_FAI
 
 SmStatus sm_set_logging(SmInstance* inst, int on, size_t n, const char* const* categories);
 void sm_reset(SmInstance* inst);
-SmStatus sm_setup(SmInstance* inst, double start_time);
+/* Start time, and the stop time if stop_defined: finite, stop >= start. */
+SmStatus sm_setup(SmInstance* inst, double start_time, int stop_defined, double stop_time);
 SmStatus sm_enter_init(SmInstance* inst);
 SmStatus sm_exit_init(SmInstance* inst, int next_mode);
 SmStatus sm_set_reals(SmInstance* inst, const unsigned* vr, size_t n, const double* value);
@@ -87,11 +102,17 @@ SmStatus sm_get_directional(SmInstance* inst, const unsigned* unknown, size_t n_
                         const unsigned* known, size_t n_known, const double* seed,
                         double* sensitivity);
 
-/* Saved states: copies of SmValues; serialised as a checked byte string. */
-SmValues* sm_get_state(SmInstance* inst, SmValues* reuse);
-SmStatus sm_set_state(SmInstance* inst, const SmValues* state);
-size_t sm_serialized_size(void);
-SmStatus sm_serialize(SmInstance* inst, const SmValues* state, char* bytes, size_t size);
-SmValues* sm_deserialize(SmInstance* inst, const char* bytes, size_t size);
+/* Saved states, by the importer's handles (void*: checked against the registry before any
+ * use); serialised as a checked byte string. `*handle` NULL asks for a new state, else it
+ * must be a live one, which is overwritten. */
+SmStatus sm_get_state(SmInstance* inst, void** handle, const char* function);
+SmStatus sm_set_state(SmInstance* inst, const void* handle, const char* function);
+SmStatus sm_free_state(SmInstance* inst, void** handle, const char* function);
+SmStatus sm_serialized_size(SmInstance* inst, const void* handle, size_t* size,
+                            const char* function);
+SmStatus sm_serialize(SmInstance* inst, const void* handle, char* bytes, size_t size,
+                      const char* function);
+SmStatus sm_deserialize(SmInstance* inst, const char* bytes, size_t size, void** handle,
+                        const char* function);
 
 #endif

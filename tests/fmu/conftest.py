@@ -13,6 +13,7 @@ from fmpy.fmi2 import FMU2Model, FMU2Slave, fmi2CallbackFunctions, fmi2CallbackL
 from sarcomere.fmu import export_fmu
 from sarcomere.scenarios.cli import main
 from sarcomere.scenarios.dynamic import run_transient
+from sarcomere.scenarios.export_fmu import scenario_setup
 from sarcomere.scenarios.loader import load_scenario
 
 #: A transient isometric scene: one APS on a rigid fixture, a pressure step.
@@ -65,7 +66,9 @@ def iso_scene(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def iso_fmu(tmp_path_factory, iso_scene) -> Path:
     """The isometric scene's model (n = 1) as an FMI 2.0 FMU, exported through the API."""
-    return export_fmu(iso_scene, tmp_path_factory.mktemp("fmu") / "iso.fmu")
+    model, params, inputs, experiment = scenario_setup(iso_scene)
+    out = tmp_path_factory.mktemp("fmu") / "iso.fmu"
+    return export_fmu(model, out, 2, params, inputs, experiment)
 
 
 def native(scene, tmp_path: Path):

@@ -108,6 +108,19 @@ def test_archive_size_and_kind_are_checked(tmp_path, monkeypatch, step_fmu):
     with pytest.raises(FmuArchiveError, match="no such file"):
         with open_fmu(tmp_path / "missing.fmu"):
             pass
+    expected = r"; expected an FMU file \(a \.fmu zip archive\)$"
+    folder = tmp_path / "folder.fmu"
+    folder.mkdir()
+    with pytest.raises(FmuArchiveError, match="': a folder" + expected):
+        with open_fmu(folder):
+            pass
+    with pytest.raises(FmuArchiveError, match="not a regular file .*" + expected):
+        with open_fmu("/dev/null"):
+            pass
+    (tmp_path / "dangling.fmu").symlink_to(tmp_path / "gone.fmu")
+    with pytest.raises(FmuArchiveError, match="a broken symbolic link" + expected):
+        with open_fmu(tmp_path / "dangling.fmu"):
+            pass
     monkeypatch.setattr(archive, "MAX_ARCHIVE_BYTES", 1000)
     with pytest.raises(FmuArchiveError, match=r"bytes, more than 1000$"):
         with open_fmu(step_fmu):

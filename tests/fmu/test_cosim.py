@@ -237,3 +237,28 @@ def test_the_cosim_kind_refuses_unknown_keys(tmp_path):
     bad.write_text(scene.replace('ordering = "jacobi"', "order = 1"))
     with pytest.raises(ScenarioError, match="unknown key 'order'"):
         run(bad, tmp_path / "out", quiet=True)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (
+            ("n = 3", "n = 2"),  # the bug: ran with exit 0, signals compared by name
+            "step-50g.fmu \\(model 'hanging_n3_full'\\) is not this scene's model "
+            "'hanging_n2_full': states: 18 in the FMU, 13 in the scene's model; only in the "
+            "FMU: myofibril.aps3.body.s",
+        ),
+        (('load = "50 g"', 'load = "80 g"'), "load.m = 0.051 kg in the FMU, 0.081 kg in the scene"),
+    ],
+)
+def test_an_fmu_of_another_model_is_refused_before_running(tmp_path, step_fmu, change, message):
+    """docs/cosim.md: ``fmu`` is an FMU of the scene's model. Another model's (n = 3 for an
+    n = 2 scene), or the same structure with another parameter value the scene does not
+    set, is refused naming what differs, before the native run."""
+    scene = resolve_scenario("cosim-roundtrip").read_text()
+    given = tmp_path / "other.toml"
+    given.write_text(scene.replace("fmi = 2", f'fmu = "{step_fmu}"').replace(*change))
+    with pytest.raises(ScenarioError, match=message) as info:
+        run(given, tmp_path / "out", quiet=True)
+    assert "key 'cosim.fmu'" in str(info.value)
+    assert not (tmp_path / "out").exists()

@@ -1,6 +1,7 @@
-"""A two-way co-simulation (fmu/cosim_study.py): the muscle and a spring-coupled load as
-two native participants against the same system as one model; first-order convergence
-of the held coupling, and the instability of a stiff spring at a large step."""
+"""A two-way co-simulation (scenarios/studies/cosim_coupling.py): the muscle and a
+spring-coupled load as two native participants against the same system as one model;
+first-order convergence of the held coupling, and the instability of a stiff spring at a
+large step."""
 
 from __future__ import annotations
 
@@ -10,9 +11,9 @@ import numpy as np
 import pytest
 
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.fmu import cosim_study as study
 from sarcomere.fmu import export_fmu, open_fmu
 from sarcomere.fmu.cosim import CosimError
+from sarcomere.scenarios.studies import cosim_coupling as study
 
 COMMAND = (2e4, 8e4, 0.02)
 """0.02 -> 0.08 MPa at 20 ms [Pa, Pa, s]."""
@@ -32,10 +33,10 @@ def test_gauss_seidel_hold_converges_at_first_order():
     coupling that ignored the loop's second direction would not converge at all."""
     stop = 0.08
     ref = study.monolithic_run(200.0, COMMAND, stop, np.linspace(0, stop, 81))
-    scale = np.ptp(ref["load.s"])
+    scale = np.ptp(ref["mass.s"])
     assert scale > 2e-4  # the load rises by 0.29 mm by 80 ms
     e2, e1 = (
-        np.max(_error(200.0, h, "gauss-seidel", stop, ref, "load.s")) / scale for h in (2e-3, 1e-3)
+        np.max(_error(200.0, h, "gauss-seidel", stop, ref, "mass.s")) / scale for h in (2e-3, 1e-3)
     )
     order = math.log2(e2 / e1)
     assert 0.9 < order < 1.1, (e2, e1, order)
@@ -51,8 +52,8 @@ def test_a_stiff_spring_at_a_large_step_is_unstable():
     ref = study.monolithic_run(c, COMMAND, stop, np.linspace(0, stop, 801))
     assert study.amplification(c, 2.5e-4, "gauss-seidel", "hold", COMMAND[1]) < 1
     assert study.amplification(c, 1e-3, "gauss-seidel", "hold", COMMAND[1]) > 1
-    stable = _error(c, 2.5e-4, "gauss-seidel", stop, ref, "spring.f")
-    unstable = _error(c, 1e-3, "gauss-seidel", stop, ref, "spring.f")
+    stable = _error(c, 2.5e-4, "gauss-seidel", stop, ref, "sensor.f")
+    unstable = _error(c, 1e-3, "gauss-seidel", stop, ref, "sensor.f")
     assert not study.diverges(stable) and np.max(stable) < 0.1 * study.start_force()
     assert study.diverges(unstable) and np.max(unstable) > 10 * np.max(stable)
 
@@ -91,11 +92,11 @@ def test_the_load_as_its_fmu_couples_as_the_native_load(load_fmu):
     muscle out of its domain (the spring's stiffness set as the FMU's parameter)."""
     stop = 0.08
     ref = study.monolithic_run(200.0, COMMAND, stop, np.linspace(0, stop, 81))
-    scale = np.ptp(ref["load.s"])
-    native = np.max(_error(200.0, 1e-3, "gauss-seidel", stop, ref, "load.s")) / scale
+    scale = np.ptp(ref["mass.s"])
+    native = np.max(_error(200.0, 1e-3, "gauss-seidel", stop, ref, "mass.s")) / scale
     with open_fmu(load_fmu) as fmu:
         r = study.cosimulate_split(200.0, 1e-3, "gauss-seidel", "hold", COMMAND, stop, load_fmu=fmu)
-    fmu_error = np.max(np.abs(r["load.load.s"] - ref["load.s"])) / scale
+    fmu_error = np.max(np.abs(r["load.mass.s"] - ref["mass.s"])) / scale
     assert fmu_error == pytest.approx(native, rel=0.01)
     with open_fmu(load_fmu) as fmu:
         with pytest.raises(CosimError, match="model 'muscle' returned error"):

@@ -31,7 +31,7 @@ def test_variables_follow_the_model(step_fmu):
     ders = [f"der({n})" for n in model.state_names]
     expected = model.state_names + ders + model.input_names + model.output_names
     assert names == expected + model.param_names
-    assert [v.valueReference for v in md.modelVariables] == list(range(len(names)))
+    assert [v.valueReference for v in md.modelVariables] == list(range(1, len(names) + 1))
     for i, n in enumerate(model.state_names):
         v = by_name[n]
         assert (v.causality, v.variability, v.initial) == ("local", "continuous", "approx")
@@ -97,8 +97,8 @@ def test_export_refuses_bad_arguments(tmp_path):
         export_fmu(hanging_load(1, fidelity="static_chain"), tmp_path / "a.fmu")
     with pytest.raises(ParameterError, match="600000"):
         export_fmu(model, tmp_path / "a.fmu", inputs={"regulator.p_cmd": -1.0})
-    with pytest.raises(ParameterError, match="scenario"):
-        export_fmu("step-50g", tmp_path / "a.fmu", params={"load.m": 0.1})
+    with pytest.raises(ParameterError, match="'model' = 'step-50g'.*a flattened Model"):
+        export_fmu("step-50g", tmp_path / "a.fmu")  # the CLI builds a scene's model first
     assert not list(tmp_path.iterdir())
 
 
@@ -111,6 +111,29 @@ def test_cli_refuses_a_scene_without_one_model_level(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_cli_replaces_only_an_fmu_unless_forced(tmp_path, capsys, iso_scene):
+    """``--out`` an existing file that is not an FMU is refused (the file untouched) unless
+    ``--force``; an existing FMU is replaced; a folder is refused; a missing parent folder
+    is created, as ``run`` creates its results folder."""
+    notes = tmp_path / "notes.fmu"
+    notes.write_text("my notes")
+    assert main(["export-fmu", str(iso_scene), "--out", str(notes)]) == 2
+    assert "the file exists and is not an FMU; --force replaces it" in capsys.readouterr().err
+    assert notes.read_text() == "my notes"
+    (tmp_path / "folder.fmu").mkdir()
+    assert main(["export-fmu", str(iso_scene), "--out", str(tmp_path / "folder.fmu")]) == 2
+    assert "it is a folder" in capsys.readouterr().err
+    assert main(["export-fmu", str(iso_scene), "--out", str(tmp_path / "a.zip")]) == 2
+    assert "a file name ending in .fmu" in capsys.readouterr().err
+    nested = tmp_path / "new" / "folder" / "iso.fmu"
+    assert main(["export-fmu", str(iso_scene), "--out", str(nested)]) == 0
+    assert zipfile.is_zipfile(nested)
+    assert main(["export-fmu", str(iso_scene), "--out", str(nested), "--fmi", "3"]) == 0
+    assert "3.0" in read_model_description(nested).fmiVersion  # the FMU was replaced
+    assert main(["export-fmu", str(iso_scene), "--out", str(notes), "--force"]) == 0
+    assert zipfile.is_zipfile(notes)
+
+
 def test_a_failing_compiler_is_an_error_and_writes_nothing(tmp_path, monkeypatch):
     model = hanging_load(1)
     monkeypatch.setenv("CC", "false")  # a "compiler" that always fails
@@ -120,3 +143,23 @@ def test_a_failing_compiler_is_an_error_and_writes_nothing(tmp_path, monkeypatch
     with pytest.raises(FmuError, match="no C compiler"):
         export_fmu(model, tmp_path / "a.fmu")
     assert not list(tmp_path.iterdir())
+
+
+def test_the_fmu_package_never_imports_scenarios():
+    """Data flows one way: the scenarios layer builds a scene's model and calls the FMU
+    package, never the reverse (export_fmu took a scenario and imported it before)."""
+    import ast
+    from pathlib import Path
+
+    import sarcomere.fmu
+
+    for source in Path(sarcomere.fmu.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(source.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                names = [("." * node.level) + (node.module or "")]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            for name in names:
+                assert "scenarios" not in name, f"{source.name} imports {name}"

@@ -230,6 +230,19 @@ def _unknown_value_reference(fmu, fmi):
     fmu.getReal([len(fmi.vr) + 5])
 
 
+def _value_reference_0(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.getReal([0])  # time's in FMI 3.0; no variable of an FMI 2.0 FMU
+
+
+def _past_the_stop_time(fmu, fmi):
+    fmu.setupExperiment(startTime=0.0, stopTime=0.01)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    fmu.doStep(0.0, 0.005)
+    fmu.doStep(0.005, 0.0051)
+
+
 def _fixed_parameter_after_init(fmu, fmi):
     _start(fmu, None, fmi)
     fmu.setReal([fmi.vr["myofibril.actin0.l"]], [0.033])
@@ -282,6 +295,8 @@ def _no_equilibrium(fmu, fmi):
         (_input_above_range, "regulator.p_cmd = 700000 is outside [0, 600000]"),
         (_parameter_below_range, "load.m = -0.01"),
         (_unknown_value_reference, "unknown value reference"),
+        (_value_reference_0, "unknown value reference 0"),
+        (_past_the_stop_time, "ends at t = 0.0101 s, past the stop time 0.01 s given at set-up"),
         (_fixed_parameter_after_init, "myofibril.actin0.l is a fixed parameter"),
         (_set_a_state_in_step_mode, "load.s is a state; it can be set only before the end"),
         (_set_an_output, "myofibril.length is an output and cannot be set"),
@@ -343,7 +358,7 @@ def test_a_state_of_another_fmu_is_refused(step_loaded, load, iso_fmu):
     _start(fmu, None, step_loaded)
     with pytest.raises(FMICallException):
         fmu.setFMUstate(foreign)
-    assert step_loaded.errors()[-1] == "setFMUstate: not a state of this FMU"
+    assert step_loaded.errors()[-1] == "fmi2SetFMUstate: not a state of this FMU"
     assert _get(fmu, step_loaded, LENGTH) > 0.17  # unchanged: still the 3-APS chain
     iso.freeFMUstate(foreign)
     iso.freeInstance()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi3 import FMU3Model, FMU3Slave
+from fmpy.fmi3 import FMU3Model, FMU3Slave, fmi3FMUState
 from fmpy.validation import validate_fmu
 
 from sarcomere.dynamics.assemblies import isometric
@@ -22,8 +22,25 @@ def test_fmi3_fmu_validates(iso_fmu3):
     md = read_model_description(iso_fmu3)
     assert md.fmiVersion == "3.0"
     (time,) = [v for v in md.modelVariables if v.causality == "independent"]
-    assert (time.name, time.valueReference) == ("time", len(md.modelVariables) - 1)
+    assert (time.name, time.valueReference) == ("time", 0)  # as the Reference FMUs
     assert "sources/buildDescription.xml" in zipfile.ZipFile(iso_fmu3).namelist()
+
+
+@pytest.mark.parametrize("fmu", ["iso_fmu", "iso_fmu3"])
+def test_no_output_depends_on_value_reference_0(fmu, request):
+    """OMSimulator refuses an FMI 3.0 FMU whose output depends on value reference 0 (legal,
+    but the Reference FMUs give 0 to ``time``): 0 is time in FMI 3.0 and unused in 2.0."""
+    md = read_model_description(request.getfixturevalue(fmu))
+    by_vr = {v.valueReference: v for v in md.modelVariables}
+    assert len(by_vr) == len(md.modelVariables)  # unique
+    if md.fmiVersion == "3.0":
+        assert by_vr[0].name == "time"
+    else:
+        assert 0 not in by_vr
+    assert any(o.dependencies for o in md.outputs)  # the check below is not vacuous
+    for unknown in md.outputs + md.derivatives + md.initialUnknowns:
+        deps = unknown.dependencies or []  # FMI 2.0 initial unknowns: the default
+        assert all(d.valueReference != 0 for d in deps), unknown.variable.name
 
 
 @pytest.mark.parametrize(
@@ -128,12 +145,28 @@ def _started(fmu):
     return fmu
 
 
+def _past_the_stop_time(fmu, vr):
+    fmu.enterInitializationMode(startTime=0.0, stopTime=0.01)
+    fmu.exitInitializationMode()
+    fmu.doStep(0.0, 0.005)
+    fmu.doStep(0.005, 0.0051)
+
+
+def _a_freed_state(fmu, vr):
+    state = _started(fmu).getFMUState()
+    copy = fmi3FMUState(state.value)  # fmpy sets the freed handle to NULL
+    fmu.freeFMUState(state)
+    fmu.setFMUState(copy)  # refused by the registry of live states, never read
+
+
 @pytest.mark.parametrize(
     ("misuse", "message"),
     [
+        (_past_the_stop_time, "ends at t = 0.0101 s, past the stop time 0.01 s given at set-up"),
+        (_a_freed_state, "fmi3SetFMUState: this FMU state was freed already"),
         (lambda f, v: f.doStep(0.0, 0.001), "doStep is not allowed in instantiated"),
         (lambda f, v: f.setFloat64([v["time"]], [1.0]), "time is the independent variable"),
-        (lambda f, v: _started(f).getFloat64([v["time"] + 1]), "unknown value reference"),
+        (lambda f, v: _started(f).getFloat64([len(v)]), "unknown value reference"),
         (lambda f, v: f.getAdjointDerivative([0], [0], [1.0]), "providesAdjointDerivatives"),
         (lambda f, v: f.deserializeFMUState(b"x" * 10), "refused (wrong size)"),
     ],

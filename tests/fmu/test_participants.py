@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.fmu import cosim_study as study
 from sarcomere.fmu.archive import FmuArchiveError, open_fmu
 from sarcomere.fmu.cosim import Connection, CosimError, cosimulate
 from sarcomere.fmu.participants import FmuParticipant, NativeParticipant, ParticipantError
+from sarcomere.scenarios.studies import cosim_coupling as study
 
 
 def _craft(src: Path, dst: Path, change) -> Path:
@@ -88,19 +88,19 @@ def test_a_native_output_that_feeds_through_reads_at_the_start_inputs():
     not at the model's default input (0 m: 11.9 N here)."""
     load = NativeParticipant(study.load_participant_model(200.0), "load")
     load.start(0.0, {"drive.s": 0.05})
-    got = load.get(["spring.f", "drive.s", "load.s"])
+    got = load.get(["sensor.f", "drive.s", "mass.s"])
     assert got["drive.s"] == 0.05
-    assert got["spring.f"] == pytest.approx(study.start_force(), rel=1e-9)
-    assert got["load.s"] == pytest.approx(0.05 + study.REST_M + study.start_force() / 200.0)
+    assert got["sensor.f"] == pytest.approx(study.start_force(), rel=1e-9)
+    assert got["mass.s"] == pytest.approx(0.05 + study.REST_M + study.start_force() / 200.0)
 
 
 def test_start_inputs_close_a_loop_at_its_equilibrium():
     """With the coupling force of the joint equilibrium given, the split system starts
     at rest: nothing moves over a few steps without a command change."""
     r = study.cosimulate_split(200.0, 1e-3, "jacobi", "hold", (2e4, 2e4, 0.0), 0.005)
-    s = r["load.load.s"]
+    s = r["load.mass.s"]
     assert np.ptp(s) < 1e-9 * abs(s[0])
-    np.testing.assert_allclose(r["load.spring.f"], study.start_force(), rtol=1e-6)
+    np.testing.assert_allclose(r["load.sensor.f"], study.start_force(), rtol=1e-6)
 
 
 def test_start_inputs_must_be_a_loop_input_driven_later():
@@ -119,7 +119,7 @@ def test_start_inputs_must_be_a_loop_input_driven_later():
     with pytest.raises(ParameterError, match="driver starts after it"):
         cosimulate(
             parts,
-            [Connection("load.spring.f", "muscle.coupling.f")],
+            [Connection("load.sensor.f", "muscle.pull.f")],
             stop_time=0.01,
             step=0.01,
             start_inputs={"muscle.regulator.p_cmd": 1e4},  # not connected

@@ -157,6 +157,11 @@ def test_schema_errors_are_one_line_and_name_the_key(tmp_path, change, message):
     ("change", "message"),
     [
         (('["muscle.end.s", "load.drive.s"],', ""), "compare'.*needs the connections"),
+        (
+            ('["muscle.end.s", "load.drive.s"],', '["muscle.end.ss", "load.drive.s"],'),
+            "key 'cosim.connections': muscle.end.ss -> load.drive.s: not a connection compare"
+            ' = "monolithic-loop" knows; it needs muscle.end.s -> load.drive.s$',
+        ),
         (('"pid.reference"]', '"pid.nothing"]'), "compare'.*needs a source for 'pid.reference'"),
         (('sample_time = "10 ms"', 'sample_time = "2.5 ms"'), "compare'.*whole number of steps"),
         (("[cosim.participants.load]", LOAD2), "compare'.*one load"),

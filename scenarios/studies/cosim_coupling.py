@@ -2,20 +2,24 @@
 participants, against the same system simulated as one model, and the linear analysis
 of the coupling's stability.
 
-The system: one APS hanging from the frame, a mass ``end`` [kg] at its lower end, and a
-spring ``c`` [N/m] from that end to a second mass ``load`` [kg] (gravity on both). Split:
+The system is the co-simulation set-up of :mod:`sarcomere.dynamics.assemblies`: one APS
+hanging from the frame, its hook of ``END_KG`` [kg] at its lower end, and a spring ``c``
+[N/m] (unstretched ``REST_M``, undamped) from the hook to a mass ``LOAD_KG`` [kg]
+(gravity on both). Split:
 
-* ``muscle`` (:func:`muscle_participant_model`): the frame, regulator, myofibril and the
-  end mass; input ``coupling.f`` (the spring's pull on the end [N]), output ``sensor.s``
-  (the end's position [m]);
-* ``load`` (:func:`load_participant_model`): the spring driven at its top by the input
-  ``drive.s`` [m] and the load mass; output ``spring.f`` [N] (it feeds through from the
-  input: a real two-way loop, position one way, force the other).
+* ``muscle`` (:func:`muscle_participant_model`, :func:`~sarcomere.dynamics.assemblies.
+  force_driven`): input ``pull.f`` (the spring's pull on the hook [N]), output ``end.s``
+  (the hook's position [m]);
+* ``load`` (:func:`load_participant_model`, :func:`~sarcomere.dynamics.assemblies.
+  spring_mass_load`): the spring driven at its top by the input ``drive.s`` [m] and the
+  mass; output ``sensor.f``, the spring's tension [N] (it feeds through from the input: a
+  real two-way loop, position one way, force the other).
 
-:func:`monolithic_model` is the whole system as one flattened model (the reference).
-:func:`amplification` is the spectral radius of the co-simulation's step map for the two
-participants linearised at the joint equilibrium, each integrated exactly over a step with
-its inputs held as the master holds them: the coupling is stable where it is <= 1.
+:func:`monolithic_model` (:func:`~sarcomere.dynamics.assemblies.sprung_load`) is the whole
+system as one flattened model (the reference). :func:`amplification` is the spectral
+radius of the co-simulation's step map for the two participants linearised at the joint
+equilibrium, each integrated exactly over a step with its inputs held as the master holds
+them: the coupling is stable where it is <= 1.
 """
 
 from __future__ import annotations
@@ -26,36 +30,24 @@ from collections.abc import Callable
 import numpy as np
 import scipy.linalg
 
-from sarcomere.dynamics.components.aps import APSParams, Myofibril
-from sarcomere.dynamics.components.environment import Environment
-from sarcomere.dynamics.components.mechanical import (
-    Fixed,
-    Force,
-    Mass,
-    Position,
-    PositionSensor,
-    Spring,
-)
-from sarcomere.dynamics.components.pneumatic import Regulator
+from sarcomere.dynamics.assemblies import force_driven, spring_mass_load, sprung_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.dynamics.modeling.component import System
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.params.ambient import Ambient
 from sarcomere.dynamics.results import Result
 from sarcomere.dynamics.signals import Step
 from sarcomere.dynamics.simulation.settings import SolverSettings
 from sarcomere.dynamics.simulation.simulate import simulate
-
-from .archive import OpenedFmu
-from .cosim import INPUT_LAWS, ORDERINGS, Connection, cosimulate
-from .participants import FmuParticipant, NativeParticipant
+from sarcomere.fmu.archive import OpenedFmu
+from sarcomere.fmu.cosim import INPUT_LAWS, ORDERINGS, Connection, cosimulate
+from sarcomere.fmu.participants import FmuParticipant, NativeParticipant
 
 G = Ambient().g
 """Gravity of both participants [m/s^2] (the environment's default)."""
 
 END_KG = 0.02
-"""The mass at the muscle's lower end [kg] (hook and clip of the coupling)."""
+"""The hook at the muscle's lower end [kg] (hook and clip of the coupling)."""
 
 LOAD_KG = 0.05
 """The load mass below the spring [kg]."""
@@ -63,24 +55,15 @@ LOAD_KG = 0.05
 REST_M = 0.01
 """The spring's unstretched length [m]."""
 
+DAMPING = 0.0
+"""The load's damping to the ground [N*s/m]: none, the loop's only damping is the
+muscle's own (:func:`relative_mode_damping`)."""
+
 CONNECTIONS = (
-    Connection("muscle.sensor.s", "load.drive.s"),
-    Connection("load.spring.f", "muscle.coupling.f"),
+    Connection("muscle.end.s", "load.drive.s"),
+    Connection("load.sensor.f", "muscle.pull.f"),
 )
-"""The two-way loop: the end's position drives the spring, its tension pulls the end."""
-
-
-def _muscle(sys: System) -> tuple[Mass, Myofibril]:
-    sys.add(Environment())
-    frame = sys.add(Fixed("frame"))
-    reg = sys.add(Regulator("regulator", tau=0.05))
-    myo = Myofibril("myofibril", 1, APSParams.from_paper())
-    chain = sys.add(myo)
-    sys.connect(frame.flange, chain.flange_a)
-    sys.connect(reg.port, chain.port)
-    end = sys.add(Mass("end", m=END_KG, s_start=myo.rest_length_expr))
-    sys.connect(chain.flange_b, end.flange_a)
-    return end, myo
+"""The two-way loop: the hook's position drives the spring, its tension pulls the hook."""
 
 
 def _check(c: float) -> float:
@@ -89,54 +72,36 @@ def _check(c: float) -> float:
     return float(c)
 
 
-def _spring_and_load(sys: System, c: float, start) -> Spring:
-    spring = sys.add(Spring("spring", c=_check(c), s_rel0=REST_M))
-    load = sys.add(Mass("load", m=LOAD_KG, s_start=start))
-    sys.connect(spring.flange_b, load.flange_a)
-    return spring
-
-
 def muscle_participant_model() -> Model:
-    """The muscle with its end mass pulled by the force input ``coupling.f`` [N]; output
-    ``sensor.s``, the end's position [m]."""
-    sys = System("muscle")
-    end, _ = _muscle(sys)
-    sys.connect(end.flange_b, sys.add(Force("coupling")).flange)
-    sys.connect(end.flange_b, sys.add(PositionSensor("sensor")).flange)
-    return sys.flatten()
+    """The muscle (1 APS) with its hook pulled by the force input ``pull.f`` [N]; output
+    ``end.s``, the hook's position [m]."""
+    return force_driven(1, hook_kg=END_KG)
 
 
 def load_participant_model(c: float) -> Model:
     """The spring ``c`` [N/m] driven at its top by the input ``drive.s`` [m] and the load
-    mass below it; output ``spring.f``, the spring's tension [N]."""
-    sys = System("load")
-    sys.add(Environment())
-    drive = sys.add(Position("drive"))
-    spring = _spring_and_load(sys, c, REST_M)
-    sys.connect(drive.flange, spring.flange_a)
-    return sys.flatten()
+    mass below it; output ``sensor.f``, the spring's tension [N]."""
+    return spring_mass_load(LOAD_KG, _check(c), DAMPING, rest_length=REST_M)
 
 
 def monolithic_model(c: float) -> Model:
-    """The whole system as one model: states ``end.s``, ``load.s``; ``spring.f``."""
-    sys = System("monolithic")
-    end, myo = _muscle(sys)
-    spring = _spring_and_load(sys, c, myo.rest_length_expr + REST_M)
-    sys.connect(end.flange_b, spring.flange_a)
-    return sys.flatten()
+    """The whole system as one model: states ``hook.s``, ``mass.s``, ...; ``sensor.f``."""
+    return sprung_load(
+        1, mass_kg=LOAD_KG, stiffness=_check(c), damping=DAMPING, hook_kg=END_KG, rest_length=REST_M
+    )
 
 
 @functools.lru_cache(maxsize=32)
 def _linearised(c: float, p_cmd: float) -> tuple:
-    """``(A, B, C, D)`` of the muscle (input ``coupling.f``, output ``sensor.s``) and of
-    the load (``drive.s`` -> ``spring.f``) at the joint equilibrium of ``p_cmd`` [Pa]."""
+    """``(A, B, C, D)`` of the muscle (input ``pull.f``, output ``end.s``) and of the load
+    (``drive.s`` -> ``sensor.f``) at the joint equilibrium of ``p_cmd`` [Pa]."""
     mus, lod = muscle_participant_model(), load_participant_model(c)
-    eq_m = solve_equilibrium(mus, {"regulator.p_cmd": p_cmd, "coupling.f": start_force()})
-    eq_l = solve_equilibrium(lod, {"drive.s": eq_m["sensor.s"]})
+    eq_m = solve_equilibrium(mus, {"regulator.p_cmd": p_cmd, "pull.f": start_force()})
+    eq_l = solve_equilibrium(lod, {"drive.s": eq_m["end.s"]})
     out = []
     for model, eq, u, y in (
-        (mus, eq_m, "coupling.f", "sensor.s"),
-        (lod, eq_l, "drive.s", "spring.f"),
+        (mus, eq_m, "pull.f", "end.s"),
+        (lod, eq_l, "drive.s", "sensor.f"),
     ):
         A, B, C, D = (np.array(m) for m in model.linearization([y])(eq.x, eq.z, eq.u, eq.p))
         k = model.input_names.index(u)
@@ -249,7 +214,7 @@ def command(p_low: float, p_high: float, t_step: float) -> Callable[[float], flo
 
 def start_force() -> float:
     """The spring's tension at the joint equilibrium [N]: the load's weight, the value that
-    closes the loop at the start (``start_inputs`` of the muscle's ``coupling.f``)."""
+    closes the loop at the start (``start_inputs`` of the muscle's ``pull.f``)."""
     return LOAD_KG * G
 
 
@@ -260,7 +225,7 @@ def cosimulate_split(
     inputs: str,
     p: tuple[float, float, float],
     stop_time: float,
-    record: tuple[str, ...] = ("load.load.s", "load.spring.f"),
+    record: tuple[str, ...] = ("load.mass.s", "load.sensor.f"),
     settings: SolverSettings | None = None,
     load_fmu: OpenedFmu | None = None,
 ) -> Result:
@@ -288,7 +253,7 @@ def cosimulate_split(
         ordering=ordering,
         inputs=inputs,
         sources={"muscle.regulator.p_cmd": command(*p)},
-        start_inputs={"muscle.coupling.f": start_force()},
+        start_inputs={"muscle.pull.f": start_force()},
         record=list(record),
     )
 
@@ -297,7 +262,7 @@ def monolithic_run(
     c: float, p: tuple[float, float, float], stop_time: float, t_out: np.ndarray
 ) -> Result:
     """The reference: :func:`monolithic_model` from its equilibrium of ``p_low``, the same
-    command, CVODES at rtol 1e-10, on ``t_out`` [s]; signals ``load.s``, ``spring.f``."""
+    command, CVODES at rtol 1e-10, on ``t_out`` [s]; signals ``mass.s``, ``sensor.f``."""
     model = monolithic_model(c)
     eq = solve_equilibrium(model, {"regulator.p_cmd": p[0]})
     return simulate(
@@ -307,7 +272,7 @@ def monolithic_run(
         x0=eq.x,
         settings=SolverSettings(rtol=1e-10, atol=1e-13),
         t_out=t_out,
-        signals=["load.s", "spring.f"],
+        signals=["mass.s", "sensor.f"],
     )
 
 
