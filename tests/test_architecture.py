@@ -1,0 +1,138 @@
+"""docs/architecture.md's claims, checked on the sources: data flows one way between the
+packages, studies sit above the library, and no module imports another that imports it
+back (imports under ``if TYPE_CHECKING:`` are annotations, not dependencies)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("dynamics", "controllers", "fmu", "scenarios")
+ALLOWED = {  # package -> the packages it may import (the layers of docs/architecture.md)
+    "dynamics": set(),
+    "controllers": {"dynamics"},
+    "fmu": {"dynamics", "controllers"},  # the controllers' laws exported as FMUs
+    "scenarios": {"dynamics", "controllers", "fmu"},
+}
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for f in (ROOT / pkg).rglob("*.py"):
+            parts = [p for p in f.relative_to(ROOT / pkg).with_suffix("").parts]
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(["sarcomere", pkg, *parts])] = f
+    return out
+
+
+MODULES = _modules()
+
+
+def _runtime_imports(tree: ast.AST):
+    """Import nodes outside ``if TYPE_CHECKING:`` blocks."""
+    todo = [tree]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            todo.extend(node.orelse)
+            continue
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            yield node
+        todo.extend(ast.iter_child_nodes(node))
+
+
+def _targets(module: str, node: ast.AST) -> set[str]:
+    if isinstance(node, ast.Import):
+        return {a.name for a in node.names}
+    base = module.split(".")
+    if node.level:
+        is_package = MODULES[module].name == "__init__.py"
+        base = base[: len(base) - node.level + is_package]
+        target = ".".join(base + ([node.module] if node.module else []))
+    else:
+        target = node.module or ""
+    return {f"{target}.{a.name}" if f"{target}.{a.name}" in MODULES else target for a in node.names}
+
+
+def _graph() -> dict[str, set[str]]:
+    graph = {}
+    for module, path in MODULES.items():
+        found = set()
+        for node in _runtime_imports(ast.parse(path.read_text(encoding="utf-8"))):
+            found |= {t for t in _targets(module, node) if t in MODULES}
+        graph[module] = found - {module}
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan, iterative)."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v: str) -> None:
+        work = [(v, iter(sorted(graph[v])))]
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is None:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == index[node]:
+                    comp = []
+                    while True:
+                        w = stack.pop()
+                        on.discard(w)
+                        comp.append(w)
+                        if w == node:
+                            break
+                    if len(comp) > 1:
+                        out.append(sorted(comp))
+            elif child not in index:
+                index[child] = low[child] = counter[0]
+                counter[0] += 1
+                stack.append(child)
+                on.add(child)
+                work.append((child, iter(sorted(graph[child]))))
+            elif child in on:
+                low[node] = min(low[node], index[child])
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_import_graph_is_read_from_the_sources():
+    graph = _graph()
+    assert "sarcomere.dynamics.modeling.model" in graph["sarcomere.dynamics.simulation.common"]
+    assert len(MODULES) > 80
+
+
+def test_no_import_cycles():
+    assert _cycles(_graph()) == []
+
+
+def test_packages_import_only_the_layers_below():
+    wrong = sorted(
+        (a, b)
+        for a, deps in _graph().items()
+        for b in deps
+        if a.split(".")[1] != b.split(".")[1] and b.split(".")[1] not in ALLOWED[a.split(".")[1]]
+    )
+    assert wrong == []
+
+
+def test_the_library_never_imports_a_study():
+    studies = {m for m in MODULES if ".studies" in m}
+    wrong = sorted(
+        (a, b) for a, deps in _graph().items() if a not in studies for b in deps if b in studies
+    )
+    # the CLI's `bench` command is the one door into the studies (scenarios sits above)
+    assert [(a, b) for a, b in wrong if not a.startswith("sarcomere.scenarios.")] == []
