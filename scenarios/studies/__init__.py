@@ -1,0 +1,1 @@
+"""Studies above the library: they use it, the library never imports them."""
