@@ -21,6 +21,15 @@ SUFFIXES = (
 )
 
 
+def _rmse_from_csv(path, column: str) -> float:
+    """RMS of ``column - reference`` over the rows of a written time series [SI]."""
+    header = path.read_text().splitlines()[0].split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1)
+    unit = column[column.index(" [") :]  # the reference has the column's unit
+    y, r = data[:, header.index(column)], data[:, header.index(f"reference{unit}")]
+    return float(np.sqrt(np.mean((y - r) ** 2)))
+
+
 def _text(name: str) -> str:
     return resolve_scenario(name).read_text(encoding="utf-8")
 
@@ -57,7 +66,12 @@ def test_length_scene_shortened_end_to_end(tmp_path):
     out = run(sc, tmp_path, quiet=True)
     m = out.metrics
     for key in ("pid", "lqi", "lqi_ekf"):
-        assert m[f"{key}_rmse_mm"] > 0
+        # the metric recomputed from the written time series (an independent path)
+        assert m[f"{key}_rmse_mm"] == pytest.approx(
+            _rmse_from_csv(tmp_path / f"timeseries_{key}.csv", "myofibril.length [m]") * 1e3,
+            rel=1e-12,
+        )
+        assert m[f"{key}_rmse_mm"] > 0.1  # a 1.5 mm step is not followed at once
         for suffix in SUFFIXES:
             assert f"{key}_{suffix}" in m
         assert m[f"{key}_constraint_violation_max"] == 0  # the threads stay taut
@@ -81,7 +95,9 @@ def test_force_scene_shortened(tmp_path):
     )
     out = run(parse_scenario(text, "control-force-short.toml"), tmp_path, quiet=True)
     m = out.metrics
-    assert m["pid_rmse_N"] > 0 and m["lqi_rmse_N"] > 0
+    for key in ("pid", "lqi"):
+        csv = tmp_path / f"timeseries_{key}.csv"
+        assert m[f"{key}_rmse_N"] == pytest.approx(_rmse_from_csv(csv, "sensor.f [N]"), rel=1e-12)
     assert m["lqi_settling_time_s"] < 0.5
     assert "pid_disturbance_peak_N" not in m  # no disturbance in the force scene
 
