@@ -89,8 +89,8 @@ def check_input_bounds(
     """Refuse an input range the loop cannot use: ``input`` not an input of ``model``;
     ``u_min``, ``u_max`` not finite numbers with ``u_min < u_max``; a range outside the
     input's own ``[low, high]``; or a range that does not hold the operating point's
-    input (the loop starts there: ``u_max = 1 Pa`` at a 50 kPa operating point would
-    make the first sample drop the command to 1 Pa).
+    input, at a bound included (the loop starts there: ``u_max = 1 Pa`` at a 50 kPa
+    operating point would make the first sample drop the command to 1 Pa).
 
     Raises
     ------
@@ -119,12 +119,12 @@ def check_input_bounds(
             f"[{low:g}, {u_op:g}] {unit}",
             f"between the input's lower bound and the operating point's {name} = {u_op:g}",
         )
-    if not max(u_op, lo) < hi <= high:
+    if not (u_op <= hi <= high and hi > lo):
         raise ParameterError(
             f"{slug}.u_max",
             hi,
-            f"({max(u_op, lo):g}, {high:g}] {unit}",
-            f"above u_min and the operating point's {name} = {u_op:g}, within its upper bound",
+            f"[{u_op:g}, {high:g}] {unit} and > u_min = {lo:g} {unit}",
+            f"at or above the operating point's {name} = {u_op:g}, within its upper bound",
         )
 
 

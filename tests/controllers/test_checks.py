@@ -74,12 +74,12 @@ def test_checked_refuses_a_non_finite_reference(plant, controllers, kind):
 @pytest.mark.parametrize(
     ("bounds", "key", "allowed"),
     [
-        ({"u_max": 1.0}, "u_max", r"\(50000, 600000\] Pa"),  # below the operating 50 kPa
+        ({"u_max": 1.0}, "u_max", r"\[50000, 600000\] Pa"),  # below the operating 50 kPa
         ({"u_min": 6e4, "u_max": 1e5}, "u_min", r"\[0, 50000\] Pa"),
-        ({"u_min": 5e4, "u_max": 5e4}, "u_max", r"\(50000, 600000\] Pa"),  # empty range
+        ({"u_min": 5e4, "u_max": 5e4}, "u_max", r"\[50000, 600000\] Pa and > u_min = 50000"),
         ({"u_min": 1e5, "u_max": 0.0}, "u_min", r"\[0, 50000\] Pa"),  # reversed
         ({"u_min": -1e4}, "u_min", r"\[0, 50000\] Pa"),  # below the input's own range
-        ({"u_max": 7e5}, "u_max", r"\(50000, 600000\] Pa"),  # above p_max
+        ({"u_max": 7e5}, "u_max", r"\[50000, 600000\] Pa"),  # above p_max
         ({"u_max": math.nan}, "u_max", "a finite number"),
         ({"u_min": "0 Pa"}, "u_min", "a finite number"),
     ],
@@ -135,3 +135,13 @@ def test_a_run_of_more_than_max_samples_is_refused(plant, controllers):
     with pytest.raises(ParameterError, match=r"'stop_time' = 1000000000000\.0.*\[0\.01, 10000\] s"):
         run_closed_loop(m, controllers["pid"], op, lambda t: op[L], 1e12, output=L)
     assert MAX_SAMPLES * DT == pytest.approx(1e4)
+
+
+@pytest.mark.parametrize("p_op", [0.0, 1e5])
+def test_an_operating_point_at_a_bound_is_accepted(plant, p_op):
+    """Starting vented (at u_min) or at u_max is a usable loop: only the other way moves."""
+    m, _ = plant
+    op = operating_point(m, {P: p_op})
+    c = make_controller("pid", m, op, DT, TASK)
+    c.reset({P: p_op})
+    assert c.checked(0.0, {L: op[L]}, {L: op[L]})[P] == pytest.approx(p_op, abs=1e-6)
