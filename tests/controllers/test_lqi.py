@@ -9,6 +9,7 @@ import scipy.linalg as sla
 from sarcomere.controllers import make_controller, operating_point
 from sarcomere.controllers.linearize import linearize
 from sarcomere.controllers.loop import run_closed_loop
+from sarcomere.controllers.lqi import LQI
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 
@@ -122,3 +123,9 @@ def test_anti_windup_holds_the_integral_while_saturated(setup):
     c.xi = wound
     assert c.checked(0.0, y, {L: op[L] + 1e-4})[P] == u_max  # still saturated
     assert c.xi == pytest.approx(wound + DT * (0.0 - 1e-4), rel=1e-12)  # unwinding: allowed
+
+
+def test_the_class_itself_refuses_bounds_that_cannot_hold_the_operating_point(setup):
+    m, op, c = setup
+    with pytest.raises(ParameterError, match=r"'lqi\.u_max' = 1\.0.*\[50000, 600000\] Pa"):
+        LQI(DT, m, op, L, P, 0.0, 1.0, c.weights)
