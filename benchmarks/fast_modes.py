@@ -16,7 +16,7 @@ runs it) and without (``rk4_unguarded``: the steps alone), ``radau`` and
 ``myofibril.length`` against full at CVODES rtol 1e-10 (so it holds the level's own
 modelling error and the method's), the time the median of ``--repeats`` warm calls.
 
-``--mpc``: the RTI NMPC of ``sarcomere bench mpc`` (:mod:`sarcomere.controllers.study`:
+``--mpc``: the RTI NMPC of ``sarcomere bench mpc`` (:mod:`sarcomere.scenarios.studies.mpc_speed`:
 n = 3, 20 g, horizon 20, 10 ms, its Radau collocation) with each level as the prediction
 model on the full plant: time per step, tracking error and the raised tension bound.
 
@@ -36,11 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sarcomere.controllers import study as mpc_study
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.dynamics import SolverSettings, hanging_load, simulate, solve_equilibrium
 from sarcomere.dynamics.signals import Step
 from sarcomere.dynamics.simulation.guard import RK4, jacobian_eigenvalues, max_stable_step
+from sarcomere.scenarios.studies import mpc_speed as mpc_study
 from sarcomere.scenarios.threads import limited_blas
 
 STOP_S = 2.0

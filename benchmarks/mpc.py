@@ -1,6 +1,6 @@
 """MPC speed on the length-control scene: ``sarcomere bench mpc`` as a script.
 
-The study itself is :mod:`sarcomere.controllers.study` (installed with the package, so
+The study itself is :mod:`sarcomere.scenarios.studies.mpc_speed` (installed with the package, so
 the CLI runs it too). Usage::
 
     python benchmarks/mpc.py --out out/bench/mpc [--quick]

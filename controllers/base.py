@@ -71,8 +71,10 @@ class Controller(ABC):
         self.inputs, self.outputs = list(inputs), list(outputs)
         for name in self.inputs:
             lo, hi = u_min.get(name), u_max.get(name)
-            if lo is None or hi is None or not lo <= hi:
-                raise ParameterError(f"{self.slug}.u_bounds.{name}", (lo, hi), "low <= high")
+            if not (_finite(lo) and _finite(hi) and lo < hi):
+                raise ParameterError(
+                    f"{self.slug}.u_bounds.{name}", (lo, hi), "finite low < high [SI]"
+                )
         self.u_min = {n: float(u_min[n]) for n in self.inputs}
         self.u_max = {n: float(u_max[n]) for n in self.inputs}
         self.stats = ControllerStats()
@@ -88,13 +90,28 @@ class Controller(ABC):
         and the reference ``r`` at ``t`` (both by name, SI)."""
 
     def checked(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
-        """:meth:`update`, timed, with its result checked: finite and inside the bounds.
+        """:meth:`update`, timed, with its arguments and result checked: every signal it
+        reads (:attr:`outputs`) present and finite in ``y``, every reference finite, and
+        the returned inputs finite and inside the bounds.
 
         Raises
         ------
+        ParameterError
+            For a missing or non-finite measurement or a non-finite reference (a NaN from a
+            sensor or an estimator would otherwise become a silent command).
         SolverError
             If the controller returned a missing, non-finite or out-of-bounds input.
         """
+        for name in self.outputs:
+            if not _finite(y.get(name)):
+                raise ParameterError(
+                    f"{self.slug}.y.{name}", y.get(name), f"a finite measurement at t = {t:g} s"
+                )
+        for name, value in r.items():
+            if not _finite(value):
+                raise ParameterError(
+                    f"{self.slug}.r.{name}", value, f"a finite reference at t = {t:g} s"
+                )
         tic = time.perf_counter()
         u = self.update(t, y, r)
         self.stats.solve_times_s.append(time.perf_counter() - tic)
@@ -106,3 +123,11 @@ class Controller(ABC):
                     f"[{self.u_min[name]:g}, {self.u_max[name]:g}] (a bug in the controller)"
                 )
         return u
+
+
+def _finite(value: object) -> bool:
+    """Whether ``value`` is a real, finite number (numpy scalars included, bools not)."""
+    try:
+        return not isinstance(value, bool) and math.isfinite(value)
+    except TypeError:
+        return False

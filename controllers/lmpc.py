@@ -35,19 +35,9 @@ from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .qp import (
-    ESTIMATOR_DEFAULTS,
-    TENSION,
-    ReferenceClip,
-    check_dt,
-    check_horizon,
-    check_positive,
-    own_defaults,
-    qp_solver,
-    with_estimator,
-    zoh,
-)
-from .registry import own_settings, register_controller
+from .qp import qp_solver, zoh
+from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
+from .registry import positive, register_controller
 
 
 @dataclass(frozen=True)
@@ -95,11 +85,11 @@ class LMPCSettings:
 
     def __post_init__(self) -> None:
         check_horizon("lmpc.horizon", self.horizon)
-        check_positive("lmpc.weight_y", self.weight_y)
-        check_positive("lmpc.weight_du", self.weight_du, allow_zero=True)
-        check_positive("lmpc.rate_max", self.rate_max)
-        check_positive("lmpc.weight_slack", self.weight_slack)
-        check_positive("lmpc.relinearize_m", self.relinearize_m)
+        positive("lmpc", "weight_y", self.weight_y)
+        positive("lmpc", "weight_du", self.weight_du, allow_zero=True)
+        positive("lmpc", "rate_max", self.rate_max)
+        positive("lmpc", "weight_slack", self.weight_slack)
+        positive("lmpc", "relinearize_m", self.relinearize_m)
         if not self.u_min < self.u_max:
             raise ParameterError("lmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
 
@@ -153,8 +143,9 @@ class VelocityQP:
             for k in range(j, N):
                 Su[k * n : (k + 1) * n, j * nu : (j + 1) * nu] = blk
                 blk = Phi @ blk
-        E = np.kron(np.eye(N), np.hstack([np.zeros((ny, nx)), np.eye(ny)]))
-        Se_x, Se_u = E @ Sx, E @ Su
+        # the tracking errors e_1..e_N: the last ny rows of every block of n
+        Se_x = Sx.reshape(N, n, n)[:, nx:].reshape(N * ny, n)
+        Se_u = Su.reshape(N, n, N * nu)[:, nx:].reshape(N * ny, N * nu)
         self.nu, self.ns = nu, ns
         nv = N * nu + ns
         H = np.zeros((nv, nv))
@@ -167,9 +158,11 @@ class VelocityQP:
         # inputs: u_k = u_prev + sum_{j<=k} du_j
         T = np.kron(np.tril(np.ones((N, N))), np.diag(self.u_scale))
         # soft signals at k = 1..N: s_0 + Cs (x_k - x_0), x_k - x_0 = sum_{i<=k} dx_i
-        X = np.kron(np.tril(np.ones((N, N))), np.hstack([np.eye(nx), np.zeros((nx, ny))]))
-        Ss = np.kron(np.eye(N), self.Cs) @ X
-        self._Ssx, Ssu = Ss @ Sx, Ss @ Su
+        # (cumulative sums of the dx rows: no (N nx) x (N n) summation matrix)
+        cum_x = np.cumsum(Sx.reshape(N, n, n)[:, :nx], axis=0)
+        cum_u = np.cumsum(Su.reshape(N, n, N * nu)[:, :nx], axis=0)
+        self._Ssx = np.einsum("sx,kxj->ksj", self.Cs, cum_x).reshape(N * ns, n)
+        Ssu = np.einsum("sx,kxj->ksj", self.Cs, cum_u).reshape(N * ns, N * nu)
         A = np.zeros((N * nu + N * ns, nv))
         A[: N * nu, : N * nu] = T
         A[N * nu :, : N * nu] = Ssu
@@ -205,7 +198,7 @@ class VelocityQP:
         return (v[: N * nu].reshape(N, nu) * self.u_scale if ok else None), ok
 
 
-class LinearMPC(Controller):
+class LinearMPC(RecedingHorizon):
     """Linear MPC of the tracked output (see the module docstring) by the regulator command.
 
     Reads every state of ``model``, the tracked output and the softly bounded signals by
@@ -249,23 +242,14 @@ class LinearMPC(Controller):
     ) -> None:
         s = settings or LMPCSettings()
         names = model.input_names
-        super().__init__(
-            dt,
-            names,
-            list(dict.fromkeys([*model.state_names, s.output, *(n for n, _ in s.soft_min)])),
-            dict.fromkeys(names, s.u_min),
-            dict.fromkeys(names, s.u_max),
-        )
-        check_dt(self.slug, model, self.dt, s.horizon)
-        self.model, self.settings, self.p = model, s, model.parameters(params)
+        reads = list(dict.fromkeys([*model.state_names, s.output, *(n for n, _ in s.soft_min)]))
+        super().__init__(model, dt, s, reads, params)
+        self.p = model.parameters(params)
         self._soft = [name for name, _ in s.soft_min]
         self._soft_min = np.array([float(v) for _, v in s.soft_min])
         self._lin = model.linearization([s.output, *self._soft])
-        self._u_lo = np.full(len(names), s.u_min)
-        self._u_hi = np.full(len(names), s.u_max)
         self._du_max = np.full(len(names), s.rate_max * self.dt)
         self._u_scale = self._u_hi - self._u_lo
-        self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max), params)
         n_v = s.horizon * len(names) + len(self._soft)
         n_a = s.horizon * (len(names) + len(self._soft))
         self._solver = qp_solver(
@@ -291,10 +275,7 @@ class LinearMPC(Controller):
 
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
-        vec = [u0[n] for n in self.inputs] if isinstance(u0, Mapping) else u0
-        self._u = np.clip(np.asarray(vec, float).reshape(-1), self._u_lo, self._u_hi)
         self._x_prev: np.ndarray | None = None
-        self._plan: np.ndarray | None = None
 
     def as_iosystem(self) -> ct.NonlinearIOSystem:
         """The law as a discrete python-control I/O system, in deviations from the point of
@@ -341,17 +322,7 @@ class LinearMPC(Controller):
         du, ok = self._qp.solve(
             np.concatenate([dx, [out - ref]]), self._u, self._u_lo, self._u_hi, self._du_max, gap
         )
-        if ok:
-            self._plan = self._u + np.cumsum(du, axis=0)
-        else:
-            self.stats.fallbacks += 1
-            # the previous plan shifted by one sample (its last input repeated), else hold
-            if self._plan is not None and len(self._plan) > 1:
-                self._plan = np.vstack([self._plan[1:], self._plan[-1:]])
-            else:
-                self._plan = np.tile(self._u, (s.horizon, 1))
-        self._u = np.clip(self._plan[0], self._u_lo, self._u_hi)
-        return dict(zip(self.inputs, self._u.tolist(), strict=True))
+        return self.apply(self._u + np.cumsum(du, axis=0) if ok else None)
 
 
 def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Controller:
@@ -362,14 +333,11 @@ def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     the other :class:`LMPCSettings` fields, ``estimator`` ("none", or "ekf": run on an
     EKF fed the ``measured`` signals, see :mod:`.estimated`) and ``ekf`` (its settings).
     """
-    own = own_settings("lmpc", settings, {**own_defaults(LMPCSettings), **ESTIMATOR_DEFAULTS})
-    if settings["input"] not in model.input_names:
-        raise ParameterError("lmpc.input", settings["input"], f"one of {model.input_names}")
+    own, est, ekf_settings = mpc_settings("lmpc", model, settings, LMPCSettings, {})
     tmin = settings.get("tension_min")
     soft = own.pop("soft_min")
     if tmin is not None:
         soft = (*soft, *((n, float(tmin)) for n in model.signal_names if TENSION.fullmatch(n)))
-    est, ekf_settings = own.pop("estimator"), own.pop("ekf")
     s = LMPCSettings(
         **own,
         soft_min=tuple(soft),

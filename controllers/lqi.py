@@ -40,7 +40,7 @@ from sarcomere.dynamics.modeling.model import Model
 from .base import Controller
 from .ekf import EKF, make_ekf
 from .linearize import linearize
-from .registry import own_settings, positive, register_controller
+from .registry import check_input_bounds, own_settings, positive, register_controller
 
 Y_SCALES = {"m": 1e-3, "N": 1e-2}
 """Default ``y_scale`` by the tracked output's unit: 1 mm of length, 10 mN of force."""
@@ -85,7 +85,8 @@ class LQI(Controller):
     output, input : str
         Tracked signal and manipulated input.
     u_min, u_max : float
-        Input bounds [SI].
+        Input bounds [SI], holding the operating point's input
+        (:func:`~.registry.check_input_bounds`).
     weights : LQIWeights
     estimator : EKF or None
         None: the state is read from the plant by name.
@@ -109,6 +110,7 @@ class LQI(Controller):
         feedforward: str = "equilibria",
     ) -> None:
         reads = estimator.measured if estimator else [*model.state_names, output]
+        check_input_bounds("lqi", model, op, {"input": input, "u_min": u_min, "u_max": u_max})
         super().__init__(dt, [input], list(dict.fromkeys(reads)), {input: u_min}, {input: u_max})
         if estimator is not None and output not in estimator.measured:
             raise ParameterError("lqi.estimator", output, f"measured by {estimator.measured}")

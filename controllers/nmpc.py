@@ -33,34 +33,28 @@ by one sample and is counted in ``stats.fallbacks``.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
 
-from sarcomere.dynamics.assemblies import hanging_load, isometric
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .qp import (
-    ESTIMATOR_DEFAULTS,
-    TENSION,
-    ReferenceClip,
-    check_dt,
-    check_horizon,
-    check_positive,
-    own_defaults,
-    qp_solver,
-    with_estimator,
-)
-from .registry import own_settings, register_controller
+from .qp import qp_solver
+from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
+from .registry import count, positive, register_controller
 
 SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
+
+MAX_ITER = 1000
+"""Largest NLP iteration limit per sample (ipopt, fatrop): the warm-started solves here
+take 3-15 iterations; a sample that needs more than 1000 is a failed solve (a fallback),
+not a slow one."""
 
 
 @dataclass(frozen=True)
@@ -117,18 +111,17 @@ class NMPCSettings:
 
     def __post_init__(self) -> None:
         check_horizon("nmpc.horizon", self.horizon)
-        check_positive("nmpc.integral_gain", self.integral_gain, allow_zero=True)
-        check_positive("nmpc.weight_y", self.weight_y)
-        check_positive("nmpc.weight_du", self.weight_du, allow_zero=True)
-        check_positive("nmpc.rate_max", self.rate_max)
-        check_positive("nmpc.tol", self.tol)
-        check_horizon("nmpc.max_iter", self.max_iter)
+        positive("nmpc", "integral_gain", self.integral_gain, allow_zero=True)
+        positive("nmpc", "weight_y", self.weight_y)
+        positive("nmpc", "weight_du", self.weight_du, allow_zero=True)
+        positive("nmpc", "rate_max", self.rate_max)
+        positive("nmpc", "tol", self.tol)
+        count("nmpc.max_iter", self.max_iter, 1, MAX_ITER, "a limit per sample, not a budget")
         if not self.u_min < self.u_max:
             raise ParameterError("nmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
         if self.solver not in SOLVERS:
             raise ParameterError("nmpc.solver", self.solver, f"one of {SOLVERS}")
-        if isinstance(self.degree, bool) or self.degree not in range(1, 6):
-            raise ParameterError("nmpc.degree", self.degree, "an integer in 1..5")
+        count("nmpc.degree", self.degree, 1, 5, "Radau IIA of order 1 to 9")
 
 
 def radau_residual(f: cs.Function, nx: int, nu: int, degree: int) -> cs.Function:
@@ -413,7 +406,7 @@ class _Call:
         return [r.copy() for r in self.res]
 
 
-class NonlinearMPC(Controller):
+class NonlinearMPC(RecedingHorizon):
     """Nonlinear MPC of the tracked output by the regulator command (module docstring).
 
     Reads every state of the prediction model and the tracked output by name (state
@@ -454,34 +447,19 @@ class NonlinearMPC(Controller):
         params: Mapping[str, float] | None = None,
     ) -> None:
         s = settings or NMPCSettings()
-        names = model.input_names
-        super().__init__(
-            dt,
-            names,
-            [*model.state_names, s.output],
-            dict.fromkeys(names, s.u_min),
-            dict.fromkeys(names, s.u_max),
-        )
-        check_dt(self.slug, model, self.dt, s.horizon)
         if model.nz:
             raise ParameterError("nmpc.model", model.name, "an ODE model (no algebraic unknowns)")
-        self.model, self.settings = model, s
-        self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max), params)
+        super().__init__(model, dt, s, [*model.state_names, s.output], params)
         # state scales: the largest magnitude at the ends of the input range; states that
         # are zero there (velocities) get 1 cm/s
         big = np.abs(np.vstack([e.x for e in self.clip.ends])).max(axis=0)
         pb = _Problem(model, s, self.dt, np.where(big > 1e-12, big, 1e-2), model.parameters(params))
         self.problem = pb
         self.engine = _RealTimeIteration(pb) if s.solver == "rti" else _CollocationNLP(pb, s.solver)
-        self._lo = np.full(len(names), s.u_min)
-        self._hi = np.full(len(names), s.u_max)
         self.reset(u_op)
 
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
-        vec = [u0[n] for n in self.inputs] if isinstance(u0, Mapping) else u0
-        self._u = np.clip(np.asarray(vec, float).reshape(-1), self._lo, self._hi)
-        self._plan: np.ndarray | None = None
         self._offset = 0.0
         if isinstance(self.engine, _RealTimeIteration):
             self.engine.guess = None
@@ -495,19 +473,11 @@ class NonlinearMPC(Controller):
         # error, kept inside the reachable range
         shifted = min(max(ref + self._offset, self.clip.low), self.clip.high)
         plan, ok = self.engine.solve(x, self._u, shifted)
-        if ok:
-            self._plan = plan
-        else:
-            self.stats.fallbacks += 1
-            if self._plan is not None and len(self._plan) > 1:
-                self._plan = np.vstack([self._plan[1:], self._plan[-1:]])
-            else:
-                self._plan = np.tile(self._u, (self.settings.horizon, 1))
-        self._u = np.clip(self._plan[0], self._lo, self._hi)
-        if np.all((self._u > self._lo) & (self._u < self._hi)):  # no windup at a bound
+        u = self.apply(plan if ok else None)
+        if np.all((self._u > self._u_lo) & (self._u < self._u_hi)):  # no windup at a bound
             error = ref - float(y[self.settings.output])
             self._offset += self.settings.integral_gain * self.dt * error
-        return dict(zip(self.inputs, self._u.tolist(), strict=True))
+        return u
 
 
 DEFAULT_FIDELITY = "full"
@@ -524,25 +494,31 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
 
     The prediction model is the plant's set-up rebuilt for optimisers at the fidelity
     ``fidelity`` (own key, default :data:`DEFAULT_FIDELITY`), with the smooth flow law and
-    no clamp: by the scene's ``build_model`` where given, else from the plant itself
-    (``hanging_load`` for a plant with ``load.m``, the rigid ``isometric`` fixture at its
-    ``fixture.s0``); its parameters take the plant's values by name (``op.p``: load,
-    regulator, geometry, the scene's overrides).
+    no clamp: by the scene's ``build_model`` where given, else by the set-up the plant
+    records (:attr:`Model.setup`, set by :func:`~sarcomere.dynamics.assemblies.hanging_load`
+    and :func:`~sarcomere.dynamics.assemblies.isometric`); its parameters take the plant's
+    values by name (``op.p``: load, fixture position, regulator, geometry, the scene's
+    overrides).
     Common keys: ``output``, ``input``, ``u_min``, ``u_max``, ``tension_min`` (the hard
     tension bound, default 0). Own keys: the other :class:`NMPCSettings` fields,
     ``fidelity``, ``estimator`` ("none" or "ekf") and ``ekf``.
     """
-    defaults = {**own_defaults(NMPCSettings), "fidelity": DEFAULT_FIDELITY, **ESTIMATOR_DEFAULTS}
-    own = own_settings("nmpc", settings, defaults)
+    extra = {"fidelity": DEFAULT_FIDELITY}
+    own, est, ekf_settings = mpc_settings("nmpc", model, settings, NMPCSettings, extra)
     given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
-    if settings["input"] not in model.input_names:
-        raise ParameterError("nmpc.input", settings["input"], f"one of {model.input_names}")
-    fidelity, est, ekf_settings = own.pop("fidelity"), own.pop("estimator"), own.pop("ekf")
+    fidelity = own.pop("fidelity")
     smooth = {"fidelity": fidelity, "flow_law": "smooth", "saturate": False}
     if settings.get("build_model") is not None:  # a scene: its own set-up, rebuilt
         pred = settings["build_model"](**smooth)
+    elif model.setup is not None:  # an assembly's model: the set-up it records
+        pred = model.setup.build(**smooth)
     else:
-        pred = _rebuild(model, given, smooth)
+        raise ParameterError(
+            "nmpc.model",
+            model.name,
+            "a model built by an assembly (hanging_load, isometric), or a build_model setting",
+            "a System flattened by hand records no set-up to rebuild for prediction",
+        )
     params = {n: given[n] for n in pred.param_names if n in given}
     s = NMPCSettings(
         **own,
@@ -553,22 +529,6 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     )
     ctl = NonlinearMPC(pred, op.u, dt, s, params)
     return with_estimator("nmpc", ctl, model, op, dt, settings, est, ekf_settings)
-
-
-def _rebuild(model: Model, given: dict, smooth: dict) -> Model:
-    """The plant's set-up rebuilt from its parameters: a hanging load (``load.m``) or the
-    rigid isometric fixture at ``fixture.s0``."""
-    units = [n for n in model.state_names if re.fullmatch(r"myofibril\.aps\d+\.chamber\.m_air", n)]
-    rigid = "fixture.s0" in given and not any(n.startswith("fixture_spring.") for n in given)
-    if not units or not ("load.m" in given or rigid):
-        raise ParameterError(
-            "nmpc.model",
-            model.name,
-            "a hanging_load or rigid isometric plant, or a build_model setting",
-        )
-    if "load.m" in given:
-        return hanging_load(len(units), **smooth)
-    return isometric(len(units), length=given["fixture.s0"], **smooth)
 
 
 register_controller("nmpc", make_nmpc)

@@ -78,8 +78,54 @@ def make_controller(
     missing = [k for k in ("output", "input", "u_min", "u_max") if k not in settings]
     if missing:
         raise ParameterError(f"{slug}.settings", sorted(settings), f"keys {missing} set")
+    check_input_bounds(slug, model, op, settings)
     check_sample_time(slug, model, op, dt)
     return CONTROLLERS[slug](model, op, dt, dict(settings))
+
+
+def check_input_bounds(
+    slug: str, model: Model, op: Equilibrium, settings: Mapping[str, object]
+) -> None:
+    """Refuse an input range the loop cannot use: ``input`` not an input of ``model``;
+    ``u_min``, ``u_max`` not finite numbers with ``u_min < u_max``; a range outside the
+    input's own ``[low, high]``; or a range that does not hold the operating point's
+    input, at a bound included (the loop starts there: ``u_max = 1 Pa`` at a 50 kPa
+    operating point would make the first sample drop the command to 1 Pa).
+
+    Raises
+    ------
+    ParameterError
+        Naming ``<slug>.input``, ``<slug>.u_min`` or ``<slug>.u_max``, the value and the
+        allowed range.
+    """
+    name = settings["input"]
+    if name not in model.input_names:
+        raise ParameterError(f"{slug}.input", name, f"one of {model.input_names}")
+    var, unit = model.variables[name], model.unit(name)
+    u_op = float(op.u[model.input_names.index(name)])
+    lo, hi = settings["u_min"], settings["u_max"]
+    for key, value in (("u_min", lo), ("u_max", hi)):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+        ):
+            raise ParameterError(f"{slug}.{key}", value, f"a finite number [{unit}]")
+    low, high = var.low, var.high
+    if not low <= lo <= u_op:
+        raise ParameterError(
+            f"{slug}.u_min",
+            lo,
+            f"[{low:g}, {u_op:g}] {unit}",
+            f"between the input's lower bound and the operating point's {name} = {u_op:g}",
+        )
+    if not (u_op <= hi <= high and hi > lo):
+        raise ParameterError(
+            f"{slug}.u_max",
+            hi,
+            f"[{u_op:g}, {high:g}] {unit} and > u_min = {lo:g} {unit}",
+            f"at or above the operating point's {name} = {u_op:g}, within its upper bound",
+        )
 
 
 MIN_SAMPLE_S = 1e-3
@@ -131,6 +177,19 @@ def own_settings(slug: str, settings: Mapping[str, object], defaults: Mapping[st
             raise ParameterError(f"{slug}.{key}", value, "a finite number")
         out[key] = value
     return out
+
+
+def count(name: str, value: object, low: int, high: int, why: str = "") -> int:
+    """``value`` as an integer in ``[low, high]`` (a horizon, a degree, an iteration or
+    sample count), else a ParameterError naming ``name``, the value and the range
+    (``why``: where the upper end comes from)."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | np.integer)
+        or not low <= value <= high
+    ):
+        raise ParameterError(name, value, f"an integer in [{low}, {high}]", why)
+    return int(value)
 
 
 def positive(slug: str, key: str, value: object, allow_zero: bool = False) -> float:

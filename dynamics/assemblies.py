@@ -15,7 +15,11 @@ Numeric arguments accept numbers in SI or quantity strings ("50 g", "5 ms").
 
 from __future__ import annotations
 
+import functools
+import inspect
 import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 
 from .components.aps import (
     CHAIN_LEVELS,
@@ -65,6 +69,35 @@ whatever n."""
 
 G_DEFAULT = Ambient().g
 """Default gravity of the set-ups [m/s^2] (the environment's default)."""
+
+
+@dataclass(frozen=True)
+class Setup:
+    """How an assembly built a model (:attr:`Model.setup`): the function and every
+    argument it was called with (defaults filled in), so the same set-up can be built
+    again at another fidelity, flow law or clamp (a controller's prediction model)."""
+
+    builder: Callable[..., Model]
+    arguments: Mapping[str, object]
+
+    def build(self, **changes) -> Model:
+        """The set-up built again with ``changes`` to its arguments (e.g. ``fidelity``)."""
+        return self.builder(**{**self.arguments, **changes})
+
+
+def _records_setup(builder: Callable[..., Model]) -> Callable[..., Model]:
+    """``builder`` that records its :class:`Setup` on the model it returns."""
+    signature = inspect.signature(builder)
+
+    @functools.wraps(builder)
+    def build(*args, **kwargs) -> Model:
+        bound = signature.bind(*args, **kwargs)
+        bound.apply_defaults()
+        model = builder(*args, **kwargs)
+        model.setup = Setup(build, dict(bound.arguments))
+        return model
+
+    return build
 
 
 def _si(value, unit: str, name: str, low: float, closed: bool = True) -> float:
@@ -142,6 +175,7 @@ def _frame_regulator_chain(
     return sys, myo, mf
 
 
+@_records_setup
 def hanging_load(
     n: int = 3,
     params: APSParams | None = None,
@@ -183,6 +217,7 @@ def hanging_rest_position(
     return solve_equilibrium(model, {"regulator.p_cmd": 0.0})["load.s"]
 
 
+@_records_setup
 def isometric(
     n: int = 1,
     params: APSParams | None = None,

@@ -8,7 +8,7 @@
   limits of the explicit fixed-step methods (:mod:`sarcomere.dynamics.studies.stability`);
   writes ``DIR/stability.json``, two charts and ``DIR/summary.json``.
 * ``sarcomere bench mpc --out DIR [--quick]``: time per step of the MPCs on the
-  length-control scene (:mod:`sarcomere.controllers.study`); writes ``DIR/mpc.json``
+  length-control scene (:mod:`sarcomere.scenarios.studies.mpc_speed`); writes ``DIR/mpc.json``
   and ``DIR/summary.json``.
 
 ``--quick`` uses fewer tolerances, steps and repeats (under a minute each).
@@ -38,7 +38,7 @@ STUDIES = {  # (module holding ``study``, solver line): imported only when run
         "rk4 and euler (reference: cvodes rtol 1e-10)",
     ),
     "mpc": (
-        "sarcomere.controllers.study",
+        "sarcomere.scenarios.studies.mpc_speed",
         "plant cvodes rtol 1e-6; NMPC rti/ipopt/fatrop, LMPC daqp, plain Opti",
     ),
 }

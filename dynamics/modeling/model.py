@@ -36,6 +36,10 @@ class Model:
     variables : read-only mapping of str to Var
         Unit, start value, bounds, description (and default value for parameters);
         the Model's own copy, unaffected by later changes to the System.
+    setup : object or None
+        How an assembly built it (:class:`~sarcomere.dynamics.assemblies.Setup`:
+        ``setup.build(fidelity=...)`` builds the same set-up again); None for a
+        System flattened by hand.
     """
 
     def __init__(
@@ -52,6 +56,7 @@ class Model:
         dissipations: dict[str, cs.SX],
     ) -> None:
         self.name = name
+        self.setup = None
         self.variables: Mapping[str, Var] = MappingProxyType(dict(variables))
         self.state_names = [v for v, m in variables.items() if m.kind == "state"]
         self.alg_names = list(alg_vars)

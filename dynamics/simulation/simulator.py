@@ -91,7 +91,10 @@ class Simulator:
     settings : SolverSettings, optional
         Method and tolerances; default CVODES at rtol 1e-6.
     x0, z0, params, t0 : keyword, optional
-        The start point, as in :meth:`reset`.
+        The start point, as in :meth:`reset`. Given none of them, the simulator is not
+        started: :meth:`step` and :meth:`advance` refuse to run until :meth:`reset`
+        chooses the start (``reset()`` for the model's start values, which are not an
+        equilibrium: a hanging load starts in free fall).
 
     Attributes
     ----------
@@ -126,12 +129,13 @@ class Simulator:
         x0: np.ndarray | Mapping[str, float] | None = None,
         z0: np.ndarray | Mapping[str, float] | None = None,
         params: Mapping[str, object] | None = None,
-        t0: float = 0.0,
+        t0: float | None = None,
     ) -> None:
         self.model = model
         self.settings = settings or SolverSettings()
         self._scheme = guard.SCHEMES.get(self.settings.method)
-        self.reset(x0, z0, params, t0)
+        self.reset(x0, z0, params, 0.0 if t0 is None else t0)
+        self._started = any(v is not None for v in (x0, z0, params, t0))
 
     # --- state ---------------------------------------------------------------------
     def reset(
@@ -159,6 +163,7 @@ class Simulator:
         self._u = u_start.copy()
         self._limit: tuple | None = None
         self.stats: dict = {}
+        self._started = True
 
     @property
     def t(self) -> float:
@@ -253,6 +258,14 @@ class Simulator:
         (numpy.ndarray, numpy.ndarray, numpy.ndarray)
             States, algebraic unknowns and inputs at ``times``, one row per time.
         """
+        if not self._started:
+            raise ParameterError(
+                "x0",
+                None,
+                "a start: reset(x0=...) (e.g. an equilibrium's x), or reset() for the "
+                "model's start values, before step or advance",
+                "the simulator was never started",
+            )
         m, t_start = self.model, self._t
         times = np.asarray(times, dtype=float).reshape(-1)
         if not len(times) or not np.all(np.isfinite(times)) or times[0] < t_start:

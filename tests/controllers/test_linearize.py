@@ -119,16 +119,31 @@ def test_python_control_tools_run(plant):
     sys = linearize(m, op, [L])
     poles = ct.poles(sys)
     assert np.all(poles.real < 0) and len(poles) == m.nx
-    assert np.all(np.isfinite(ct.zeros(sys)))
+    A, B, C, D = sys.A, sys.B, sys.C, sys.D
+    # transmission zeros: the finite generalised eigenvalues of the Rosenbrock pencil
+    n = m.nx
+    pencil = sla.eigvals(np.block([[A, B], [C, D]]), sla.block_diag(np.eye(n), np.zeros((1, 1))))
+    finite = np.sort_complex(pencil[np.isfinite(pencil) & (np.abs(pencil) < 1e12)])
+    np.testing.assert_allclose(np.sort_complex(ct.zeros(sys)), finite, rtol=1e-6)
     resp = ct.step_response(sys, np.linspace(0, 1, 201))
-    assert resp.outputs[-1] == pytest.approx(sys.dcgain(), rel=1e-3)
-    resp = ct.frequency_response(sys, np.logspace(0, 3, 20))
-    assert resp.magnitude.shape[-1] == 20
+    dc = float((D - C @ np.linalg.solve(A, B))[0, 0])  # G(0) = D - C A^-1 B
+    assert sys.dcgain() == pytest.approx(dc, rel=1e-9)
+    assert resp.outputs[-1] == pytest.approx(dc, rel=1e-3)
+    w = np.logspace(0, 3, 20)
+    resp = ct.frequency_response(sys, w)
+    G = [(C @ np.linalg.solve(1j * wk * np.eye(n) - A, B) + D)[0, 0] for wk in w]
+    np.testing.assert_allclose(np.ravel(resp.magnitude), np.abs(G), rtol=1e-9)
     lines = ct.bode_plot(resp)
     assert lines.shape[0] == 2  # magnitude and phase axes
     plt.close("all")
-    K, _, E = ct.lqr(sys, np.eye(m.nx) / m.nominal("x") ** 2, np.eye(1) / 1e8)
-    assert K.shape == (1, m.nx) and np.all(E.real < 0)
+    Q, R = np.diag(1 / m.nominal("x") ** 2), np.eye(1) / 1e8
+    K, _, E = ct.lqr(sys, Q, R)
+    S = sla.solve_continuous_are(A, B, Q, R)  # independent Riccati solution
+    np.testing.assert_allclose(K, np.linalg.solve(R, B.T @ S), rtol=1e-6)
+    np.testing.assert_allclose(
+        np.sort_complex(E), np.sort_complex(sla.eigvals(A - B @ K)), rtol=1e-8
+    )
+    assert np.all(E.real < 0)
     assert [from_label(s) for s in sys.state_labels] == m.state_names
 
 

@@ -9,6 +9,7 @@ import scipy.linalg as sla
 from sarcomere.controllers import make_controller, operating_point
 from sarcomere.controllers.linearize import linearize
 from sarcomere.controllers.loop import run_closed_loop
+from sarcomere.controllers.lqi import LQI
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 
@@ -96,3 +97,35 @@ def test_bad_settings_name_the_setting(setup, key, value):
     m, op, _ = setup
     with pytest.raises(ParameterError, match=rf"'lqi\.{key}'"):
         make_controller("lqi", m, op, DT, {**TASK, key: value})
+
+
+def test_anti_windup_holds_the_integral_while_saturated(setup):
+    """A reference the input cannot reach, with the measurement held at the operating
+    point: the command sits at u_max and the integral does not move (it would grow by
+    dt * 3 mm every sample). Back on a reachable reference, the command returns to the
+    operating input at once; a wound-up integral would keep it at the bound."""
+    m, op, _ = setup
+    u_max = 6e4  # above the operating 50 kPa, far below what 3 mm shorter needs
+    c = make_controller("lqi", m, op, DT, {**TASK, "u_max": u_max, "feedforward": "linear"})
+    c.reset({P: float(op.u[0])})
+    y = {n: float(v) for n, v in zip(m.state_names, op.x, strict=True)} | {L: op[L]}
+    far = op[L] - 3e-3
+    assert c.u_op - c.Nu * 3e-3 > u_max  # the linear steady state is beyond the bound
+    for k in range(50):
+        assert c.checked(k * DT, y, {L: far})[P] == u_max
+        assert c.xi == 0.0  # held: integrating would push further past u_max
+    u = c.checked(0.5, y, {L: op[L]})[P]
+    assert u == pytest.approx(op.u[0], rel=1e-12)  # no windup to unwind
+    # unwinding is not blocked: a wound integral (set by hand) moves back while saturated
+    c.reset({P: float(op.u[0])})
+    wound = -1e-3 * np.sign(c.Ki)  # -Ki xi = |Ki| 1e-3 Pa above the operating input
+    assert abs(c.Ki) * 1e-3 > 2 * (u_max - c.u_op)
+    c.xi = wound
+    assert c.checked(0.0, y, {L: op[L] + 1e-4})[P] == u_max  # still saturated
+    assert c.xi == pytest.approx(wound + DT * (0.0 - 1e-4), rel=1e-12)  # unwinding: allowed
+
+
+def test_the_class_itself_refuses_bounds_that_cannot_hold_the_operating_point(setup):
+    m, op, c = setup
+    with pytest.raises(ParameterError, match=r"'lqi\.u_max' = 1\.0.*\[50000, 600000\] Pa"):
+        LQI(DT, m, op, L, P, 0.0, 1.0, c.weights)

@@ -146,9 +146,26 @@ def test_registry_factory_predicts_with_the_plants_parameters():
     assert mpc.checked(0.0, y, {L: eq[L]})[P] == pytest.approx(5e4, abs=1.0)
     with pytest.raises(ParameterError, match="nmpc.horizn"):
         make_controller("nmpc", plant, eq, 0.01, {**TASK, "horizn": 10})
-    sprung = isometric(1, fixture_stiffness=500.0)
-    with pytest.raises(ParameterError, match="nmpc.model"):
-        make_controller("nmpc", sprung, solve_equilibrium(sprung, {P: 0.0}), 0.01, TASK)
+    bare = hanging_load(1, load_kg=0.02)
+    bare.setup = None  # as a System flattened by hand: no set-up to rebuild
+    with pytest.raises(ParameterError, match="nmpc.model.*set-up"):
+        make_controller("nmpc", bare, solve_equilibrium(bare, {P: 5e4}), 0.01, TASK)
+
+
+def test_registry_factory_rebuilds_the_set_up_the_plant_records():
+    """A sprung fixture (which the former guess from state names refused) is predicted by
+    its own set-up: the same spring, at the prediction's fidelity and flow law."""
+    plant = isometric(1, fixture_stiffness=500.0, regulator_tau=0.06)
+    assert plant.setup.arguments["fixture_stiffness"] == 500.0
+    eq = solve_equilibrium(plant, {P: 5e4})
+    task = {**TASK, "output": "sensor.f", "fidelity": "quasi_static"}
+    mpc = make_controller("nmpc", plant, eq, 0.01, task)
+    pred = mpc.model
+    assert pred.name == "isometric_n1_quasi_static"
+    p = dict(zip(pred.param_names, pred.parameters(), strict=True))
+    assert p["fixture_spring.c"] == 500.0 and p["regulator.tau"] == 0.06
+    y = {n: eq[n] for n in mpc.outputs}  # the plant's equilibrium is the prediction's too
+    assert mpc.checked(0.0, y, {"sensor.f": eq["sensor.f"]})[P] == pytest.approx(5e4, abs=5.0)
 
 
 def test_registry_factory_on_the_rigid_isometric_fixture():

@@ -21,6 +21,15 @@ SUFFIXES = (
 )
 
 
+def _rmse_from_csv(path, column: str) -> float:
+    """RMS of ``column - reference`` over the rows of a written time series [SI]."""
+    header = path.read_text().splitlines()[0].split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1)
+    unit = column[column.index(" [") :]  # the reference has the column's unit
+    y, r = data[:, header.index(column)], data[:, header.index(f"reference{unit}")]
+    return float(np.sqrt(np.mean((y - r) ** 2)))
+
+
 def _text(name: str) -> str:
     return resolve_scenario(name).read_text(encoding="utf-8")
 
@@ -62,6 +71,11 @@ def test_length_scene_shortened_end_to_end(tmp_path, drawn_png):
         # a loop that settles in 0.7 s and never errs by more than the +50 g sag
         assert 0.9 * 1.5 * (0.01 / 1.6) ** 0.5 < m[f"{key}_rmse_mm"], m[f"{key}_rmse_mm"]
         assert m[f"{key}_rmse_mm"] < m[f"{key}_disturbance_peak_mm"], m
+        # the metric recomputed from the written time series (an independent path)
+        assert m[f"{key}_rmse_mm"] == pytest.approx(
+            _rmse_from_csv(tmp_path / f"timeseries_{key}.csv", "myofibril.length [m]") * 1e3,
+            rel=1e-12,
+        )
         for suffix in SUFFIXES:
             assert f"{key}_{suffix}" in m
         assert m[f"{key}_constraint_violation_max"] == 0  # the threads stay taut
@@ -88,6 +102,9 @@ def test_force_scene_shortened(tmp_path):
     for key in ("pid", "lqi"):  # the 0.05 N step at 0.5 s of the 1.2 s run, 10 ms samples:
         # open for at least one sample (>= 90 % of it), and never more than the step
         assert 0.9 * 0.05 * (0.01 / 1.2) ** 0.5 < m[f"{key}_rmse_N"] < 0.05, m
+    for key in ("pid", "lqi"):
+        csv = tmp_path / f"timeseries_{key}.csv"
+        assert m[f"{key}_rmse_N"] == pytest.approx(_rmse_from_csv(csv, "sensor.f [N]"), rel=1e-12)
     assert m["lqi_settling_time_s"] < 0.5
     assert "pid_disturbance_peak_N" not in m  # no disturbance in the force scene
 

@@ -60,7 +60,7 @@ def test_closed_loop_equals_simulate_of_the_same_staircase(method):
     model = lag_model()
     rng = np.random.default_rng(1)
     levels = rng.uniform(0, P_MAX, 8)
-    sim = Simulator(model, METHODS[method])
+    sim = Simulator(model, METHODS[method], t0=0.0)
     xs, x = [], 0.0
     for level in levels:
         sim.step({"lag.u": level}, 0.05)
@@ -82,7 +82,7 @@ def test_u_as_vector_mapping_or_unit_string_is_the_same_input():
     model = lag_model()
     runs = []
     for u in ([1e5], {"lag.u": 1e5}, {"lag.u": "0.1 MPa"}, {"lag.u": "100 kPa"}):
-        sim = Simulator(model)
+        sim = Simulator(model, t0=0.0)
         sim.step(u, "50 ms")
         runs.append(sim.x[0])
     assert runs[0] == pytest.approx(exact(1e5, 0.05), rel=1e-5)  # default rtol 1e-6
@@ -91,7 +91,7 @@ def test_u_as_vector_mapping_or_unit_string_is_the_same_input():
 
 def test_a_mapping_that_leaves_an_input_out_keeps_the_last_applied_value():
     model = lag_model()
-    sim = Simulator(model)
+    sim = Simulator(model, t0=0.0)
     sim.step({"lag.u": 1e5}, 0.1)
     sim.step(None, 0.1)
     sim.step({}, 0.1)
@@ -102,7 +102,7 @@ def test_a_mapping_that_leaves_an_input_out_keeps_the_last_applied_value():
 def test_signals_over_a_step_are_integrated_as_functions_of_time():
     """A ramp given to ``step`` is not held: the result is the ramp's closed form."""
     model = lag_model()
-    sim = Simulator(model, METHODS["cvodes"])
+    sim = Simulator(model, METHODS["cvodes"], t0=0.0)
     ramp = Ramp(final=1e5, duration=1.0, unit="Pa")
     for _ in range(4):
         sim.step({"lag.u": ramp}, 0.25)
@@ -127,15 +127,31 @@ def test_readouts_after_a_step():
 
 def test_reset_starts_again():
     model = lag_model()
-    sim = Simulator(model)
+    sim = Simulator(model, t0=0.0)
     sim.step([1e5], 0.1)
     sim.reset()
     assert (sim.t, sim.x[0], sim.u[0], sim.stats) == (0.0, 0.0, 0.0, {})
 
 
+def test_step_before_a_start_is_refused():
+    """Built without a start, the simulator refuses to step until reset() chooses one
+    (it used to integrate silently from the start values: a hanging load in free fall)."""
+    sim = Simulator(lag_model())
+    with pytest.raises(ParameterError, match=r"'x0' = None.*never started.*reset\(x0="):
+        sim.step([1e5], 0.1)
+    with pytest.raises(ParameterError, match="never started"):
+        sim.advance([1e5], [0.1])
+    sim.reset()
+    sim.step([1e5], 0.1)
+    assert sim.x[0] == pytest.approx(exact(1e5, 0.1), rel=1e-6)
+    started = Simulator(lag_model(), x0=[5e4])  # a start given to the constructor
+    started.step([1e5], 0.1)
+    assert started.x[0] == pytest.approx(exact(1e5, 0.1, 5e4), rel=1e-6)
+
+
 # --- bad input: one-line errors ----------------------------------------------------------
 def test_x0_of_the_wrong_length_names_x0_its_length_and_the_states():
-    sim = Simulator(lag_model())
+    sim = Simulator(lag_model(), t0=0.0)
     with pytest.raises(ParameterError, match=r"'x0' = '2 values'.*1 values for \['lag.x'\]"):
         sim.reset(x0=[1.0, 2.0])
     with pytest.raises(ParameterError, match=r"'x0' = 'lag.y'"):
@@ -145,7 +161,7 @@ def test_x0_of_the_wrong_length_names_x0_its_length_and_the_states():
 
 
 def test_bad_inputs_and_steps_are_refused_with_the_name():
-    sim = Simulator(lag_model())
+    sim = Simulator(lag_model(), t0=0.0)
     with pytest.raises(ParameterError, match=r"'lag.u' = '300000 Pa at t = 0 s'.*\[0, 200000\]"):
         sim.step({"lag.u": 3e5}, 0.1)
     with pytest.raises(ParameterError, match=r"'lag.u' = '-0.05 m'.*wrong dimension"):
@@ -213,7 +229,7 @@ def test_signals_expanded_over_the_points_equal_the_mapped_ones(monkeypatch):
 
 def test_a_step_that_leaves_the_domain_fails_at_its_end_and_stays_at_its_start():
     model = lag_model(x_high=0.5e5)
-    sim = Simulator(model)
+    sim = Simulator(model, t0=0.0)
     sim.step([1e5], 0.1)
     with pytest.raises(SolverError, match="lag.x") as info:
         sim.step([1e5], 0.1)
@@ -224,7 +240,7 @@ def test_a_step_that_leaves_the_domain_fails_at_its_end_and_stays_at_its_start()
 def test_a_blow_up_in_a_step_is_an_error_not_nan():
     model = lag_model(tau=0.01)
     s = SolverSettings("euler", step=0.05, options=(("on_unstable", "ignore"),))
-    sim = Simulator(model, s)
+    sim = Simulator(model, s, t0=0.0)
     sim.reset(x0=[1e300])
     with pytest.raises(SolverError, match="non-finite"):
         for _ in range(100):
@@ -275,11 +291,11 @@ def test_twenty_simulate_calls_with_a_constant_input_build_one_integrator(monkey
 def test_a_closed_loop_builds_one_integrator(monkeypatch):
     built = _count_integrators(monkeypatch)
     model = lag_model()
-    sim = Simulator(model)
+    sim = Simulator(model, t0=0.0)
     for k in range(50):
         sim.step([1e3 * k], 0.01 if k % 2 else 0.02)  # the step size is not in the key
     assert built == ["cvodes"]
-    Simulator(model).step([1.0], 0.3)  # another simulator on the same model shares it
+    Simulator(model, t0=0.0).step([1.0], 0.3)  # another simulator on the same model shares it
     assert built == ["cvodes"]
 
 
@@ -362,9 +378,9 @@ def test_the_stability_guard_also_guards_steps():
 
     model = lag_model(tau=0.01)
     with pytest.warns(StepStabilityWarning, match="stability limit 0.02785"):
-        Simulator(model, SolverSettings("rk4", step=0.03)).step([1e5], 0.03)
+        Simulator(model, SolverSettings("rk4", step=0.03), t0=0.0).step([1e5], 0.03)
     refuse = SolverSettings("rk4", step=0.03, options=(("on_unstable", "raise"),))
-    sim = Simulator(model, refuse)
+    sim = Simulator(model, refuse, t0=0.0)
     sim.step([1e5], 0.02)  # 20 ms steps are below the limit
     with pytest.raises(ParameterError, match="stability limit"):
         sim.step([1e5], 0.03)
@@ -402,7 +418,7 @@ def test_a_user_signal_without_breakpoints_or_hash_is_integrated_exactly():
 
 def test_advance_returns_the_states_at_the_times_and_refuses_bad_times():
     model = lag_model()
-    sim = Simulator(model, METHODS["cvodes"])
+    sim = Simulator(model, METHODS["cvodes"], t0=0.0)
     step = Step(final=1e5, time=0.15, unit="Pa")
     X, Z, U = sim.advance({"lag.u": step}, [0.0, 0.1, 0.15, 0.2, 0.3])
     x = [0.0, 0.0, 0.0, exact(1e5, 0.05), exact(1e5, 0.15)]
@@ -427,7 +443,7 @@ def test_a_dae_steps_with_idas_and_agrees_with_simulate_and_collocation():
     ref = simulate(model, 0.5, cmd, settings=idas, **kw)
     col = simulate(model, 0.5, cmd, settings=SolverSettings("collocation", step=2e-3), **kw)
     np.testing.assert_allclose(col["myofibril.length"], ref["myofibril.length"], rtol=1e-6)
-    sim = Simulator(model, idas)
+    sim = Simulator(model, idas, t0=0.0)
     sim.reset(x0=eq.x, z0=eq.z)
     lengths = [sim.signal("myofibril.length")]
     for k in range(10):

@@ -36,13 +36,12 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 
+from sarcomere.controllers.base import Controller
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
+from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.dynamics.assemblies import HOOK_MASS_KG, hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.simulation.simulator import Simulator
-
-from .base import Controller
-from .lmpc import LinearMPC, LMPCSettings
-from .nmpc import NMPCSettings, NonlinearMPC
 
 N_APS, LOAD_KG, DT, HORIZON = 3, 0.02, 0.01, 20
 P_START = 4e4

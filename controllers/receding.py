@@ -1,0 +1,229 @@
+"""The part both MPCs share: a receding-horizon controller of one tracked output.
+
+:class:`RecedingHorizon` holds what :class:`~.lmpc.LinearMPC` and
+:class:`~.nmpc.NonlinearMPC` have in common: the settings checks of a horizon, the sample
+time against the regulator lag, the input bounds, the reachable output range (reference
+clipping), the held input and the plan, and the fallback of a failed solve (the previous
+plan shifted by one sample, else hold). A subclass builds its prediction and, every
+sample, hands its new plan (or ``None`` on a failure) to :meth:`RecedingHorizon.apply`.
+The registry factories share :func:`mpc_settings` and :func:`with_estimator`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import warnings
+from collections.abc import Mapping
+
+import numpy as np
+
+from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.model import Model
+
+from .base import Controller
+from .ekf import make_ekf
+from .estimated import OnEstimate
+from .registry import count, own_settings
+
+TENSION = re.compile(r"myofibril\.actin\w*\.T")
+"""Thread tension signals (bounded below by ``tension_min``)."""
+
+COMMON = ("output", "u_min", "u_max", "tension_min")
+"""Settings fields the scene sets through the registry's common keys."""
+
+ESTIMATOR_DEFAULTS = {"estimator": "none", "ekf": {}}
+"""Own registry keys of both MPCs: run on the states ("none") or on an EKF ("ekf")."""
+
+MAX_HORIZON = 200
+"""Longest horizon [samples]. The LMPC's condensed QP is dense: its Hessian has
+``(horizon nu)^2`` entries and its prediction matrices ``horizon^2 (nx + 1) nu``, so
+memory and solve time grow with the square and the cube of the horizon (``horizon = 10^6``
+asked for terabytes); the RTI's condensing grows likewise. 200 samples are 2 s at 10 ms,
+40 times the regulator lag; the scenes use 20."""
+
+
+def check_horizon(name: str, value: object) -> int:
+    """A horizon: an integer in ``[1, MAX_HORIZON]``."""
+    return count(name, value, 1, MAX_HORIZON, "a dense condensed problem grows as horizon^2")
+
+
+def check_dt(slug: str, model: Model, dt: float, horizon: int) -> None:
+    """Refuse a sample time whose horizon cannot see the input act: ``horizon * dt`` must
+    cover the regulator lag (``regulator.tau``) at least once."""
+    if "regulator.tau" not in model.param_names:
+        return
+    tau = float(model.parameters()[model.param_names.index("regulator.tau")])
+    if horizon * dt < tau:
+        raise ParameterError(
+            f"{slug}.dt",
+            dt,
+            f"[{tau / horizon:g}, inf) s with horizon {horizon}",
+            f"horizon * dt = {horizon * dt:g} s is shorter than the regulator lag {tau:g} s",
+        )
+
+
+class ReferenceClip:
+    """The steady-state range of an output over the input's range; a reference outside it
+    is clipped with one warning per run.
+
+    Parameters
+    ----------
+    model : Model
+        The prediction model.
+    output : str
+        The tracked signal, e.g. ``"myofibril.length"``.
+    u_name : str
+        The input that moves it.
+    u_range : (float, float)
+        The input's allowed range [SI].
+    params : mapping of str to float, optional
+        Parameter overrides of ``model`` (SI).
+
+    Attributes
+    ----------
+    ends : list of Equilibrium
+        The equilibria at the two ends of the input range.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        output: str,
+        u_name: str,
+        u_range: tuple[float, float],
+        params: Mapping[str, float] | None = None,
+    ) -> None:
+        self.ends = [solve_equilibrium(model, {u_name: u}, params) for u in u_range]
+        values = [e[output] for e in self.ends]
+        self.low, self.high = min(values), max(values)
+        self.output = output
+        self.warned = False
+
+    def __call__(self, r: Mapping[str, float]) -> float:
+        if self.output not in r:
+            raise ParameterError("reference", sorted(r), f"a value for '{self.output}'")
+        value = float(r[self.output])
+        if not math.isfinite(value):
+            raise ParameterError(f"reference.{self.output}", value, "a finite number")
+        clipped = min(max(value, self.low), self.high)
+        if clipped != value and not self.warned:
+            warnings.warn(
+                f"reference {self.output} = {value:.6g} is unreachable at steady state "
+                f"within the input bounds; clipped to [{self.low:.6g}, {self.high:.6g}]",
+                stacklevel=4,
+            )
+            self.warned = True
+        return clipped
+
+
+class RecedingHorizon(Controller):
+    """A receding-horizon controller of ``settings.output`` by every input of ``model``.
+
+    Parameters
+    ----------
+    model : Model
+        The prediction model.
+    dt : float
+        Sample time [s]; ``settings.horizon * dt`` must cover the regulator lag.
+    settings : frozen dataclass
+        With at least ``horizon``, ``u_min``, ``u_max`` [SI] and ``output``.
+    outputs : list of str
+        The signals the controller reads.
+    params : mapping of str to float, optional
+        Parameter overrides of ``model`` by name (SI), e.g. the plant's load.
+
+    Attributes
+    ----------
+    clip : ReferenceClip
+        The reachable range of the output over the input bounds.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        dt: float,
+        settings,
+        outputs: list[str],
+        params: Mapping[str, float] | None = None,
+    ) -> None:
+        s, names = settings, model.input_names
+        lo, hi = dict.fromkeys(names, s.u_min), dict.fromkeys(names, s.u_max)
+        super().__init__(dt, names, outputs, lo, hi)
+        check_dt(self.slug, model, self.dt, s.horizon)
+        self.model, self.settings = model, s
+        self._u_lo = np.full(len(names), s.u_min)
+        self._u_hi = np.full(len(names), s.u_max)
+        self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max), params)
+
+    def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
+        """Hold ``u0`` (by name, or a vector in input order; clipped into the bounds) and
+        forget the plan; a subclass also forgets its own warm start."""
+        super().reset(u0)
+        vec = [u0[n] for n in self.inputs] if isinstance(u0, Mapping) else u0
+        self._u = np.clip(np.asarray(vec, float).reshape(-1), self._u_lo, self._u_hi)
+        self._plan: np.ndarray | None = None
+
+    def apply(self, plan: np.ndarray | None) -> dict:
+        """The inputs to hold now, by name: the first row of ``plan`` (horizon x nu, SI),
+        clipped into the bounds. ``None`` (a failed solve) counts a fallback and uses the
+        previous plan shifted by one sample (its last input repeated), else holds the last
+        input."""
+        if plan is not None:
+            self._plan = plan
+        else:
+            self.stats.fallbacks += 1
+            if self._plan is not None and len(self._plan) > 1:
+                self._plan = np.vstack([self._plan[1:], self._plan[-1:]])
+            else:
+                self._plan = np.tile(self._u, (self.settings.horizon, 1))
+        self._u = np.clip(self._plan[0], self._u_lo, self._u_hi)
+        return dict(zip(self.inputs, self._u.tolist(), strict=True))
+
+
+def own_defaults(settings_class) -> dict:
+    """The defaults of a settings dataclass, without the fields the common keys set."""
+    return {f.name: f.default for f in dataclasses.fields(settings_class) if f.name not in COMMON}
+
+
+def mpc_settings(
+    slug: str, model: Model, settings: Mapping[str, object], settings_class, extra: Mapping
+) -> tuple[dict, str, Mapping]:
+    """A factory's own settings: the fields of ``settings_class`` not set by the common
+    keys, the ``extra`` keys and :data:`ESTIMATOR_DEFAULTS`; with the input checked.
+    Returns ``(own, estimator, ekf_settings)``, ``own`` without the estimator keys.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown key (:func:`~.registry.own_settings`) or an input not of ``model``.
+    """
+    own = own_settings(
+        slug, settings, {**own_defaults(settings_class), **extra, **ESTIMATOR_DEFAULTS}
+    )
+    if settings["input"] not in model.input_names:
+        raise ParameterError(f"{slug}.input", settings["input"], f"one of {model.input_names}")
+    return own, own.pop("estimator"), own.pop("ekf")
+
+
+def with_estimator(
+    slug: str,
+    ctl: Controller,
+    model: Model,
+    op: Equilibrium,
+    dt: float,
+    settings: Mapping[str, object],
+    estimator: str,
+    ekf_settings: Mapping[str, object],
+) -> Controller:
+    """``ctl`` itself ("none") or run on an EKF of the plant ``model`` ("ekf") fed the
+    loop's ``measured`` signals (default: the tracked output and ``regulator.p_out``)."""
+    if estimator == "none":
+        return ctl
+    if estimator != "ekf":
+        raise ParameterError(f"{slug}.estimator", estimator, "'none' or 'ekf'")
+    measured = settings.get("measured") or [settings["output"], "regulator.p_out"]
+    ekf = make_ekf(model, op, dt, measured, settings.get("noise_std"), ekf_settings)
+    return OnEstimate(ctl, ekf, model, op)
