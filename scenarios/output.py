@@ -15,15 +15,18 @@ import math
 import re
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from importlib import metadata
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sarcomere.dynamics.errors import SolverError
 from sarcomere.dynamics.results import Result
 
-from .spec import Scenario
+from .catalog import version
+
+if TYPE_CHECKING:  # the spec imports the model library: not needed to write files
+    from .spec import Scenario
 
 
 @dataclass
@@ -113,14 +116,6 @@ def _jsonable(obj: object) -> object:
     if isinstance(obj, float | np.floating):
         return float(obj) if math.isfinite(obj) else None
     return str(obj)
-
-
-def version() -> str:
-    """The installed sarcomere version, or ``"unknown"``."""
-    try:
-        return metadata.version("sarcomere")
-    except metadata.PackageNotFoundError:
-        return "unknown"
 
 
 def timeseries_name(key: str, count: int) -> str:

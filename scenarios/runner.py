@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from importlib import import_module
 from pathlib import Path
 
 from sarcomere.dynamics.results import Result
@@ -24,6 +25,16 @@ from .spec import Scenario
 Runner = Callable[[Scenario, Path], RunOutput]
 
 _RUNNERS: dict[str, Runner] = {}
+
+#: The packaged kinds and the module registering each, imported when a run needs it (a
+#: static run never imports the co-simulation master or python-control).
+BUILTIN_KINDS = {
+    "static": "sarcomere.scenarios.static",
+    "equilibrium": "sarcomere.scenarios.dynamic",
+    "transient": "sarcomere.scenarios.dynamic",
+    "closed_loop": "sarcomere.scenarios.control",
+    "cosim": "sarcomere.scenarios.cosim",
+}
 
 
 def register_runner(kind: str, fn: Runner, *, replace: bool = False) -> None:
@@ -50,8 +61,18 @@ def register_runner(kind: str, fn: Runner, *, replace: bool = False) -> None:
 
 
 def runner_kinds() -> tuple[str, ...]:
-    """Registered scenario kinds, sorted."""
-    return tuple(sorted(_RUNNERS))
+    """Registered and packaged scenario kinds, sorted."""
+    return tuple(sorted({*_RUNNERS, *BUILTIN_KINDS}))
+
+
+def _runner(sc: Scenario) -> Runner:
+    """The runner of ``sc.kind``, importing a packaged kind's module on first use."""
+    if sc.kind not in _RUNNERS and sc.kind in BUILTIN_KINDS:
+        import_module(BUILTIN_KINDS[sc.kind])  # registers itself
+    if sc.kind not in _RUNNERS:
+        kinds = ", ".join(runner_kinds())
+        raise sc.error(("scenario", "kind"), f"unknown kind '{sc.kind}' (registered: {kinds})")
+    return _RUNNERS[sc.kind]
 
 
 def _selected(scenario: Scenario, key: str, result: Result) -> Result:
@@ -171,14 +192,12 @@ def run(
     ['force_0p1MPa_N', 'force_spa_0p1MPa_N']
     """
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    if sc.kind not in _RUNNERS:
-        kinds = ", ".join(runner_kinds()) or "none"
-        raise sc.error(("scenario", "kind"), f"unknown kind '{sc.kind}' (registered: {kinds})")
+    runner = _runner(sc)
     out = check_out_dir(Path("out") / sc.name if out_dir is None else out_dir)
     with staged(out) as tmp:
         start = time.perf_counter()
         with progress(f"running {sc.name}", enabled=not quiet):
-            output = _RUNNERS[sc.kind](sc, tmp)
+            output = runner(sc, tmp)
         output.wall_time_s = time.perf_counter() - start
         check_finite(output)
         checks = evaluate_checks(sc, output.metrics)

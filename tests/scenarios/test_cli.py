@@ -127,3 +127,77 @@ def test_console_script_help() -> None:
     assert script.exists(), f"console script not installed beside {sys.executable}"
     done = subprocess.run([str(script), "--help"], capture_output=True, text=True, check=True)
     assert "run" in done.stdout and "list" in done.stdout
+
+
+HEAVY = ("casadi", "control", "matplotlib", "scipy.signal", "pint", "sarcomere.scenarios.dynamic")
+
+_PROBE = f"""
+import json, sys
+from sarcomere.scenarios.cli import main
+HEAVY = {HEAVY!r}
+try:
+    status = main(sys.argv[1:])
+except SystemExit as exc:
+    status = exc.code
+print(json.dumps(dict(status=status, heavy=sorted(m for m in HEAVY if m in sys.modules))))
+"""
+
+
+@pytest.mark.parametrize(
+    ("argv", "status"),
+    [
+        (["--version"], 0),
+        (["--help"], 0),
+        (["list"], 0),
+        ([], 2),  # no command
+        (["nosuch"], 2),
+        (["run"], 2),  # no scenario
+        (["run", "step-50g", "--bogus"], 2),
+        (["bench", "nosuch", "--out", "x"], 2),
+        (["linearize", "--help"], 0),
+    ],
+)
+def test_the_cli_answers_without_importing_the_model_library(argv, status) -> None:
+    """--version, --help, list and argument errors start at once: no CasADi, no
+    python-control, no matplotlib, no pint (BENCHMARKS.md, start-up section)."""
+    done = subprocess.run(
+        [sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, check=True
+    )
+    probe = json.loads(done.stdout.splitlines()[-1])
+    assert probe == {"status": status, "heavy": []}, done.stderr
+
+
+def test_list_matches_the_loaded_scenarios(capsys) -> None:
+    """``list`` reads each file's [scenario] table without loading the model: the kinds and
+    descriptions it shows are the loaded scenarios' own."""
+    from sarcomere.scenarios import load_scenario, packaged_scenarios
+
+    assert main(["list"]) == 0
+    rows = capsys.readouterr().out.splitlines()
+    assert len(rows) == len(packaged_scenarios())
+    for row, name in zip(rows, packaged_scenarios(), strict=True):
+        sc = load_scenario(name)
+        assert row.split()[:2] == [name, sc.kind] and row.endswith(sc.description)
+
+
+def test_a_transient_run_imports_neither_python_control_nor_pyplot(tmp_path: Path) -> None:
+    code = (
+        "import sys; from sarcomere.scenarios.cli import main;"
+        f"s = main(['run', 'step-50g', '--quiet', '--out', {str(tmp_path / 'o')!r}]);"
+        "print(s, sorted(m for m in ('control', 'matplotlib.pyplot', 'scipy.signal',"
+        " 'sarcomere.scenarios.cosim', 'sarcomere.controllers') if m in sys.modules))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split("\n")[-2] == "0 []", done.stderr
+    assert (tmp_path / "o" / "plot_length.png").is_file()
+
+
+def test_the_packages_lazy_names_all_resolve() -> None:
+    import sarcomere.dynamics as dynamics
+    import sarcomere.scenarios as scenarios
+
+    for package in (dynamics, scenarios):
+        for name in package.__all__:
+            assert getattr(package, name) is not None, name
+        with pytest.raises(AttributeError, match="no attribute 'nope'"):
+            package.nope  # noqa: B018

@@ -24,7 +24,8 @@ def test_commands_run_with_the_asked_number_of_blas_threads(monkeypatch, capsys)
         return 0
 
     original = cli.build_parser
-    monkeypatch.setattr(cli, "build_parser", lambda: original([cli.Command("probe", "-", handler)]))
+    probe = [cli.Command("probe", "-", handler)]
+    monkeypatch.setattr(cli, "build_parser", lambda argv=None: original(probe, argv))
     monkeypatch.delenv(ENV, raising=False)
     assert cli.main(["probe"]) == 0
     monkeypatch.setenv(ENV, "2")
