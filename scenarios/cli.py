@@ -176,10 +176,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("sarcomere: interrupted (Ctrl-C), nothing written", file=sys.stderr)
+        print("sarcomere: interrupted by SIGINT (Ctrl-C)", file=sys.stderr)
         return 128 + signal.SIGINT
     except Terminated:
-        print("sarcomere: terminated (SIGTERM), nothing written", file=sys.stderr)
+        print("sarcomere: terminated by SIGTERM", file=sys.stderr)
         return 128 + signal.SIGTERM
     finally:
         signal.signal(signal.SIGTERM, previous)
