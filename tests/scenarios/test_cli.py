@@ -201,3 +201,42 @@ def test_the_packages_lazy_names_all_resolve() -> None:
             assert getattr(package, name) is not None, name
         with pytest.raises(AttributeError, match="no attribute 'nope'"):
             package.nope  # noqa: B018
+
+
+def test_the_csv_holds_every_value_exactly_across_chunks(tmp_path: Path) -> None:
+    from sarcomere.scenarios.output import CSV_CHUNK_ROWS, write_timeseries
+
+    rng = np.random.default_rng(1)
+    n = 2 * CSV_CHUNK_ROWS + 7
+    t = np.sort(rng.uniform(0.0, 2.0, n))
+    signals = {"a": rng.normal(size=n) * 1e5, "b": rng.normal(size=n) * 1e-9}
+    result = Result("time", "s", t, signals, {"a": "Pa", "b": "m"})
+    (path,) = write_timeseries({"main": result}, tmp_path)
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["time [s]", "a [Pa]", "b [m]"]
+    table = np.array(rows[1:], dtype=float)
+    assert table.shape == (n, 3)
+    assert np.array_equal(table, np.column_stack([t, signals["a"], signals["b"]]))
+
+
+def test_a_large_run_is_announced_before_it_starts(tmp_path: Path, capsys, monkeypatch) -> None:
+    """A 500 k-point run gave no warning and took minutes: it says its size first."""
+    from sarcomere.scenarios import load_scenario, packaged_scenarios, parse_scenario
+    from sarcomere.scenarios.output import CSV_BYTES_PER_VALUE
+    from sarcomere.scenarios.runner import size_warning
+
+    assert size_warning(load_scenario("step-50g")) is None  # 1001 points: silent
+    text = packaged_scenarios()["step-50g"].read_text()
+    text = text.replace('output_interval = "2 ms"', 'output_interval = "4 us"')
+    seen = []
+
+    def runner(sc, out):
+        seen.append(capsys.readouterr().err)  # printed before the run starts
+        return RunOutput(sc.name, "full", "none")
+
+    monkeypatch.setattr("sarcomere.scenarios.runner._RUNNERS", {"transient": runner})
+    run(parse_scenario(text, "big.toml"), tmp_path / "o")
+    points = 500_001
+    assert seen[0].startswith(f"warning: step-50g keeps {points} output points")
+    assert f"about {points * CSV_BYTES_PER_VALUE / 1e6:.0f} MB of CSV" in seen[0]
