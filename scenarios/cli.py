@@ -2,8 +2,12 @@
 ``export-fmu``, ``linearize SCENARIO``.
 
 Subcommands are rows of :data:`COMMANDS` (name, help, handler, add_arguments); add one by
-appending a :class:`Command`. A :class:`~sarcomere.dynamics.errors.SarcomereError` prints
-one ``error: ...`` line to stderr and exits with status 2; other exceptions propagate.
+appending a :class:`Command`. A command's module is imported only when the command line
+names it: ``--version``, ``--help``, ``list`` and argument errors load no model library
+and answer at once (BENCHMARKS.md, start-up). A
+:class:`~sarcomere.dynamics.errors.SarcomereError` prints one ``error: ...`` line to stderr
+and exits with status 2; Ctrl-C and SIGTERM print one line and exit with 130 and 143;
+other exceptions propagate.
 """
 
 from __future__ import annotations

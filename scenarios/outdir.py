@@ -65,7 +65,7 @@ def _check_replaceable(folder: Path, name: str, out: str) -> None:
     if found is None:
         kinds = [m for m in MARKERS if (folder / m).exists()]
         why = (
-            f"its {kinds[0]} is not a sarcomere run's (no '{MARKERS[kinds[0]]}')"
+            f"its {kinds[0]} is not a sarcomere run's (a JSON object with '{MARKERS[kinds[0]]}')"
             if kinds
             else "a folder holding files no run wrote (no summary.json)"
         )
