@@ -240,3 +240,21 @@ def test_a_large_run_is_announced_before_it_starts(tmp_path: Path, capsys, monke
     points = 500_001
     assert seen[0].startswith(f"warning: step-50g keeps {points} output points")
     assert f"about {points * CSV_BYTES_PER_VALUE / 1e6:.0f} MB of CSV" in seen[0]
+
+
+def test_an_interrupted_progress_line_is_cleared_not_called_done() -> None:
+    import io
+    import time
+
+    from sarcomere.scenarios.progress import progress
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    out = Terminal()
+    with pytest.raises(KeyboardInterrupt), progress("running x", stream=out, delay=0.0):
+        time.sleep(0.2)
+        raise KeyboardInterrupt
+    text = out.getvalue()
+    assert "running x: 0 s" in text and "done" not in text and text.endswith("\r")
