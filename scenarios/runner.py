@@ -220,9 +220,14 @@ def run(
     >>> sorted(out.metrics)[:2]  # doctest: +SKIP
     ['force_0p1MPa_N', 'force_spa_0p1MPa_N']
     """
-    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    out = None if out_dir is None else check_out_dir(out_dir)  # before reading a long table
+    if isinstance(scenario, Scenario):
+        sc = scenario
+    else:  # a long input table takes a while to read: the progress line covers it too
+        with progress(f"loading {scenario}", enabled=not quiet):
+            sc = load_scenario(scenario)
     runner = _runner(sc)
-    out = check_out_dir(Path("out") / sc.name if out_dir is None else out_dir)
+    out = check_out_dir(Path("out") / sc.name) if out is None else out
     if not quiet and (warning := size_warning(sc)):
         print(warning, file=sys.stderr)
     with staged(out) as tmp, progress(f"running {sc.name}", enabled=not quiet):

@@ -281,3 +281,15 @@ def test_an_interrupted_run_says_one_line_and_leaves_nothing(tmp_path, signum, s
     assert proc.returncode == status
     assert err.count("\n") == 1 and word in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["slow.toml"]
+
+
+def test_out_is_checked_before_the_scenario_is_read(tmp_path, monkeypatch):
+    """Reading a scenario can take long (a long input table): a bad out_dir comes first."""
+    (tmp_path / "f").write_text("x")
+
+    def load(source):
+        raise AssertionError("read the scenario before checking out_dir")
+
+    monkeypatch.setattr("sarcomere.scenarios.runner.load_scenario", load)
+    with pytest.raises(ParameterError, match="existing file"):
+        run(str(_file(tmp_path)), tmp_path / "f", quiet=True)
