@@ -13,6 +13,7 @@ other exceptions propagate.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -174,7 +175,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         with limited_blas():
-            return _resolve(args.handler)(args)
+            status = _resolve(args.handler)(args)
+        sys.stdout.flush()  # here, not at exit: a closed pipe is caught below
+        return status
     except SarcomereError as exc:
         message = " ".join(str(exc).split())
         print(f"error: {message}", file=sys.stderr)
@@ -185,6 +188,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Terminated:
         print("sarcomere: terminated by SIGTERM", file=sys.stderr)
         return 128 + signal.SIGTERM
+    except BrokenPipeError:  # `sarcomere list | head -1`: the reader left, nothing to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
+        return 128 + signal.SIGPIPE
     finally:
         signal.signal(signal.SIGTERM, previous)
 

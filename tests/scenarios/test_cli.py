@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -258,3 +259,17 @@ def test_an_interrupted_progress_line_is_cleared_not_called_done() -> None:
         raise KeyboardInterrupt
     text = out.getvalue()
     assert "running x: 0 s" in text and "done" not in text and text.endswith("\r")
+
+
+def test_a_closed_pipe_ends_the_output_quietly() -> None:
+    """``sarcomere list | head -1`` printed a BrokenPipeError traceback."""
+    script = Path(sys.executable).parent / "sarcomere"
+    read, write = os.pipe()
+    os.close(read)  # the reader is gone before anything is written
+    try:
+        done = subprocess.run(
+            [str(script), "list"], stdout=write, stderr=subprocess.PIPE, text=True, check=False
+        )
+    finally:
+        os.close(write)
+    assert (done.returncode, done.stderr) == (141, "")
