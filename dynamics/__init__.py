@@ -19,16 +19,26 @@ Examples
 True
 """
 
-from .assemblies import FIDELITIES, hanging_load, isometric
-from .equilibrium import Equilibrium, solve_equilibrium
-from .errors import ModelError, ParameterError, SarcomereError, ScenarioError, SolverError
-from .modeling.component import Component, System
-from .modeling.model import Model
-from .results import Result
-from .signals import Chirp, Ramp, Signal, Sine, Staircase, Step, Table
-from .simulation.settings import METHODS, SolverSettings
-from .simulation.simulate import simulate
-from .simulation.simulator import Simulator
+from .lazy import lazy_exports
+
+#: Public name -> the module defining it, imported on first use (``import
+#: sarcomere.dynamics.errors`` then stays light: no CasADi, no SciPy; the CLI starts fast).
+_HOMES = {
+    **dict.fromkeys(("FIDELITIES", "hanging_load", "isometric"), "assemblies"),
+    **dict.fromkeys(("Equilibrium", "solve_equilibrium"), "equilibrium"),
+    **dict.fromkeys(
+        ("ModelError", "ParameterError", "SarcomereError", "ScenarioError", "SolverError"),
+        "errors",
+    ),
+    **dict.fromkeys(("Component", "System"), "modeling.component"),
+    "Model": "modeling.model",
+    "Result": "results",
+    **dict.fromkeys(("Chirp", "Ramp", "Signal", "Sine", "Staircase", "Step", "Table"), "signals"),
+    **dict.fromkeys(("METHODS", "SolverSettings"), "simulation.settings"),
+    "simulate": "simulation.simulate",
+    "Simulator": "simulation.simulator",
+}
+
 
 __all__ = [
     "FIDELITIES",
@@ -57,3 +67,5 @@ __all__ = [
     "simulate",
     "solve_equilibrium",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES, __all__)

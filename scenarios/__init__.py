@@ -9,22 +9,33 @@ for its ``kind`` and writes ``summary.json``, CSV time series and PNG plots.
 'paper'
 """
 
-from . import control, cosim, dynamic, static  # noqa: F401  (register the kinds)
-from .loader import load_scenario, packaged_scenarios, parse_scenario, resolve_scenario
-from .output import RunOutput, quantity_tag
-from .runner import register_runner, run, runner_kinds
-from .signals import (
-    SIGNAL_TYPES,
-    Chirp,
-    Ramp,
-    Signal,
-    Sine,
-    Staircase,
-    Step,
-    Table,
-    signal_from_spec,
-)
-from .spec import Scenario
+from sarcomere.dynamics.lazy import lazy_exports
+
+#: Public name -> the module defining it, imported on first use: ``import
+#: sarcomere.scenarios`` stays light (the CLI's ``--version`` and ``list`` need no CasADi);
+#: the runners of the packaged kinds register when :func:`run` first needs them.
+_HOMES = {
+    **dict.fromkeys(("load_scenario", "parse_scenario", "resolve_scenario"), "loader"),
+    "packaged_scenarios": "catalog",
+    **dict.fromkeys(("RunOutput", "quantity_tag"), "output"),
+    **dict.fromkeys(("register_runner", "run", "runner_kinds"), "runner"),
+    **dict.fromkeys(
+        (
+            "SIGNAL_TYPES",
+            "Chirp",
+            "Ramp",
+            "Signal",
+            "Sine",
+            "Staircase",
+            "Step",
+            "Table",
+            "signal_from_spec",
+        ),
+        "signals",
+    ),
+    "Scenario": "spec",
+}
+
 
 __all__ = [
     "SIGNAL_TYPES",
@@ -47,3 +58,5 @@ __all__ = [
     "runner_kinds",
     "signal_from_spec",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES, __all__)

@@ -24,8 +24,8 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+from .catalog import version
 from .outdir import check_out_dir, staged
-from .output import version
 from .progress import progress
 
 STUDIES = {  # (module holding ``study``, solver line): imported only when run

@@ -2,25 +2,28 @@
 ``export-fmu``, ``linearize SCENARIO``.
 
 Subcommands are rows of :data:`COMMANDS` (name, help, handler, add_arguments); add one by
-appending a :class:`Command`. A :class:`~sarcomere.dynamics.errors.SarcomereError` prints
-one ``error: ...`` line to stderr and exits with status 2; other exceptions propagate.
+appending a :class:`Command`. A command's module is imported only when the command line
+names it: ``--version``, ``--help``, ``list`` and argument errors load no model library
+and answer at once (BENCHMARKS.md, start-up). A
+:class:`~sarcomere.dynamics.errors.SarcomereError` prints one ``error: ...`` line to stderr
+and exits with status 2; Ctrl-C and SIGTERM print one line and exit with 130 and 143;
+other exceptions propagate.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from importlib import import_module
 
 from sarcomere.dynamics.errors import SarcomereError
 
-from . import bench, calibrate, export_fmu, linearize
-from .loader import load_scenario, packaged_scenarios
-from .outdir import check_out_dir
-from .output import version
-from .runner import run
-from .threads import limited_blas
+Hook = Callable | str
+"""A callable, or ``"module:attribute"`` naming one, imported only when needed."""
 
 
 @dataclass(frozen=True)
@@ -33,23 +36,36 @@ class Command:
         Subcommand word, e.g. ``"run"``.
     help : str
         One line for ``sarcomere --help``.
-    handler : callable
-        ``handler(args) -> int`` does the work and returns the exit status.
-    add_arguments : callable, optional
-        ``add_arguments(parser)`` declares the subcommand's arguments.
+    handler : callable or str
+        ``handler(args) -> int`` does the work and returns the exit status; or
+        ``"module:attribute"`` naming it, imported when the command runs.
+    add_arguments : callable or str, optional
+        ``add_arguments(parser)`` declares the subcommand's arguments (or its
+        ``"module:attribute"``); called only when the command line names this command, so
+        ``sarcomere --help`` and the other commands never import its module.
     """
 
     name: str
     help: str
-    handler: Callable[[argparse.Namespace], int]
-    add_arguments: Callable[[argparse.ArgumentParser], None] | None = None
+    handler: Hook
+    add_arguments: Hook | None = None
+
+
+def _resolve(hook: Hook) -> Callable:
+    """The callable ``hook`` stands for."""
+    if callable(hook):
+        return hook
+    module, _, attribute = hook.partition(":")
+    return getattr(import_module(module), attribute)
 
 
 def _list(args: argparse.Namespace) -> int:
-    rows = [(name, load_scenario(name)) for name in packaged_scenarios()]
+    from .catalog import heading, packaged_scenarios  # no model, no CasADi: starts at once
+
+    rows = [(name, heading(res)) for name, res in packaged_scenarios().items()]
     width = max((len(name) for name, _ in rows), default=0)
-    for name, sc in rows:
-        print(f"{name:<{width}}  {sc.kind:<11}  {sc.description}")
+    for name, head in rows:
+        print(f"{name:<{width}}  {head.get('kind', '?'):<11}  {head.get('description', '')}")
     return 0
 
 
@@ -66,7 +82,11 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from .outdir import check_out_dir
+
     out = None if args.out is None else check_out_dir(args.out, "--out")  # before computing
+    from .runner import run
+
     run(args.scenario, out, quiet=args.quiet)
     return 0
 
@@ -77,56 +97,102 @@ COMMANDS: list[Command] = [
     Command(
         "calibrate",
         "fit A_p, A_r, k_s to the paper's three measured targets (IPOPT)",
-        calibrate.handler,
-        calibrate.add_arguments,
+        "sarcomere.scenarios.calibrate:handler",
+        "sarcomere.scenarios.calibrate:add_arguments",
     ),
     Command(
         "bench",
         "numerical studies: work-precision, stability, mpc",
-        bench.handler,
-        bench.add_arguments,
+        "sarcomere.scenarios.bench:handler",
+        "sarcomere.scenarios.bench:add_arguments",
     ),
     Command(
         "export-fmu",
         "export a transient scenario's model as an FMU (FMI 2.0 or 3.0, ME and CS)",
-        export_fmu.handler,
-        export_fmu.add_arguments,
+        "sarcomere.scenarios.export_fmu:handler",
+        "sarcomere.scenarios.export_fmu:add_arguments",
     ),
     Command(
         "linearize",
         "exact linearisation of a scene's model: poles by mode, Bode plot, named matrices",
-        linearize.handler,
-        linearize.add_arguments,
+        "sarcomere.scenarios.linearize:handler",
+        "sarcomere.scenarios.linearize:add_arguments",
     ),
 ]
 
 
-def build_parser(commands: Sequence[Command] = COMMANDS) -> argparse.ArgumentParser:
-    """The argument parser with one subparser per command."""
+def _named(argv: Sequence[str], commands: Sequence[Command]) -> str | None:
+    """The command word of ``argv`` (its first non-option), or None."""
+    names = {cmd.name for cmd in commands}
+    word = next((a for a in argv if not a.startswith("-")), None)
+    return word if word in names else None
+
+
+def build_parser(
+    commands: Sequence[Command] = COMMANDS, argv: Sequence[str] | None = None
+) -> argparse.ArgumentParser:
+    """The argument parser with one subparser per command.
+
+    Only the command ``argv`` names gets its arguments declared (its module imported);
+    with ``argv`` None every command does.
+    """
+    from .catalog import version
+
     parser = argparse.ArgumentParser(
         prog="sarcomere",
         description="Lumped models of artificial pneumatic muscles: run scenarios.",
     )
     parser.add_argument("--version", action="version", version=f"sarcomere {version()}")
     subs = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    named = None if argv is None else _named(argv, commands)
     for cmd in commands:
         sub = subs.add_parser(cmd.name, help=cmd.help, description=cmd.help)
-        if cmd.add_arguments is not None:
-            cmd.add_arguments(sub)
+        if cmd.add_arguments is not None and (argv is None or cmd.name == named):
+            _resolve(cmd.add_arguments)(sub)
         sub.set_defaults(handler=cmd.handler)
     return parser
 
 
+class Terminated(BaseException):
+    """SIGTERM arrived: unwinds like Ctrl-C, so staged output folders are removed."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``sarcomere`` console script; returns the exit status."""
-    args = build_parser().parse_args(argv)
+    """Entry point of the ``sarcomere`` console script; returns the exit status.
+
+    A :class:`SarcomereError` prints one ``error:`` line (status 2); Ctrl-C and SIGTERM
+    print one line, leave no temporary folder (see :mod:`.outdir`) and return the shell's
+    conventional 130 and 143.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(argv=argv).parse_args(argv)
+    from .threads import limited_blas
+
+    previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         with limited_blas():
-            return args.handler(args)
+            status = _resolve(args.handler)(args)
+        sys.stdout.flush()  # here, not at exit: a closed pipe is caught below
+        return status
     except SarcomereError as exc:
         message = " ".join(str(exc).split())
         print(f"error: {message}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("sarcomere: interrupted by SIGINT (Ctrl-C)", file=sys.stderr)
+        return 128 + signal.SIGINT
+    except Terminated:
+        print("sarcomere: terminated by SIGTERM", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    except BrokenPipeError:  # `sarcomere list | head -1`: the reader left, nothing to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
+        return 128 + signal.SIGPIPE
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -25,13 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from sarcomere.dynamics.errors import ScenarioError
-from sarcomere.dynamics.modeling.labels import to_label
-from sarcomere.dynamics.units import to_si
 
-from .dynamic import _fidelity, _inputs, bind
-from .loader import load_scenario
+from .catalog import version
 from .outdir import check_out_dir, staged
-from .output import version
 
 P_CMD = "regulator.p_cmd"
 
@@ -51,6 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _pressure(sc, given: str | None) -> float:
+    from sarcomere.dynamics.units import to_si
+
     if given is not None:
         return to_si(given, "Pa", "--pressure")
     if sc.kind == "closed_loop" and "operating_pressure" in sc.control:
@@ -64,7 +62,12 @@ def _pressure(sc, given: str | None) -> float:
 def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs=None) -> dict:
     """Linearise the scene's model and write the files into ``out_dir`` (which exists);
     returns the summary metrics."""
+    # imported here, not at the top: ``sarcomere linearize --help`` stays light
     from sarcomere.controllers.linearize import classify_poles, linearize, operating_point
+    from sarcomere.dynamics.modeling.labels import to_label
+
+    from .dynamic import _fidelity, _inputs, bind
+    from .loader import load_scenario
 
     sc = load_scenario(source)
     if sc.kind == "static":

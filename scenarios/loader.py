@@ -19,6 +19,7 @@ import numpy as np
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
 from sarcomere.dynamics.units import to_si
 
+from .catalog import packaged_scenarios
 from .signals import SIGNAL_TYPES, signal_from_spec
 from .spec import (
     FIDELITIES,
@@ -129,13 +130,6 @@ def key_lines(text: str) -> dict[KeyPath, int]:
 
 
 # ---------------------------------------------------------------------------- resolution
-
-
-def packaged_scenarios() -> dict[str, Traversable]:
-    """Scenarios shipped with the package: name -> resource, sorted by name."""
-    root = resources.files("sarcomere.scenarios")
-    found = {p.name.removesuffix(".toml"): p for p in root.iterdir() if p.name.endswith(".toml")}
-    return dict(sorted(found.items()))
 
 
 def resolve_scenario(source: str | Path) -> Traversable:

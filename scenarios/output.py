@@ -15,15 +15,18 @@ import math
 import re
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from importlib import metadata
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sarcomere.dynamics.errors import SolverError
 from sarcomere.dynamics.results import Result
 
-from .spec import Scenario
+from .catalog import version
+
+if TYPE_CHECKING:  # the spec imports the model library: not needed to write files
+    from .spec import Scenario
 
 
 @dataclass
@@ -115,14 +118,6 @@ def _jsonable(obj: object) -> object:
     return str(obj)
 
 
-def version() -> str:
-    """The installed sarcomere version, or ``"unknown"``."""
-    try:
-        return metadata.version("sarcomere")
-    except metadata.PackageNotFoundError:
-        return "unknown"
-
-
 def timeseries_name(key: str, count: int) -> str:
     """File name of result ``key`` when ``count`` results are written."""
     if count == 1:
@@ -130,8 +125,17 @@ def timeseries_name(key: str, count: int) -> str:
     return f"timeseries_{re.sub(r'[^A-Za-z0-9._=-]+', '_', key)}.csv"
 
 
+#: CSV bytes per value (a float's ``repr`` and a comma), for size estimates.
+CSV_BYTES_PER_VALUE = 21
+
+#: Rows formatted and written at a time: memory stays flat however long the run.
+CSV_CHUNK_ROWS = 10_000
+
+
 def write_timeseries(results: dict[str, Result], out_dir: Path) -> list[Path]:
     """Write each result as CSV: index first, then its signals; header ``name [unit]``.
+    Values are Python's shortest round-trip ``repr``, written in chunks of
+    :data:`CSV_CHUNK_ROWS` rows.
 
     Returns
     -------
@@ -141,12 +145,14 @@ def write_timeseries(results: dict[str, Result], out_dir: Path) -> list[Path]:
     paths = []
     for key, result in results.items():
         path = out_dir / timeseries_name(key, len(results))
-        columns = [result.index, *result.signals.values()]
+        table = np.column_stack([result.index, *result.signals.values()]).astype(float)
         header = [f"{result.index_name} [{result.index_unit}]"]
         header += [f"{name} [{result.units[name]}]" for name in result.signals]
-        lines = [",".join(header)]
-        lines += [",".join(repr(float(v)) for v in row) for row in zip(*columns, strict=True)]
-        path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        with path.open("w", encoding="utf-8") as f:
+            f.write(",".join(header) + "\n")
+            for start in range(0, len(table), CSV_CHUNK_ROWS):
+                rows = table[start : start + CSV_CHUNK_ROWS].tolist()
+                f.writelines(repr(row)[1:-1].replace(", ", ",") + "\n" for row in rows)
         paths.append(path)
     return paths
 

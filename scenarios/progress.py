@@ -1,8 +1,9 @@
 """A progress line on stderr for runs that take a while.
 
 :func:`progress` prints ``label: 12 s`` on one rewritten line once a run has taken longer
-than ``delay`` seconds, and clears it at the end. It stays silent when disabled
-(``--quiet``) and when the stream is not a terminal (logs and pipes stay clean). Code
+than ``delay`` seconds, and at the end replaces it with ``label: done in 12.3 s`` (or
+clears it when the block failed, so an error message stands alone). It stays silent when
+disabled (``--quiet``) and when the stream is not a terminal (logs and pipes stay clean). Code
 running inside the block adds its own state to the line with :func:`report` (a
 co-simulation its simulated time: ``running x: 12 s, t = 1.2 / 3 s``).
 """
@@ -67,13 +68,15 @@ def progress(
 
     thread = threading.Thread(target=tick, daemon=True)
     thread.start()
+    ok = False
     try:
         yield
+        ok = True
     finally:
         done.set()
         thread.join()
         _status.pop()
-        if shown:
-            line = f"{label}: done in {time.perf_counter() - start:.1f} s"
-            out.write(f"\r{' ' * width[0]}\r{line}\n")
+        if shown:  # a failed or interrupted run: the line is cleared, its error follows
+            line = f"{label}: done in {time.perf_counter() - start:.1f} s\n" if ok else ""
+            out.write(f"\r{' ' * width[0]}\r{line}")
             out.flush()

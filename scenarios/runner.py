@@ -8,22 +8,35 @@ CSV files and the plots (see :mod:`.output`), and prints a short summary.
 
 from __future__ import annotations
 
+import math
+import sys
 import time
 from collections.abc import Callable
+from importlib import import_module
 from pathlib import Path
 
 from sarcomere.dynamics.results import Result
 
 from .loader import load_scenario
 from .outdir import check_out_dir, staged
-from .output import RunOutput, check_finite, write_summary, write_timeseries
+from .output import CSV_BYTES_PER_VALUE, RunOutput, check_finite, write_summary, write_timeseries
 from .plots import groups_by_unit, plot_groups
-from .progress import progress
+from .progress import progress, report
 from .spec import Scenario
 
 Runner = Callable[[Scenario, Path], RunOutput]
 
 _RUNNERS: dict[str, Runner] = {}
+
+#: The packaged kinds and the module registering each, imported when a run needs it (a
+#: static run never imports the co-simulation master or python-control).
+BUILTIN_KINDS = {
+    "static": "sarcomere.scenarios.static",
+    "equilibrium": "sarcomere.scenarios.dynamic",
+    "transient": "sarcomere.scenarios.dynamic",
+    "closed_loop": "sarcomere.scenarios.control",
+    "cosim": "sarcomere.scenarios.cosim",
+}
 
 
 def register_runner(kind: str, fn: Runner, *, replace: bool = False) -> None:
@@ -50,8 +63,18 @@ def register_runner(kind: str, fn: Runner, *, replace: bool = False) -> None:
 
 
 def runner_kinds() -> tuple[str, ...]:
-    """Registered scenario kinds, sorted."""
-    return tuple(sorted(_RUNNERS))
+    """Registered and packaged scenario kinds, sorted."""
+    return tuple(sorted({*_RUNNERS, *BUILTIN_KINDS}))
+
+
+def _runner(sc: Scenario) -> Runner:
+    """The runner of ``sc.kind``, importing a packaged kind's module on first use."""
+    if sc.kind not in _RUNNERS and sc.kind in BUILTIN_KINDS:
+        import_module(BUILTIN_KINDS[sc.kind])  # registers itself
+    if sc.kind not in _RUNNERS:
+        kinds = ", ".join(runner_kinds())
+        raise sc.error(("scenario", "kind"), f"unknown kind '{sc.kind}' (registered: {kinds})")
+    return _RUNNERS[sc.kind]
 
 
 def _selected(scenario: Scenario, key: str, result: Result) -> Result:
@@ -115,6 +138,32 @@ def evaluate_checks(scenario: Scenario, metrics: dict[str, float]) -> dict[str, 
     return checks
 
 
+#: Output points of a run above which it is announced before it starts (with its size).
+LARGE_POINTS = 100_000
+
+#: Wall time per output point and signal, s: simulation output, CSV and plots of
+#: step-50g at a 20 us grid (100 001 points x 18 columns) on a 2-core machine.
+SECONDS_PER_VALUE = 2e-6
+
+
+def size_warning(sc: Scenario) -> str | None:
+    """A one-line warning when ``sc`` asks for more than :data:`LARGE_POINTS` output
+    points: their number, and the CSV size and wall time per signal it will take."""
+    sim = sc.simulation
+    if sim is None or not sim.output_interval:
+        return None
+    points = math.floor((sim.stop_time - sim.start_time) / sim.output_interval) + 1
+    if points <= LARGE_POINTS:
+        return None
+    return (
+        f"warning: {sc.name} keeps {points} output points ([simulation] output_interval = "
+        f"{sim.output_interval:.3g} s over {sim.stop_time - sim.start_time:.3g} s): per signal "
+        f"kept, about {points * CSV_BYTES_PER_VALUE / 1e6:.0f} MB of CSV and "
+        f"{points * SECONDS_PER_VALUE:.1f} s; a coarser output_interval (default: 500 "
+        "points) makes it smaller"
+    )
+
+
 def format_summary(output: RunOutput, checks: dict, out_dir: Path, files: list[Path]) -> str:
     """A short human summary: header line, metric table with references, files written."""
     head = (
@@ -147,8 +196,9 @@ def run(
         computed (see :func:`~sarcomere.scenarios.outdir.check_out_dir`), and replaced
         whole only when the run succeeds: it holds all of one run or is left untouched.
     quiet : bool
-        Do not print the summary, nor the progress line a run longer than 2 s shows on a
-        terminal's stderr.
+        Do not print the summary, the warning before a run of more than
+        :data:`LARGE_POINTS` output points, nor the progress line a run longer than 2 s
+        shows on a terminal's stderr.
 
     Returns
     -------
@@ -170,21 +220,27 @@ def run(
     >>> sorted(out.metrics)[:2]  # doctest: +SKIP
     ['force_0p1MPa_N', 'force_spa_0p1MPa_N']
     """
-    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    if sc.kind not in _RUNNERS:
-        kinds = ", ".join(runner_kinds()) or "none"
-        raise sc.error(("scenario", "kind"), f"unknown kind '{sc.kind}' (registered: {kinds})")
-    out = check_out_dir(Path("out") / sc.name if out_dir is None else out_dir)
-    with staged(out) as tmp:
+    out = None if out_dir is None else check_out_dir(out_dir)  # before reading a long table
+    if isinstance(scenario, Scenario):
+        sc = scenario
+    else:  # a long input table takes a while to read: the progress line covers it too
+        with progress(f"loading {scenario}", enabled=not quiet):
+            sc = load_scenario(scenario)
+    runner = _runner(sc)
+    out = check_out_dir(Path("out") / sc.name) if out is None else out
+    if not quiet and (warning := size_warning(sc)):
+        print(warning, file=sys.stderr)
+    with staged(out) as tmp, progress(f"running {sc.name}", enabled=not quiet):
         start = time.perf_counter()
-        with progress(f"running {sc.name}", enabled=not quiet):
-            output = _RUNNERS[sc.kind](sc, tmp)
+        output = runner(sc, tmp)
         output.wall_time_s = time.perf_counter() - start
         check_finite(output)
         checks = evaluate_checks(sc, output.metrics)
         results = {key: _selected(sc, key, r) for key, r in output.results.items()}
+        report("writing CSV")
         files = write_timeseries(results, tmp)
         if results:
+            report("plotting")
             groups = _plot_groups(sc, next(iter(results.values())))
             files += plot_groups(results, groups, tmp, sc.name)
         extra = sorted(p for p in tmp.iterdir() if p not in files)  # the runner's own files

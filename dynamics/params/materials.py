@@ -32,7 +32,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from ..errors import ParameterError
 from .core import Param, ParameterSet
@@ -329,6 +328,8 @@ def _branch(c1: float, c2: float, c3: float) -> tuple[float, float]:
         if bad.size == 0:
             return None
         i = int(bad[0])
+        from scipy.optimize import brentq  # here: importing it costs 0.3 s of CLI start-up
+
         return brentq(lambda x: float(_slope(np.array(x), c1, c2, c3)), grid[i - 1], grid[i])
 
     hi = first_turn(1.0 + np.geomspace(1e-6, 1e4, 4000))

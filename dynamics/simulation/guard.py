@@ -8,7 +8,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.optimize as so
 
 from ..equilibrium import solve_equilibrium
 from ..errors import ParameterError, SarcomereError
@@ -92,7 +91,9 @@ def stability_radius(poly: tuple, theta: np.ndarray) -> np.ndarray:
             out[i] = 0.0
         else:
             k = outside[0]
-            out[i] = so.brentq(excess, r[k - 1], r[k], args=(th,), xtol=1e-12)
+            from scipy.optimize import brentq  # here: a run without rk4/euler never needs it
+
+            out[i] = brentq(excess, r[k - 1], r[k], args=(th,), xtol=1e-12)
     return out
 
 

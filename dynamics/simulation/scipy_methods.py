@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import casadi as cs
 import numpy as np
-import scipy.integrate as si
 import scipy.sparse as sp
 
 from ..errors import ParameterError
@@ -51,11 +50,12 @@ class _Plain:
         return np.array(self.F(t, x, self.w, self.p).nonzeros())
 
 
-_SCIPY = {
-    "scipy_rk45": (si.RK45, None),
-    "scipy_radau": (si.Radau, "sparse"),
-    "scipy_bdf": (si.BDF, "sparse"),
-    "scipy_lsoda": (si.LSODA, "dense"),
+_SCIPY = {  # method -> (scipy.integrate class, Jacobian kind); scipy.integrate (and with it
+    # scipy.optimize, 0.3 s) is imported only when a scipy method runs
+    "scipy_rk45": ("RK45", None),
+    "scipy_radau": ("Radau", "sparse"),
+    "scipy_bdf": ("BDF", "sparse"),
+    "scipy_lsoda": ("LSODA", "dense"),
 }
 
 
@@ -87,7 +87,10 @@ def _scipy(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
         raise ParameterError("solver.options.call", opts["call"], sorted(_CALLS))
     if opts["jacobian"] not in _JACOBIANS:
         raise ParameterError("solver.options.jacobian", opts["jacobian"], _JACOBIANS)
-    cls, jac_kind = _SCIPY[s.method]
+    import scipy.integrate as si
+
+    name, jac_kind = _SCIPY[s.method]
+    cls = getattr(si, name)
     if opts["jacobian"] == "finite_differences":
         jac_kind = None  # scipy estimates it by finite differences of the right-hand side
     lk = seg.law.key()

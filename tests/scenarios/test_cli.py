@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -127,3 +128,148 @@ def test_console_script_help() -> None:
     assert script.exists(), f"console script not installed beside {sys.executable}"
     done = subprocess.run([str(script), "--help"], capture_output=True, text=True, check=True)
     assert "run" in done.stdout and "list" in done.stdout
+
+
+HEAVY = ("casadi", "control", "matplotlib", "scipy.signal", "pint", "sarcomere.scenarios.dynamic")
+
+_PROBE = f"""
+import json, sys
+from sarcomere.scenarios.cli import main
+HEAVY = {HEAVY!r}
+try:
+    status = main(sys.argv[1:])
+except SystemExit as exc:
+    status = exc.code
+print(json.dumps(dict(status=status, heavy=sorted(m for m in HEAVY if m in sys.modules))))
+"""
+
+
+@pytest.mark.parametrize(
+    ("argv", "status"),
+    [
+        (["--version"], 0),
+        (["--help"], 0),
+        (["list"], 0),
+        ([], 2),  # no command
+        (["nosuch"], 2),
+        (["run"], 2),  # no scenario
+        (["run", "step-50g", "--bogus"], 2),
+        (["bench", "nosuch", "--out", "x"], 2),
+        (["linearize", "--help"], 0),
+    ],
+)
+def test_the_cli_answers_without_importing_the_model_library(argv, status) -> None:
+    """--version, --help, list and argument errors start at once: no CasADi, no
+    python-control, no matplotlib, no pint (BENCHMARKS.md, start-up section)."""
+    done = subprocess.run(
+        [sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, check=True
+    )
+    probe = json.loads(done.stdout.splitlines()[-1])
+    assert probe == {"status": status, "heavy": []}, done.stderr
+
+
+def test_list_matches_the_loaded_scenarios(capsys) -> None:
+    """``list`` reads each file's [scenario] table without loading the model: the kinds and
+    descriptions it shows are the loaded scenarios' own."""
+    from sarcomere.scenarios import load_scenario, packaged_scenarios
+
+    assert main(["list"]) == 0
+    rows = capsys.readouterr().out.splitlines()
+    assert len(rows) == len(packaged_scenarios())
+    for row, name in zip(rows, packaged_scenarios(), strict=True):
+        sc = load_scenario(name)
+        assert row.split()[:2] == [name, sc.kind] and row.endswith(sc.description)
+
+
+def test_a_transient_run_imports_neither_python_control_nor_pyplot(tmp_path: Path) -> None:
+    code = (
+        "import sys; from sarcomere.scenarios.cli import main;"
+        f"s = main(['run', 'step-50g', '--quiet', '--out', {str(tmp_path / 'o')!r}]);"
+        "print(s, sorted(m for m in ('control', 'matplotlib.pyplot', 'scipy.signal',"
+        " 'sarcomere.scenarios.cosim', 'sarcomere.controllers') if m in sys.modules))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split("\n")[-2] == "0 []", done.stderr
+    assert (tmp_path / "o" / "plot_length.png").is_file()
+
+
+def test_the_packages_lazy_names_all_resolve() -> None:
+    import sarcomere.dynamics as dynamics
+    import sarcomere.scenarios as scenarios
+
+    for package in (dynamics, scenarios):
+        for name in package.__all__:
+            assert getattr(package, name) is not None, name
+        with pytest.raises(AttributeError, match="no attribute 'nope'"):
+            package.nope  # noqa: B018
+
+
+def test_the_csv_holds_every_value_exactly_across_chunks(tmp_path: Path) -> None:
+    from sarcomere.scenarios.output import CSV_CHUNK_ROWS, write_timeseries
+
+    rng = np.random.default_rng(1)
+    n = 2 * CSV_CHUNK_ROWS + 7
+    t = np.sort(rng.uniform(0.0, 2.0, n))
+    signals = {"a": rng.normal(size=n) * 1e5, "b": rng.normal(size=n) * 1e-9}
+    result = Result("time", "s", t, signals, {"a": "Pa", "b": "m"})
+    (path,) = write_timeseries({"main": result}, tmp_path)
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["time [s]", "a [Pa]", "b [m]"]
+    table = np.array(rows[1:], dtype=float)
+    assert table.shape == (n, 3)
+    assert np.array_equal(table, np.column_stack([t, signals["a"], signals["b"]]))
+
+
+def test_a_large_run_is_announced_before_it_starts(tmp_path: Path, capsys, monkeypatch) -> None:
+    """A 500 k-point run gave no warning and took minutes: it says its size first."""
+    from sarcomere.scenarios import load_scenario, packaged_scenarios, parse_scenario
+    from sarcomere.scenarios.output import CSV_BYTES_PER_VALUE
+    from sarcomere.scenarios.runner import size_warning
+
+    assert size_warning(load_scenario("step-50g")) is None  # 1001 points: silent
+    text = packaged_scenarios()["step-50g"].read_text()
+    text = text.replace('output_interval = "2 ms"', 'output_interval = "4 us"')
+    seen = []
+
+    def runner(sc, out):
+        seen.append(capsys.readouterr().err)  # printed before the run starts
+        return RunOutput(sc.name, "full", "none")
+
+    monkeypatch.setattr("sarcomere.scenarios.runner._RUNNERS", {"transient": runner})
+    run(parse_scenario(text, "big.toml"), tmp_path / "o")
+    points = 500_001
+    assert seen[0].startswith(f"warning: step-50g keeps {points} output points")
+    assert f"about {points * CSV_BYTES_PER_VALUE / 1e6:.0f} MB of CSV" in seen[0]
+
+
+def test_an_interrupted_progress_line_is_cleared_not_called_done() -> None:
+    import io
+    import time
+
+    from sarcomere.scenarios.progress import progress
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    out = Terminal()
+    with pytest.raises(KeyboardInterrupt), progress("running x", stream=out, delay=0.0):
+        time.sleep(0.2)
+        raise KeyboardInterrupt
+    text = out.getvalue()
+    assert "running x: 0 s" in text and "done" not in text and text.endswith("\r")
+
+
+def test_a_closed_pipe_ends_the_output_quietly() -> None:
+    """``sarcomere list | head -1`` printed a BrokenPipeError traceback."""
+    script = Path(sys.executable).parent / "sarcomere"
+    read, write = os.pipe()
+    os.close(read)  # the reader is gone before anything is written
+    try:
+        done = subprocess.run(
+            [str(script), "list"], stdout=write, stderr=subprocess.PIPE, text=True, check=False
+        )
+    finally:
+        os.close(write)
+    assert (done.returncode, done.stderr) == (141, "")
