@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import difflib
 import re
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,10 +31,20 @@ KNOWN_UNITS: Mapping[str, str] = MappingProxyType(
     {"pressure": "Pa", "load.m": "kg", "load.F": "N", "time": "s"}
 )
 
+#: Largest ``[outputs] max_values`` a scenario may set: 1e9 values are 8 GB in memory
+#: (and about 21 GB of CSV); the size guard cannot be switched off.
+MAX_VALUES_CEILING = 1e9
+
 #: SI units a signal or sweep axis may declare with ``unit``.
 SI_UNITS = ("1", "Pa", "m", "kg", "N", "s", "rad", "Hz", "K", "m^3", "kg/s", "N/m", "J", "W")
 
 KeyPath = tuple[str, ...]
+
+
+class ScenarioWarning(UserWarning):
+    """A setting that runs but is probably not what was meant (a 50 kg load on an APS);
+    names the file, the key, its line and the value."""
+
 
 _BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 
@@ -303,6 +314,12 @@ class Scenario:
         sarcomere.dynamics.errors.ScenarioError: <string>: key 'model.n': must be 1
         """
         return ScenarioError(self.file, dotted(path), message, line_of(self.key_lines, path))
+
+    def warn(self, path: KeyPath, message: str) -> None:
+        """Issue a :class:`ScenarioWarning` for ``path``, worded as :meth:`error`."""
+        line = line_of(self.key_lines, path)
+        where = f"{self.file}:{line}" if line else self.file
+        warnings.warn(f"{where}: key '{dotted(path)}': {message}", ScenarioWarning, stacklevel=3)
 
     def refuse_unused(self, *sections: str) -> None:
         """Refuse any of ``sections`` the file gives: this kind would ignore it.
