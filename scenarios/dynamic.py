@@ -18,8 +18,13 @@ command outside the regulator's ``[0, p_max]`` and an output above ``[outputs]
 max_values`` are refused before anything is solved.
 
 ``[parameters]``: ``aps.<field>`` sets an :class:`~sarcomere.dynamics.components.aps.APSParams`
-field for every unit ("aps.k_s" = "400 N/m"); any other key is a model parameter path
-("load.m", "myofibril.tube1.C").
+field for every unit ("aps.k_s" = "400 N/m", "aps.thermal" = "adiabatic"; the material is
+``[model] material``); "regulator.p_max" sets the regulator's range (built into the model:
+the input's bound and the clamp); any other key is a model parameter path ("load.m",
+"myofibril.tube1.C"; "load.m" beside ``[model.options] load`` is refused). Dimensioned
+values need their unit (a bare ``50`` is refused), and an implausible load or APS geometry
+gets a :class:`~.spec.ScenarioWarning` (:data:`PLAUSIBLE_LOAD_KG`,
+:data:`PLAUSIBLE_GEOMETRY_FACTOR`).
 """
 
 from __future__ import annotations
