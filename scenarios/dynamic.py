@@ -222,9 +222,7 @@ def _warn_implausible(sc: Scenario, opts: dict, model_over: dict, aps: APSParams
     why = "the paper's loads are 0 to 100 g; one APS pulls about 0.3 N (31 g) at 0.1 MPa"
     loads = [(("model", "options", "load"), opts.get("load"))]
     if "load.m" in model_over:
-        path = next((p for p in sc.key_lines if ".".join(p) == "parameters.load.m"), None)
-        raw = model_over["load.m"]
-        loads.append((path or ("parameters", "load.m"), _si_or_none(raw, "kg")))
+        loads.append((sc.parameter_path("load.m"), _si_or_none(model_over["load.m"], "kg")))
     for path, kg in loads:
         if kg is not None and not low <= kg <= high:
             sc.warn(path, f"{kg:.6g} kg is outside the plausible {low:g} to {high:g} kg ({why})")
@@ -237,12 +235,8 @@ def _warn_implausible(sc: Scenario, opts: dict, model_over: dict, aps: APSParams
         k = f if unit == "m" else f * f
         ref, value = getattr(paper, name), getattr(aps, name)
         if not ref / k <= value <= ref * k:
-            path = next(
-                (p for p in sc.key_lines if ".".join(p) == f"parameters.aps.{name}"),
-                ("parameters", f"aps.{name}"),
-            )
             sc.warn(
-                path,
+                sc.parameter_path(f"aps.{name}"),
                 f"{value:.6g} {unit} is more than {k:g} times from the paper's APS "
                 f"({ref:.6g} {unit}); plausible {ref / k:.3g} to {ref * k:.3g} {unit}",
             )

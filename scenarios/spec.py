@@ -349,6 +349,9 @@ class Scenario:
         Finds the line whether the file wrote ``"geometry.h_ch" = ...`` or
         ``[parameters.geometry] h_ch = ...``.
         """
+        return self.error(self.parameter_path(name), message)
+
+    def parameter_path(self, name: str) -> KeyPath:
+        """The key path of the ``[parameters]`` entry ``name`` as the file wrote it."""
         flat = f"parameters.{name}"
-        path = next((p for p in self.key_lines if ".".join(p) == flat), ("parameters", name))
-        return self.error(path, message)
+        return next((p for p in self.key_lines if ".".join(p) == flat), ("parameters", name))
