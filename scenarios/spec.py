@@ -316,10 +316,12 @@ class Scenario:
         return ScenarioError(self.file, dotted(path), message, line_of(self.key_lines, path))
 
     def warn(self, path: KeyPath, message: str) -> None:
-        """Issue a :class:`ScenarioWarning` for ``path``, worded as :meth:`error`."""
-        line = line_of(self.key_lines, path)
-        where = f"{self.file}:{line}" if line else self.file
-        warnings.warn(f"{where}: key '{dotted(path)}': {message}", ScenarioWarning, stacklevel=3)
+        """Issue a :class:`ScenarioWarning` ``key '<path>': message`` located at the
+        scenario file and the key's line (shown as ``file:line: ScenarioWarning: ...``
+        with that line of the file below it)."""
+        line = line_of(self.key_lines, path) or 0
+        text = f"key '{dotted(path)}': {message}"
+        warnings.warn_explicit(text, ScenarioWarning, self.file, line)
 
     def refuse_unused(self, *sections: str) -> None:
         """Refuse any of ``sections`` the file gives: this kind would ignore it.
