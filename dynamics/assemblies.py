@@ -156,10 +156,10 @@ def _end_mass(myo) -> float:
 
 
 def _frame_regulator_chain(
-    setup, n, params, fidelity, regulator_tau, g, saturate, flow_law, groups=GROUPS
+    setup, n, params, fidelity, regulator_tau, g, saturate, flow_law, groups=GROUPS, p_max=None
 ):
     """The part both set-ups share: the environment, the chain hung from the frame, fed by
-    the regulator."""
+    the regulator (``p_max`` [Pa]: its range's upper end; None: the Regulator's default)."""
     if params is not None and not isinstance(params, APSParams):
         raise ParameterError("params", params, "an APSParams or None (the paper's APS)")
     tau = _si(regulator_tau, "s", "regulator_tau", 0.0, closed=False)
@@ -168,7 +168,8 @@ def _frame_regulator_chain(
     sys = System(f"{setup}_n{n}_{fidelity}")
     sys.add(Environment(g=g))
     frame = sys.add(Fixed("frame"))
-    reg = sys.add(Regulator("regulator", tau=tau, saturate=saturate))
+    p_max = {} if p_max is None else {"p_max": _si(p_max, "Pa", "regulator_p_max", 0.0, False)}
+    reg = sys.add(Regulator("regulator", tau=tau, saturate=saturate, **p_max))
     mf = sys.add(myo)
     sys.connect(frame.flange, mf.flange_a)
     sys.connect(reg.port, mf.port)
@@ -186,16 +187,28 @@ def hanging_load(
     saturate: bool = True,
     flow_law: str = "iso6358",
     groups: int = GROUPS,
+    regulator_p_max: float | str | None = None,
 ) -> Model:
     """Myofibril of ``n`` APS hanging from the frame, a load mass [kg] at its lower end.
 
     ``saturate``: the regulator clamps its command to ``[0, p_max]`` (plants; False for
     optimisers, which use the input's bounds). ``flow_law``: "iso6358" (exact) or
     "smooth" (C1, for optimisers). ``groups``: of the "grouped" level.
+    ``regulator_p_max`` [Pa]: the regulator's range (the input's bound and the clamp);
+    None: the Regulator's default (6 bar).
     """
     load = _si(load_kg, "kg", "load_kg", 0.0)
     sys, myo, mf = _frame_regulator_chain(
-        "hanging", n, params, fidelity, regulator_tau, g, saturate, flow_law, groups
+        "hanging",
+        n,
+        params,
+        fidelity,
+        regulator_tau,
+        g,
+        saturate,
+        flow_law,
+        groups,
+        regulator_p_max,
     )
     end = sys.add(
         Mass("load", m=HOOK_MASS_KG + load + _end_mass(myo), s_start=myo.rest_length_expr)
@@ -230,6 +243,7 @@ def isometric(
     saturate: bool = True,
     flow_law: str = "iso6358",
     groups: int = GROUPS,
+    regulator_p_max: float | str | None = None,
 ) -> Model:
     """Myofibril between the frame and a force sensor on a fixture.
 
@@ -238,7 +252,7 @@ def isometric(
     [m] defaults to :func:`hanging_rest_position` (the model's own equilibrium), so the
     sensor reads zero at 0 MPa. ``fixture_stiffness`` None means rigid; otherwise a
     one-sided spring [N/m] with ``fixture_gap`` [m] of play. ``saturate``,
-    ``flow_law`` and ``groups`` as :func:`hanging_load`.
+    ``flow_law``, ``groups`` and ``regulator_p_max`` as :func:`hanging_load`.
     """
     if length is None:
         L = hanging_rest_position(n, params, fidelity, g, groups)
@@ -250,7 +264,16 @@ def isometric(
             "fixture_gap", fixture_gap, "0 with a rigid fixture", "play needs fixture_stiffness"
         )
     sys, myo, mf = _frame_regulator_chain(
-        "isometric", n, params, fidelity, regulator_tau, g, saturate, flow_law, groups
+        "isometric",
+        n,
+        params,
+        fidelity,
+        regulator_tau,
+        g,
+        saturate,
+        flow_law,
+        groups,
+        regulator_p_max,
     )
     sensor = sys.add(ForceSensor("sensor"))
     fix = sys.add(Fixed("fixture", s0=L))

@@ -25,6 +25,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import ParameterError, ScenarioError
+from .files import read_text
 from .units import to_si
 
 
@@ -349,6 +350,28 @@ class Chirp(Signal):
         return self.offset + self.amplitude * ca.sin(self._phase(tau))
 
 
+#: Most rows a table may hold (about 16 MB of times and values in memory, 1-2 s to read a
+#: CSV this long); a longer one is refused (resample it).
+TABLE_MAX_ROWS = 1_000_000
+
+#: Most rows of a table inside a run that are integrator restarts (its slope jumps); a
+#: denser table (a recorded signal) is integrated as one continuous input, since a
+#: restart at each of 500 000 rows takes many minutes.
+TABLE_MAX_BREAKPOINTS = 1000
+
+
+def _si_tuple(seq, unit: str, name: str) -> tuple[float, ...]:
+    """``seq`` in SI: floats as they are (checked finite at once), else each by to_si."""
+    items = list(seq)
+    if all(type(v) is float for v in items):
+        arr = np.asarray(items, dtype=float)
+        bad = np.flatnonzero(~np.isfinite(arr))
+        if bad.size:
+            raise ParameterError(f"{name}[{bad[0]}]", items[bad[0]], "a finite number")
+        return tuple(items)
+    return tuple(to_si(v, unit, f"{name}[{i}]") for i, v in enumerate(items))
+
+
 @dataclass(frozen=True, kw_only=True)
 class Table(Signal):
     """Linear interpolation in a table of (time, value); end values held outside it.
@@ -379,12 +402,17 @@ class Table(Signal):
             seq = getattr(self, name)
             if isinstance(seq, str) or not hasattr(seq, "__iter__"):
                 raise ParameterError(name, seq, f"a list of numbers in {unit}", self.source)
-            object.__setattr__(
-                self, name, tuple(to_si(v, unit, f"{name}[{i}]") for i, v in enumerate(seq))
-            )
+            object.__setattr__(self, name, _si_tuple(seq, unit, name))
         if len(self.times) < 2 or len(self.times) != len(self.values):
             raise ParameterError(
                 "times", self.times, "at least two times, as many as values", self.source
+            )
+        if len(self.times) > TABLE_MAX_ROWS:
+            raise ParameterError(
+                "times",
+                f"{len(self.times)} rows",
+                f"at most {TABLE_MAX_ROWS} rows",
+                f"{self.source or 'table'}: resample it",
             )
         if np.any(np.diff(self.times) <= 0):
             raise ParameterError("times", self.times, "strictly increasing times", self.source)
@@ -397,7 +425,12 @@ class Table(Signal):
         return _shaped(t, np.interp(np.asarray(t, float), self.times, self.values))
 
     def breakpoints(self, t0: float, tf: float) -> list[float]:
-        return _inside(list(self.times), t0, tf)
+        """The rows inside ``(t0, tf)`` (slope jumps), if at most
+        :data:`TABLE_MAX_BREAKPOINTS`; a denser table is integrated as a continuous input
+        (no restart at each row: the step control follows its kinks)."""
+        times = np.asarray(self.times)
+        inside = times[(times > t0) & (times < tf)]
+        return inside.tolist() if len(inside) <= TABLE_MAX_BREAKPOINTS else []
 
     def casadi(self, t: ca.SX | ca.MX) -> ca.SX | ca.MX:
         lut = ca.interpolant("table", "linear", [list(self.times)], list(self.values))
@@ -434,13 +467,13 @@ class Table(Signal):
             A row is malformed, non-numeric or out of order (naming the CSV file and line).
         """
         try:
-            text = path.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ParameterError(key, str(path), "a readable CSV file", exc.strerror) from None
+            text = read_text(path)
+        except ValueError as exc:
+            raise ParameterError(key, str(path), "a readable CSV text file", str(exc)) from None
         rows = [
             (lineno, row)
             for lineno, row in enumerate(csv.reader(text.splitlines()), start=1)
-            if row and any(c.strip() for c in row) and not row[0].lstrip().startswith("#")
+            if "".join(row).strip() and not row[0].lstrip().startswith("#")
         ]
         if len(rows) < 3:
             raise ScenarioError(str(path), key, "need a header row and at least two data rows")
@@ -464,22 +497,45 @@ class Table(Signal):
                 f"'{names[col]} [{unit}]' or '{names[col]} [MPa]' (a value column needs one)",
                 head_line,
             )
-        scales = [_affine(units[0], "s", key, path), _affine(units[col], unit, key, path)]
-        times, values = [], []
-        for lineno, row in rows[1:]:
-            try:
-                t, v = float(row[0]), float(row[col])
-            except (ValueError, IndexError):
-                raise ScenarioError(
-                    str(path), key, f"expected numbers in columns 1 and {col + 1}", lineno
-                ) from None
-            if not (math.isfinite(t) and math.isfinite(v)):
-                raise ScenarioError(str(path), key, "non-finite number", lineno)
-            if times and t * scales[0][0] + scales[0][1] <= times[-1]:
-                raise ScenarioError(str(path), key, "times must be strictly increasing", lineno)
-            times.append(t * scales[0][0] + scales[0][1])
-            values.append(v * scales[1][0] + scales[1][1])
-        return cls(times=tuple(times), values=tuple(values), unit=unit, source=str(path))
+        if len(rows) - 1 > TABLE_MAX_ROWS:
+            raise ScenarioError(
+                str(path), key, f"{len(rows) - 1} data rows, above {TABLE_MAX_ROWS}; resample it"
+            )
+        (t_scale, t_zero), (v_scale, v_zero) = (
+            _affine(units[0], "s", key, path),
+            _affine(units[col], unit, key, path),
+        )
+        raw = _numbers(rows[1:], col, path, key)
+        lines = np.array([lineno for lineno, _ in rows[1:]])
+        bad = np.flatnonzero(~np.all(np.isfinite(raw), axis=1))
+        if bad.size:
+            raise ScenarioError(str(path), key, "non-finite number", int(lines[bad[0]]))
+        times, values = raw[:, 0] * t_scale + t_zero, raw[:, 1] * v_scale + v_zero
+        bad = np.flatnonzero(np.diff(times) <= 0)
+        if bad.size:
+            line = int(lines[bad[0] + 1])
+            raise ScenarioError(str(path), key, "times must be strictly increasing", line)
+        return cls(
+            times=tuple(times.tolist()), values=tuple(values.tolist()), unit=unit, source=str(path)
+        )
+
+
+def _numbers(rows: list, col: int, path: Path, key: str) -> np.ndarray:
+    """Columns 0 and ``col`` of the data ``rows`` (line, cells) as floats, (rows, 2); the
+    first row that is not two numbers is named by its line."""
+    try:
+        return np.array([(row[0], row[col]) for _, row in rows], dtype=float)
+    except (ValueError, IndexError):
+        pass  # find the bad row, one by one
+    out = []
+    for lineno, row in rows:
+        try:
+            out.append((float(row[0]), float(row[col])))
+        except (ValueError, IndexError):
+            raise ScenarioError(
+                str(path), key, f"expected numbers in columns 1 and {col + 1}", lineno
+            ) from None
+    return np.array(out)
 
 
 _HEADER = re.compile(r"^(?P<name>[^\[]*?)\s*\[(?P<unit>[^\]]*)\]$")

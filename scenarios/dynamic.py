@@ -18,8 +18,13 @@ command outside the regulator's ``[0, p_max]`` and an output above ``[outputs]
 max_values`` are refused before anything is solved.
 
 ``[parameters]``: ``aps.<field>`` sets an :class:`~sarcomere.dynamics.components.aps.APSParams`
-field for every unit ("aps.k_s" = "400 N/m"); any other key is a model parameter path
-("load.m", "myofibril.tube1.C").
+field for every unit ("aps.k_s" = "400 N/m", "aps.thermal" = "adiabatic"; the material is
+``[model] material``); "regulator.p_max" sets the regulator's range (built into the model:
+the input's bound and the clamp); any other key is a model parameter path ("load.m",
+"myofibril.tube1.C"; "load.m" beside ``[model.options] load`` is refused). Dimensioned
+values need their unit (a bare ``50`` is refused), and an implausible load or APS geometry
+gets a :class:`~.spec.ScenarioWarning` (:data:`PLAUSIBLE_LOAD_KG`,
+:data:`PLAUSIBLE_GEOMETRY_FACTOR`).
 """
 
 from __future__ import annotations
@@ -48,12 +53,13 @@ from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
+from sarcomere.dynamics.signals import Table
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.units import to_si
 
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
-from .spec import Scenario, SimulationSpec, describe, did_you_mean, unknown_key
+from .spec import Scenario, SimulationSpec, describe, did_you_mean, dotted, unknown_key
 
 P_CMD = "regulator.p_cmd"
 OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
@@ -69,9 +75,31 @@ INPUT_ALIASES = {"pressure": P_CMD}
 SETUP_ONLY = {"hanging": ("fixture_stiffness", "fixture_gap"), "isometric": ("load",)}
 
 
+#: Plausible hanging loads, kg: the paper's are 0 to 100 g and one APS pulls about 0.3 N
+#: (31 g) at 0.1 MPa; a load outside gets a :class:`~.spec.ScenarioWarning` (``load = 50``
+#: without a unit is refused: 50 g or 50 kg?).
+PLAUSIBLE_LOAD_KG = (0.0, 1.0)
+
+#: A geometry field (unit m, or m^2 for areas) more than this factor from the paper's
+#: experimental APS (per length; squared for areas) gets a ScenarioWarning.
+PLAUSIBLE_GEOMETRY_FACTOR = 10.0
+
+#: Where a set-up argument's ParameterError (``exc.name``) is written in the scenario.
+_BUILD_KEYS = {
+    "regulator.tau": ("model", "options", "regulator_tau"),
+    "regulator_tau": ("model", "options", "regulator_tau"),
+    "load_kg": ("model", "options", "load"),
+    "fixture_stiffness": ("model", "options", "fixture_stiffness"),
+    "fixture_gap": ("model", "options", "fixture_gap"),
+}
+
+
 @dataclasses.dataclass(frozen=True)
 class Binding:
-    """A scenario's model settings in SI: what to build and the parameter overrides."""
+    """A scenario's model settings in SI: what to build and the parameter overrides.
+
+    ``scenario`` (if given) names the file, key and line of a setting the build refuses.
+    """
 
     setup: str
     n: int
@@ -82,6 +110,8 @@ class Binding:
     fixture_gap: float
     overrides: dict
     flow_law: str = "iso6358"
+    regulator_p_max: float | None = None
+    scenario: Scenario | None = dataclasses.field(default=None, compare=False, repr=False)
 
     def build(
         self,
@@ -100,12 +130,123 @@ class Binding:
             "saturate": saturate,
             "flow_law": self.flow_law if flow_law is None else flow_law,
             "groups": groups,
+            "regulator_p_max": self.regulator_p_max,
         }
-        if self.setup == "isometric":
-            return isometric(
-                n, self.aps, fidelity, self.fixture_stiffness, self.fixture_gap, **common
+        try:
+            if self.setup == "isometric":
+                model = isometric(
+                    n, self.aps, fidelity, self.fixture_stiffness, self.fixture_gap, **common
+                )
+            else:
+                model = hanging_load(n, self.aps, self.load_kg, fidelity, **common)
+        except ParameterError as exc:
+            if self.scenario is None:
+                raise
+            sc = self.scenario
+            path = _BUILD_KEYS.get(exc.name)
+            raise (
+                sc.error(path, describe(exc))
+                if path
+                else sc.parameter_error(exc.name, describe(exc))
+            ) from None
+        self._check_units(model)
+        return model
+
+    def _check_units(self, model: Model) -> None:
+        """Refuse a bare non-zero number for a dimensioned model parameter in the file."""
+        if self.scenario is None:
+            return
+        for key, raw in self.overrides.items():
+            var = model.variables.get(key)
+            if var is None or isinstance(raw, str):
+                continue
+            try:
+                to_si(raw, var.unit, key, bare_ok=False)
+            except ParameterError as exc:
+                raise self.scenario.parameter_error(key, describe(exc)) from None
+
+
+def _options(sc: Scenario) -> dict:
+    """``[model.options]`` in SI, each checked against :data:`OPTIONS`."""
+    opts = {}
+    for key, raw in sc.model.options.items():
+        if key not in OPTIONS:
+            raise sc.error(("model", "options", key), unknown_key(key, list(OPTIONS)))
+        unit, low, inclusive = OPTIONS[key]
+        try:
+            opts[key] = raw if unit == "" else to_si(raw, unit, key, bare_ok=False)
+        except ParameterError as exc:
+            raise sc.error(("model", "options", key), describe(exc)) from None
+        if low is not None and not (opts[key] >= low if inclusive else opts[key] > low):
+            interval = f"[{low:g}, inf)" if inclusive else f"({low:g}, inf)"
+            raise sc.error(("model", "options", key), f"{raw!r} is outside {interval} {unit}")
+    setup = opts.setdefault("setup", "hanging")
+    if setup not in ("hanging", "isometric"):
+        raise sc.error(("model", "options", "setup"), f"'{setup}': use 'hanging' or 'isometric'")
+    flow_law = opts.setdefault("flow_law", "iso6358")
+    if flow_law not in FLOW_LAWS:
+        raise sc.error(
+            ("model", "options", "flow_law"), f"'{flow_law}': use {' or '.join(FLOW_LAWS)}"
+        )
+    for key in SETUP_ONLY[setup]:
+        if key in opts:
+            raise sc.error(
+                ("model", "options", key), f"set-up '{setup}' does not use '{key}'; remove it"
             )
-        return hanging_load(n, self.aps, self.load_kg, fidelity, **common)
+    return opts
+
+
+def _aps_parameter(sc: Scenario, key: str, name: str, raw: object) -> object:
+    """One ``[parameters] aps.<name>`` in SI (a numeric field) or as text (``thermal``)."""
+    numeric = set(APSParams.numeric_fields())
+    if name == "material":
+        raise sc.parameter_error(
+            key, "set the material with [model] material (it also sets C1, C2, C3)"
+        )
+    if name == "thermal":
+        if not isinstance(raw, str):
+            raise sc.parameter_error(key, f"expected a string, got {raw!r}")
+        return raw
+    if name not in numeric:
+        raise sc.parameter_error(key, unknown_key(name, sorted(numeric | {"thermal"})))
+    try:
+        return to_si(raw, APSParams.unit(name), key, bare_ok=False)
+    except ParameterError as exc:
+        raise sc.parameter_error(key, describe(exc)) from None
+
+
+def _warn_implausible(sc: Scenario, opts: dict, model_over: dict, aps: APSParams) -> None:
+    """A ScenarioWarning for a load or an APS geometry far outside what the model was
+    made for (:data:`PLAUSIBLE_LOAD_KG`, :data:`PLAUSIBLE_GEOMETRY_FACTOR`)."""
+    low, high = PLAUSIBLE_LOAD_KG
+    why = "the paper's loads are 0 to 100 g; one APS pulls about 0.3 N (31 g) at 0.1 MPa"
+    loads = [(("model", "options", "load"), opts.get("load"))]
+    if "load.m" in model_over:
+        loads.append((sc.parameter_path("load.m"), _si_or_none(model_over["load.m"], "kg")))
+    for path, kg in loads:
+        if kg is not None and not low <= kg <= high:
+            sc.warn(path, f"{kg:.6g} kg is outside the plausible {low:g} to {high:g} kg ({why})")
+    paper = APSParams.from_paper(sc.model.material)
+    f = PLAUSIBLE_GEOMETRY_FACTOR
+    for name in APSParams.numeric_fields():
+        unit = APSParams.unit(name)
+        if unit not in ("m", "m^2") or f"aps.{name}" not in sc.parameters:
+            continue
+        k = f if unit == "m" else f * f
+        ref, value = getattr(paper, name), getattr(aps, name)
+        if not ref / k <= value <= ref * k:
+            sc.warn(
+                sc.parameter_path(f"aps.{name}"),
+                f"{value:.6g} {unit} is more than {k:g} times from the paper's APS "
+                f"({ref:.6g} {unit}); plausible {ref / k:.3g} to {ref * k:.3g} {unit}",
+            )
+
+
+def _si_or_none(raw: object, unit: str) -> float | None:
+    try:
+        return to_si(raw, unit)
+    except ParameterError:
+        return None  # the model's own check reports it
 
 
 def bind(sc: Scenario) -> Binding:
@@ -118,51 +259,35 @@ def bind(sc: Scenario) -> Binding:
             f"kind '{sc.kind}' does not use a geometry set (the paper model's, kind 'static'); "
             "set APS dimensions with [parameters] aps.<field>",
         )
-    opts = {}
-    for key, raw in sc.model.options.items():
-        if key not in OPTIONS:
-            raise sc.error(("model", "options", key), unknown_key(key, list(OPTIONS)))
-        unit, low, inclusive = OPTIONS[key]
-        try:
-            opts[key] = raw if unit == "" else to_si(raw, unit, key)
-        except ParameterError as exc:
-            raise sc.error(("model", "options", key), describe(exc)) from None
-        if low is not None and not (opts[key] >= low if inclusive else opts[key] > low):
-            interval = f"[{low:g}, inf)" if inclusive else f"({low:g}, inf)"
-            raise sc.error(("model", "options", key), f"{raw!r} is outside {interval} {unit}")
-    setup = opts.get("setup", "hanging")
-    if setup not in ("hanging", "isometric"):
-        raise sc.error(("model", "options", "setup"), f"'{setup}': use 'hanging' or 'isometric'")
-    flow_law = opts.get("flow_law", "iso6358")
-    if flow_law not in FLOW_LAWS:
-        raise sc.error(
-            ("model", "options", "flow_law"), f"'{flow_law}': use {' or '.join(FLOW_LAWS)}"
-        )
-    for key in SETUP_ONLY[setup]:
-        if key in opts:
-            raise sc.error(
-                ("model", "options", key), f"set-up '{setup}' does not use '{key}'; remove it"
-            )
-    aps_fields = set(APSParams.numeric_fields())  # material and options: [model]
+    opts = _options(sc)
     aps_over, model_over = {}, {}
+    p_max = None
     for key, raw in sc.parameters.items():
         group, _, name = key.partition(".")
         if group == "aps":
-            if name not in aps_fields:
-                raise sc.parameter_error(key, unknown_key(name, sorted(aps_fields)))
-            unit = APSParams.unit(name)
+            aps_over[name] = _aps_parameter(sc, key, name, raw)
+        elif key == "regulator.p_max":  # the range is structural: the input's bound too
             try:
-                aps_over[name] = to_si(raw, unit, key)
+                p_max = to_si(raw, "Pa", key, bare_ok=False)
             except ParameterError as exc:
                 raise sc.parameter_error(key, describe(exc)) from None
+            if not p_max > 0:
+                raise sc.parameter_error(key, f"{raw!r} is outside (0, inf) Pa")
         else:
             model_over[key] = raw
+    if "load.m" in model_over and "load" in sc.model.options:
+        raise sc.parameter_error(
+            "load.m",
+            "[parameters] load.m and [model.options] load both set the hanging mass; keep "
+            "one (load.m is the whole end mass with the 1 g hook, load the payload alone)",
+        )
     try:
         aps = APSParams.from_paper(sc.model.material, **aps_over)
     except ParameterError as exc:
         raise sc.parameter_error(f"aps.{exc.name}", describe(exc)) from None
+    _warn_implausible(sc, opts, model_over, aps)
     return Binding(
-        setup,
+        opts["setup"],
         sc.model.n,
         aps,
         opts.get("load", 0.0),
@@ -170,7 +295,9 @@ def bind(sc: Scenario) -> Binding:
         opts.get("fixture_stiffness"),
         opts.get("fixture_gap", 0.0),
         model_over,
-        flow_law,
+        opts["flow_law"],
+        p_max,
+        sc,
     )
 
 
@@ -198,19 +325,32 @@ def _range_error(sc: Scenario, path: tuple, value: float, rng: tuple, when: str 
     low, high = (v / 1e6 for v in rng)
     return sc.error(
         path,
-        f"{value / 1e6:g} MPa{when} is outside the pressure regulator's range "
-        f"[{low:g}, {high:g}] MPa (regulator.p_cmd; it would clamp the command)",
+        f"{distinct(value / 1e6, (low, high))} MPa{when} is outside the pressure regulator's "
+        f"range [{low:g}, {high:g}] MPa (regulator.p_cmd; it would clamp the command)",
     )
 
 
+def distinct(value: float, bounds: tuple[float, ...]) -> str:
+    """``value`` with as few significant digits (at least 6) as keep it apart from each of
+    ``bounds`` it differs from: 0.6000001 next to 0.6 is not shown as "0.6"."""
+    for digits in range(6, 18):
+        text = f"{value:.{digits}g}"
+        if all(float(text) != b for b in bounds if b != value):
+            return text
+    return repr(value)
+
+
 def _check_commands(sc: Scenario, model: Model, overrides: dict, inputs: dict, grid) -> None:
-    """Refuse a pressure command outside the regulator's range, at its first time."""
+    """Refuse a pressure command outside the regulator's range, at its first time (on the
+    output grid, the breakpoints and every row of a table)."""
     if P_CMD not in inputs:
         return
     rng = command_range(model, overrides)
     sig = inputs[P_CMD]
     bps = sig.breakpoints(grid[0], grid[-1]) if hasattr(sig, "breakpoints") else []
-    t = np.unique(np.concatenate([grid, bps]))
+    rows = np.asarray(sig.times) if isinstance(sig, Table) else np.empty(0)
+    rows = rows[(rows >= grid[0]) & (rows <= grid[-1])]
+    t = np.unique(np.concatenate([grid, bps, rows]))
     values = np.asarray(sig(t), dtype=float) * np.ones_like(t)
     bad = np.flatnonzero((values < rng[0]) | (values > rng[1]))
     if bad.size:
@@ -254,9 +394,17 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
         raise sc.error(("sweep", "load"), "the isometric set-up holds no load; sweep 'n' instead")
     if axis is not None and axis.name == "load" and "load" in sc.model.options:
         raise sc.error(("model", "options", "load"), "[sweep.load] sets the load; remove it")
+    if axis is not None and axis.name == "load" and "load.m" in b.overrides:
+        raise sc.parameter_error("load.m", "[sweep.load] sets the load; remove it")
     if axis is not None and axis.name == "load" and min(axis.values) < 0:
         bad = min(axis.values)
         raise sc.error(("sweep", "load", "values"), f"{bad * 1e3:g} g: a load is >= 0 kg")
+    if axis is not None and axis.name == "load" and max(axis.values) > PLAUSIBLE_LOAD_KG[1]:
+        sc.warn(
+            ("sweep", "load"),
+            f"{max(axis.values):.6g} kg is above the plausible {PLAUSIBLE_LOAD_KG[1]:g} kg "
+            "(the paper's loads are 0 to 100 g)",
+        )
     cases = axis.values if axis else (None,)
     check_output_size(sc, len(pressures) * len(cases), 5, ("sweep", "pressure"))
     results, metrics = {}, {}
@@ -357,13 +505,22 @@ def _aps_dict(p: APSParams) -> dict:
 
 # --- kind "transient" ---------------------------------------------------------------
 def _inputs(sc: Scenario, model: Model) -> dict:
-    out = {}
+    """The scenario's signals by model input; an input given twice (by its alias and its
+    full name) is refused naming both keys."""
+    out, given = {}, {}
     for name, sig in sc.inputs.items():
         target = INPUT_ALIASES.get(name, name)
         if target not in model.input_names:
             raise sc.error(
                 ("inputs", name), unknown_key(name, [*INPUT_ALIASES, *model.input_names])
             )
+        if target in given:
+            raise sc.error(
+                ("inputs", name),
+                f"[inputs.{given[target]}] already drives '{target}'; keep one of "
+                f"[inputs.{given[target]}] and [inputs.{dotted((name,))}]",
+            )
+        given[target] = dotted((name,))
         unit = model.variables[target].unit
         if sig.unit != unit:
             raise sc.error(
@@ -532,20 +689,35 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
         metrics["fidelity_predicted_error"] = report["predicted_error"][fid]
     else:
         _, res = _simulate(sc, b, fid)
-    metrics.update(transient_metrics(res))
+    found, left_out = transient_metrics(res)
+    metrics.update(found)
+    if left_out:
+        extra["metrics_left_out"] = left_out
     return RunOutput(
         sc.name, fid, res.meta["method"], metrics=metrics, results={"main": res}, extra=extra
     )
 
 
-def transient_metrics(res: Result) -> dict[str, float]:
-    """Final and initial length and pressure, rise time, slack time, solver statistics."""
-    m = {}
+#: Smallest net length stroke (|final - initial|, m) with a rise time: below it the
+#: change is not told from numerical noise (rtol 1e-6 on a 0.1 m chain is 0.1 um); the
+#: packaged steps and ramps move about 15 mm.
+RISE_MIN_STROKE_M = 1e-5
+
+
+def transient_metrics(res: Result) -> tuple[dict[str, float], dict[str, str]]:
+    """Final and initial length and pressure, rise time, slack time, solver statistics;
+    and the metrics left out, each with why (``rise_time_10_90_s`` of a run that does not
+    move, or whose output grid does not resolve the rise)."""
+    m, left_out = {}, {}
     if "myofibril.length" in res:
         L = res["myofibril.length"]
         m["length_initial_mm"] = float(L[0] * 1e3)
         m["length_final_mm"] = float(L[-1] * 1e3)
-        m["rise_time_10_90_s"] = _rise_time(res.index, L)
+        rise, why = rise_time(res.index, L, RISE_MIN_STROKE_M, "m")
+        if rise is None:
+            left_out["rise_time_10_90_s"] = why
+        else:
+            m["rise_time_10_90_s"] = rise
     chamber = next(n for n in res.names if n.endswith(".chamber.p_gauge"))  # the top unit
     m["pressure_final_kPa"] = res.final(chamber) / 1e3
     if "sensor.f" in res:
@@ -555,16 +727,40 @@ def transient_metrics(res: Result) -> dict[str, float]:
         slack = np.any(np.array([res[n] < 0 for n in stretches]), axis=0)
         m["slack_time_s"] = float(np.sum(np.diff(res.index) * slack[:-1]))
     m["solver_steps"] = float(res.meta.get("n_steps", math.nan))
-    return m
+    return m, left_out
 
 
-def _rise_time(t: np.ndarray, y: np.ndarray) -> float:
+def rise_time(
+    t: np.ndarray, y: np.ndarray, min_stroke: float, unit: str = ""
+) -> tuple[float | None, str]:
+    """10-90 % rise time [s] of ``y(t)`` from ``y[0]`` to ``y[-1]``, on the linearly
+    interpolated signal: the first times ``y`` crosses ``y0 + 0.1 dy`` and ``y0 + 0.9 dy``
+    (``dy = y[-1] - y[0]``), each interpolated between its two samples.
+
+    Returns ``(None, why)`` when ``|dy| < min_stroke`` (``unit``: the signal's, for the
+    message) or when both crossings fall in one sample interval (the grid does not
+    resolve the rise); else ``(rise, "")``.
+    """
+    t, y = np.asarray(t, float), np.asarray(y, float)
     dy = y[-1] - y[0]
-    if abs(dy) < 1e-12:
-        return 0.0
+    if not abs(dy) >= min_stroke:
+        return None, (
+            f"the net stroke |final - initial| = {abs(dy):.3g} {unit} is below the noise "
+            f"level {min_stroke:g} {unit}: no rise to time"
+        )
     frac = (y - y[0]) / dy
-    i10, i90 = np.argmax(frac >= 0.1), np.argmax(frac >= 0.9)
-    return float(t[i90] - t[i10])
+    crossings = []
+    for level in (0.1, 0.9):
+        i = int(np.argmax(frac >= level))  # >= 1: frac[0] = 0; frac[-1] = 1 reaches it
+        w = (level - frac[i - 1]) / (frac[i] - frac[i - 1])
+        crossings.append((i, t[i - 1] + w * (t[i] - t[i - 1])))
+    (i10, t10), (i90, t90) = crossings
+    if i10 == i90:
+        return None, (
+            f"the output grid ({t[i90] - t[i90 - 1]:.3g} s there) does not resolve the rise: "
+            "both crossings fall in one interval"
+        )
+    return float(t90 - t10), ""
 
 
 #: The levels "auto" considers, cheapest first: the reduced chains (their cost does not

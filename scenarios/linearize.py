@@ -66,7 +66,7 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
     from sarcomere.controllers.linearize import classify_poles, linearize, operating_point
     from sarcomere.dynamics.modeling.labels import to_label
 
-    from .dynamic import _fidelity, _inputs, bind
+    from .dynamic import _fidelity, _inputs, bind, command_range, distinct
     from .loader import load_scenario
 
     sc = load_scenario(source)
@@ -80,6 +80,14 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
     if sc.kind == "transient":
         _inputs(sc, model)  # the scene's inputs are checked as a run would
     p = _pressure(sc, pressure)
+    low, high = command_range(model, b.overrides)
+    if pressure is not None and not low <= p <= high:
+        raise ScenarioError(
+            sc.file,
+            "--pressure",
+            f"{distinct(p / 1e6, (low / 1e6, high / 1e6))} MPa is outside the regulator's "
+            f"range [{low / 1e6:g}, {high / 1e6:g}] MPa",
+        )
     default = sc.control.get("output") or (
         "sensor.f" if b.setup == "isometric" else "myofibril.length"
     )

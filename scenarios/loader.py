@@ -7,6 +7,7 @@ key and its line; unknown keys are listed with the valid ones and the closest ma
 
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 from collections.abc import Sequence
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
+from sarcomere.dynamics.files import path_kind, read_text
 from sarcomere.dynamics.units import to_si
 
 from .catalog import packaged_scenarios
@@ -25,6 +27,7 @@ from .spec import (
     FIDELITIES,
     KNOWN_UNITS,
     MAX_VALUES,
+    MAX_VALUES_CEILING,
     SI_UNITS,
     KeyPath,
     MetricCheck,
@@ -143,17 +146,23 @@ def resolve_scenario(source: str | Path) -> Traversable:
     Raises
     ------
     ScenarioError
-        No such file, or no packaged scenario of that name (listing the packaged ones).
+        No such file, or no packaged scenario of that name (listing the packaged ones);
+        a path that is not a regular file (a directory, a FIFO, a device) says what it is
+        and is never opened.
     """
     path = Path(source)
-    if path.is_file():
+    kind = path_kind(path)
+    if kind is None:
         return path
     text = str(source)
-    if "/" in text or "\\" in text or path.suffix == ".toml":
-        raise ScenarioError(text, "scenario", "no such file")
+    bare = not ("/" in text or "\\" in text or path.suffix == ".toml")
     packaged = packaged_scenarios()
-    if text in packaged:
+    if bare and text in packaged:  # a folder named like a scene (an --out) does not hide it
         return packaged[text]
+    if kind != "missing":
+        raise ScenarioError(text, "scenario", f"is {kind}; expected a scenario TOML file")
+    if not bare:
+        raise ScenarioError(text, "scenario", "no such file")
     hint = did_you_mean(text, list(packaged))
     raise ScenarioError(
         text,
@@ -173,9 +182,9 @@ def load_scenario(source: str | Path) -> Scenario:
     res = resolve_scenario(source)
     with resources.as_file(res) as path:
         try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ScenarioError(str(path), "scenario", f"cannot read: {exc}") from None
+            text = read_text(path)
+        except ValueError as exc:
+            raise ScenarioError(str(path), "scenario", str(exc)) from None
         return parse_scenario(text, str(path))
 
 
@@ -226,9 +235,11 @@ class _Reader:
             raise self.error((*path, key), f"'{value}' is not one of {', '.join(choices)}")
         return value
 
-    def quantity(self, value: object, path: KeyPath, unit: str) -> float:
+    def quantity(self, value: object, path: KeyPath, unit: str, bare_ok: bool = False) -> float:
+        """``value`` in SI; a bare non-zero number of a dimensioned unit only if ``bare_ok``
+        (the table states its ``unit``)."""
         try:
-            return to_si(value, unit, dotted(path))
+            return to_si(value, unit, dotted(path), bare_ok)
         except ParameterError as exc:
             raise self.error(path, describe(exc)) from None
 
@@ -348,9 +359,9 @@ def _inputs(r: _Reader, value: object, base_dir: Path) -> dict:
         cls = SIGNAL_TYPES[r.choice(spec, path, "type", list(SIGNAL_TYPES), _REQUIRED)]
         r.table(spec, path, ["type", "unit", *cls.spec_keys], cls.required_keys())
         unit = r.unit(spec, path, name)
-        spec.pop("unit", None)
+        bare = "none" if spec.pop("unit", None) is None else "values"  # in the stated unit
         try:
-            out[name] = signal_from_spec(spec, unit, dotted(path), base_dir)
+            out[name] = signal_from_spec(spec, unit, dotted(path), base_dir, bare)
         except ParameterError as exc:
             raise r.error(_key_parts(exc.name.split("[")[0]), describe(exc), exc.name) from None
     return out
@@ -362,16 +373,17 @@ def _sweep(r: _Reader, value: object) -> tuple[SweepAxis, ...]:
         path = ("sweep", name)
         tbl = r.table(item, path, ("unit", "values", "start", "stop", "step"))
         unit = r.unit(tbl, path, name)
+        stated = "unit" in tbl  # bare numbers are in the stated unit
         if "values" in tbl:
             if {"start", "stop", "step"} & set(tbl):
                 raise r.error(path, "give either 'values' or 'start', 'stop', 'step', not both")
             if not isinstance(tbl["values"], list) or not tbl["values"]:
                 raise r.error((*path, "values"), "expected a non-empty list of quantities")
-            values = [r.quantity(v, (*path, "values"), unit) for v in tbl["values"]]
+            values = [r.quantity(v, (*path, "values"), unit, stated) for v in tbl["values"]]
         else:
             r.table(tbl, path, required=("start", "stop", "step"))
             start, stop, step = (
-                r.quantity(tbl[k], (*path, k), unit) for k in ("start", "stop", "step")
+                r.quantity(tbl[k], (*path, k), unit, stated) for k in ("start", "stop", "step")
             )
             if step <= 0 or stop < start:
                 raise r.error((*path, "step"), "need step > 0 and stop >= start")
@@ -425,8 +437,25 @@ def _outputs(r: _Reader, value: object) -> OutputSpec:
         group: r.strings(names, (*path, "plots", group))
         for group, names in r.table(tbl.get("plots", {}), (*path, "plots")).items()
     }
-    max_values = r.number(tbl.get("max_values", MAX_VALUES), (*path, "max_values"), 1.0)
-    return OutputSpec(signals, tolerance, plots, max_values)
+    return OutputSpec(signals, tolerance, plots, _max_values(r, tbl.get("max_values", MAX_VALUES)))
+
+
+def _max_values(r: _Reader, value: object) -> float:
+    """``[outputs] max_values``: a whole number in ``[1, MAX_VALUES_CEILING]`` (nan, inf
+    or a fraction would disable or blur the size guard)."""
+    path = ("outputs", "max_values")
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if not (ok and math.isfinite(value) and value == round(value)):
+        raise r.error(
+            path, f"{value!r} is not a whole number (allowed: 1 to {MAX_VALUES_CEILING:g})"
+        )
+    if not 1 <= value <= MAX_VALUES_CEILING:
+        raise r.error(
+            path,
+            f"{value:g} is outside [1, {MAX_VALUES_CEILING:g}] values ({MAX_VALUES_CEILING:g} "
+            f"values are {MAX_VALUES_CEILING * 8 / 1e9:g} GB in memory)",
+        )
+    return float(value)
 
 
 def _metrics(r: _Reader, value: object) -> tuple[MetricCheck, ...]:

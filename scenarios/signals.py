@@ -38,7 +38,11 @@ __all__ = [
 
 
 def signal_from_spec(
-    spec: Mapping[str, object], unit: str, name: str, base_dir: Path | None = None
+    spec: Mapping[str, object],
+    unit: str,
+    name: str,
+    base_dir: Path | None = None,
+    bare: str = "all",
 ) -> Signal:
     """Build a signal from a table such as ``{"type": "step", "final": "0.1 MPa"}``.
 
@@ -54,6 +58,11 @@ def signal_from_spec(
         Dotted name of the input, e.g. ``"inputs.pressure"``, used in error messages.
     base_dir : pathlib.Path, optional
         Directory relative to which a table's ``file`` is found (the scenario's folder).
+    bare : {"all", "values", "none"}
+        Which dimensioned keys may be bare numbers (taken in ``unit``, or s for times):
+        ``"all"`` (Python), ``"values"`` (a scenario table that writes its ``unit``: the
+        value keys are in it) or ``"none"`` (a file whose unit is implied: ``final = 50``
+        could be Pa as well as kPa). Zero is always allowed.
 
     Returns
     -------
@@ -102,15 +111,17 @@ def signal_from_spec(
     for key, value in spec.items():
         if key == "type":
             continue
-        key_unit = unit if cls.spec_keys[key] == "value" else cls.spec_keys[key]
+        is_value = cls.spec_keys[key] == "value"
+        key_unit = unit if is_value else cls.spec_keys[key]
+        bare_ok = bare == "all" or (bare == "values" and is_value)
         if key == "levels":
             if not isinstance(value, list):
                 raise ParameterError(f"{name}.levels", value, f"a list of values in {unit}")
             kwargs[key] = tuple(
-                to_si(v, key_unit, f"{name}.levels[{i}]") for i, v in enumerate(value)
+                to_si(v, key_unit, f"{name}.levels[{i}]", bare_ok) for i, v in enumerate(value)
             )
         else:
-            kwargs[key] = to_si(value, key_unit, f"{name}.{key}")
+            kwargs[key] = to_si(value, key_unit, f"{name}.{key}", bare_ok)
     try:
         return cls(unit=unit, **kwargs)
     except ParameterError as exc:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import difflib
 import re
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,10 +31,20 @@ KNOWN_UNITS: Mapping[str, str] = MappingProxyType(
     {"pressure": "Pa", "load.m": "kg", "load.F": "N", "time": "s"}
 )
 
+#: Largest ``[outputs] max_values`` a scenario may set: 1e9 values are 8 GB in memory
+#: (and about 21 GB of CSV); the size guard cannot be switched off.
+MAX_VALUES_CEILING = 1e9
+
 #: SI units a signal or sweep axis may declare with ``unit``.
 SI_UNITS = ("1", "Pa", "m", "kg", "N", "s", "rad", "Hz", "K", "m^3", "kg/s", "N/m", "J", "W")
 
 KeyPath = tuple[str, ...]
+
+
+class ScenarioWarning(UserWarning):
+    """A setting that runs but is probably not what was meant (a 50 kg load on an APS);
+    names the file, the key, its line and the value."""
+
 
 _BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 
@@ -304,6 +315,14 @@ class Scenario:
         """
         return ScenarioError(self.file, dotted(path), message, line_of(self.key_lines, path))
 
+    def warn(self, path: KeyPath, message: str) -> None:
+        """Issue a :class:`ScenarioWarning` ``key '<path>': message`` located at the
+        scenario file and the key's line (shown as ``file:line: ScenarioWarning: ...``
+        with that line of the file below it)."""
+        line = line_of(self.key_lines, path) or 0
+        text = f"key '{dotted(path)}': {message}"
+        warnings.warn_explicit(text, ScenarioWarning, self.file, line)
+
     def refuse_unused(self, *sections: str) -> None:
         """Refuse any of ``sections`` the file gives: this kind would ignore it.
 
@@ -332,6 +351,9 @@ class Scenario:
         Finds the line whether the file wrote ``"geometry.h_ch" = ...`` or
         ``[parameters.geometry] h_ch = ...``.
         """
+        return self.error(self.parameter_path(name), message)
+
+    def parameter_path(self, name: str) -> KeyPath:
+        """The key path of the ``[parameters]`` entry ``name`` as the file wrote it."""
         flat = f"parameters.{name}"
-        path = next((p for p in self.key_lines if ".".join(p) == flat), ("parameters", name))
-        return self.error(path, message)
+        return next((p for p in self.key_lines if ".".join(p) == flat), ("parameters", name))

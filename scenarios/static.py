@@ -44,6 +44,7 @@ from sarcomere.dynamics.params import (
     get_material,
 )
 from sarcomere.dynamics.results import Result
+from sarcomere.dynamics.units import to_si
 
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
@@ -104,7 +105,14 @@ def _bind(scenario: Scenario) -> tuple[ParameterSet, YeohMaterial]:
             )
         overrides[group][name] = value
     geometry = GEOMETRIES[geometry_name]()
+    sets = {"geometry": geometry, "material": material.params()}
     for group, values in overrides.items():
+        for name, value in values.items():  # a file's quantities need their unit
+            unit = sets[group].param(name).unit if sets[group].get(name) is not None else "1"
+            try:
+                to_si(value, unit, f"{group}.{name}", bare_ok=False)
+            except ParameterError as exc:
+                raise scenario.parameter_error(f"{group}.{name}", describe(exc)) from None
         try:
             if group == "geometry":
                 geometry = geometry.with_overrides(values)

@@ -75,7 +75,7 @@ def test_runner_errors_carry_the_scenario_line(tmp_path: Path, capsys) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text(
         '[scenario]\nkind = "static"\n[model]\nfidelity = "paper"\n'
-        '[model.options]\ntheta = "bent"\n[sweep.pressure]\nvalues = [1e4]\n'
+        '[model.options]\ntheta = "bent"\n[sweep.pressure]\nvalues = ["10 kPa"]\n'
     )
     assert main(["run", str(bad), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err

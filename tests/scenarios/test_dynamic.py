@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from sarcomere.dynamics import hanging_load, solve_equilibrium
@@ -130,3 +131,50 @@ def test_flow_law_is_chosen_from_the_scenario(tmp_path):
     assert 0 < abs(ps - pe).max() < 0.01 * pe.max()  # C1 within 1 % of the exact law
     with pytest.raises(ScenarioError, match=r"flow_law.*'laminar'"):
         run(parse_scenario(SMOOTH.replace("FLOW", "laminar"), "b.toml"), tmp_path / "b")
+
+
+@pytest.mark.parametrize("dt", [1e-3, 7e-4, 3.3e-3])
+def test_rise_time_of_a_first_order_response_is_tau_ln9(dt):
+    """The 10-90 % rise time of y = y0 + S (1 - exp(-(t - t0) / tau)) is tau ln 9, on
+    the interpolated signal, whether or not the grid divides the run (it was quantised to
+    the grid, and 0 when both crossings fell between two samples)."""
+    from sarcomere.scenarios.dynamic import rise_time
+
+    tau, t0, S = 0.05, 0.1, -0.015  # a 15 mm contraction
+    t = np.unique(np.append(np.arange(0.0, 2.0, dt), 2.0))
+    y = 0.17 + np.where(t > t0, S * (1 - np.exp(-(t - t0) / tau)), 0.0)
+    rise, why = rise_time(t, y, 1e-5, "m")
+    assert why == "" and rise == pytest.approx(tau * np.log(9), rel=2e-4)
+
+
+def test_rise_time_is_left_out_with_a_reason_for_no_stroke_or_an_unresolved_rise():
+    from sarcomere.scenarios.dynamic import rise_time
+
+    t = np.linspace(0.0, 1.0, 11)
+    rise, why = rise_time(t, 0.17 + 1e-7 * t, 1e-5, "m")
+    assert rise is None and "below the noise level 1e-05 m" in why
+    step = np.where(t >= 0.55, 0.16, 0.17)  # 10 % and 90 % both in (0.5, 0.6)
+    rise, why = rise_time(t, step, 1e-5, "m")
+    assert rise is None and "does not resolve the rise" in why
+
+
+def test_a_run_that_does_not_move_reports_no_rise_time(tmp_path):
+    """Issue 16: a flat length printed a rise time; now the summary says why there is none."""
+    text = """
+[scenario]
+kind = "transient"
+[model]
+fidelity = "symmetric"
+n = 1
+[model.options]
+load = "50 g"
+[inputs.pressure]
+type = "step"
+final = "0 MPa"
+[simulation]
+stop_time = "0.3 s"
+"""
+    out = run(parse_scenario(text, "flat.toml"), tmp_path, quiet=True)
+    assert "rise_time_10_90_s" not in out.metrics
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert "below the noise level" in summary["extra"]["metrics_left_out"]["rise_time_10_90_s"]

@@ -5,6 +5,7 @@ import sys
 import time
 import types
 
+import numpy as np
 import pytest
 
 from sarcomere.dynamics.errors import ScenarioError
@@ -99,3 +100,68 @@ def test_bench_shows_progress_on_a_terminal(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr("sys.stderr", terminal)
     assert main(["bench", "stability", "--out", str(tmp_path / "b")]) == 0
     assert "bench stability: 0 s" in terminal.getvalue()
+
+
+P_MAX_SCENE = """
+[scenario]
+kind = "transient"
+[model]
+n = 1
+[model.options]
+load = "50 g"
+[parameters]
+"regulator.p_max" = "1 MPa"
+[inputs.pressure]
+type = "step"
+final = "{final}"
+time = "0.1 s"
+[simulation]
+stop_time = "0.5 s"
+output_interval = "5 ms"
+"""
+
+
+def test_raising_p_max_moves_the_pressure_range(tmp_path):
+    """Issue 16 bug 2: with a 1 MPa regulator a 0.65 MPa step runs (it was refused as
+    outside [0, 0.6] MPa) and the regulator follows it unclamped: its first-order lag
+    p_out = P (1 - exp(-(t - 0.1 s) / 50 ms)); 1.2 MPa is refused against [0, 1] MPa."""
+    out = run(parse_scenario(P_MAX_SCENE.format(final="0.65 MPa"), "p.toml"), tmp_path / "a")
+    res = out.results["main"]
+    t = res.index
+    expected = np.where(t > 0.1, 6.5e5 * (1 - np.exp(-(t - 0.1) / 0.05)), 0.0)
+    assert np.max(np.abs(res["regulator.p_out"] - expected)) < 1e-3 * 6.5e5
+    with pytest.raises(ScenarioError, match=r"1\.2 MPa at t = 0\.1 s is outside .* \[0, 1\] MPa"):
+        run(parse_scenario(P_MAX_SCENE.format(final="1.2 MPa"), "p.toml"), tmp_path / "b")
+
+
+def test_a_command_just_above_the_range_shows_the_digits_that_differ(tmp_path):
+    text = P_MAX_SCENE.format(final="0.6000001 MPa").replace('"regulator.p_max" = "1 MPa"', "")
+    with pytest.raises(ScenarioError, match=r"0\.6000001 MPa at t = 0\.1 s is outside"):
+        run(parse_scenario(text, "p.toml"), tmp_path)
+
+
+def test_linearize_names_pressure_outside_the_range(tmp_path, capsys):
+    from sarcomere.scenarios.cli import main
+
+    assert main(["linearize", "step-50g", "--pressure", "0.8 MPa", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "key '--pressure': 0.8 MPa is outside the regulator's range [0, 0.6] MPa" in err
+
+
+@pytest.mark.parametrize(
+    ("value", "needle"),
+    [
+        ("nan", "nan is not a whole number"),
+        ("inf", "inf is not a whole number"),
+        ("-inf", "-inf is not a whole number"),
+        ("2.5", "2.5 is not a whole number"),
+        ("0", "0 is outside [1, 1e+09]"),
+        ("2e9", "2e+09 is outside [1, 1e+09]"),
+        ('"big"', "'big' is not a whole number"),
+    ],
+)
+def test_max_values_is_a_finite_whole_number_in_range(value, needle):
+    """Issue 16 bug 5: nan disabled the size guard (a 3.64 TiB allocation), inf too."""
+    with pytest.raises(ScenarioError, match=r"l\.toml:\d+: key 'outputs\.max_values'") as info:
+        _scene(stop="1 s", dt="1e-12 s", extra=f"[outputs]\nmax_values = {value}")
+    assert needle in str(info.value)

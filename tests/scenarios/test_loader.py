@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+import os
+import re
 import textwrap
+import warnings
 from pathlib import Path
 
 import pytest
 
 from sarcomere.dynamics.errors import ScenarioError
-from sarcomere.scenarios.loader import key_lines, load_scenario, parse_scenario, resolve_scenario
+from sarcomere.scenarios.loader import (
+    key_lines,
+    load_scenario,
+    packaged_scenarios,
+    parse_scenario,
+    resolve_scenario,
+)
 from sarcomere.scenarios.signals import Staircase, Step, Table
 
 FULL = """\
@@ -192,8 +201,12 @@ def test_wrong_dimension_in_list_and_quoted_key(tmp_path: Path) -> None:
     [
         ("[model]\nn = 0\n", "model.n", "integer >= 1"),
         ('[model]\nfidelity = "fast"\n', "model.fidelity", "not one of paper"),
-        ("[sweep.pressure]\nstart = 0\nstop = 1\nstep = 0.3\n", "sweep.pressure.step", "divide"),
-        ("[sweep.pressure]\nvalues = [2, 1]\n", "sweep.pressure.values", "increasing"),
+        (
+            '[sweep.pressure]\nstart = "0 Pa"\nstop = "1 Pa"\nstep = "0.3 Pa"\n',
+            "sweep.pressure.step",
+            "divide",
+        ),
+        ('[sweep.pressure]\nvalues = ["2 Pa", "1 Pa"]\n', "sweep.pressure.values", "increasing"),
         ("[sweep.angle]\nvalues = [1]\n", "sweep.angle", "missing required key 'unit'"),
         ('[sweep.x]\nunit = "mm"\nvalues = [1]\n', "sweep.x.unit", "not an SI unit"),
         ('[simulation]\nstop_time = "-1 s"\n', "simulation.stop_time", "later than"),
@@ -248,3 +261,185 @@ def test_unknown_name_suggests_packaged(tmp_path: Path) -> None:
         load_scenario("paper-statc")
     with pytest.raises(ScenarioError, match="no such file"):
         load_scenario(tmp_path / "missing.toml")
+
+
+@pytest.mark.parametrize(
+    ("make", "what"),
+    [
+        (lambda p: p.mkdir(), "is a directory"),
+        (lambda p: os.mkfifo(p), "is a FIFO (named pipe)"),
+        (lambda p: p.symlink_to(p.parent / "gone.toml"), "is a broken symbolic link"),
+    ],
+)
+def test_a_scenario_path_that_is_no_file_says_what_it_is(tmp_path: Path, make, what) -> None:
+    """Issue 16: a directory, a FIFO or /dev/null was "no such file"; a FIFO is never
+    opened (reading it would block until a writer comes)."""
+    path = tmp_path / "scene.toml"
+    make(path)
+    with pytest.raises(ScenarioError, match=f"{re.escape(what)}; expected a scenario TOML file"):
+        load_scenario(path)
+
+
+def test_dev_null_as_scenario_is_a_character_device() -> None:
+    with pytest.raises(ScenarioError, match="is a character device; expected a scenario"):
+        load_scenario("/dev/null")
+
+
+def test_a_folder_named_like_a_packaged_scene_does_not_hide_it(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "step-50g").mkdir()  # e.g. an earlier `--out step-50g`
+    assert load_scenario("step-50g").name == "step-50g"
+
+
+def test_binary_scenario_file_is_named_with_the_problem(tmp_path: Path) -> None:
+    path = tmp_path / "b.toml"
+    path.write_bytes(b'[scenario]\nkind = "\xff"\n')
+    with pytest.raises(ScenarioError, match=r"not UTF-8 text: byte 0xff at offset 19 \(line 2\)"):
+        load_scenario(path)
+
+
+SCENE = """\
+[scenario]
+kind = "transient"
+[model]
+n = 1
+{body}
+[inputs.pressure]
+type = "step"
+final = "0.1 MPa"
+[simulation]
+stop_time = "1 s"
+"""
+
+
+@pytest.mark.parametrize(
+    ("body", "key", "value"),
+    [
+        ("[model.options]\nload = 50", "model.options.load", "'50 kg'"),
+        ('[model.options]\nregulator_tau = "0.05"', "model.options.regulator_tau", "'0.05 s'"),
+        ('[parameters]\n"aps.k_s" = 400', 'parameters."aps.k_s"', "'400 N/m'"),
+        ('[parameters]\n"load.m" = 0.05', 'parameters."load.m"', "'0.05 kg'"),
+        ('[parameters]\n"regulator.p_max" = 1e6', 'parameters."regulator.p_max"', "'1e+06 Pa'"),
+    ],
+)
+def test_a_bare_number_of_a_dimensioned_key_is_refused(body: str, key: str, value: str) -> None:
+    """Issue 16: `load = 50` was 50 kg without a word; a file's quantities need a unit."""
+    from sarcomere.scenarios.dynamic import bind
+
+    sc = parse_scenario(SCENE.format(body=body), "u.toml")
+    with pytest.raises(ScenarioError) as info:
+        bind(sc).build("full")
+    assert info.value.key == key and info.value.line == 6
+    assert "a bare number needs a unit here" in str(info.value) and value in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("text", "key"),
+    [
+        (
+            SCENE.format(body="").replace('stop_time = "1 s"', "stop_time = 2"),
+            "simulation.stop_time",
+        ),
+        (
+            SCENE.format(body="").replace('final = "0.1 MPa"', "final = 1e5"),
+            "inputs.pressure.final",
+        ),
+        (
+            SCENE.format(body="").replace('final = "0.1 MPa"', 'final = "1e5"'),
+            "inputs.pressure.final",
+        ),
+        (SCENE.format(body="") + '[sweep."load.m"]\nvalues = [0.05]\n', 'sweep."load.m".values'),
+    ],
+)
+def test_a_bare_number_in_a_loaded_section_is_refused(text: str, key: str) -> None:
+    with pytest.raises(ScenarioError, match="a bare number needs a unit here") as info:
+        parse_scenario(text, "u.toml")
+    assert info.value.key == key
+
+
+def test_zero_and_numbers_in_a_stated_unit_need_none() -> None:
+    text = SCENE.format(body="").replace(
+        'final = "0.1 MPa"', 'unit = "Pa"\nfinal = 1e5\ninitial = 0'
+    )
+    text += '[sweep."load.m"]\nunit = "kg"\nvalues = [0, 0.05]\n'
+    sc = parse_scenario(text, "u.toml")
+    assert sc.inputs["pressure"](2.0) == 1e5 and sc.axis("load.m").values == (0.0, 0.05)
+
+
+def test_an_unparsable_quantity_gives_a_reason() -> None:
+    text = SCENE.format(body="").replace('final = "0.1 MPa"', 'final = "1 +"')
+    with pytest.raises(ScenarioError, match=r"cannot parse: not a number followed by a unit\)"):
+        parse_scenario(text, "u.toml")
+
+
+def test_a_setting_the_build_refuses_is_blamed_on_its_option_and_line() -> None:
+    """Issue 16: regulator_tau was reported as `regulator.tau`, with no file and line."""
+    from sarcomere.scenarios.dynamic import bind
+
+    sc = parse_scenario(SCENE.format(body='[model.options]\nregulator_tau = "0.1 us"'), "u.toml")
+    with pytest.raises(ScenarioError) as info:
+        bind(sc).build("full")
+    assert str(info.value).startswith("u.toml:6: key 'model.options.regulator_tau': 1e-07")
+
+
+def test_load_m_against_the_load_option_is_refused_naming_both() -> None:
+    from sarcomere.scenarios.dynamic import bind
+
+    body = '[model.options]\nload = "50 g"\n[parameters]\n"load.m" = "60 g"'
+    with pytest.raises(ScenarioError) as info:
+        bind(parse_scenario(SCENE.format(body=body), "u.toml"))
+    msg = str(info.value)
+    assert msg.startswith("u.toml:8: key 'parameters.\"load.m\"'")
+    assert "[parameters] load.m and [model.options] load" in msg
+
+
+def test_aps_thermal_is_a_parameter_and_aps_material_points_to_model_material() -> None:
+    from sarcomere.scenarios.dynamic import bind
+
+    body = '[parameters]\n"aps.thermal" = "adiabatic"'
+    assert bind(parse_scenario(SCENE.format(body=body), "u.toml")).aps.thermal == "adiabatic"
+    body = '[parameters]\n"aps.thermal" = "hot"'
+    with pytest.raises(ScenarioError, match="aps.thermal.*'hot'.*isothermal"):
+        bind(parse_scenario(SCENE.format(body=body), "u.toml"))
+    body = '[parameters]\n"aps.material" = "ecoflex_00_30"'
+    with pytest.raises(ScenarioError, match=r"aps.material.*\[model\] material"):
+        bind(parse_scenario(SCENE.format(body=body), "u.toml"))
+
+
+@pytest.mark.parametrize(
+    ("body", "key", "needle"),
+    [
+        (
+            '[model.options]\nload = "50 kg"',
+            "model.options.load",
+            "50 kg is outside the plausible 0 to 1 kg",
+        ),
+        ('[parameters]\n"load.m" = "2 kg"', 'parameters."load.m"', "2 kg is outside the plausible"),
+        ('[parameters]\n"aps.l" = "0.5 m"', 'parameters."aps.l"', "0.5 m is more than 10 times"),
+        (
+            '[parameters]\n"aps.A_p" = "10 cm^2"',
+            'parameters."aps.A_p"',
+            "0.001 m^2 is more than 100 times",
+        ),
+    ],
+)
+def test_an_implausible_load_or_geometry_warns_naming_the_value(body, key, needle) -> None:
+    from sarcomere.scenarios.dynamic import bind
+    from sarcomere.scenarios.spec import ScenarioWarning
+
+    with pytest.warns(ScenarioWarning) as caught:
+        bind(parse_scenario(SCENE.format(body=body), "u.toml"))
+    (warning,) = caught
+    assert (warning.filename, warning.lineno) == ("u.toml", 6)
+    assert str(warning.message).startswith(f"key '{key}': {needle}")
+
+
+@pytest.mark.parametrize("name", list(packaged_scenarios()))
+def test_every_packaged_scene_loads_and_binds_without_warnings(name: str) -> None:
+    from sarcomere.scenarios.dynamic import bind
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sc = load_scenario(name)
+        if sc.kind != "static":
+            bind(sc)

@@ -167,3 +167,47 @@ def test_chirp_sweeps_its_frequency_and_holds_after() -> None:
     assert np.all(np.diff(np.diff(crossings)) < 1e-3)
     assert c(1.5) == pytest.approx(c(1.0))
     assert c.breakpoints(0.0, 2.0) == [1.0]
+
+
+def test_binary_table_file_names_the_file_and_the_problem(tmp_path: Path) -> None:
+    """Issue 16 bug 4: binary bytes gave a raw UnicodeDecodeError traceback."""
+    (tmp_path / "p.csv").write_bytes(b"time [s],p [Pa]\n0,1\n\xff\xfe\x00,2\n")
+    spec = {"type": "table", "file": "p.csv"}
+    with pytest.raises(ParameterError) as info:
+        signal_from_spec(spec, "Pa", "inputs.pressure", tmp_path)
+    assert info.value.name == "inputs.pressure.file"
+    msg = str(info.value)
+    assert "p.csv" in msg and "not UTF-8 text: byte 0xff at offset 20 (line 3)" in msg
+
+
+@pytest.mark.parametrize("kind", ["directory", "fifo"])
+def test_table_file_that_is_no_file_says_what_it_is(tmp_path: Path, kind: str) -> None:
+    path = tmp_path / "p.csv"
+    path.mkdir() if kind == "directory" else __import__("os").mkfifo(path)
+    with pytest.raises(ParameterError, match="is a (directory|FIFO .named pipe.), not a file"):
+        Table.from_csv(path, "Pa")  # a FIFO is never opened: it would block
+
+
+def test_a_dense_table_is_read_whole_and_integrated_without_a_restart_per_row(
+    tmp_path: Path,
+) -> None:
+    """A 500 k-row recording ran for over 10 minutes: every row was an integrator restart.
+    Up to TABLE_MAX_BREAKPOINTS rows inside the run stay restarts; beyond, none."""
+    from sarcomere.dynamics import signals
+
+    rows = signals.TABLE_MAX_BREAKPOINTS + 1
+    t = np.linspace(0.0, 1.0, rows + 2)
+    lines = "\n".join(f"{a!r},{float(np.sin(a))!r}" for a in t.tolist())
+    (tmp_path / "d.csv").write_text("time [s],y [1]\n" + lines + "\n")
+    table = Table.from_csv(tmp_path / "d.csv", "1")
+    assert table.times == tuple(t.tolist()) and table(0.3) == pytest.approx(np.sin(0.3), 1e-6)
+    assert table.breakpoints(0.0, 1.0) == []
+    assert table.breakpoints(0.0, 0.5) == [x for x in t.tolist() if 0 < x < 0.5]
+
+
+def test_a_table_above_the_row_limit_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    from sarcomere.dynamics import signals
+
+    monkeypatch.setattr(signals, "TABLE_MAX_ROWS", 4)
+    with pytest.raises(ParameterError, match="'5 rows'.*resample it.*at most 4 rows"):
+        Table(times=(0.0, 1.0, 2.0, 3.0, 4.0), values=(0.0,) * 5)

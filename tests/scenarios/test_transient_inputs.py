@@ -71,3 +71,17 @@ values = ["0.1 MPa", "0.7 MPa"]
 """
     with pytest.raises(ScenarioError, match=r"sweep.pressure.*0.7 MPa is outside.*\[0, 0.6\]"):
         run(parse_scenario(text, "e.toml"), tmp_path, quiet=True)
+
+
+def test_one_input_given_by_alias_and_full_name_is_refused_naming_both(tmp_path):
+    """Issue 16 bug 3: [inputs.pressure] and [inputs."regulator.p_cmd"] both drive
+    regulator.p_cmd; the first was silently dropped."""
+    text = STEP.format(step='final = "0.1 MPa"', sim='stop_time = "0.3 s"')
+    text += '[inputs."regulator.p_cmd"]\ntype = "step"\nunit = "Pa"\nfinal = "0.05 MPa"\n'
+    with pytest.raises(ScenarioError) as info:
+        run(parse_scenario(text, "t.toml"), tmp_path, quiet=True)
+    msg = str(info.value)
+    line = text.splitlines().index('[inputs."regulator.p_cmd"]') + 1
+    assert msg.startswith(f"t.toml:{line}: key 'inputs.\"regulator.p_cmd\"'")
+    assert "[inputs.pressure]" in msg and '[inputs."regulator.p_cmd"]' in msg
+    assert "regulator.p_cmd" in msg
