@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as cs
+import numpy as np
 
 from sarcomere.dynamics.equilibrium import newton_function
 from sarcomere.dynamics.errors import ParameterError
@@ -46,10 +47,13 @@ CS_RTOL = 1e-8
 (FMI 2 ``setupExperiment``, FMI 3 ``enterInitializationMode``) [-]."""
 
 CS_ATOL_PER_RTOL = 1e-2
-"""Absolute tolerance per unit of relative tolerance [SI units of each state]:
-``atol = CS_ATOL_PER_RTOL * rtol`` (1e-10 at the default rtol). Not tighter: ``radau.c``'s
-Newton iteration fails at atol 1e-12 with rtol 1e-8 on vent-0g (10 ms steps from its
-equilibrium), natively as in the FMU (issue 17, radau at tight absolute tolerances)."""
+"""Absolute tolerance per unit of relative tolerance and of nominal value [-]: state ``i``
+has ``atol_i = CS_ATOL_PER_RTOL * rtol * nominal_i`` (the integrator works in ``x /
+nominal``; :func:`scaled_radau_functions`): 1e-10 m/s for a velocity (nominal 1 m/s),
+5e-16 kg for a chamber's air (nominal 4.8e-6 kg) at the default rtol. Not tighter:
+``radau.c``'s Newton iteration fails at atol 1e-12 m/s with rtol 1e-8 on vent-0g (10 ms
+steps from its equilibrium: the velocities rest at 0), natively as in the FMU (issue 17,
+radau at tight absolute tolerances)."""
 
 CS_RTOL_RANGE = (1e-12, 1e-2)
 """The relative tolerances an importer may set [-]; others are refused at set-up."""
@@ -67,8 +71,9 @@ CFLAGS = tuple(f for f in radau.CFLAGS if f.startswith("-f"))
 """The integrator's code-generation flags (``radau.CFLAGS`` without the optimisation
 level and standard, which the FMU's compile sets): inline complex arithmetic."""
 
-RADAU_FUNCTIONS = ("sm_rhs", "sm_jac")
-"""The Functions ``radau.c`` calls: generated into ``sm_radau_model.c``."""
+RADAU_FUNCTIONS = ("sm_rhs", "sm_jac", "sm_x_scale")
+"""The Functions ``radau.c`` calls (generated into ``sm_radau_model.c``) and the states'
+scale they take (written into ``sm_radau.h``)."""
 
 
 @dataclass(frozen=True)
@@ -115,8 +120,35 @@ def functions(model: Model) -> list[cs.Function]:
         cs.Function("sm_out", [x, u, p], [y], ["x", "u", "p"], ["y"]),
         cs.Function("sm_fwd", [x, u, p, dx, du], fwd, ["x", "u", "p", "dx", "du"], ["dxdot", "dy"]),
         cs.Function("sm_eq", [x0, um, pm], [eq[0], eq[2]], ["x0", "u", "p"], ["x", "residual"]),
-        *radau.c_functions(m, HELD),
+        *scaled_radau_functions(m),
     ]
+
+
+def scaled_radau_functions(model: Model) -> tuple[cs.Function, cs.Function, cs.Function]:
+    """``sm_rhs`` and ``sm_jac`` of ``radau.c_functions`` (inputs held) in the scaled
+    states ``xi = x / s``, ``s`` = the states' nominal values (:func:`state_scale`): the
+    integrator's scalar atol is then ``atol * s_i`` in each state's own unit; and
+    ``sm_x_scale() -> s``, which :func:`generate` writes into ``sm_radau.h`` (not
+    generated code: the scale travels with the Functions built on it)."""
+    rhs, jac = radau.c_functions(model, HELD)
+    s = state_scale(model)
+    t, xi = cs.SX.sym("t"), cs.SX.sym("xi", model.nx)
+    w, p = cs.SX.sym("w", rhs.size1_in(2)), cs.SX.sym("p", rhs.size1_in(3))
+    x = cs.DM(s) * xi
+    f = rhs(t, x, w, p) / cs.DM(s)
+    J = jac(t, x, w, p) * cs.DM(s[None, :] / s[:, None])
+    return (
+        cs.Function("sm_rhs", [t, xi, w, p], [cs.cse(f)]),
+        cs.Function("sm_jac", [t, xi, w, p], [cs.cse(cs.densify(J))]),
+        cs.Function("sm_x_scale", [], [cs.DM(s)]),
+    )
+
+
+def state_scale(model: Model) -> np.ndarray:
+    """The states' scales of the Co-Simulation integrator [SI]: their nominal values (as
+    the FMU declares them; fmpy's CVode takes ``atol = rtol * nominal`` from those in
+    Model Exchange)."""
+    return np.asarray(model.nominal("x"), dtype=float)
 
 
 def generate(funcs: list[cs.Function], folder: Path) -> Generated:
@@ -135,11 +167,13 @@ def generate(funcs: list[cs.Function], folder: Path) -> Generated:
         if sorted(f.name() for f in integrator) != sorted(RADAU_FUNCTIONS):
             raise ParameterError("functions", "incomplete", f"all of {RADAU_FUNCTIONS} or none")
         rgen = cs.CodeGenerator("sm_radau_model.c", {"casadi_int": "int"})
-        for f in integrator:
-            rgen.add(f)
+        by_name = {f.name(): f for f in integrator}
+        for name in RADAU_FUNCTIONS[:2]:
+            rgen.add(by_name[name])
         rgen.generate(f"{folder}/")
         shutil.copyfile(radau.SOURCE, folder / "radau.c")
-        (folder / "sm_radau.h").write_text(radau_header())
+        scale = np.array(by_name["sm_x_scale"]()["o0"]).ravel()
+        (folder / "sm_radau.h").write_text(radau_header(scale))
         sources += ("sm_radau_model.c", "radau.c")
     return Generated(
         max(f.sz_arg() for f in own),
@@ -150,9 +184,11 @@ def generate(funcs: list[cs.Function], folder: Path) -> Generated:
     )
 
 
-def radau_header() -> str:
-    """``sm_radau.h``: the integrator's constants, tolerances, limits and entry point."""
+def radau_header(scale: np.ndarray) -> str:
+    """``sm_radau.h``: the integrator's constants, the states' scale, tolerances, limits
+    and entry point."""
     values = ",\n    ".join(repr(float(v)) for v in radau5_packed())
+    scales = ",\n    ".join(repr(float(v)) for v in scale)
     return f"""/* Generated by sarcomere: the Co-Simulation's adaptive Radau IIA (radau.c). */
 #ifndef SM_RADAU_H
 #define SM_RADAU_H
@@ -168,6 +204,11 @@ def radau_header() -> str:
 /* The method constants in radau.c's Tableau order (collocation.radau5_packed). */
 static const double sm_radau_tableau[{len(radau5_packed())}] = {{
     {values}
+}};
+
+/* The states' scale: sm_rhs and sm_jac take x / sm_radau_scale (codegen.state_scale). */
+static const double sm_radau_scale[{len(scale)}] = {{
+    {scales}
 }};
 
 /* radau.c's entry point: integrate x' = sm_rhs(t, x, w, p) from t0 to tout[nout - 1]. */

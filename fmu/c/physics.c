@@ -204,18 +204,20 @@ static const char* radau_cause(int code) {
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg) {
     double rtol = wk->rtol > 0.0 ? wk->rtol : SM_RTOL;
-    double opt[4] = {rtol, SM_ATOL_PER_RTOL * rtol, 0.0, INFINITY}; /* first step: automatic */
+    /* atol in the scaled states (times each state's scale); first step automatic */
+    double opt[4] = {rtol, SM_ATOL_PER_RTOL * rtol, 0.0, INFINITY};
     double stats[SM_RADAU_STATS] = {0.0};
     double xw[SM_NX], xf[SM_NX], t_end = t + h, t_fail = t;
     *substeps = 0;
     if (!(h > 0.0)) return 0;
-    memcpy(xw, x, sizeof xw);
-    int code = sm_radau(SM_NX, u, p, t, xw, 1, &t_end, xf, sm_radau_tableau, opt, SM_RADAU_MAX_STEPS,
-                        SM_RADAU_MAX_NEWTON, stats, &t_fail);
+    for (int i = 0; i < SM_NX; i++) xw[i] = x[i] / sm_radau_scale[i]; /* what sm_rhs takes */
+    int code = sm_radau(SM_NX, u, p, t, xw, 1, &t_end, xf, sm_radau_tableau, opt,
+                        SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail);
     *substeps = (long)stats[0];
     if (code) {
         snprintf(msg, SM_MSG,
-                 "the Radau IIA integrator (rtol %.3g, atol %.3g) stopped at %.9g s into the "
+                 "the Radau IIA integrator (rtol %.3g, atol %.3g x nominal) stopped at %.9g s "
+                 "into the "
                  "step after %ld steps: %s",
                  opt[0], opt[1], t_fail - t, *substeps, radau_cause(code));
         return 1;
@@ -224,7 +226,7 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
         snprintf(msg, SM_MSG, "the Radau IIA integrator returned a state that is not finite");
         return 1;
     }
-    memcpy(x, xf, sizeof xf);
+    for (int i = 0; i < SM_NX; i++) x[i] = xf[i] * sm_radau_scale[i];
     return 0;
 }
 #endif

@@ -40,11 +40,11 @@ int sm_equilibrium(SmWork* wk, double* x, const double* u0, const double* p0, co
 int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg);
 
 /* Advance x from t (time since the start) by h > 0 with u held: the adaptive Radau IIA of
- * radau.c (sm_radau) restarted from (t, x), with rtol (sm_set_tolerance) and
- * atol = SM_ATOL_PER_RTOL rtol, at most SM_MAX_STEPS steps. A sampled system:
- * x = update(x, u, p) at each sample instant k SM_SAMPLE_PERIOD in [t, t + h) (to
- * SM_SAMPLE_TOL of a period). x is updated only on success; *substeps counts the steps
- * (samples) taken. */
+ * radau.c (sm_radau) restarted from (t, x) in the states over sm_radau_scale (their nominal
+ * values), rtol from sm_set_tolerance and atol = SM_ATOL_PER_RTOL rtol (in those scaled
+ * states), at most SM_RADAU_MAX_STEPS steps. A sampled system: x = update(x, u, p) at each
+ * sample instant k SM_SAMPLE_PERIOD in [t, t + h) (to SM_SAMPLE_TOL of a period). x is
+ * updated only on success; *substeps counts the steps (samples) taken. */
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg);
 
