@@ -17,13 +17,14 @@ sm_eq       x0, u, p -> x, residual      equilibrium Newton (``fast_newton``)
 The Co-Simulation step is the simulator's own adaptive Radau IIA (``radau``): its C
 source ``dynamics/simulation/c/radau.c`` (``sm_radau``: RADAU5's simplified Newton,
 embedded error estimate and step-size control) is copied into the FMU's sources, with
-``sm_rhs`` and ``sm_jac`` ``(t, x, w, p)`` (``radau.c_functions`` under the held input
-law, ``w = u``: the inputs are held over a communication step) generated into
-``sm_radau_model.c`` (``casadi_int`` = ``int``, as ``radau.c`` declares them), and
-``sm_radau.h``: its constants (:func:`~sarcomere.dynamics.simulation.collocation.radau5_packed`),
-tolerances and limits. Each ``doStep`` restarts the integrator from ``(t, x)`` (automatic
-first step, fresh Jacobian), so a saved FMU state (``t``, ``x``, ``u``, ``p``) is all it
-needs.
+``sm_rhs`` and ``sm_jac`` ``(t, xi, w, p)`` (``radau.c_functions`` under the held input
+law, ``w = u``: the inputs are held over a communication step; in the states over their
+nominal values, :func:`scaled_radau_functions`) generated into ``sm_radau_model.c``
+(``casadi_int`` = ``int``, as ``radau.c`` declares them), and ``sm_radau.h``: the
+method's constants (:func:`~sarcomere.dynamics.simulation.collocation.radau5_packed`),
+the states' scale, tolerances and limits. Each ``doStep`` restarts the integrator from
+``(t, x)`` (automatic first step, fresh Jacobian), so a saved FMU state (``t``, ``x``,
+``u``, ``p``) is all it needs.
 """
 
 from __future__ import annotations
@@ -101,7 +102,8 @@ def require_ode(model: Model) -> None:
 
 
 def functions(model: Model) -> list[cs.Function]:
-    """The Functions of the module docstring, in that order, then ``sm_rhs``, ``sm_jac``."""
+    """The Functions of the module docstring, in that order, then those of
+    :func:`scaled_radau_functions`."""
     require_ode(model)
     m = model
     x, u, p = m.x, m.u, m.p

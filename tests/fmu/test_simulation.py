@@ -23,6 +23,7 @@ from fmpy.fmi1 import FMICallException
 
 from sarcomere.dynamics.assemblies import isometric
 from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.simulation import radau
 
 TOL = 1e-4
 
@@ -189,3 +190,14 @@ def test_cosim_restarts_from_a_saved_state_bit_for_bit(step_loaded):
     assert run() == first
     fmu.freeFMUstate(state)
     fmu.freeInstance()
+
+
+def test_the_cosim_integrator_is_the_simulators_radau(iso_fmu):
+    """The archive's integrator is the simulator's ``radau.c`` byte for byte, with the
+    generated right-hand side and Jacobian it calls."""
+    with zipfile.ZipFile(iso_fmu) as zf:
+        names = zf.namelist()
+        source = zf.read("sources/radau.c")
+    assert source == radau.SOURCE.read_bytes()
+    assert {"sources/sm_radau_model.c", "sources/sm_radau.h"} <= set(names)
+    assert "sources/sm_casadi.c" in names
