@@ -56,6 +56,12 @@ nominal``; :func:`scaled_radau_functions`): 1e-10 m/s for a velocity (nominal 1 
 steps from its equilibrium: the velocities rest at 0), natively as in the FMU (issue 17,
 radau at tight absolute tolerances)."""
 
+CS_ATOL_MIN = 1e-10
+"""The smallest absolute tolerance, per unit of nominal value [-]: an importer's rtol
+below 1e-8 tightens the relative tolerance only. ``radau.c``'s Newton iteration fails
+below it on resting states (at rtol 1e-10 with atol 1e-12 x nominal, 10 ms steps from
+rest on step-50g and vent-0g; issue 17)."""
+
 CS_RTOL_RANGE = (1e-12, 1e-2)
 """The relative tolerances an importer may set [-]; others are refused at set-up."""
 
@@ -197,6 +203,7 @@ def radau_header(scale: np.ndarray) -> str:
 
 #define SM_RTOL {CS_RTOL!r}
 #define SM_ATOL_PER_RTOL {CS_ATOL_PER_RTOL!r}
+#define SM_ATOL_MIN {CS_ATOL_MIN!r}
 #define SM_RTOL_MIN {CS_RTOL_RANGE[0]!r}
 #define SM_RTOL_MAX {CS_RTOL_RANGE[1]!r}
 #define SM_RADAU_MAX_STEPS {CS_MAX_STEPS}L

@@ -205,7 +205,7 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
                long* substeps, char* msg) {
     double rtol = wk->rtol > 0.0 ? wk->rtol : SM_RTOL;
     /* atol in the scaled states (times each state's scale); first step automatic */
-    double opt[4] = {rtol, SM_ATOL_PER_RTOL * rtol, 0.0, INFINITY};
+    double opt[4] = {rtol, fmax(SM_ATOL_PER_RTOL * rtol, SM_ATOL_MIN), 0.0, INFINITY};
     double stats[SM_RADAU_STATS] = {0.0};
     double xw[SM_NX], xf[SM_NX], t_end = t + h, t_fail = t;
     *substeps = 0;
