@@ -1,7 +1,8 @@
 """Speed of the exported FMU (FMI 2.0, step-50g's model: n = 3, full fidelity, 50 g).
 
-* **C, Co-Simulation**: ``fmi2DoStep`` of 1 ms (one Radau IIA substep) from a C driver
-  that loads the FMU's binary with ``dlopen``: a pressure step 0 -> 0.1 MPa at t = 0 from
+* **C, Co-Simulation**: ``fmi2DoStep`` of 1 ms (the adaptive Radau IIA inside, its
+  default rtol 1e-8) from a C driver that loads the FMU's binary with ``dlopen``: a
+  pressure step 0 -> 0.1 MPa at t = 0 from
   the equilibrium, then 2 s of 1 ms steps (the stiff filling, the load oscillation and the
   rest). Per step: the median over the run, and the median of the run means over
   ``--repeats`` runs.

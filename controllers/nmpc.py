@@ -42,6 +42,7 @@ import numpy as np
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
+from sarcomere.dynamics.simulation import collocation
 
 from .base import Controller
 from .qp import qp_solver
@@ -131,13 +132,12 @@ def radau_residual(f: cs.Function, nx: int, nu: int, degree: int) -> cs.Function
     ``degree`` collocation points stacked (the last point is the interval's end) and
     ``r = h f(V_j, u) - sum_r C[r, j] [x0, V]_r`` (zero on the solution).
     """
-    tau = cs.collocation_points(degree, "radau")
-    C = cs.collocation_coeff(tau)[0]
+    x, tau, u, h = cs.SX.sym("x", nx), cs.SX.sym("tau"), cs.SX.sym("u", nu), cs.SX.sym("h")
+    f_tau = cs.Function("f_tau", [tau, x, cs.vertcat(u, h)], [h * f(x, u)])
+    R = collocation.residual(f_tau, nx, degree)
     x0, V = cs.SX.sym("x0", nx), cs.SX.sym("V", nx * degree)
-    u, h = cs.SX.sym("u", nu), cs.SX.sym("h")
-    X = cs.horzcat(x0, cs.reshape(V, nx, degree))
-    res = [h * f(X[:, j + 1], u) - cs.mtimes(X, C[:, j]) for j in range(degree)]
-    return cs.Function("radau", [x0, V, u, h], [cs.vertcat(*res)], ["x0", "V", "u", "h"], ["r"])
+    r = R(x0, V, cs.vertcat(u, h))
+    return cs.Function("radau", [x0, V, u, h], [r], ["x0", "V", "u", "h"], ["r"])
 
 
 class _Problem:

@@ -20,7 +20,7 @@ from pathlib import Path
 from sarcomere.dynamics.assemblies import FIDELITIES
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
-from sarcomere.fmu.export import MAX_SUBSTEP_S, Experiment, export_fmu
+from sarcomere.fmu.export import DEFAULT_STEP_S, Experiment, export_fmu
 
 from .dynamic import _inputs, bind, check_n  # _inputs: the same name and unit checks as a run
 from .loader import load_scenario
@@ -43,7 +43,7 @@ def scenario_setup(source: str | Path | Scenario) -> tuple[Model, dict, dict, Ex
     if sim is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
     inputs = {k: float(sig(sim.start_time)) for k, sig in _inputs(sc, model).items()}
-    experiment = Experiment(sim.start_time, sim.stop_time, sim.output_interval or MAX_SUBSTEP_S)
+    experiment = Experiment(sim.start_time, sim.stop_time, sim.output_interval or DEFAULT_STEP_S)
     return model, dict(b.overrides), inputs, experiment
 
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
+from . import collocation
 from .common import HELD, InputLaw, LawDAE, law_dae, method_options, require_ode, require_step
 from .guard import EULER, RK4, ExplicitScheme
 from .settings import Segment, SolverSettings, add_stats, register_method
@@ -240,22 +241,15 @@ def _newton_options() -> dict:
 
 
 def _radau_one_step(dae: LawDAE, points: int):
-    """Radau IIA collocation equations in SX, solved by ``casadi.rootfinder`` (Newton).
-
-    Unknowns: the scaled states at the ``points`` Radau points (``casadi.collocation_points``);
-    residuals ``ode(x_j, tau_j) - sum_r C[r, j] x_r`` with ``C`` from
-    ``casadi.collocation_coeff``. The last Radau point is the step end.
-    """
+    """Radau IIA collocation equations (:func:`.collocation.residual`: the scaled states
+    at the ``points`` Radau nodes, the last one the step end) solved by
+    ``casadi.rootfinder`` (Newton)."""
     sc = _ScaledStep.of(dae)
     nx = sc.xi.numel()
-    tau = cs.collocation_points(points, "radau")
-    C = cs.collocation_coeff(tau)[0]
-    V = cs.SX.sym("V", nx, points)
-    xi0 = cs.SX.sym("xi0", nx)
-    Xall = cs.horzcat(xi0, V)
-    f = cs.Function("f", [sc.xi, sc.tau, sc.P], [sc.ode])
-    res = [f(V[:, j], tau[j], sc.P) - cs.mtimes(Xall, C[:, j]) for j in range(points)]
-    resid = cs.Function("radau_residual", [cs.vec(V), xi0, sc.P], [cs.vertcat(*res)])
+    f = cs.Function("f", [sc.tau, sc.xi, sc.P], [sc.ode])
+    R = collocation.residual(f, nx, points)
+    V, xi0 = cs.SX.sym("V", nx * points), cs.SX.sym("xi0", nx)
+    resid = cs.Function("radau_residual", [V, xi0, sc.P], [R(xi0, V, sc.P)])
     rf = cs.rootfinder("radau_newton", "newton", resid, _newton_options())
 
     def one_step(xi0, zeta0, P):

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
+from .collocation import radau5_packed, radau5_tableau
 from .common import InputLaw, law_dae, method_options, require_ode
 from .settings import Segment, SolverSettings, add_stats, register_method
 
@@ -53,63 +54,13 @@ _DEFAULTS = {"first_step": None, "max_step": np.inf, "max_newton": 7}
 
 
 def tableau() -> dict[str, np.ndarray]:
-    """The Radau IIA (3 stages) constants the C integrator takes, computed from ``A``.
-
-    Returns
-    -------
-    dict
-        ``A``, ``c`` (nodes), ``T`` and ``TI = T^-1`` with
-        ``TI A^-1 T = [[mu_r, 0, 0], [0, a, -b], [0, b, a]]``, ``mu_r``, ``mu_c = a + ib``,
-        ``e`` (error weights: ``err = (mu_r/h - J)^-1 (f0 + sum_i e_i Z_i / h)``) and
-        ``P`` (dense output: ``x(t + s h) = x + sum_k (sum_i Z_i P[i, k]) s^(k+1)``).
-    """
-    s6 = np.sqrt(6.0)
-    c = np.array([(4 - s6) / 10, (4 + s6) / 10, 1.0])
-    # collocation: A[i, j] = integral_0^c_i of the Lagrange polynomial l_j
-    V = np.vander(c, 3, increasing=True)  # V[i, k] = c_i^k
-    coef = np.linalg.inv(V)  # l_j(s) = sum_k coef[k, j] s^k
-    A = np.array(
-        [
-            [sum(coef[k, j] * ci ** (k + 1) / (k + 1) for k in range(3)) for j in range(3)]
-            for ci in c
-        ]
-    )
-    Ainv = np.linalg.inv(A)
-    lam, vec = np.linalg.eig(Ainv)
-    r = int(np.argmin(np.abs(lam.imag)))
-    q = int(np.argmin(lam.imag))  # Hairer's sign convention for T
-    v_r = np.real(vec[:, r]) / np.linalg.norm(vec[:, r])
-    v_r *= np.sign(v_r[2])
-    v_c = vec[:, q] / vec[2, q]  # last component 1: T[2] = [., 1, 0]
-    T = np.column_stack([v_r, v_c.real, v_c.imag])
-    mu_c = complex(np.conj(lam[q]))
-    # error weights: the embedded method's difference, e = gamma0 * [(13+7s6), ...]
-    e = np.array([-13 - 7 * s6, -13 + 7 * s6, -1.0]) / 3
-    P = np.linalg.inv(np.vander(c, 4, increasing=True)[:, 1:]).T
-    return {
-        "A": A,
-        "c": c,
-        "T": T,
-        "TI": np.linalg.inv(T),
-        "mu_r": float(lam[r].real),
-        "mu_c": mu_c,
-        "e": e,
-        "P": P,
-    }
+    """The Radau IIA (3 stages) constants the C integrator takes
+    (:func:`.collocation.radau5_tableau`, the one home of the collocation)."""
+    return radau5_tableau()
 
 
 def _packed() -> np.ndarray:
-    t = tableau()
-    return np.concatenate(
-        [
-            t["T"].ravel(),
-            t["TI"].ravel(),
-            [t["mu_r"], t["mu_c"].real, t["mu_c"].imag],
-            t["c"],
-            t["e"],
-            t["P"].ravel(),
-        ]
-    )
+    return radau5_packed()
 
 
 @dataclass(frozen=True)
@@ -141,13 +92,21 @@ def library(model: Model, law: InputLaw) -> Library:
     return model.cached(("radau", law.key()), lambda: _build(model, law))
 
 
-def _build(model: Model, law: InputLaw) -> Library:
-    tic = time.perf_counter()
+def c_functions(model: Model, law: InputLaw) -> tuple[cs.Function, cs.Function]:
+    """``sm_rhs`` and ``sm_jac`` ``(t, x, w, p)``: the right-hand side under ``law`` and
+    its dense Jacobian, as ``c/radau.c`` calls them (generated to C with ``casadi_int``
+    = ``int``; the FMU's Co-Simulation compiles them too, ``fmu/codegen.py``)."""
     d = law_dae(model, law)
     args = [d.t, d.x, d.w, d.p]
     # common subexpressions merged (cs.cse): 34 % fewer operations at n = 3
     rhs = cs.Function("sm_rhs", args, [cs.cse(cs.densify(d.ode))])
     jac = cs.Function("sm_jac", args, [cs.cse(cs.densify(cs.jacobian(d.ode, d.x)))])
+    return rhs, jac
+
+
+def _build(model: Model, law: InputLaw) -> Library:
+    tic = time.perf_counter()
+    rhs, jac = c_functions(model, law)
     cc = shutil.which(os.environ.get("CC", "gcc"))
     if cc is None:
         raise SolverError("radau: no C compiler found: install gcc or set CC")

@@ -69,9 +69,12 @@ void fmi2FreeInstance(fmi2Component c) {
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined,
                                fmi2Real stopTime) {
-    (void)toleranceDefined; /* fixed tolerances, stated in the model description */
-    (void)tolerance;
+    char msg[SM_MSG] = "";
     CALL(c, "fmi2SetupExperiment", SM_INSTANTIATED);
+    if (sm_set_tolerance(&inst->wk, toleranceDefined, tolerance, msg)) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi2SetupExperiment: %s", msg);
+        return fmi2Error;
+    }
     return (fmi2Status)sm_setup(inst, startTime, stopTimeDefined, stopTime);
 }
 

@@ -102,8 +102,12 @@ void fmi3FreeInstance(fmi3Instance c) {
 fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefined,
                                        fmi3Float64 tolerance, fmi3Float64 startTime,
                                        fmi3Boolean stopTimeDefined, fmi3Float64 stopTime) {
-    (void)toleranceDefined, (void)tolerance;
+    char msg[SM_MSG] = "";
     CALL(c, "fmi3EnterInitializationMode", SM_INSTANTIATED);
+    if (sm_set_tolerance(&inst->wk, toleranceDefined, tolerance, msg)) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR, "fmi3EnterInitializationMode: %s", msg);
+        return fmi3Error;
+    }
     if (sm_setup(inst, startTime, stopTimeDefined, stopTime) != SM_OK) return fmi3Error;
     return (fmi3Status)sm_enter_init(inst);
 }

@@ -1,6 +1,6 @@
 /* The physics interface (physics.h) on top of the CasADi-generated functions. Numerics
- * only: the continuation of the equilibrium and the substeps of the Radau step, or the
- * sample instants of a sampled system. */
+ * only: the continuation of the equilibrium and the adaptive Radau IIA of a doStep
+ * (radau.c), or the sample instants of a sampled system. */
 #include "physics.h"
 
 #include <math.h>
@@ -8,6 +8,9 @@
 #include <string.h>
 
 #include "sm_casadi.h"
+#if !SM_SAMPLED
+#include "sm_radau.h"
+#endif
 
 typedef int (*SmFunction)(const casadi_real** arg, casadi_real** res, casadi_int* iw,
                           casadi_real* w, int mem);
@@ -79,6 +82,11 @@ int sm_equilibrium(SmWork* wk, double* x, const double* u0, const double* p0, co
         return 1;
     }
     memcpy(x, xs, sizeof xs);
+    return 0;
+}
+
+int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg) {
+    (void)wk, (void)defined, (void)tolerance, (void)msg;
     return 0;
 }
 
@@ -165,44 +173,60 @@ int sm_equilibrium(SmWork* wk, double* x, const double* u0, const double* p0, co
     return 0;
 }
 
-/* One Radau step; 0 on success (Newton converged, result finite). */
-static int radau(SmWork* wk, const double* x, const double* u, const double* p, double h,
-                 double* xf, double* residual) {
-    const double* arg[] = {x, u, p, &h};
-    double* res[] = {xf, residual};
-    return call(wk, sm_step, 4, arg, 2, res) || !all_finite(xf, SM_NX) ||
-           !(*residual < SM_STEP_TOL);
+int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg) {
+    if (!defined) {
+        wk->rtol = 0.0;
+        return 0;
+    }
+    if (!(tolerance >= SM_RTOL_MIN && tolerance <= SM_RTOL_MAX)) {
+        snprintf(msg, SM_MSG,
+                 "tolerance %g is outside the relative tolerances of the Co-Simulation's "
+                 "Radau IIA [%g, %g]",
+                 tolerance, SM_RTOL_MIN, SM_RTOL_MAX);
+        return 1;
+    }
+    wk->rtol = tolerance;
+    return 0;
+}
+
+static const char* radau_cause(int code) {
+    switch (code) {
+        case 1: return "too many steps (SM_RADAU_MAX_STEPS in one doStep)";
+        case 2: return "the step size became too small (10 machine epsilons of t)";
+        case 3: return "the Newton iteration failed to converge repeatedly (11 step halvings)";
+        case 4: return "the Jacobian is not finite";
+        case 5: return "out of memory";
+        case 6: return "the right-hand side is not finite";
+        default: return "unknown failure";
+    }
 }
 
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg) {
-    double xw[SM_NX], xn[SM_NX], residual = NAN;
-    (void)t; /* time-invariant */
-    double done = 0.0;
-    double n = ceil(h / SM_MAX_SUBSTEP * (1.0 - 1e-12));
-    double hs = h / (n > 1.0 ? n : 1.0);
-    memcpy(xw, x, sizeof xw);
+    double rtol = wk->rtol > 0.0 ? wk->rtol : SM_RTOL;
+    /* atol in the scaled states (times each state's scale); first step automatic */
+    double opt[4] = {rtol, fmax(SM_ATOL_PER_RTOL * rtol, SM_ATOL_MIN), 0.0, INFINITY};
+    double stats[SM_RADAU_STATS] = {0.0};
+    double xw[SM_NX], xf[SM_NX], t_end = t + h, t_fail = t;
     *substeps = 0;
-    while (done < h) {
-        double hk = hs < h - done ? hs : h - done;
-        if (h - done - hk < 1e-12 * h) hk = h - done; /* land exactly on the end */
-        if (radau(wk, xw, u, p, hk, xn, &residual)) {
-            if (hk / 2 < SM_MIN_SUBSTEP) {
-                snprintf(msg, SM_MSG,
-                         "the Radau IIA Newton iteration did not converge (scaled residual "
-                         "%.3g, tolerance %.3g) even with a substep of %.3g s, at %.6g s into "
-                         "the step",
-                         residual, SM_STEP_TOL, hk, done);
-                return 1;
-            }
-            hs = hk / 2;
-            continue;
-        }
-        memcpy(xw, xn, sizeof xw);
-        done += hk;
-        (*substeps)++;
+    if (!(h > 0.0)) return 0;
+    for (int i = 0; i < SM_NX; i++) xw[i] = x[i] / sm_radau_scale[i]; /* what sm_rhs takes */
+    int code = sm_radau(SM_NX, u, p, t, xw, 1, &t_end, xf, sm_radau_tableau, opt,
+                        SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail);
+    *substeps = (long)stats[0];
+    if (code) {
+        snprintf(msg, SM_MSG,
+                 "the Radau IIA integrator (rtol %.3g, atol %.3g x nominal) stopped at %.9g s "
+                 "into the "
+                 "step after %ld steps: %s",
+                 opt[0], opt[1], t_fail - t, *substeps, radau_cause(code));
+        return 1;
     }
-    memcpy(x, xw, sizeof xw);
+    if (!all_finite(xf, SM_NX)) {
+        snprintf(msg, SM_MSG, "the Radau IIA integrator returned a state that is not finite");
+        return 1;
+    }
+    for (int i = 0; i < SM_NX; i++) x[i] = xf[i] * sm_radau_scale[i];
     return 0;
 }
 #endif

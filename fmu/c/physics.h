@@ -8,12 +8,14 @@
 
 #include "model_data.h"
 
-/* Work memory of the generated functions: one per instance, so instances are independent. */
+/* Work memory of the generated functions: one per instance, so instances are independent;
+ * and the Co-Simulation's relative tolerance (0: the default SM_RTOL of sm_radau.h). */
 typedef struct {
     const double* arg[SM_SZ_ARG];
     double* res[SM_SZ_RES];
     long long int iw[SM_SZ_IW + 1];
     double w[SM_SZ_W];
+    double rtol;
 } SmWork;
 
 /* Each returns 0 on success, nonzero if the generated code failed or a result is not
@@ -32,11 +34,17 @@ int sm_directional(SmWork* wk, const double* x, const double* u, const double* p
 int sm_equilibrium(SmWork* wk, double* x, const double* u0, const double* p0, const double* u,
                    const double* p, char* msg);
 
-/* Advance x from t (time since the start) by h with u held: Radau IIA substeps of at most
- * SM_MAX_SUBSTEP, each halved (down to SM_MIN_SUBSTEP) until its Newton residual is below
- * SM_STEP_TOL. A sampled system: x = update(x, u, p) at each sample instant k SM_SAMPLE_PERIOD
- * in [t, t + h) (to SM_SAMPLE_TOL of a period). x is updated only on success; *substeps
- * counts the steps (samples) taken. */
+/* The importer's relative tolerance (FMI's setupExperiment / enterInitializationMode):
+ * defined = 0 restores the default SM_RTOL; a tolerance outside [SM_RTOL_MIN, SM_RTOL_MAX]
+ * is refused. A sampled system's updates are exact: any tolerance is accepted. */
+int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg);
+
+/* Advance x from t (time since the start) by h > 0 with u held: the adaptive Radau IIA of
+ * radau.c (sm_radau) restarted from (t, x) in the states over sm_radau_scale (their nominal
+ * values), rtol from sm_set_tolerance and atol = SM_ATOL_PER_RTOL rtol (in those scaled
+ * states), at most SM_RADAU_MAX_STEPS steps. A sampled system: x = update(x, u, p) at each
+ * sample instant k SM_SAMPLE_PERIOD in [t, t + h) (to SM_SAMPLE_TOL of a period). x is
+ * updated only on success; *substeps counts the steps (samples) taken. */
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg);
 

@@ -215,9 +215,11 @@ def test_the_roundtrip_scene_runs_from_the_cli(tmp_path, step_fmu):
     assert main(["run", "cosim-roundtrip", "--out", str(out), "--quiet"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     error = summary["metrics"]["max_rel_error_vs_native"]
-    assert 1e-6 < error < 5e-5  # 2.6e-5: the chamber pressure at the step
+    # 9.3e-7 (thread stretch): the native run's own rtol 1e-6; 2.6e-5 (the chamber
+    # pressure at the step) with the fixed 1 ms substeps before the adaptive Radau IIA
+    assert 1e-8 < error < 5e-6
     assert summary["checks"]["max_rel_error_vs_native"]["ok"]
-    assert summary["extra"]["worst_signal"].endswith(".chamber.p_gauge")
+    assert summary["extra"]["worst_signal"].endswith(".e")
     native, cosim = (_column(out / f"timeseries_{k}.csv", "regulator.p_cmd [Pa]") for k in KEYS)
     assert len(cosim) == len(native) == 1001 and native[-1] == 1e5
     np.testing.assert_array_equal(cosim, native)  # the commands at the communication points

@@ -1,10 +1,12 @@
 """fmpy runs of the FMUs, as Model Exchange and as Co-Simulation, against the native
-simulation of the same scene, and a rebuild from the archive's sources.
+simulation of the same scene, and a rebuild from the archive's sources; the
+Co-Simulation integrator's tolerance (the importer's, or the default) and its restart
+from a saved state. Every packaged scene at 1, 5 and 10 ms: ``test_accuracy.py``.
 
 Error measure: ``max |y_fmu - y_native| / max |y_native|`` per signal on the scene's
 output grid. Co-Simulation steps of one output interval (2 ms for step-50g, 1 ms for the
-isometric scene), each in Radau IIA substeps of at most 1 ms; Model Exchange with fmpy's
-CVode at relative tolerance 1e-8.
+isometric scene), each integrated by the adaptive Radau IIA at its default rtol 1e-8;
+Model Exchange with fmpy's CVode at relative tolerance 1e-8.
 """
 
 from __future__ import annotations
@@ -17,9 +19,11 @@ import numpy as np
 import pytest
 from fmpy import simulate_fmu
 from fmpy.build import build_platform_binary
+from fmpy.fmi1 import FMICallException
 
 from sarcomere.dynamics.assemblies import isometric
 from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.simulation import radau
 
 TOL = 1e-4
 
@@ -128,3 +132,90 @@ def test_casadi_imports_the_fmu(iso_fmu, tmp_path):
     A, B, _, _ = (np.array(v) for v in model.function("jac")(x, [], u, p))
     np.testing.assert_allclose(np.array(jac(x, u)), np.hstack([A, B]), rtol=1e-12, atol=1e-9)
     assert np.abs(ode).max() > 1e-3  # away from rest: a real comparison
+
+
+def _stepped(loaded, tolerance=None, steps=20, h=0.005):
+    """The length after ``steps`` doSteps of ``h`` through a 0 -> 0.1 MPa step at t = 0,
+    with the importer's ``tolerance`` (None: not defined)."""
+    fmu = loaded.instance()
+    fmu.setupExperiment(tolerance=tolerance, startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    fmu.setReal([loaded.vr["regulator.p_cmd"]], [1e5])
+    for k in range(steps):
+        fmu.doStep(k * h, h)
+    length = fmu.getReal([loaded.vr["myofibril.length"]])[0]
+    fmu.freeInstance()
+    return length
+
+
+def test_cosim_takes_the_importers_tolerance(step_loaded, step_native):
+    """The default rtol is 1e-8; a defined tolerance replaces it (a loose one moves the
+    result, within its own size), and one outside [1e-12, 1e-2] is refused."""
+    default = _stepped(step_loaded)
+    assert _stepped(step_loaded, 1e-8) == default  # the default is rtol 1e-8
+    loose = _stepped(step_loaded, 1e-2)
+    tight = _stepped(step_loaded, 1e-11)
+    span = np.ptp(step_native["myofibril.length"])
+    assert abs(loose - tight) > 1e-9 * span  # the tolerance reached the integrator
+    assert abs(default - tight) < 1e-6 * span
+    fmu = step_loaded.instance()
+    with pytest.raises(FMICallException):
+        fmu.setupExperiment(tolerance=1e-14, startTime=0.0)
+    assert "tolerance 1e-14 is outside" in step_loaded.errors()[-1]
+    fmu.freeInstance()
+
+
+def test_cosim_restarts_from_a_saved_state_bit_for_bit(step_loaded):
+    """A doStep depends on (t, x, u, p) only: each restarts the integrator (automatic
+    first step, fresh Jacobian), so steps after restoring a saved state repeat exactly."""
+    fmi = step_loaded
+    fmu = fmi.instance()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    fmu.setReal([fmi.vr["regulator.p_cmd"]], [1e5])
+    for k in range(10):
+        fmu.doStep(k * 0.004, 0.004)
+    state = fmu.getFMUstate()
+    vrs = list(fmi.vr.values())[:40]
+
+    def run():
+        for k in range(10, 20):
+            fmu.doStep(k * 0.004, 0.004)
+        return fmu.getReal(vrs)
+
+    first = run()
+    fmu.setFMUstate(state)
+    assert run() == first
+    fmu.freeFMUstate(state)
+    fmu.freeInstance()
+
+
+def test_the_cosim_integrator_is_the_simulators_radau(iso_fmu):
+    """The archive's integrator is the simulator's ``radau.c`` byte for byte, with the
+    generated right-hand side and Jacobian it calls."""
+    with zipfile.ZipFile(iso_fmu) as zf:
+        names = zf.namelist()
+        source = zf.read("sources/radau.c")
+    assert source == radau.SOURCE.read_bytes()
+    assert {"sources/sm_radau_model.c", "sources/sm_radau.h"} <= set(names)
+    assert "sources/sm_casadi.c" in names
+
+
+def test_cosim_at_a_tight_importer_tolerance_from_rest(step_loaded):
+    """rtol 1e-11 in 10 ms steps, 0.2 s at rest then a pressure step: runs (the absolute
+    tolerance stops at 1e-10 x nominal; at 1e-13 x nominal the Newton iteration failed
+    at rest, t = 0.02 s - checked before the floor)."""
+    fmi = step_loaded
+    fmu = fmi.instance()
+    fmu.setupExperiment(tolerance=1e-11, startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    rest = fmu.getReal([fmi.vr["myofibril.length"]])[0]
+    for k in range(40):
+        if k == 20:
+            fmu.setReal([fmi.vr["regulator.p_cmd"]], [1e5])
+        fmu.doStep(k * 0.01, 0.01)
+    assert fmu.getReal([fmi.vr["myofibril.length"]])[0] < rest - 1e-3
+    fmu.freeInstance()
