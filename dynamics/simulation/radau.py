@@ -184,8 +184,9 @@ def _options(s: SolverSettings) -> tuple[np.ndarray, int]:
         raise ParameterError("solver.options.first_step", first, "(0, inf) s, or None")
     if not hmax > 0:
         raise ParameterError("solver.options.max_step", hmax, "(0, inf] s")
-    if not (isinstance(newton, int) and 1 <= newton <= 50):
-        raise ParameterError("solver.options.max_newton", newton, "an integer in [1, 50]")
+    if not (isinstance(newton, int) and 2 <= newton <= 50):
+        why = "the convergence test needs the contraction rate of two increments"
+        raise ParameterError("solver.options.max_newton", newton, "an integer in [2, 50]", why)
     return np.array([s.rtol, s.atol, first or 0.0, hmax]), newton
 
 

@@ -201,7 +201,16 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     memcpy(&tb, cst, sizeof tb);
     const double rtol = opt[0], atol = opt[1], hmax = opt[3];
     const double t_end = tout[nout - 1];
-    const double newton_tol = fmax(10 * DBL_EPSILON / rtol, fmin(0.03, sqrt(rtol)));
+    /* Newton stopping tolerance, in the error norm of (rtol, atol): RADAU5's
+     * max(10 eps / r, min(0.03, sqrt(r))) taken at its transformed tolerance
+     * r = 0.1 rtol^(2/3) (with atol scaled alike) and carried back to (rtol, atol) by
+     * the factor r / rtol: about 0.03 for every rtol <= 1e-3. Taken at rtol itself
+     * (sqrt(1e-10) = 1e-5) it asks the velocity increments for 1e-18 m/s at
+     * atol = 1e-13, below the roundoff floor of the stage equations (about 1e-16 m/s at
+     * h = 1 ms): the iteration stalls and every step size fails. */
+    const double rtol_t = 0.1 * pow(rtol, 2.0 / 3.0);
+    const double newton_tol = fmax(10 * DBL_EPSILON / rtol,
+                                   fmin(0.03, sqrt(rtol_t)) * rtol_t / rtol);
     const double mu_c_re = tb.mu_cr, mu_c_im = tb.mu_ci;
 
     int sz_arg, sz_res, sz_iw, sz_w, a2, r2, i2, w2;
