@@ -29,3 +29,12 @@ def checkout_untouched():
     yield
     after = _status()
     assert after == before, f"the tests changed the checkout:\n{after}"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compile_cache(tmp_path_factory):
+    """Compiled libraries (``radau``) go to a session folder, never the user's cache."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("SARCOMERE_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+    yield
+    mp.undo()

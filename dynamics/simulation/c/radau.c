@@ -10,8 +10,12 @@
  *     right-hand side after a first or rejected step;
  *   - the step size is predicted by Gustafsson's controller;
  *   - outputs come from the collocation polynomial of each accepted step.
- * f and its dense Jacobian are CasADi-generated functions compiled into the same library:
- *   sm_rhs(t, x, w, p) -> f      sm_jac(t, x, w, p) -> df/dx (dense, column-major)
+ * f and its Jacobian are CasADi-generated functions (casadi_int = int) compiled into the
+ * same library:
+ *   sm_rhs(t, x, w, p) -> f      sm_jac(t, x, w, p) -> the nonzeros of df/dx
+ * in the compressed-column pattern of sm_jac_sparsity_out(0) (CasADi's compressed form:
+ * [nrow, ncol, colind[ncol + 1], row[nnz]], or [nrow, ncol, 1] if dense); they are
+ * scattered into a dense column-major matrix for the LU.
  * The method constants (T, T^-1, eigenvalues, nodes, error weights, dense-output matrix)
  * are computed by the Python side and passed in.
  */
@@ -27,6 +31,7 @@ int sm_rhs(const double **arg, double **res, int *iw, double *w, int mem);
 int sm_rhs_work(int *sz_arg, int *sz_res, int *sz_iw, int *sz_w);
 int sm_jac(const double **arg, double **res, int *iw, double *w, int mem);
 int sm_jac_work(int *sz_arg, int *sz_res, int *sz_iw, int *sz_w);
+const int *sm_jac_sparsity_out(int i);
 
 /* Return codes (the Python side turns them into SolverError messages). */
 enum { SM_OK = 0, SM_MAX_STEPS = 1, SM_STEP_TOO_SMALL = 2, SM_NEWTON = 3, SM_JAC = 4,
@@ -34,6 +39,23 @@ enum { SM_OK = 0, SM_MAX_STEPS = 1, SM_STEP_TOO_SMALL = 2, SM_NEWTON = 3, SM_JAC
 
 /* Statistics slots. */
 enum { ST_STEPS, ST_REJECTED, ST_RHS, ST_JAC, ST_LU, ST_NEWTON, ST_NEWTON_FAIL, ST_N };
+
+/* The Jacobian's pattern: colind == NULL if dense. */
+typedef struct {
+    int nnz;
+    const int *colind, *row;
+} Pattern;
+
+static Pattern jac_pattern(int n)
+{
+    const int *sp = sm_jac_sparsity_out(0);
+    Pattern pt = {n * n, NULL, NULL};
+    if (sp[2] == 1) return pt; /* dense (a compressed column pattern has colind[0] = 0) */
+    pt.colind = sp + 2;
+    pt.row = sp + 3 + n;
+    pt.nnz = pt.colind[n];
+    return pt;
+}
 
 typedef struct {
     int n;
@@ -43,6 +65,8 @@ typedef struct {
     int *iw;
     double *cw;
     double *stats;
+    Pattern pt;
+    double *jnz; /* pt.nnz doubles: the Jacobian's nonzeros */
 } Model;
 
 /* f(t, x) into f; nonzero if the call fails or f is not finite. */
@@ -60,17 +84,27 @@ static int rhs(Model *m, double t, const double *x, double *f)
     return 0;
 }
 
+/* The dense column-major Jacobian at (t, x) into J; nonzero if the call fails or an
+ * entry is not finite. */
 static int jac(Model *m, double t, const double *x, double *J)
 {
+    const int n = m->n, *colind = m->pt.colind, *row = m->pt.row;
     m->arg[0] = &t;
     m->arg[1] = x;
     m->arg[2] = m->w;
     m->arg[3] = m->p;
-    m->res[0] = J;
+    m->res[0] = m->jnz;
     m->stats[ST_JAC] += 1;
     if (sm_jac(m->arg, m->res, m->iw, m->cw, 0)) return 1;
-    for (int i = 0; i < m->n * m->n; ++i)
-        if (!isfinite(J[i])) return 1;
+    for (int k = 0; k < m->pt.nnz; ++k)
+        if (!isfinite(m->jnz[k])) return 1;
+    if (!colind) {
+        memcpy(J, m->jnz, sizeof(double) * n * n);
+        return 0;
+    }
+    memset(J, 0, sizeof(double) * (size_t)n * n);
+    for (int c = 0; c < n; ++c)
+        for (int k = colind[c]; k < colind[c + 1]; ++k) J[row[k] + (size_t)c * n] = m->jnz[k];
     return 0;
 }
 
@@ -222,7 +256,9 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     sz_w = sz_w > w2 ? sz_w : w2;
 
     size_t nn = (size_t)n * n;
-    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 28 * (size_t)n + (size_t)sz_w + 1));
+    Pattern pt = jac_pattern(n);
+    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 28 * (size_t)n + (size_t)sz_w
+                                           + (size_t)pt.nnz + 1));
     double complex *cplx = malloc(sizeof(double complex) * (SM_LU_SIZE(n) + n));
     size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
     int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)sz_iw + 1));
@@ -235,11 +271,12 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     double *J = dbl, *LUr = J + nn, *y = LUr + SM_LU_SIZE(n);
     double *f0 = y + n, *ynew = f0 + n, *scale = ynew + n, *tmp = scale + n, *err = tmp + n;
     double *Z = err + n, *W = Z + 3 * n, *dW = W + 3 * n, *F = dW + 3 * n, *Q = F + 3 * n;
-    double *Qold = Q + 3 * n, *rr = Qold + 3 * n, *ypoly = rr + n, *cw = ypoly + n;
+    double *Qold = Q + 3 * n, *rr = Qold + 3 * n, *ypoly = rr + n, *jnz = ypoly + n;
+    double *cw = jnz + pt.nnz;
     double complex *LUc = cplx, *rc = LUc + SM_LU_SIZE(n);
     Factor fr, fc;
     int *iw = factor_init(&fc, n, factor_init(&fr, n, ints));
-    Model m = {n, w, p, arg, res, iw, cw, stats};
+    Model m = {n, w, p, arg, res, iw, cw, stats, pt, jnz};
 
     int code = SM_OK, k_out = 0;
     double t = t0;
@@ -482,7 +519,9 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
     sm_rhs_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
     sm_jac_work(&a2, &r2, &i2, &w2);
     size_t nn = (size_t)n * n;
-    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 2 * (size_t)n + (size_t)(sz_w > w2 ? sz_w : w2) + 1));
+    Pattern pt = jac_pattern(n);
+    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 2 * (size_t)n + (size_t)pt.nnz
+                                           + (size_t)(sz_w > w2 ? sz_w : w2) + 1));
     double complex *cplx = malloc(sizeof(double complex) * (SM_LU_SIZE(n) + n));
     size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
     int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)(sz_iw > i2 ? sz_iw : i2) + 1));
@@ -491,10 +530,12 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
     double stats[ST_N] = {0};
     int code = SM_OK;
     if (!dbl || !cplx || !ints || !arg || !res) { code = SM_NO_MEMORY; goto done; }
-    double *J = dbl, *LUr = J + nn, *f = LUr + SM_LU_SIZE(n), *b = f + n, *cw = b + n;
+    double *J = dbl, *LUr = J + nn, *f = LUr + SM_LU_SIZE(n), *b = f + n, *jnz = b + n;
+    double *cw = jnz + pt.nnz;
     double complex *LUc = cplx, *bc = LUc + SM_LU_SIZE(n);
     Factor fr, fc;
-    Model m = {n, w, p, arg, res, factor_init(&fc, n, factor_init(&fr, n, ints)), cw, stats};
+    Model m = {n, w, p, arg, res, factor_init(&fc, n, factor_init(&fr, n, ints)), cw, stats,
+               pt, jnz};
     double tic = seconds();
     for (int k = 0; k < reps; ++k)
         if (rhs(&m, t, x, f)) { code = SM_RHS; goto done; }

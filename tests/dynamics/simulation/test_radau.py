@@ -5,6 +5,9 @@ CVODES at rtol 1e-12, failures and the compile cache."""
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -13,7 +16,7 @@ from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.component import Component, System
 from sarcomere.dynamics.signals import Sine, Step
-from sarcomere.dynamics.simulation import radau
+from sarcomere.dynamics.simulation import compiled, radau
 from sarcomere.dynamics.simulation.common import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.simulator import Simulator
@@ -280,6 +283,57 @@ def test_unit_costs_are_timed_in_the_library(oscillator):
     costs = radau.unit_costs(oscillator, HELD, 0.0, x, np.zeros(0), p, h=1e-2, reps=50)
     assert set(costs) == {"rhs", "jac", "lu", "solve", "solve_real"}
     assert all(0 < v < 1e-3 for v in costs.values()), costs
+
+
+_BUILD = """
+import sys
+from sarcomere.dynamics import hanging_load
+from sarcomere.dynamics.simulation import compiled, radau, simulate
+from sarcomere.dynamics.simulation.common import HELD
+if sys.argv[1] == "no-compiler":  # a compile would raise
+    compiled._compile = lambda *a: sys.exit("the compiler was invoked")
+model = hanging_load(1, load_kg=0.05)
+res = simulate.simulate(model, 0.05, settings=simulate.SolverSettings("radau"))
+lib = radau.library(model, HELD)
+print(lib.compiled, lib.path, res["load.s"][-1])
+"""
+
+
+def _processes(tmp_path, *modes: str) -> list[list[str]]:
+    """Run ``_BUILD`` in new processes at once (cache in ``tmp_path``); their outputs."""
+    env = {**os.environ, "SARCOMERE_CACHE_DIR": str(tmp_path)}
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _BUILD, mode], env=env, stdout=subprocess.PIPE, text=True
+        )
+        for mode in modes
+    ]
+    outs = [p.communicate(timeout=300)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0] * len(procs), outs
+    return [o.split() for o in outs]
+
+
+def test_disk_cache_is_shared_by_concurrent_processes_and_reused(tmp_path):
+    """Two processes building the same library at once both succeed and leave one file
+    (no partial file); a third loads it without invoking the compiler; the same end
+    state from all three."""
+    first = _processes(tmp_path, "build", "build")
+    files = sorted(p.name for p in (tmp_path / "lib").iterdir())
+    assert len(files) == 1 and files[0].startswith("radau-") and files[0].endswith(".so")
+    assert {o[1] for o in first} == {str(tmp_path / "lib" / files[0])}
+    assert "True" in {o[0] for o in first}  # at least one compiled (both may)
+    (again,) = _processes(tmp_path, "no-compiler")
+    assert again[0] == "False" and again[1] == first[0][1]
+    assert again[2] == first[0][2] == first[1][2]
+
+
+def test_cache_key_follows_flags_and_sources(tmp_path, monkeypatch):
+    monkeypatch.setenv("SARCOMERE_CACHE_DIR", str(tmp_path))
+    inputs = [b"int f(void) { return 1; }", "-O1"]
+    k = compiled.key(inputs)
+    assert k == compiled.key(list(inputs))
+    assert k != compiled.key([inputs[0], "-O2"]) != compiled.key([b"int f(void);", "-O1"])
+    assert compiled.cache_dir() == tmp_path
 
 
 class Blowup(Component):
