@@ -154,7 +154,9 @@ def library(model: Model, law: InputLaw) -> Library:
     return model.cached(("radau", law.key()), lambda: _build(model, law))
 
 
-def generate_sources(rhs: cs.Function, folder: Path, chunk: int = CHUNK) -> list[Path]:
+def generate_sources(
+    rhs: cs.Function, folder: Path, chunk: int = CHUNK, sparse: bool = True
+) -> list[Path]:
     """Generate ``sm_rhs`` and ``sm_jac``, the C functions ``c/radau.c`` calls, into
     ``folder``.
 
@@ -167,6 +169,9 @@ def generate_sources(rhs: cs.Function, folder: Path, chunk: int = CHUNK) -> list
         Where the sources go: ``sm_rhs.c`` and ``sm_jac.c``.
     chunk : int
         Most operations per generated C function.
+    sparse : bool
+        False: ``sm_jac`` returns the dense Jacobian (n^2 entries, column-major); the
+        integrator takes either.
 
     Returns
     -------
@@ -179,6 +184,7 @@ def generate_sources(rhs: cs.Function, folder: Path, chunk: int = CHUNK) -> list
     args = rhs.sx_in()
     f = rhs.call(args)[0]
     jac = cs.jacobian(f, args[1])
+    jac = jac if sparse else cs.densify(jac)
     paths = []
     for name, expr in (("sm_rhs", cs.densify(f)), ("sm_jac", jac)):
         gen = cs.CodeGenerator(f"{name}.c", {"casadi_int": "int"})

@@ -336,6 +336,27 @@ def test_cache_key_follows_flags_and_sources(tmp_path, monkeypatch):
     assert compiled.cache_dir() == tmp_path
 
 
+def test_dense_jacobian_from_the_generator_gives_the_same_steps(tmp_path, monkeypatch):
+    """``sm_jac`` may return the dense Jacobian (``sparse=False``): same steps, same
+    states to roundoff as the sparse one."""
+    s = SolverSettings("radau", 1e-7, 1e-10)
+
+    def run(model):
+        inputs = {"regulator.p_cmd": Step(final=1e5, time=0.1)}
+        return simulate(model, 0.3, inputs, settings=s, t_out=np.linspace(0.0, 0.3, 31))
+
+    sparse = run(hanging_load(1, load_kg=0.05))
+    monkeypatch.setenv("SARCOMERE_CACHE_DIR", str(tmp_path))  # not the sparse build's key
+    gen = radau.generate_sources
+    monkeypatch.setattr(radau, "generate_sources", lambda r, f: gen(r, f, sparse=False))
+    model = hanging_load(1, load_kg=0.05)
+    dense = run(model)
+    lib = radau.library(model, HELD)
+    assert lib.compiled and lib.path.parent == tmp_path / "lib"
+    assert dense.meta["n_steps"] == sparse.meta["n_steps"]
+    np.testing.assert_allclose(dense["load.s"], sparse["load.s"], rtol=1e-12, atol=1e-15)
+
+
 class Blowup(Component):
     """``dx/dt = x^2`` from ``x = 1``: infinite at t = 1 s."""
 
