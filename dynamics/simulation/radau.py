@@ -54,6 +54,9 @@ n = 100 Jacobian as one function: 28 s at -O1, 420 s at -O2)."""
 CHUNK = 2000
 """Most operations per generated C function: the right-hand side and the Jacobian's
 nonzeros are split into functions of about this size, so the compile time is linear in n."""
+ROUNDOFF_ATOL, ROUNDOFF_RTOL = 1e-14, 1e-12
+"""Below these tolerances a Newton failure names the roundoff floor as a likely cause: the
+muscle scenes run at rtol 1e-12 / atol 1e-14 and fail at atol 1e-15 (SI units)."""
 _STATS = ("n_steps", "n_rejected", "n_rhs", "n_jac", "n_lu", "n_newton", "n_newton_fail")
 _DEFAULTS = {"first_step": None, "max_step": np.inf, "max_newton": 7}
 
@@ -287,7 +290,13 @@ def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
     )
     add_stats(seg.stats, **{k: int(v) for k, v in zip(_STATS, stats, strict=True)}, n_segments=1)
     if code:
-        raise seg.fail(_CAUSES.get(code, f"error code {code}"), float(t_fail[0]), x)
+        cause = _CAUSES.get(code, f"error code {code}")
+        if code == 3 and (s.atol < ROUNDOFF_ATOL or s.rtol < ROUNDOFF_RTOL):
+            cause += (
+                f" at atol = {s.atol:g}, rtol = {s.rtol:g}: below the roundoff floor of the"
+                " stage equations of this model? (docs/numerics.md: raise atol)"
+            )
+        raise seg.fail(cause, float(t_fail[0]), x)
     return X, np.zeros((len(times), 0))
 
 

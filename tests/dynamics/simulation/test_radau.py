@@ -201,6 +201,14 @@ def test_tight_tolerances_on_the_muscle_track_cvodes(step_reference):
     assert errors[0] > 5 * errors[1] > 25 * errors[2], errors
 
 
+def test_below_the_roundoff_floor_the_failure_says_so(step_reference):
+    """atol 1e-15 on the muscle: the velocities' Newton increments cannot get below their
+    roundoff floor; the error names it instead of only "failed to converge"."""
+    sc = step_reference[0]
+    with pytest.raises(SolverError, match="roundoff floor .* raise atol"):
+        sc.run(SolverSettings("radau", 1e-12, 1e-15))
+
+
 # --- the muscle against CVODES at rtol 1e-12 ----------------------------------------------
 def test_n3_step_against_tight_cvodes():
     """The issue-12 scenario (n = 3, 50 g, 0.1 MPa step, 2 s, 201 points): at rtol 1e-5
