@@ -106,7 +106,13 @@ def shared_library(
     path = folder / f"{stem}-{key(inputs, link_flags)}.so"
     if path.is_file():
         return path, False
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise SolverError(
+            f"cannot create the compile cache folder {folder} ({e.strerror}): "
+            "set SARCOMERE_CACHE_DIR to a writable folder"
+        ) from None
     with tempfile.TemporaryDirectory(prefix="sarcomere-build-") as tmp:
         built = _compile(units(Path(tmp)), link_flags, Path(tmp))
         fd, part = tempfile.mkstemp(prefix=f".{stem}-", suffix=".part", dir=folder)

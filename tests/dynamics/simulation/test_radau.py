@@ -365,6 +365,14 @@ def test_dense_jacobian_from_the_generator_gives_the_same_steps(tmp_path, monkey
     np.testing.assert_allclose(dense["load.s"], sparse["load.s"], rtol=1e-12, atol=1e-15)
 
 
+def test_unwritable_cache_is_a_solver_error_naming_it(tmp_path, monkeypatch):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("SARCOMERE_CACHE_DIR", str(blocker))
+    with pytest.raises(SolverError, match="compile cache folder .*a-file.*SARCOMERE_CACHE_DIR"):
+        compiled.shared_library("x", [b"int f(void);"], lambda folder: [])
+
+
 class Blowup(Component):
     """``dx/dt = x^2`` from ``x = 1``: infinite at t = 1 s."""
 
