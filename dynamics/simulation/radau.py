@@ -4,15 +4,16 @@ The integrator is C (``c/radau.c``, the RADAU5 algorithm of Hairer & Wanner): si
 Newton on the collocation system split into one real and one complex linear system,
 Jacobian reuse across steps, the embedded error estimate, Gustafsson's step-size
 predictor and outputs from the collocation polynomial. The model's right-hand side under
-the input law and its dense Jacobian (``casadi.jacobian`` of the same expression) are
-generated to C by CasADi and compiled with it into one shared library per model and
-input law (``Model.cached``), loaded with ctypes. One call integrates a whole segment,
-so Python is paid per segment, not per step.
+the input law and its sparse Jacobian (``casadi.jacobian`` of the same expression) are
+generated to C by CasADi (:func:`generate_sources`, in pieces of bounded size) and
+compiled with it into one shared library per model and input law, memoised on the model
+(``Model.cached``) and cached on disk by content hash (:mod:`.compiled`), loaded with
+ctypes. One call integrates a whole segment, so Python is paid per segment, not per step.
 
 Why: the model's oscillatory modes lie 73-80 deg from the negative real axis, outside
 the stability sectors of BDF4/BDF5, so CVODES needs 6-9x the steps of this A-stable
 order-5 method at equal accuracy (``BENCHMARKS.md``, section 1). Explicit ODEs only
-(``nz = 0``); the LU is dense but skips the Jacobian's zeros (``docs/numerics.md``).
+(``nz = 0``); the LU works on the nonzeros and their fill-in only (``docs/numerics.md``).
 """
 
 from __future__ import annotations

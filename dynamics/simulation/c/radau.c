@@ -15,7 +15,8 @@
  *   sm_rhs(t, x, w, p) -> f      sm_jac(t, x, w, p) -> the nonzeros of df/dx
  * in the compressed-column pattern of sm_jac_sparsity_out(0) (CasADi's compressed form:
  * [nrow, ncol, colind[ncol + 1], row[nnz]], or [nrow, ncol, 1] if dense); they are
- * scattered into a dense column-major matrix for the LU.
+ * scattered into the iteration matrices, whose LU visits only the nonzeros and their
+ * fill-in (SM_LU).
  * The method constants (T, T^-1, eigenvalues, nodes, error weights, dense-output matrix)
  * are computed by the Python side and passed in.
  */
