@@ -9,9 +9,18 @@ second and per integrator step, with the exponent ``k`` of a least-squares fit
 CVODES with its default linear solver, with ``linear_solver = "csparse"`` (sparse
 LU) and ``"qr"`` (CasADi's sparse QR), and scipy Radau with the exact sparse Jacobian.
 
+``--at-error``: instead, ``radau`` against CVODES at equal accuracy for n = 30 and 100:
+the step scenario of :mod:`sarcomere.dynamics.studies.workprecision` over 0.5 s (51
+saved points) from the 0 MPa equilibrium, each method swept over rtol = 10^-4 ...
+10^-8 in half decades (``atol = 1e-3 rtol``), the l2 error (states scaled) against
+CVODES at rtol 1e-10, the wall time at error 1e-6 interpolated log-log (medians of
+``--repeats`` warm calls; radau's library compiled, or loaded from the cache, by the
+cold call).
+
 Usage::
 
     python benchmarks/scaling.py --out out/bench/scaling.json [--repeats 3] [--max-n 100]
+    python benchmarks/scaling.py --at-error [--n 30 100] [--out out/bench/radau_n.json]
 """
 
 from __future__ import annotations
@@ -89,6 +98,43 @@ def cost(model, x0: np.ndarray, settings: SolverSettings, repeats: int) -> dict:
     }
 
 
+def at_error(n: int, repeats: int) -> dict:
+    """radau and CVODES at error 1e-6 (l2, states scaled) on the n-APS step scenario."""
+    sc = dataclasses.replace(wp.scenarios(n)["step"], t_final=T_FINAL_S, n_out=51)
+    model, _ = sc.setup()
+    res = sc.run(SolverSettings("cvodes", 1e-10, 1e-13))
+    X = wp.states(res, model)
+    scale = np.abs(X).max(axis=0)
+    ref = wp.Reference(res, X, np.where(scale > 0, scale, 1.0), res.meta)
+    tols = tuple(10.0 ** (-k / 2) for k in range(8, 17))
+    plan = wp.Plan(tols, {}, repeats, budget_s=20.0, check_rtol=0.0)
+    records = wp.sweep(sc, ref, plan, only=("radau", "cvodes"))
+    walls = {m: wp.wall_at_error(records, m, 1e-6) for m in ("radau", "cvodes")}
+    return {"n": n, "states": model.nx, "wall_at_1e-6_s": walls, "records": records}
+
+
+def main_at_error(ns: list[int], repeats: int, out: Path | None) -> None:
+    rows = []
+    for n in ns:
+        row = at_error(n, repeats)
+        rows.append(row)
+        for r in row["records"]:
+            if r["status"] != "ok":
+                print(f"n={n} {r['method']:6s} rtol {r['rtol']:.1e} FAILED {r['message'][:100]}")
+                continue
+            print(
+                f"n={n} {r['method']:6s} rtol {r['rtol']:.1e} error {r['error_l2']:.2e} "
+                f"wall {1e3 * r['wall_time_s']:8.1f} ms steps {r['n_steps']} "
+                f"(cold {r['wall_time_cold_s']:.1f} s)"
+            )
+        w = row["wall_at_1e-6_s"]
+        ratio = w["cvodes"] / w["radau"] if all(w.values()) else None
+        print(f"n={n} ({row['states']} states) at error 1e-6: {w}, cvodes/radau = {ratio}")
+    if out:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(rows, indent=1))
+
+
 def exponent(sizes: list[int], costs: list[float]) -> float:
     """Slope of log(cost) against log(n), least squares."""
     return float(np.polyfit(np.log(sizes), np.log(costs), 1)[0])
@@ -99,7 +145,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("out/bench/scaling.json"))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--max-n", type=int, default=100)
+    parser.add_argument("--at-error", action="store_true", help="radau vs CVODES at 1e-6")
+    parser.add_argument("--n", type=int, nargs="+", default=[30, 100])
     args = parser.parse_args()
+    if args.at_error:
+        main_at_error(args.n, args.repeats, args.out)
+        return
     sizes = [n for n in SIZES if n <= args.max_n]
     table: dict[str, dict] = {label: {} for label in CONFIGS}
     for n in sizes:

@@ -47,3 +47,12 @@ def drawn_png():
         assert len(set(map(tuple, (rgb * 255).round().astype(int)))) > 8, path.name
 
     return check
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compile_cache(tmp_path_factory):
+    """Compiled libraries (``radau``) go to a session folder, never the user's cache."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("SARCOMERE_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+    yield
+    mp.undo()

@@ -10,8 +10,13 @@
  *     right-hand side after a first or rejected step;
  *   - the step size is predicted by Gustafsson's controller;
  *   - outputs come from the collocation polynomial of each accepted step.
- * f and its dense Jacobian are CasADi-generated functions compiled into the same library:
- *   sm_rhs(t, x, w, p) -> f      sm_jac(t, x, w, p) -> df/dx (dense, column-major)
+ * f and its Jacobian are CasADi-generated functions (casadi_int = int) compiled into the
+ * same library:
+ *   sm_rhs(t, x, w, p) -> f      sm_jac(t, x, w, p) -> the nonzeros of df/dx
+ * in the compressed-column pattern of sm_jac_sparsity_out(0) (CasADi's compressed form:
+ * [nrow, ncol, colind[ncol + 1], row[nnz]], or [nrow, ncol, 1] if dense); they are
+ * scattered into the iteration matrices, whose LU visits only the nonzeros and their
+ * fill-in (SM_LU).
  * The method constants (T, T^-1, eigenvalues, nodes, error weights, dense-output matrix)
  * are computed by the Python side and passed in.
  */
@@ -27,6 +32,7 @@ int sm_rhs(const double **arg, double **res, int *iw, double *w, int mem);
 int sm_rhs_work(int *sz_arg, int *sz_res, int *sz_iw, int *sz_w);
 int sm_jac(const double **arg, double **res, int *iw, double *w, int mem);
 int sm_jac_work(int *sz_arg, int *sz_res, int *sz_iw, int *sz_w);
+const int *sm_jac_sparsity_out(int i);
 
 /* Return codes (the Python side turns them into SolverError messages). */
 enum { SM_OK = 0, SM_MAX_STEPS = 1, SM_STEP_TOO_SMALL = 2, SM_NEWTON = 3, SM_JAC = 4,
@@ -34,6 +40,36 @@ enum { SM_OK = 0, SM_MAX_STEPS = 1, SM_STEP_TOO_SMALL = 2, SM_NEWTON = 3, SM_JAC
 
 /* Statistics slots. */
 enum { ST_STEPS, ST_REJECTED, ST_RHS, ST_JAC, ST_LU, ST_NEWTON, ST_NEWTON_FAIL, ST_N };
+
+/* The Jacobian's compressed-column pattern (built in own, to be freed, if sm_jac is dense). */
+typedef struct {
+    int nnz;
+    const int *colind, *row;
+    int *own;
+} Pattern;
+
+/* The pattern of sm_jac's output; pt.nnz < 0 if out of memory. */
+static Pattern jac_pattern(int n)
+{
+    const int *sp = sm_jac_sparsity_out(0);
+    Pattern pt = {0, sp + 2, sp + 3 + n, NULL};
+    if (sp[2] != 1) { /* compressed columns: colind[0] = 0 */
+        pt.nnz = pt.colind[n];
+        return pt;
+    }
+    pt.own = malloc(sizeof(int) * ((size_t)n * n + n + 1)); /* dense: [nrow, ncol, 1] */
+    if (!pt.own) {
+        pt.nnz = -1;
+        return pt;
+    }
+    int *colind = pt.own, *row = colind + n + 1;
+    for (int c = 0; c <= n; ++c) colind[c] = c * n;
+    for (size_t k = 0; k < (size_t)n * n; ++k) row[k] = (int)(k % n);
+    pt.colind = colind;
+    pt.row = row;
+    pt.nnz = n * n;
+    return pt;
+}
 
 typedef struct {
     int n;
@@ -43,6 +79,8 @@ typedef struct {
     int *iw;
     double *cw;
     double *stats;
+    Pattern pt;
+    double *jnz; /* pt.nnz doubles: the Jacobian's nonzeros */
 } Model;
 
 /* f(t, x) into f; nonzero if the call fails or f is not finite. */
@@ -60,76 +98,135 @@ static int rhs(Model *m, double t, const double *x, double *f)
     return 0;
 }
 
-static int jac(Model *m, double t, const double *x, double *J)
+/* The Jacobian's nonzeros at (t, x) into m->jnz; nonzero if the call fails or one is not
+ * finite. */
+static int jac(Model *m, double t, const double *x)
 {
     m->arg[0] = &t;
     m->arg[1] = x;
     m->arg[2] = m->w;
     m->arg[3] = m->p;
-    m->res[0] = J;
+    m->res[0] = m->jnz;
     m->stats[ST_JAC] += 1;
     if (sm_jac(m->arg, m->res, m->iw, m->cw, 0)) return 1;
-    for (int i = 0; i < m->n * m->n; ++i)
-        if (!isfinite(J[i])) return 1;
+    for (int k = 0; k < m->pt.nnz; ++k)
+        if (!isfinite(m->jnz[k])) return 1;
     return 0;
 }
 
-/* The factors' row swaps and nonzero pattern: the multipliers of column k sit in rows
- * li[lp[k]..lp[k+1]), the strict upper part of row k of U in columns ui[up[k]..up[k+1]). */
+/* The factors of P A = L U, rows kept in place (P implicit): step k pivots on row
+ * prow[k]; the multipliers of column k sit in (original) rows li[lp[k]..lp[k+1]), row k of
+ * U (the pivot row's part right of column k) in columns ui[up[k]..up[k+1]).
+ * The working matrix's possibly nonzero positions (the Jacobian's pattern, the diagonal
+ * and the fill-in of every factorisation so far) are listed by rows (row i's columns
+ * rcol[i*n .. i*n + rlen[i])) and by columns (column j's rows ccol[j*n .. j*n + clen[j])),
+ * each position once (listed[i + j*n] marks it): the pivot search, the updates and the
+ * next fill's clearing visit only those, so an LU costs O(n) plus its arithmetic on the
+ * nonzeros and their fill-in, not O(n^2). */
 typedef struct {
-    int *piv, *lp, *li, *up, *ui;
+    int *prow, *lp, *li, *up, *ui, *rlen, *rcol, *clen, *ccol, *done;
+    unsigned char *listed;
 } Factor;
 
-/* Carve a Factor for size n out of mem; returns the rest of mem. */
-static int *factor_init(Factor *f, int n, int *mem)
+/* Carve a Factor for size n out of mem (SM_FACTOR_INTS(n) ints) and bytes (n*n, zero);
+ * returns the rest of mem. Then factor_list_pattern; the working matrix must start zero. */
+static int *factor_init(Factor *f, int n, int *mem, unsigned char *bytes)
 {
-    f->piv = mem;
-    f->lp = f->piv + n;
+    size_t nn = (size_t)n * n;
+    f->prow = mem;
+    f->lp = f->prow + n;
     f->up = f->lp + n + 1;
     f->li = f->up + n + 1;
-    f->ui = f->li + (size_t)n * n;
-    return f->ui + (size_t)n * n;
+    f->ui = f->li + nn;
+    f->rcol = f->ui + nn;
+    f->ccol = f->rcol + nn;
+    f->rlen = f->ccol + nn;
+    f->clen = f->rlen + n;
+    f->done = f->clen + n;
+    f->listed = bytes;
+    for (int i = 0; i < n; ++i) f->rlen[i] = f->clen[i] = 0;
+    return f->done + n;
 }
 
+/* Ints a Factor takes from mem. */
+#define SM_FACTOR_INTS(n) (4 * (size_t)(n) * (n) + 6 * (size_t)(n) + 2)
+
 /* Doubles (or complex numbers) an LU of size n works in: SM_LU_SIZE(n). */
-#define SM_LU_SIZE(n) (3 * (size_t)(n) * (n) + (n))
+#define SM_LU_SIZE(n) (3 * (size_t)(n) * (n) + 2 * (size_t)(n))
+
+/* List position (i, j) of a Factor as nonzero (once). */
+static inline void list_nonzero(Factor *f, int n, int i, int j)
+{
+    size_t ij = i + (size_t)j * n;
+    if (f->listed[ij]) return;
+    f->listed[ij] = 1;
+    f->rcol[(size_t)i * n + f->rlen[i]++] = j;
+    f->ccol[(size_t)j * n + f->clen[j]++] = i;
+}
+
+/* List the positions of diag I - J (J in pattern pt): once, after factor_init. */
+static void factor_list_pattern(Factor *f, int n, const Pattern *pt)
+{
+    for (int i = 0; i < n; ++i) list_nonzero(f, n, i, i);
+    for (int c = 0; c < n; ++c)
+        for (int k = pt->colind[c]; k < pt->colind[c + 1]; ++k) list_nonzero(f, n, pt->row[k], c);
+}
+
+/* a = diag I - J (J: the nonzeros jnz in pattern pt), after zeroing every listed position
+ * (the lists keep the fill-in of earlier factorisations: they only grow). */
+#define SM_FILL(NAME, T)                                                               \
+    static void NAME(int n, T *a, const Factor *f, const Pattern *pt, const double *jnz, \
+                     T diag)                                                           \
+    {                                                                                  \
+        for (int i = 0; i < n; ++i) {                                                  \
+            const int *c = f->rcol + (size_t)i * n;                                    \
+            for (int r = 0; r < f->rlen[i]; ++r) a[i + (size_t)c[r] * n] = 0.0;        \
+            a[i + (size_t)i * n] = diag;                                               \
+        }                                                                              \
+        for (int c = 0; c < n; ++c)                                                    \
+            for (int k = pt->colind[c]; k < pt->colind[c + 1]; ++k)                    \
+                a[pt->row[k] + (size_t)c * n] -= jnz[k];                               \
+    }
 
 /* LU with partial pivoting of the column-major n x n matrix a (the first n*n of
- * SM_LU_SIZE(n) entries; overwritten), LINPACK's way: at step k rows k and piv[k] are
- * swapped from column k on, so the multipliers of column k are final once computed. The
- * model's Jacobian is sparse (a chain): the updates skip its zeros, and the factors are
+ * SM_LU_SIZE(n) entries, filled by SM_FILL; overwritten), rows in place. The factors are
  * packed for the solves as they are found: the multipliers of column k (rows in the
- * Factor, values at a + n*n), the strict upper part of row k of U (columns in the Factor,
- * values at a + 2 n*n) and the inverse diagonal (a + 3 n*n). */
+ * Factor, values at a + n*n), row k of U (columns in the Factor, values at a + 2 n*n) and
+ * the inverse pivots (a + 3 n*n). */
 #define SM_LU(NAME, T, ABS)                                                           \
     static int NAME(int n, T *a, Factor *f)                                           \
     {                                                                                 \
         T *lv = a + (size_t)n * n, *uv = lv + (size_t)n * n, *dv = uv + (size_t)n * n; \
         int nl = 0, nu = 0;                                                           \
+        for (int i = 0; i < n; ++i) f->done[i] = 0;                                   \
         for (int k = 0; k < n; ++k) {                                                 \
-            T *ak = a + k * n;                                                        \
-            int q = k;                                                                \
-            double big = ABS(ak[k]);                                                  \
-            for (int i = k + 1; i < n; ++i)                                           \
-                if (ABS(ak[i]) > big) big = ABS(ak[i]), q = i;                        \
-            f->piv[k] = q;                                                            \
-            if (big == 0.0) return 1;                                                 \
-            if (q != k)                                                               \
-                for (int j = k; j < n; ++j) {                                         \
-                    T s = a[k + j * n];                                               \
-                    a[k + j * n] = a[q + j * n];                                      \
-                    a[q + j * n] = s;                                                 \
-                }                                                                     \
-            T inv = dv[k] = 1.0 / ak[k];                                              \
+            const T *ak = a + (size_t)k * n;                                          \
+            const int *rows = f->ccol + (size_t)k * n;                                \
+            int q = -1;                                                               \
+            double big = 0.0;                                                         \
+            for (int r = 0; r < f->clen[k]; ++r)                                      \
+                if (!f->done[rows[r]] && ABS(ak[rows[r]]) > big)                      \
+                    big = ABS(ak[rows[r]]), q = rows[r];                              \
+            if (q < 0) return 1;                                                      \
+            f->prow[k] = q;                                                           \
+            f->done[q] = 1;                                                           \
+            T inv = dv[k] = 1.0 / ak[q];                                              \
             int l0 = f->lp[k] = nl;                                                   \
-            for (int i = k + 1; i < n; ++i)                                           \
-                if (ak[i] != 0.0) lv[nl] = ak[i] *= inv, f->li[nl++] = i;             \
+            for (int r = 0; r < f->clen[k]; ++r) {                                    \
+                int i = rows[r];                                                      \
+                if (!f->done[i] && ak[i] != 0.0) lv[nl] = ak[i] * inv, f->li[nl++] = i; \
+            }                                                                         \
             f->up[k] = nu;                                                            \
-            for (int j = k + 1; j < n; ++j) {                                         \
-                T akj = a[k + j * n], *aj = a + j * n;                                \
-                if (akj == 0.0) continue;                                             \
-                uv[nu] = akj, f->ui[nu++] = j;                                        \
-                for (int r = l0; r < nl; ++r) aj[f->li[r]] -= lv[r] * akj;            \
+            const int *cols = f->rcol + (size_t)q * n;                                \
+            for (int r = 0; r < f->rlen[q]; ++r) {                                    \
+                int j = cols[r];                                                      \
+                T aqj = a[q + (size_t)j * n], *aj = a + (size_t)j * n;                \
+                if (j <= k || aqj == 0.0) continue;                                   \
+                uv[nu] = aqj, f->ui[nu++] = j;                                        \
+                for (int t = l0; t < nl; ++t) {                                       \
+                    list_nonzero(f, n, f->li[t], j);                                  \
+                    aj[f->li[t]] -= lv[t] * aqj;                                      \
+                }                                                                     \
             }                                                                         \
         }                                                                             \
         f->lp[n] = nl;                                                                \
@@ -137,19 +234,19 @@ static int *factor_init(Factor *f, int n, int *mem)
         return 0;                                                                     \
     }
 
-/* Solve with the factors of SM_LU: each swap, then its column of L; then U by rows. */
+/* Solve A x = b with the factors of SM_LU (x into b): forward through the pivot rows
+ * (each final when its step comes), then U by rows. */
 #define SM_SOLVE(NAME, T)                                                             \
-    static void NAME(int n, const T *a, const Factor *f, T *b)                        \
+    static void NAME(int n, T *a, const Factor *f, T *b)                              \
     {                                                                                 \
-        const T *lv = a + (size_t)n * n, *uv = lv + (size_t)n * n, *dv = uv + (size_t)n * n; \
+        T *lv = a + (size_t)n * n, *uv = lv + (size_t)n * n, *dv = uv + (size_t)n * n; \
+        T *z = dv + n;                                                                \
         for (int k = 0; k < n; ++k) {                                                 \
-            T bk = b[f->piv[k]];                                                      \
-            b[f->piv[k]] = b[k];                                                      \
-            b[k] = bk;                                                                \
+            T bk = z[k] = b[f->prow[k]];                                              \
             for (int r = f->lp[k]; r < f->lp[k + 1]; ++r) b[f->li[r]] -= lv[r] * bk;  \
         }                                                                             \
         for (int k = n - 1; k >= 0; --k) {                                            \
-            T bk = b[k];                                                              \
+            T bk = z[k];                                                              \
             for (int r = f->up[k]; r < f->up[k + 1]; ++r) bk -= uv[r] * b[f->ui[r]];  \
             b[k] = bk * dv[k];                                                        \
         }                                                                             \
@@ -158,6 +255,8 @@ static int *factor_init(Factor *f, int n, int *mem)
 /* |re| + |im|: the pivot size of LAPACK's complex LU, without a square root */
 static inline double abs1(double complex z) { return fabs(creal(z)) + fabs(cimag(z)); }
 
+SM_FILL(fill_real, double)
+SM_FILL(fill_complex, double complex)
 SM_LU(lu_real, double, fabs)
 SM_LU(lu_complex, double complex, abs1)
 SM_SOLVE(solve_real, double)
@@ -201,7 +300,16 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     memcpy(&tb, cst, sizeof tb);
     const double rtol = opt[0], atol = opt[1], hmax = opt[3];
     const double t_end = tout[nout - 1];
-    const double newton_tol = fmax(10 * DBL_EPSILON / rtol, fmin(0.03, sqrt(rtol)));
+    /* Newton stopping tolerance, in the error norm of (rtol, atol): RADAU5's
+     * max(10 eps / r, min(0.03, sqrt(r))) taken at its transformed tolerance
+     * r = 0.1 rtol^(2/3) (with atol scaled alike) and carried back to (rtol, atol) by
+     * the factor r / rtol: about 0.03 for every rtol <= 1e-3. Taken at rtol itself
+     * (sqrt(1e-10) = 1e-5) it asks the velocity increments for 1e-18 m/s at
+     * atol = 1e-13, below the roundoff floor of the stage equations (about 1e-16 m/s at
+     * h = 1 ms): the iteration stalls and every step size fails. */
+    const double rtol_t = 0.1 * pow(rtol, 2.0 / 3.0);
+    const double newton_tol = fmax(10 * DBL_EPSILON / rtol,
+                                   fmin(0.03, sqrt(rtol_t)) * rtol_t / rtol);
     const double mu_c_re = tb.mu_cr, mu_c_im = tb.mu_ci;
 
     int sz_arg, sz_res, sz_iw, sz_w, a2, r2, i2, w2;
@@ -213,24 +321,31 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     sz_w = sz_w > w2 ? sz_w : w2;
 
     size_t nn = (size_t)n * n;
-    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 28 * (size_t)n + (size_t)sz_w + 1));
+    Pattern pt = jac_pattern(n);
+    double *dbl = malloc(sizeof(double) * (SM_LU_SIZE(n) + 28 * (size_t)n + (size_t)sz_w
+                                           + (size_t)(pt.nnz > 0 ? pt.nnz : 0) + 1));
     double complex *cplx = malloc(sizeof(double complex) * (SM_LU_SIZE(n) + n));
-    size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
-    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)sz_iw + 1));
+    int *ints = malloc(sizeof(int) * (2 * SM_FACTOR_INTS(n) + (size_t)sz_iw + 1));
+    unsigned char *bytes = calloc(2 * nn + 1, 1);
     const double **arg = malloc(sizeof(double *) * (sz_arg + 1));
     double **res = malloc(sizeof(double *) * (sz_res + 1));
-    if (!dbl || !cplx || !ints || !arg || !res) {
-        free(dbl), free(cplx), free(ints), free(arg), free(res);
+    if (!dbl || !cplx || !ints || !bytes || !arg || !res || pt.nnz < 0) {
+        free(dbl), free(cplx), free(ints), free(bytes), free(arg), free(res), free(pt.own);
         return SM_NO_MEMORY;
     }
-    double *J = dbl, *LUr = J + nn, *y = LUr + SM_LU_SIZE(n);
+    double *LUr = dbl, *y = LUr + SM_LU_SIZE(n);
     double *f0 = y + n, *ynew = f0 + n, *scale = ynew + n, *tmp = scale + n, *err = tmp + n;
     double *Z = err + n, *W = Z + 3 * n, *dW = W + 3 * n, *F = dW + 3 * n, *Q = F + 3 * n;
-    double *Qold = Q + 3 * n, *rr = Qold + 3 * n, *ypoly = rr + n, *cw = ypoly + n;
+    double *Qold = Q + 3 * n, *rr = Qold + 3 * n, *ypoly = rr + n, *jnz = ypoly + n;
+    double *cw = jnz + pt.nnz;
     double complex *LUc = cplx, *rc = LUc + SM_LU_SIZE(n);
     Factor fr, fc;
-    int *iw = factor_init(&fc, n, factor_init(&fr, n, ints));
-    Model m = {n, w, p, arg, res, iw, cw, stats};
+    int *iw = factor_init(&fc, n, factor_init(&fr, n, ints, bytes), bytes + nn);
+    factor_list_pattern(&fr, n, &pt);
+    factor_list_pattern(&fc, n, &pt);
+    memset(LUr, 0, sizeof(double) * nn); /* unlisted positions stay zero (SM_FILL) */
+    memset(LUc, 0, sizeof(double complex) * nn);
+    Model m = {n, w, p, arg, res, iw, cw, stats, pt, jnz};
 
     int code = SM_OK, k_out = 0;
     double t = t0;
@@ -238,7 +353,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     *t_fail = t0;
 
     if (rhs(&m, t, y, f0)) { code = SM_RHS; goto done; }
-    if (jac(&m, t, y, J)) { code = SM_JAC; goto done; }
+    if (jac(&m, t, y)) { code = SM_JAC; goto done; }
     int current_jac = 1;
 
     /* initial step (Hairer, Norsett & Wanner I, II.4) for the order-3 error estimate */
@@ -271,15 +386,8 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
         if (h < hmin) { code = SM_STEP_TOO_SMALL; break; }
         if (t + 1.0001 * h >= t_end) h = t_end - t;  /* land on the end, no sliver step */
         if (!lu_ok || h != h_lu) {
-            double complex mc = (mu_c_re + I * mu_c_im) / h;
-            for (size_t i = 0; i < nn; ++i) {
-                LUr[i] = -J[i];
-                LUc[i] = -J[i];
-            }
-            for (int i = 0; i < n; ++i) {
-                LUr[i + i * n] += tb.mu_r / h;
-                LUc[i + i * n] += mc;
-            }
+            fill_real(n, LUr, &fr, &pt, jnz, tb.mu_r / h);
+            fill_complex(n, LUc, &fc, &pt, jnz, (mu_c_re + I * mu_c_im) / h);
             stats[ST_LU] += 1;
             if (lu_real(n, LUr, &fr) || lu_complex(n, LUc, &fc)) {
                 h *= 0.5;  /* singular iteration matrix: try a smaller step */
@@ -362,7 +470,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
         if (!converged) {
             stats[ST_NEWTON_FAIL] += 1;
             if (!current_jac) {  /* first a fresh Jacobian at the same step size */
-                if (jac(&m, t, y, J)) { code = SM_JAC; break; }
+                if (jac(&m, t, y)) { code = SM_JAC; break; }
                 current_jac = 1;
                 lu_ok = 0;
                 continue;
@@ -437,7 +545,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
         *t_fail = t;
         if (rhs(&m, t, y, f0)) { code = SM_RHS; break; }
         if (refresh_jac) {
-            if (jac(&m, t, y, J)) { code = SM_JAC; break; }
+            if (jac(&m, t, y)) { code = SM_JAC; break; }
             lu_ok = 0;
         }
         current_jac = refresh_jac;
@@ -450,7 +558,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
 done:
     memcpy(x, y, sizeof(double) * n);
     if (code != SM_OK) *t_fail = t;
-    free(dbl), free(cplx), free(ints), free(arg), free(res);
+    free(dbl), free(cplx), free(ints), free(bytes), free(arg), free(res), free(pt.own);
     return code;
 }
 
@@ -473,34 +581,43 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
     sm_rhs_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
     sm_jac_work(&a2, &r2, &i2, &w2);
     size_t nn = (size_t)n * n;
-    double *dbl = malloc(sizeof(double) * (nn + SM_LU_SIZE(n) + 2 * (size_t)n + (size_t)(sz_w > w2 ? sz_w : w2) + 1));
+    Pattern pt = jac_pattern(n);
+    double *dbl = malloc(sizeof(double) * (SM_LU_SIZE(n) + 2 * (size_t)n
+                                           + (size_t)(pt.nnz > 0 ? pt.nnz : 0)
+                                           + (size_t)(sz_w > w2 ? sz_w : w2) + 1));
     double complex *cplx = malloc(sizeof(double complex) * (SM_LU_SIZE(n) + n));
-    size_t n_factor = 2 * nn + 3 * (size_t)n + 2;
-    int *ints = malloc(sizeof(int) * (2 * n_factor + (size_t)(sz_iw > i2 ? sz_iw : i2) + 1));
+    int *ints = malloc(sizeof(int) * (2 * SM_FACTOR_INTS(n) + (size_t)(sz_iw > i2 ? sz_iw : i2) + 1));
+    unsigned char *bytes = calloc(2 * nn + 1, 1);
     const double **arg = malloc(sizeof(double *) * ((sz_arg > a2 ? sz_arg : a2) + 1));
     double **res = malloc(sizeof(double *) * ((sz_res > r2 ? sz_res : r2) + 1));
     double stats[ST_N] = {0};
     int code = SM_OK;
-    if (!dbl || !cplx || !ints || !arg || !res) { code = SM_NO_MEMORY; goto done; }
-    double *J = dbl, *LUr = J + nn, *f = LUr + SM_LU_SIZE(n), *b = f + n, *cw = b + n;
+    if (!dbl || !cplx || !ints || !bytes || !arg || !res || pt.nnz < 0) {
+        code = SM_NO_MEMORY;
+        goto done;
+    }
+    double *LUr = dbl, *f = LUr + SM_LU_SIZE(n), *b = f + n, *jnz = b + n;
+    double *cw = jnz + pt.nnz;
     double complex *LUc = cplx, *bc = LUc + SM_LU_SIZE(n);
     Factor fr, fc;
-    Model m = {n, w, p, arg, res, factor_init(&fc, n, factor_init(&fr, n, ints)), cw, stats};
+    int *iw = factor_init(&fc, n, factor_init(&fr, n, ints, bytes), bytes + nn);
+    factor_list_pattern(&fr, n, &pt);
+    factor_list_pattern(&fc, n, &pt);
+    memset(LUr, 0, sizeof(double) * nn);
+    memset(LUc, 0, sizeof(double complex) * nn);
+    Model m = {n, w, p, arg, res, iw, cw, stats, pt, jnz};
     double tic = seconds();
     for (int k = 0; k < reps; ++k)
         if (rhs(&m, t, x, f)) { code = SM_RHS; goto done; }
     out[0] = (seconds() - tic) / reps;
     tic = seconds();
     for (int k = 0; k < reps; ++k)
-        if (jac(&m, t, x, J)) { code = SM_JAC; goto done; }
+        if (jac(&m, t, x)) { code = SM_JAC; goto done; }
     out[1] = (seconds() - tic) / reps;
     tic = seconds();
     for (int k = 0; k < reps; ++k) {
-        for (size_t i = 0; i < nn; ++i) LUr[i] = -J[i], LUc[i] = -J[i];
-        for (int i = 0; i < n; ++i) {
-            LUr[i + i * n] += tb.mu_r / h;
-            LUc[i + i * n] += (tb.mu_cr + I * tb.mu_ci) / h;
-        }
+        fill_real(n, LUr, &fr, &pt, jnz, tb.mu_r / h);
+        fill_complex(n, LUc, &fc, &pt, jnz, (tb.mu_cr + I * tb.mu_ci) / h);
         if (lu_real(n, LUr, &fr) || lu_complex(n, LUc, &fc)) {
             code = SM_STEP_TOO_SMALL;
             goto done;
@@ -521,6 +638,6 @@ int sm_radau_costs(int n, const double *w, const double *p, double t, const doub
     }
     out[4] = (seconds() - tic) / reps;
 done:
-    free(dbl), free(cplx), free(ints), free(arg), free(res);
+    free(dbl), free(cplx), free(ints), free(bytes), free(arg), free(res), free(pt.own);
     return code;
 }

@@ -5,6 +5,9 @@ CVODES at rtol 1e-12, failures and the compile cache."""
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -13,7 +16,7 @@ from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.component import Component, System
 from sarcomere.dynamics.signals import Sine, Step
-from sarcomere.dynamics.simulation import radau
+from sarcomere.dynamics.simulation import compiled, radau
 from sarcomere.dynamics.simulation.common import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.simulator import Simulator
@@ -130,6 +133,82 @@ def test_stiff_lag_driven_by_a_sine_where_explicit_fails():
     assert err.max() < 1e-9 and steps < 1100, (err, steps)
 
 
+class Preloaded(Component):
+    """``m x'' = F0 - c x - d x'``: a mass held by a preloaded spring, released from
+    ``x_eq + dx`` at rest. The static terms are large (``F0 / m = 5e3 m/s^2``) against a
+    small motion (``dx = 10 um``), as the APS bodies' pressure forces are."""
+
+    M_KG, C_N_M, D_NS_M, F0_N, DX_M = 2e-3, 1e3, 0.14, 10.0, 1e-5
+
+    def build(self, b) -> None:
+        x = b.state("x", self.F0_N / self.C_N_M + self.DX_M, "m", "position")
+        v = b.state("v", 0.0, "m/s", "velocity")
+        b.der(x, v)
+        b.der(v, (self.F0_N - self.C_N_M * x - self.D_NS_M * v) / self.M_KG)
+
+    @classmethod
+    def exact(cls, t: np.ndarray) -> np.ndarray:
+        """Position [m]: the underdamped release from rest."""
+        w0 = math.sqrt(cls.C_N_M / cls.M_KG)
+        zeta = cls.D_NS_M / (2 * math.sqrt(cls.C_N_M * cls.M_KG))
+        wd = w0 * math.sqrt(1 - zeta**2)
+        decay = cls.DX_M * np.exp(-zeta * w0 * t)
+        return cls.F0_N / cls.C_N_M + decay * (np.cos(wd * t) + zeta * w0 / wd * np.sin(wd * t))
+
+
+def test_tight_tolerances_in_si_units_closed_form():
+    """rtol 1e-10 / atol 1e-13 and 1e-12 / 1e-14 in SI units against the closed form:
+    the error relative to the motion stays within 30 rtol and falls with the tolerance."""
+    sys = System("preloaded")
+    sys.add(Preloaded("p"))
+    model = sys.flatten()
+    t_out = np.linspace(0.0, 0.05, 51)  # 5.6 periods
+    errors = []
+    for rtol, atol in ((1e-10, 1e-13), (1e-12, 1e-14)):
+        s = SolverSettings("radau", rtol, atol)
+        res = simulate(model, 0.05, settings=s, t_out=t_out)
+        errors.append(np.abs(res["p.x"] - Preloaded.exact(res["time"])).max() / Preloaded.DX_M)
+        assert errors[-1] < 30 * rtol, (rtol, errors[-1])
+    assert errors[0] > 5 * errors[1], errors
+
+
+@pytest.fixture(scope="module")
+def step_reference():
+    """The n = 3 step scene and CVODES at rtol 1e-13, atol 1e-16 (scipy Radau at
+    rtol 1e-11 agrees to 3e-12 in the scaled l2 error)."""
+    sc = wp.scenarios(3)["step"]
+    model, _ = sc.setup()
+    res = sc.run(SolverSettings("cvodes", 1e-13, 1e-16))
+    X = wp.states(res, model)
+    scale = np.abs(X).max(axis=0)
+    return sc, model, wp.Reference(res, X, np.where(scale > 0, scale, 1.0), res.meta)
+
+
+def test_tight_tolerances_on_the_muscle_track_cvodes(step_reference):
+    """The scene of issue 17 at rtol 1e-10 / atol 1e-13 and 1e-12 / 1e-14 (SI units):
+    both run, each below its tolerance, and the tighter one is closer. Before the Newton
+    stopping test was taken at RADAU5's transformed tolerance, it asked the velocity
+    increments of the (nearly still) expansion springs for 1e-5 atol = 1e-18 m/s, below
+    the roundoff floor of their stage equations, and every step size failed ("Newton
+    iteration failed to converge repeatedly") at 1e-10 / 1e-13."""
+    sc, model, ref = step_reference
+    errors = []
+    for rtol, atol in ((1e-8, 1e-11), (1e-10, 1e-13), (1e-12, 1e-14)):
+        res = sc.run(SolverSettings("radau", rtol, atol))
+        final, l2 = wp.state_errors(wp.states(res, model), ref)
+        errors.append(l2)
+        assert l2 < max(rtol, 1e-11) and final < max(rtol, 1e-11), (rtol, l2, final)
+    assert errors[0] > 5 * errors[1] > 25 * errors[2], errors
+
+
+def test_below_the_roundoff_floor_the_failure_says_so(step_reference):
+    """atol 1e-15 on the muscle: the velocities' Newton increments cannot get below their
+    roundoff floor; the error names it instead of only "failed to converge"."""
+    sc = step_reference[0]
+    with pytest.raises(SolverError, match="roundoff floor .* raise atol"):
+        sc.run(SolverSettings("radau", 1e-12, 1e-15))
+
+
 # --- the muscle against CVODES at rtol 1e-12 ----------------------------------------------
 def test_n3_step_against_tight_cvodes():
     """The issue-12 scenario (n = 3, 50 g, 0.1 MPa step, 2 s, 201 points): at rtol 1e-5
@@ -175,7 +254,13 @@ def test_algebraic_unknowns_are_refused():
 
 @pytest.mark.parametrize(
     ("option", "value"),
-    [("max_newton", 0), ("max_step", -1.0), ("first_step", 0.0), ("newton", 3)],
+    [
+        ("max_newton", 0),
+        ("max_newton", 1),  # accepted before, and then every step failed
+        ("max_step", -1.0),
+        ("first_step", 0.0),
+        ("newton", 3),
+    ],
 )
 def test_bad_options_are_refused(oscillator, option, value):
     s = SolverSettings("radau", options=((option, value),))
@@ -206,6 +291,86 @@ def test_unit_costs_are_timed_in_the_library(oscillator):
     costs = radau.unit_costs(oscillator, HELD, 0.0, x, np.zeros(0), p, h=1e-2, reps=50)
     assert set(costs) == {"rhs", "jac", "lu", "solve", "solve_real"}
     assert all(0 < v < 1e-3 for v in costs.values()), costs
+
+
+_BUILD = """
+import sys
+from sarcomere.dynamics import hanging_load
+from sarcomere.dynamics.simulation import compiled, radau, simulate
+from sarcomere.dynamics.simulation.common import HELD
+if sys.argv[1] == "no-compiler":  # a compile would raise
+    compiled._compile = lambda *a: sys.exit("the compiler was invoked")
+model = hanging_load(1, load_kg=0.05)
+res = simulate.simulate(model, 0.05, settings=simulate.SolverSettings("radau"))
+lib = radau.library(model, HELD)
+print(lib.compiled, lib.path, res["load.s"][-1])
+"""
+
+
+def _processes(tmp_path, *modes: str) -> list[list[str]]:
+    """Run ``_BUILD`` in new processes at once (cache in ``tmp_path``); their outputs."""
+    env = {**os.environ, "SARCOMERE_CACHE_DIR": str(tmp_path)}
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _BUILD, mode], env=env, stdout=subprocess.PIPE, text=True
+        )
+        for mode in modes
+    ]
+    outs = [p.communicate(timeout=300)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0] * len(procs), outs
+    return [o.split() for o in outs]
+
+
+def test_disk_cache_is_shared_by_concurrent_processes_and_reused(tmp_path):
+    """Two processes building the same library at once both succeed and leave one file
+    (no partial file); a third loads it without invoking the compiler; the same end
+    state from all three."""
+    first = _processes(tmp_path, "build", "build")
+    files = sorted(p.name for p in (tmp_path / "lib").iterdir())
+    assert len(files) == 1 and files[0].startswith("radau-") and files[0].endswith(".so")
+    assert {o[1] for o in first} == {str(tmp_path / "lib" / files[0])}
+    assert "True" in {o[0] for o in first}  # at least one compiled (both may)
+    (again,) = _processes(tmp_path, "no-compiler")
+    assert again[0] == "False" and again[1] == first[0][1]
+    assert again[2] == first[0][2] == first[1][2]
+
+
+def test_cache_key_follows_flags_and_sources(tmp_path, monkeypatch):
+    monkeypatch.setenv("SARCOMERE_CACHE_DIR", str(tmp_path))
+    inputs = [b"int f(void) { return 1; }", "-O1"]
+    k = compiled.key(inputs)
+    assert k == compiled.key(list(inputs))
+    assert k != compiled.key([inputs[0], "-O2"]) != compiled.key([b"int f(void);", "-O1"])
+    assert compiled.cache_dir() == tmp_path
+
+
+def test_dense_jacobian_from_the_generator_gives_the_same_steps(tmp_path, monkeypatch):
+    """``sm_jac`` may return the dense Jacobian (``sparse=False``): same steps, same
+    states to roundoff as the sparse one."""
+    s = SolverSettings("radau", 1e-7, 1e-10)
+
+    def run(model):
+        inputs = {"regulator.p_cmd": Step(final=1e5, time=0.1)}
+        return simulate(model, 0.3, inputs, settings=s, t_out=np.linspace(0.0, 0.3, 31))
+
+    sparse = run(hanging_load(1, load_kg=0.05))
+    monkeypatch.setenv("SARCOMERE_CACHE_DIR", str(tmp_path))  # not the sparse build's key
+    gen = radau.generate_sources
+    monkeypatch.setattr(radau, "generate_sources", lambda r, f: gen(r, f, sparse=False))
+    model = hanging_load(1, load_kg=0.05)
+    dense = run(model)
+    lib = radau.library(model, HELD)
+    assert lib.compiled and lib.path.parent == tmp_path / "lib"
+    assert dense.meta["n_steps"] == sparse.meta["n_steps"]
+    np.testing.assert_allclose(dense["load.s"], sparse["load.s"], rtol=1e-12, atol=1e-15)
+
+
+def test_unwritable_cache_is_a_solver_error_naming_it(tmp_path, monkeypatch):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("SARCOMERE_CACHE_DIR", str(blocker))
+    with pytest.raises(SolverError, match="compile cache folder .*a-file.*SARCOMERE_CACHE_DIR"):
+        compiled.shared_library("x", [b"int f(void);"], lambda folder: [])
 
 
 class Blowup(Component):

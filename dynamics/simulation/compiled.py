@@ -1,0 +1,149 @@
+"""Shared libraries compiled from C sources, cached on disk by content hash.
+
+The cache folder is ``$SARCOMERE_CACHE_DIR``, else ``$XDG_CACHE_HOME/sarcomere``, else
+``~/.cache/sarcomere``; libraries live in its ``lib/`` folder as ``<stem>-<key>.so``.
+The key is the SHA-256 of what the caller says the library depends on (its sources, or
+what generates them deterministically, and its flags), the compiler (resolved path and
+``--version``), the link flags, the platform and the Python ABI: any change builds a new
+file, an unchanged set reuses the old one without invoking the compiler. Several
+processes may build the same library at once: each compiles in its own temporary
+folder, copies the result to a temporary file in ``lib/`` and renames it into place
+(``os.replace``, atomic), so a reader sees no file or a whole one. Delete
+the folder to clear the cache (``docs/numerics.md``).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import SolverError
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One translation unit: a C source and its compiler flags."""
+
+    source: Path
+    flags: tuple[str, ...]
+
+
+def cache_dir() -> Path:
+    """The cache folder (``SARCOMERE_CACHE_DIR``, XDG, or ``~/.cache/sarcomere``)."""
+    env = os.environ.get("SARCOMERE_CACHE_DIR")
+    if env:
+        return Path(env)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "sarcomere"
+
+
+def compiler() -> str:
+    """The C compiler's path (``$CC``, default gcc); a SolverError if there is none."""
+    cc = shutil.which(os.environ.get("CC", "gcc"))
+    if cc is None:
+        raise SolverError("no C compiler found: install gcc or set CC")
+    return cc
+
+
+@functools.cache
+def _compiler_id(cc: str) -> str:
+    done = subprocess.run([cc, "--version"], capture_output=True, text=True, check=False)
+    return f"{os.path.realpath(cc)}\n{done.stdout}"
+
+
+def key(inputs: Sequence[bytes | str], link_flags: Sequence[str] = ()) -> str:
+    """The content hash (hex, 24 characters) of a library built from ``inputs`` (whatever
+    determines its sources and flags) with the compiler, platform and Python ABI here."""
+    h = hashlib.sha256()
+    for part in (
+        _compiler_id(compiler()),
+        platform.platform(),
+        platform.machine(),
+        sysconfig.get_config_var("SOABI") or sys.version,
+        " ".join(link_flags),
+        *inputs,
+    ):
+        h.update((part.encode() if isinstance(part, str) else part) + b"\0")
+    return h.hexdigest()[:24]
+
+
+def shared_library(
+    stem: str,
+    inputs: Sequence[bytes | str],
+    units: Callable[[Path], Sequence[Unit]],
+    link_flags: Sequence[str] = ("-lm",),
+) -> tuple[Path, bool]:
+    """The cached shared library keyed by ``inputs``, built first if absent.
+
+    Parameters
+    ----------
+    stem : str
+        File name prefix.
+    inputs : sequence of bytes or str
+        Everything the library depends on besides the compiler and platform: the
+        sources (or what generates them, deterministically) and the flags.
+    units : callable
+        ``units(folder)``: writes the sources into ``folder`` and returns the units;
+        called only if the library is not in the cache. The units compile in parallel
+        (one compiler process each), then link.
+
+    Returns
+    -------
+    (Path, bool)
+        The library's path in the cache, and whether this call compiled it.
+    """
+    folder = cache_dir() / "lib"
+    path = folder / f"{stem}-{key(inputs, link_flags)}.so"
+    if path.is_file():
+        return path, False
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise SolverError(
+            f"cannot create the compile cache folder {folder} ({e.strerror}): "
+            "set SARCOMERE_CACHE_DIR to a writable folder"
+        ) from None
+    with tempfile.TemporaryDirectory(prefix="sarcomere-build-") as tmp:
+        built = _compile(units(Path(tmp)), link_flags, Path(tmp))
+        fd, part = tempfile.mkstemp(prefix=f".{stem}-", suffix=".part", dir=folder)
+        try:
+            with os.fdopen(fd, "wb") as out, built.open("rb") as src:
+                shutil.copyfileobj(src, out)
+                out.flush()
+                os.fsync(out.fileno())
+            os.chmod(part, 0o755)
+            os.replace(part, path)  # atomic: readers see no file or the whole one
+        except BaseException:
+            Path(part).unlink(missing_ok=True)
+            raise
+    return path, True
+
+
+def _compile(units: Sequence[Unit], link_flags: Sequence[str], tmp: Path) -> Path:
+    """Compile each unit to an object (in parallel), link them; the library's path."""
+    cc = compiler()
+    jobs = []
+    for k, u in enumerate(units):
+        obj = tmp / f"u{k}.o"
+        cmd = [cc, "-c", "-fPIC", *u.flags, str(u.source), "-o", str(obj)]
+        jobs.append((obj, subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)))
+    errors = [p.communicate()[1] for _, p in jobs]
+    for (_, p), err in zip(jobs, errors, strict=True):
+        if p.returncode != 0:
+            raise SolverError(f"the C compiler failed: {err[-2000:]}")
+    so = tmp / "lib.so"
+    cmd = [cc, "-shared", *(str(o) for o, _ in jobs), "-o", str(so), *link_flags]
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SolverError(f"the linker failed: {done.stderr[-2000:]}")
+    return so
