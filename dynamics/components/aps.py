@@ -410,11 +410,16 @@ class APS(Component):
         if self.quasi_static:
             exp = b.add(ViscousNode("expansion", d=p.c_e))
         else:
-            exp = b.add(Mass("expansion", m=p.m_e, g=0.0))
+            # scales: the wall travels 2-8 mm at up to ~10 mm/s (docs/fmu.md, tolerances)
+            exp = b.add(Mass("expansion", m=p.m_e, g=0.0, s_nominal=1e-3, v_nominal=1e-2))
             loss = b.add(Damper("loss", d=p.c_e))
             b.connect(ground.flange, loss.flange_a)
             b.connect(loss.flange_b, exp.flange_a)
-        body_c = Node("body", m=p.m_body) if self.massless_body else Mass("body", m=p.m_body)
+        body_c = (
+            Node("body", m=p.m_body)
+            if self.massless_body
+            else Mass("body", m=p.m_body, v_nominal=1e-2)
+        )
         body = b.add(body_c)
         self.position = body_c.position
         b.connect(ground.flange, yeoh.flange_a)

@@ -47,6 +47,9 @@ class Mass(Component):
 
     ``g`` None: the environment's gravity (``ambient.g``, one for the whole model); a
     number [m/s^2]: this mass's own parameter (0 for a motion across gravity).
+    ``s_nominal`` [m], ``v_nominal`` [m/s]: the states' scaling magnitudes (default
+    ``|start|``, or 1 for a zero start); importers scale their absolute tolerance by them
+    (fmpy's CVode: ``atol = rtol * nominal``), so a millimetre travel needs its own.
     """
 
     def __init__(
@@ -56,9 +59,12 @@ class Mass(Component):
         g: float | None = None,
         s_start: float | cs.SX = 0.0,
         v_start: float = 0.0,
+        s_nominal: float | None = None,
+        v_nominal: float | None = None,
     ) -> None:
         super().__init__(name)
         self.m, self.g, self.s_start, self.v_start = m, g, s_start, v_start
+        self.s_nominal, self.v_nominal = s_nominal, v_nominal
 
     def build(self, b: Builder) -> None:
         m = b.parameter("m", self.m, "kg", "mass", low=1e-12)
@@ -66,8 +72,8 @@ class Mass(Component):
             g = b.outer(ENVIRONMENT)["g"]
         else:
             g = b.parameter("g", self.g, "m/s^2", "gravitational acceleration along +s")
-        s = b.state("s", self.s_start, "m", "position")
-        v = b.state("v", self.v_start, "m/s", "velocity")
+        s = b.state("s", self.s_start, "m", "position", nominal=self.s_nominal)
+        v = b.state("v", self.v_start, "m/s", "velocity", nominal=self.v_nominal)
         self.position = s
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         b.equation(fa.s, s)

@@ -192,24 +192,11 @@ def _error(result: np.ndarray, ref: np.ndarray, names) -> tuple[float, str]:
     return float(err[i]), names[i]
 
 
-ME_OFF_TARGET = {
-    "ramp-50g": "fmpy's CVode takes atol = rtol * nominal, and the model declares no nominal "
-    "for the expansions' travel (1 m by default against 2-8 mm) and the velocities (1 m/s): "
-    "1.75e-4 measured at rtol 1e-8 (1.1e-5 at rtol 1e-10; 8.3e-5 with nominal values of "
-    "1 mm and 10 mm/s in the FMU)",
-}
-"""Model Exchange cases that miss :data:`TOL` at rtol 1e-8, with the measured cause (the
-FMU's own Co-Simulation meets it on the same scenes)."""
-
-
 def _cases():
     for scene in SCENES:
         for mode in [*(f"cs-{h * 1e3:g}ms" for h in STEPS_S), "me"]:
             for version in (2, 3):
-                marks = ()
-                if mode == "me" and scene in ME_OFF_TARGET:
-                    marks = pytest.mark.xfail(strict=True, reason=ME_OFF_TARGET[scene])
-                yield pytest.param(scene, mode, version, marks=marks)
+                yield pytest.param(scene, mode, version)
 
 
 @pytest.mark.parametrize(("scene", "mode", "version"), list(_cases()))
