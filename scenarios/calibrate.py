@@ -7,18 +7,6 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
-from sarcomere.dynamics.calibration import (
-    CONCENTRIC_LOADS_KG,
-    CONCENTRIC_PRESSURES_PA,
-    FAMILY_L_R,
-    TARGETS,
-    calibrate,
-    family,
-)
-from sarcomere.dynamics.components.aps import APSParams
-
 from .outdir import check_out_dir, staged
 from .progress import progress
 
@@ -40,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--family",
         action="store_true",
         help="also calibrate one member per restoring length L_r "
-        f"({', '.join(f'{x * 1e3:g}' for x in FAMILY_L_R)} mm) and write family.json, "
+        "of the family (calibration.FAMILY_L_R; docs/paper.md) and write family.json, "
         "family.csv and concentric-family.png (the concentric strain band)",
     )
 
@@ -50,6 +38,10 @@ def handler(args: argparse.Namespace) -> int:
 
     ``--out`` is checked before the fit starts; the folder is replaced only on success.
     """
+    # imported here, not at the top: `sarcomere calibrate --help` and argument errors
+    # stay light (no CasADi)
+    from sarcomere.dynamics.calibration import TARGETS, calibrate, family
+
     out = check_out_dir(args.out, "--out")
     tic = time.perf_counter()
     with progress("calibrate", enabled=not args.verbose):
@@ -87,6 +79,9 @@ def handler(args: argparse.Namespace) -> int:
 
 
 def _write_family(members, out: Path) -> None:
+    from sarcomere.dynamics.calibration import CONCENTRIC_LOADS_KG, CONCENTRIC_PRESSURES_PA
+    from sarcomere.dynamics.components.aps import APSParams
+
     """Write the L_r family's fits, its concentric strains and the band plot into ``out``."""
     default_L_r = APSParams.from_paper().L_r
     record = [
@@ -124,8 +119,11 @@ def _write_family(members, out: Path) -> None:
 
 
 def _plot_family(members, default_L_r: float, path: Path) -> None:
+    import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+
+    from sarcomere.dynamics.calibration import CONCENTRIC_LOADS_KG, CONCENTRIC_PRESSURES_PA
 
     fig = Figure(figsize=(7, 4.5))
     FigureCanvasAgg(fig)

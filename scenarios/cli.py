@@ -96,7 +96,7 @@ COMMANDS: list[Command] = [
     Command("run", "run a scenario and write summary.json, CSV and plots", _run, _run_arguments),
     Command(
         "calibrate",
-        "fit A_p, A_r, k_s to the paper's three measured targets (IPOPT)",
+        "fit A_p, A_r, k_s to the paper's three measured targets (Newton continuation)",
         "sarcomere.scenarios.calibrate:handler",
         "sarcomere.scenarios.calibrate:add_arguments",
     ),

@@ -73,7 +73,7 @@ def _table(sc: Scenario, value: object, path: tuple, allowed=None) -> Mapping:
 
 def _quantity(sc: Scenario, value: object, path: tuple, unit: str, low: float | None = None):
     try:
-        v = to_si(value, unit, ".".join(path))
+        v = to_si(value, unit, ".".join(path), bare_ok=False)
     except ParameterError as exc:
         raise sc.error(path, describe(exc)) from None
     if not math.isfinite(v) or (low is not None and v < low):

@@ -130,7 +130,7 @@ class _StartedNative(NativeParticipant):
 
 def _quantity(sc: Scenario, value, path: tuple, unit: str, low: float | None = None) -> float:
     try:
-        v = to_si(value, unit, ".".join(path))
+        v = to_si(value, unit, ".".join(path), bare_ok=False)
     except ParameterError as exc:
         raise sc.error(path, describe(exc)) from None
     if not math.isfinite(v) or (low is not None and v < low):
@@ -221,7 +221,8 @@ def _pid(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
         raise sc.error((*path, "input"), unknown_key(task["input"], m.input_names))
     u_unit = m.unit(task["input"])
     for key, default in zip(("u_min", "u_max"), PID_BOUNDS_PA, strict=True):
-        task[key] = _quantity(sc, spec.get(key, default), (*path, key), u_unit)
+        given = spec[key] if key in spec else f"{default!r} {u_unit}"  # defaults are SI
+        task[key] = _quantity(sc, given, (*path, key), u_unit)
     if "sample_time" not in spec:
         raise sc.error((*path, "sample_time"), "a sample time is required, e.g. '10 ms'")
     dt = _quantity(sc, spec["sample_time"], (*path, "sample_time"), "s", 0.0)

@@ -16,20 +16,28 @@ from __future__ import annotations
 import argparse
 import zipfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from sarcomere.dynamics.assemblies import FIDELITIES
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.dynamics.modeling.model import Model
-from sarcomere.fmu.export import DEFAULT_STEP_S, Experiment, export_fmu
 
-from .dynamic import _inputs, bind, check_n  # _inputs: the same name and unit checks as a run
-from .loader import load_scenario
-from .spec import Scenario
+if TYPE_CHECKING:
+    # the model and the exporter are imported when used: CLI start-up
+    from sarcomere.dynamics.modeling.model import Model
+    from sarcomere.fmu.export import Experiment
+
+    from .spec import Scenario
 
 
 def scenario_setup(source: str | Path | Scenario) -> tuple[Model, dict, dict, Experiment]:
     """The model, parameter overrides, start inputs and default experiment of a transient
     scenario (file, packaged name or loaded :class:`Scenario`)."""
+    from sarcomere.dynamics.assemblies import FIDELITIES
+    from sarcomere.fmu.export import DEFAULT_STEP_S, Experiment
+
+    from .dynamic import _inputs, bind, check_n  # _inputs: the same checks as a run
+    from .loader import load_scenario
+    from .spec import Scenario
+
     sc = source if isinstance(source, Scenario) else load_scenario(source)
     if sc.kind != "transient":
         raise sc.error(("scenario", "kind"), f"'{sc.kind}': an FMU is exported from a transient")
@@ -86,6 +94,10 @@ def check_output(out: Path, force: bool) -> None:
 
 def handler(args: argparse.Namespace) -> int:
     """Export and print the path written."""
+    from sarcomere.fmu.export import export_fmu
+
+    from .loader import load_scenario
+
     sc = load_scenario(args.scenario)
     out = Path(args.out) if args.out else Path(f"{sc.name}.fmu")
     check_output(out, args.force)

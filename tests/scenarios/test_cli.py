@@ -156,6 +156,10 @@ print(json.dumps(dict(status=status, heavy=sorted(m for m in HEAVY if m in sys.m
         (["run", "step-50g", "--bogus"], 2),
         (["bench", "nosuch", "--out", "x"], 2),
         (["linearize", "--help"], 0),
+        (["calibrate", "--bogus"], 2),
+        (["calibrate", "--help"], 0),
+        (["export-fmu", "step-50g", "--bogus"], 2),
+        (["export-fmu", "--help"], 0),
     ],
 )
 def test_the_cli_answers_without_importing_the_model_library(argv, status) -> None:

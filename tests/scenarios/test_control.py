@@ -119,6 +119,7 @@ def test_force_scene_shortened(tmp_path):
         ('output = "myofibril.length"', 'output = "myofibril.lenght"', "control.output"),
         ('sample_time = "10 ms"', 'sample_time = "0.1 ms"', "control.sample_time"),
         ('sample_time = "10 ms"', 'sample_time = "0.2 s"', "control.sample_time"),
+        ('sample_time = "10 ms"', "sample_time = 0.01", "control.sample_time"),  # no unit
     ],
 )
 def test_bad_control_settings_are_refused_by_key(tmp_path, old, new, key):

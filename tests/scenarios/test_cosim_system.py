@@ -131,6 +131,7 @@ def test_the_co_simulated_time_shows_on_the_progress_line(tmp_path):
         (('build = "load"\n', 'build = "load"\nfmu = "x.fmu"\n'), "exactly one of"),
         (('build = "load"', 'build = "spring"'), "key 'cosim.participants.load.build'"),
         (('mass = "20 g"', 'mas = "20 g"'), "participants.load.mas'.*unknown key"),
+        (('mass = "20 g"', "mass = 0.02"), "participants.load.mass'.*needs a unit"),
         (('mass = "20 g"', 'mass = "20 m"'), "participants.load.mass"),
         (('plant = "muscle"', 'plant = "load"'), "participants.pid.plant'.*'load'"),
         (('"pull.f" =', '"pull.x" ='), 'muscle.start."pull.x"\'.*unknown key'),
