@@ -30,7 +30,7 @@ from .equilibrium import Equilibrium, solve_equilibrium
 from .errors import SarcomereError
 from .modeling.model import Model
 from .results import Result
-from .simulation.linear import simulate_linear, static_gain
+from .simulation.linear import simulate_linear, static_gain, step_times
 
 PATH_NODES = 17
 """Equilibria along the input range for the equilibrium path (cubic interpolation of the
@@ -114,7 +114,8 @@ def run_equilibrium_path(
     Y = _path_response(model, path, inputs, t_out, list(signals), range(len(path.nodes)))
     meta = {"method": "equilibrium path + scheduled linear deviation", "n_steps": 0}
     units = {n: model.unit(n) for n in signals}
-    return Result("time", "s", t_out, {n: Y[:, j] for j, n in enumerate(signals)}, units, meta)
+    res = Result("time", "s", t_out, {n: Y[:, j] for j, n in enumerate(signals)}, units, meta)
+    return res.require_finite("equilibrium_path")
 
 
 def _path_response(
@@ -139,7 +140,7 @@ def _path_response(
         mats.append((A, C))
     t0, tf = float(t_out[0]), float(t_out[-1])
     bps = sig.breakpoints(t0, tf) if hasattr(sig, "breakpoints") else []
-    times = np.unique(np.concatenate([t_out, np.asarray(bps, float)]))
+    times, keep = step_times(t_out, bps)
     right = np.asarray(sig(times), float) * np.ones(len(times))
     left = np.asarray(sig(np.nextafter(times, -np.inf)), float) * np.ones(len(times))
     h = np.diff(times)
@@ -164,7 +165,6 @@ def _path_response(
         Phi, Psi = cache[key]
         xi[k + 1] = Phi @ xi[k] + Psi @ drive[k]
         xi[k + 1] -= jumps[k + 1]  # the state is continuous where the equilibrium jumps
-    keep = np.searchsorted(times, t_out)
     u = right[keep]
     near = np.abs(u[:, None] - nodes[None, :]).argmin(axis=1)
     dev = np.array([mats[j][1] @ x for j, x in zip(near, xi[keep], strict=True)])

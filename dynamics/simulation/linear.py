@@ -43,6 +43,46 @@ def foh_matrices(
     return E[:n, :n], E[:n, n : n + m], E[:n, n + m :]
 
 
+MERGE_ULPS = 64
+"""Times closer than this many ulps of the run's time scale (``max(1 s, |t0|, |tf|)``)
+are one time: a breakpoint that round-off puts next to an output time (``0.4 * 3`` s
+against ``1.2`` s) is not a step of its own (a zero-length step divides by zero)."""
+
+
+def step_times(t_out: np.ndarray, breakpoints: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """The times a level steps between and where each output time is among them.
+
+    The output grid joined with the inputs' breakpoints, times within
+    :data:`MERGE_ULPS` ulps of each other merged into one (a breakpoint wins over an
+    output time, so the input jumps exactly there; the output time is then reported at
+    that instant, round-off away); every step is longer than that.
+
+    Returns
+    -------
+    times : numpy.ndarray
+        Increasing times [s], consecutive ones more than the merge distance apart.
+    keep : numpy.ndarray
+        Index into ``times`` of each entry of ``t_out``.
+    """
+    t_out = np.asarray(t_out, float)
+    bps = np.asarray(breakpoints, float).reshape(-1)
+    tol = MERGE_ULPS * np.finfo(float).eps * max(1.0, float(np.max(np.abs(t_out))))
+    cand = np.concatenate([bps, t_out])
+    is_bp = np.arange(len(cand)) < len(bps)
+    times: list[float] = []
+    rep_is_bp: list[bool] = []
+    where = np.empty(len(cand), int)
+    for j in np.lexsort((~is_bp, cand)):  # by time, a breakpoint first among equals
+        if times and cand[j] - times[-1] <= tol:
+            if is_bp[j] and not rep_is_bp[-1]:  # the input jumps exactly here
+                times[-1], rep_is_bp[-1] = float(cand[j]), True
+        else:
+            times.append(float(cand[j]))
+            rep_is_bp.append(bool(is_bp[j]))
+        where[j] = len(times) - 1
+    return np.array(times), where[len(bps) :]
+
+
 def static_gain(model: Model, operating_point, signals: Sequence[str]) -> np.ndarray:
     """The linearisation's steady-state gain ``K = D - C A^-1 B`` of ``signals`` per input
     at ``operating_point``: ``dy = K du`` once the linear model has settled."""
@@ -90,7 +130,7 @@ def simulate_linear(
     t_out = np.asarray(t_out, float)
     t0, tf = float(t_out[0]), float(t_out[-1])
     bps = [b for s in inputs.values() if hasattr(s, "breakpoints") for b in s.breakpoints(t0, tf)]
-    times = np.unique(np.concatenate([t_out, np.asarray(bps, float)]))
+    times, keep = step_times(t_out, bps)
 
     def u_at(t: np.ndarray) -> np.ndarray:
         U = np.repeat(np.asarray(op.u, float)[None, :], len(t), axis=0)
@@ -119,10 +159,9 @@ def simulate_linear(
     X[0] = dx
     for i in range(len(h)):
         X[i + 1] = Phis[keys[i]] @ X[i] + F[i]
-    keep = np.searchsorted(times, t_out)
     Y = y_op[None, :] + X[keep] @ C.T + du_right[keep] @ D.T
     rates = np.abs(np.linalg.eigvals(A).real)
-    return Result(
+    res = Result(
         "time",
         "s",
         t_out,
@@ -135,3 +174,4 @@ def simulate_linear(
             "fastest_rate_per_s": float(rates.max()),
         },
     )
+    return res.require_finite("linear")

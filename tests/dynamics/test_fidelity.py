@@ -8,8 +8,10 @@ from sarcomere.dynamics import fidelity
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.components.aps import APSParams, GroupedMyofibril
 from sarcomere.dynamics.equilibrium import solve_equilibrium
-from sarcomere.dynamics.signals import Chirp, Ramp, Step
-from sarcomere.dynamics.simulation.linear import foh_matrices
+from sarcomere.dynamics.errors import SolverError
+from sarcomere.dynamics.results import Result
+from sarcomere.dynamics.signals import Chirp, Ramp, Staircase, Step
+from sarcomere.dynamics.simulation.linear import foh_matrices, step_times
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 P = "regulator.p_cmd"
@@ -176,3 +178,41 @@ def test_reduced_chains_name_the_chain_ends_as_full_does(level):
     for name in names:
         assert reduced[name] == pytest.approx(full[name], rel=1e-9)
     assert full["myofibril.actin0.T"] == pytest.approx(1.3435, rel=1e-4)  # load + 10 bodies
+
+
+def test_a_breakpoint_round_off_away_from_an_output_time_is_no_step():
+    """The staircase's third switch, 0.4 s x 3, is 2.2e-16 s after the grid's 1.2 s: one
+    time, the breakpoint's (the input jumps exactly there), never a zero-length step."""
+    grid = 0.0032 * np.arange(501)  # time_grid of 1.6 s in 500 intervals
+    bps = [0.4, 0.8, 0.4 * 3]
+    times, keep = step_times(grid, bps)
+    assert np.min(np.diff(times)) > 1e-6
+    assert 0.4 * 3 in times and np.all(np.abs(times[keep] - grid) < 1e-13)
+    assert len(times) == len(grid)  # every switch is on the grid, up to round-off
+    twice = np.append(grid, grid[-1] + 2e-16)  # round-off duplicates of one output time
+    times, keep = step_times(twice, [])
+    assert len(times) == len(grid) and keep[-1] == keep[-2]
+
+
+def test_linear_level_on_a_staircase_with_a_round_off_breakpoint_is_finite():
+    """The reproducer of issue 17 (3 APS, 0 g, 50/52/48/51 kPa, dwell 0.4 s, 1.6 s in
+    500 intervals): NaN from 1.2032 s on before; now finite and within 1 % of full."""
+    model = hanging_load(3, load_kg=0.0)
+    sig = Staircase(levels=(5e4, 5.2e4, 4.8e4, 5.1e4), dwell=0.4, unit="Pa")
+    t = 0.0032 * np.arange(501)
+    path = fidelity.equilibrium_path(model, P, sig(t), nodes=5)
+    lin = fidelity.run_linear(model, path, {P: sig}, t, SIGNALS)
+    start = solve_equilibrium(model, {P: 5e4})
+    settings = SolverSettings("cvodes", 1e-9, 1e-12)
+    full = simulate(model, 1.6, {P: sig}, x0=start.x, settings=settings, t_out=t, signals=SIGNALS)
+    for n in SIGNALS:
+        assert np.all(np.isfinite(lin[n]))
+        assert np.max(np.abs(lin[n] - full[n])) / np.ptp(full[n]) < 0.01
+
+
+def test_a_non_finite_result_is_an_error_naming_the_signal_and_time():
+    values = {"x": [1.0, 2.0, 3.0], "y": [0.0, 1.0, np.nan]}
+    res = Result("time", "s", [0.0, 0.5, 1.0], values, {})
+    with pytest.raises(SolverError, match=r"linear: signal 'y' is nan at time = 1 s"):
+        res.require_finite("linear")
+    assert res.select(["x"]).require_finite("linear")["x"][-1] == 3.0
