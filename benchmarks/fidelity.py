@@ -97,9 +97,10 @@ def _ladder_level(text: str, level: str, signals: list[str]):
     sc = parse_scenario(_with_level(text, "full"), "scene.toml")
     b = dynamic.bind(sc)
     full = b.build("full")
-    inputs, wanted, grid = dynamic._prepare(sc, b, full)
+    inputs = {dynamic.INPUT_ALIASES.get(k, k): v for k, v in sc.inputs.items()}
+    grid = dynamic.time_grid(sc.simulation)
     name = next(iter(inputs))
-    nodes = dynamic.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
+    nodes = ladder.policy.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
     path = ladder.equilibrium_path(full, name, inputs[name](grid), b.overrides, nodes)
     run = ladder.run_linear if level == "linear" else ladder.run_equilibrium_path
     return run(full, path, inputs, grid, signals), {}

@@ -21,6 +21,7 @@ everything nonlinear: it is valid only for small deviations from the operating p
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import expm
@@ -91,6 +92,104 @@ def static_gain(model: Model, operating_point, signals: Sequence[str]) -> np.nda
     return D - C @ np.linalg.solve(A, B)
 
 
+@dataclass
+class Trajectory:
+    """The states a level without an integrator steps through, and its own state
+    derivative at each step's ends: what its defect (the model's ODE at those states
+    minus that derivative) and so its predicted error are computed from.
+
+    Attributes
+    ----------
+    times : numpy.ndarray
+        Step times [s] (:func:`step_times`), shape (N,).
+    keep : numpy.ndarray
+        Index into ``times`` of each output time.
+    x : numpy.ndarray
+        States at ``times``, shape (N, nx), SI.
+    u_right, u_left : numpy.ndarray
+        Every input just after and just before each time, shape (N, nu).
+    slope_start, slope_end : numpy.ndarray
+        The level's own ``dx/dt`` at the start and at the end of each step, (N-1, nx).
+    A : list of numpy.ndarray
+        The state matrices the level steps with; ``which`` (N-1,) indexes them per step.
+    """
+
+    times: np.ndarray
+    keep: np.ndarray
+    x: np.ndarray
+    u_right: np.ndarray
+    u_left: np.ndarray
+    slope_start: np.ndarray
+    slope_end: np.ndarray
+    A: list
+    which: np.ndarray
+
+
+def input_values(
+    model: Model, inputs: Mapping[str, object], base: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every input of ``model`` just after and just before the times ``t``, shape
+    (len(t), nu): the signals ``inputs`` by name, the others held at ``base``."""
+    names = model.input_names
+    unknown = [k for k in inputs if k not in names]
+    if unknown:
+        raise SarcomereError(f"{unknown} are not inputs of model '{model.name}'")
+    out = []
+    for at in (t, np.nextafter(t, -np.inf)):  # signals are right-continuous
+        U = np.repeat(np.asarray(base, float)[None, :], len(t), axis=0)
+        for k, sig in inputs.items():
+            U[:, names.index(k)] = np.asarray(sig(at), float) * np.ones(len(t))
+        out.append(U)
+    return out[0], out[1]
+
+
+def breakpoints(inputs: Mapping[str, object], t0: float, tf: float) -> list[float]:
+    """The inputs' breakpoints in ``[t0, tf]`` [s]."""
+    return [b for s in inputs.values() if hasattr(s, "breakpoints") for b in s.breakpoints(t0, tf)]
+
+
+def linear_trajectory(
+    model: Model, operating_point, inputs: Mapping[str, object], t_out: np.ndarray
+) -> Trajectory:
+    """The states of the linearisation at ``operating_point`` on ``t_out`` (and the
+    inputs' breakpoints), stepped exactly (module docstring)."""
+    op = operating_point
+    A, B, _, _ = (np.array(v) for v in model.linearization([])(op.x, op.z, op.u, op.p))
+    t_out = np.asarray(t_out, float)
+    times, keep = step_times(t_out, breakpoints(inputs, float(t_out[0]), float(t_out[-1])))
+    u_right, u_left = input_values(model, inputs, op.u, times)
+    du_right, du_left = u_right - op.u, u_left - op.u
+    try:
+        dx = -np.linalg.solve(A, B @ du_right[0])
+    except np.linalg.LinAlgError:
+        raise SarcomereError("linear: A is singular at the operating point") from None
+    h = np.diff(times)
+    keys = np.round(h, 15)
+    F = np.empty((len(h), A.shape[0]))  # the input's part of each step, all steps at once
+    Phis = {}
+    for key in np.unique(keys):
+        Phi, G1, G2 = foh_matrices(A, B, float(key))
+        Phis[key] = Phi
+        sel = keys == key
+        ua, ub = du_right[:-1][sel], du_left[1:][sel]
+        F[sel] = ua @ G1.T + (ub - ua) @ G2.T
+    X = np.empty((len(times), A.shape[0]))
+    X[0] = dx
+    for i in range(len(h)):
+        X[i + 1] = Phis[keys[i]] @ X[i] + F[i]
+    return Trajectory(
+        times,
+        keep,
+        op.x + X,
+        u_right,
+        u_left,
+        X[:-1] @ A.T + du_right[:-1] @ B.T,
+        X[1:] @ A.T + du_left[1:] @ B.T,
+        [A],
+        np.zeros(len(h), int),
+    )
+
+
 def simulate_linear(
     model: Model,
     operating_point,
@@ -120,56 +219,34 @@ def simulate_linear(
         Time and the signals; ``meta`` holds ``method = "linear"`` and the eigenvalues'
         slowest and fastest rates [1/s].
     """
+    return linear_result(
+        model,
+        operating_point,
+        linear_trajectory(model, operating_point, inputs, t_out),
+        t_out,
+        signals,
+    )
+
+
+def linear_result(
+    model: Model, operating_point, traj: Trajectory, t_out: np.ndarray, signals: Sequence[str]
+) -> Result:
+    """The outputs ``y_op + C dx + D du`` of a :func:`linear_trajectory`."""
     op = operating_point
-    lin = model.linearization(list(signals))
-    A, B, C, D = (np.array(v) for v in lin(op.x, op.z, op.u, op.p))
-    names = model.input_names
-    unknown = [k for k in inputs if k not in names]
-    if unknown:
-        raise SarcomereError(f"linear: {unknown} are not inputs of model '{model.name}'")
-    t_out = np.asarray(t_out, float)
-    t0, tf = float(t_out[0]), float(t_out[-1])
-    bps = [b for s in inputs.values() if hasattr(s, "breakpoints") for b in s.breakpoints(t0, tf)]
-    times, keep = step_times(t_out, bps)
-
-    def u_at(t: np.ndarray) -> np.ndarray:
-        U = np.repeat(np.asarray(op.u, float)[None, :], len(t), axis=0)
-        for k, sig in inputs.items():
-            U[:, names.index(k)] = np.asarray(sig(t), float) * np.ones(len(t))
-        return U - np.asarray(op.u, float)
-
-    du_right = u_at(times)  # just after each time (signals are right-continuous)
-    du_left = u_at(np.nextafter(times, -np.inf))  # just before
+    _, _, C, D = (np.array(v) for v in model.linearization(list(signals))(op.x, op.z, op.u, op.p))
     y_op = np.array(model.signals_function(list(signals))(op.x, op.z, op.u, op.p)).ravel()
-    try:
-        dx = -np.linalg.solve(A, B @ du_right[0])
-    except np.linalg.LinAlgError:
-        raise SarcomereError("linear: A is singular at the operating point") from None
-    h = np.diff(times)
-    keys = np.round(h, 15)
-    F = np.empty((len(h), A.shape[0]))  # the input's part of each step, all steps at once
-    Phis = {}
-    for key in np.unique(keys):
-        Phi, G1, G2 = foh_matrices(A, B, float(key))
-        Phis[key] = Phi
-        sel = keys == key
-        ua, ub = du_right[:-1][sel], du_left[1:][sel]
-        F[sel] = ua @ G1.T + (ub - ua) @ G2.T
-    X = np.empty((len(times), A.shape[0]))
-    X[0] = dx
-    for i in range(len(h)):
-        X[i + 1] = Phis[keys[i]] @ X[i] + F[i]
-    Y = y_op[None, :] + X[keep] @ C.T + du_right[keep] @ D.T
-    rates = np.abs(np.linalg.eigvals(A).real)
+    k = traj.keep
+    Y = y_op[None, :] + (traj.x[k] - op.x) @ C.T + (traj.u_right[k] - op.u) @ D.T
+    rates = np.abs(np.linalg.eigvals(traj.A[0]).real)
     res = Result(
         "time",
         "s",
-        t_out,
+        np.asarray(t_out, float),
         {n: Y[:, j] for j, n in enumerate(signals)},
         {n: model.unit(n) for n in signals},
         meta={
             "method": "linear (exact FOH matrix exponential)",
-            "n_steps": len(times) - 1,
+            "n_steps": len(traj.times) - 1,
             "slowest_rate_per_s": float(rates.min()),
             "fastest_rate_per_s": float(rates.max()),
         },

@@ -90,7 +90,7 @@ def test_equilibrium_path_valid_for_the_slow_ramp_invalid_for_the_step(model):
     sig, stop, dt = SCENES["step-50g"]
     t = np.linspace(0.0, stop, round(stop / dt) + 1)
     path = fidelity.equilibrium_path(model, P, sig(t), nodes=5)
-    e_lin = fidelity.predict_linear(model, path, {P: sig}, t, SIGNALS)
+    e_lin = fidelity.static_nonlinearity(model, path, {P: sig}, t, SIGNALS)
     bound = fidelity.path_jump_bound(path, {P: sig}, t, SIGNALS, e_lin)
     assert 0.05 < bound <= pred_step["equilibrium_path"]  # 9.5 % <= 10.4 %
     ramp_sig, ramp_stop, ramp_dt = SCENES["ramp-50g"]

@@ -1,0 +1,235 @@
+"""What the levels without an integrator, and the reduced chains, leave out: their
+predicted error against ``full``, before any nonlinear simulation.
+
+* :func:`defect_error`: a level's states put into the model's own ODE; what the ODE
+  says minus what the level did (the defect) drives the error, propagated with the
+  level's own matrices (one defect correction, first order in the error): the static
+  and the dynamic nonlinearity alike (a large step's chamber filling through the tube's
+  square-root law, which no linearisation at an equilibrium holds, where the tube's
+  pressure drop is zero).
+* :func:`static_nonlinearity`: the static map's distance from the linearisation's
+  straight line, from the equilibria alone (a cheap early exit).
+* :func:`predict_reduced`: a reduced chain against a reference chain, both from their
+  statics and linearised dynamics (:func:`chain_response`).
+
+Each prediction is :data:`SAFETY` times the estimate: a bound measured on a randomised
+study (``benchmarks/auto_study.py``, docs/numerics.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SarcomereError
+from ..modeling.model import Model
+from ..simulation.linear import Trajectory, simulate_linear, static_gain
+from .levels import Path, exact_step, level_result, single_input, trajectory
+
+SAFETY = 1.0
+"""Factor on the defect estimates (:func:`defect_error`, first order in the error)."""
+
+
+def defect_error(
+    model: Model, traj: Trajectory, p: np.ndarray, signals: Sequence[str], y: np.ndarray
+) -> np.ndarray:
+    """Estimated error of a level's outputs ``y`` (shape (len(t_out), ny)) per signal,
+    relative to the span, from its :class:`Trajectory`: the defect ``r = f(x, u) - x'``
+    (the model's ODE at the level's states minus the level's own derivative) drives the
+    error ``e' = A e + r`` (``A`` the level's own, ``r`` the mean of its values at each
+    step's ends), and the outputs of the corrected states ``g(x + e, u)`` stand for the
+    full model's. First order in the error (one defect correction)."""
+    if model.nz:
+        raise SarcomereError(f"the defect estimate needs an ODE model; '{model.name}' has z")
+    N = len(traj.times)
+    f = model.function("ode").map(N - 1)
+    P = np.repeat(np.asarray(p, float)[:, None], N - 1, axis=1)
+    z = np.zeros((0, N - 1))
+    r0 = np.array(f(traj.x[:-1].T, z, traj.u_right[:-1].T, P)).T - traj.slope_start
+    r1 = np.array(f(traj.x[1:].T, z, traj.u_left[1:].T, P)).T - traj.slope_end
+    r = 0.5 * (r0 + r1)
+    h = np.diff(traj.times)
+    E = np.zeros_like(traj.x)
+    cache: dict = {}
+    for k in range(N - 1):
+        w = int(traj.which[k])
+        Phi, Psi = exact_step(traj.A[w], (w, round(float(h[k]), 15)), cache)
+        E[k + 1] = Phi @ E[k] + Psi @ r[k]
+    k = traj.keep
+    g = model.signals_function(list(signals), len(k))
+    Pk = np.repeat(np.asarray(p, float)[:, None], len(k), axis=1)
+    corrected = np.array(g((traj.x[k] + E[k]).T, np.zeros((0, len(k))), traj.u_right[k].T, Pk))
+    corrected = corrected.reshape(len(signals), len(k)).T
+    return np.max(np.abs(corrected - y), axis=0) / _span(corrected)
+
+
+def static_nonlinearity(
+    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
+) -> np.ndarray:
+    """The static nonlinearity the ``linear`` level leaves out, per signal (relative to
+    the output's span): ``max |y_eq(u) - y_op - K du|`` over the input's samples, from
+    the equilibria along the input's range (no simulation)."""
+    name, sig = single_input(inputs)
+    signals = list(signals)
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    op, i = path.operating_point, model.input_names.index(name)
+    K = static_gain(model, op, signals)[:, i]
+    y_static = path.static(signals, u)
+    y_lin = np.array([op[n] for n in signals]) + np.outer(u - op.u[i], K)
+    return np.max(np.abs(y_static - y_lin), axis=0) / _span(y_static)
+
+
+def _span(y: np.ndarray) -> np.ndarray:
+    return np.maximum(np.ptp(y, axis=0), 1e-300)
+
+
+def level_defect(
+    level: str,
+    model: Model,
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals,
+    traj: Trajectory | None = None,
+) -> float:
+    """``level``'s :func:`defect_error`, max over ``signals`` (its :func:`trajectory`,
+    computed when not given)."""
+    signals = list(signals)
+    if traj is None:
+        traj = trajectory(level, model, path, inputs, t_out)
+    y = level_result(level, model, path, traj, t_out, signals)
+    Y = np.column_stack([y[n] for n in signals])
+    return float(np.max(defect_error(model, traj, path.operating_point.p, signals, Y)))
+
+
+def predict_linear(
+    model: Model,
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals,
+    static: np.ndarray | None = None,
+) -> float:
+    """Predicted error of ``linear``: :data:`SAFETY` times the larger of its static
+    nonlinearity (``static``, computed when not given) and its defect estimate."""
+    if static is None:
+        static = static_nonlinearity(model, path, inputs, t_out, signals)
+    defect = level_defect("linear", model, path, inputs, t_out, signals)
+    return SAFETY * max(float(np.max(static)), defect)
+
+
+def predict_path(
+    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
+) -> float:
+    """Predicted error of ``equilibrium_path``: :data:`SAFETY` times its defect
+    estimate."""
+    return SAFETY * level_defect("equilibrium_path", model, path, inputs, t_out, signals)
+
+
+def path_jump_bound(
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals,
+    e_lin: np.ndarray,
+) -> float:
+    """The equilibrium path's early exit, from the input and the statics alone: where
+    the input jumps (a step), the state cannot, so the deviation from the path right
+    after the jump is the jump of the static response, ``d = |y_eq(u+) - y_eq(u-)| /
+    span``, and the deviation meets a nonlinearity of about ``e_lin d`` (``e_lin`` the
+    :func:`static_nonlinearity` over the range); zero (up to round-off) for continuous
+    inputs. Measured below the path's error on every step and staircase of the
+    randomised study (it only rules the path out: never the unsafe side)."""
+    _, sig = single_input(inputs)
+    signals = list(signals)
+    t0, tf = float(t_out[0]), float(t_out[-1])
+    bps = np.asarray(sig.breakpoints(t0, tf) if hasattr(sig, "breakpoints") else [], float)
+    if not bps.size:
+        return 0.0
+    after = np.asarray(sig(bps), float) * np.ones(len(bps))
+    before = np.asarray(sig(np.nextafter(bps, -np.inf)), float) * np.ones(len(bps))
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    span = _span(path.static(signals, u))
+    jump = np.abs(path.static(signals, after) - path.static(signals, before))
+    return float(np.max(e_lin * np.max(jump, axis=0) / span))
+
+
+def predict(
+    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
+) -> dict[str, float]:
+    """Predicted error of ``linear`` and ``equilibrium_path`` (:func:`predict_linear`,
+    :func:`predict_path`): max over ``signals`` of the error relative to the output's
+    span, from the equilibria along the input's range and their linearisations, before
+    any nonlinear simulation."""
+    return {
+        "linear": predict_linear(model, path, inputs, t_out, signals),
+        "equilibrium_path": predict_path(model, path, inputs, t_out, signals),
+    }
+
+
+@dataclass
+class ChainResponse:
+    """What a reduced chain's prediction compares, on the scene's output grid.
+
+    Attributes
+    ----------
+    static : numpy.ndarray
+        ``y_eq(u(t))`` of the signals, shape (len(t), ny), from the chain's own path.
+    dynamic : numpy.ndarray
+        The linearised dynamic part ``y_lin - (y_op + K du)`` at the path's operating
+        point, same shape.
+    """
+
+    static: np.ndarray
+    dynamic: np.ndarray
+
+
+def chain_response(
+    model: Model,
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals: Sequence[str],
+) -> ChainResponse:
+    """The static and linearised dynamic response of a chain model on its ``path``."""
+    name, sig = single_input(inputs)
+    signals = list(signals)
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    op, i = path.operating_point, model.input_names.index(name)
+    K = static_gain(model, op, signals)[:, i]
+    lin = simulate_linear(model, op, inputs, t_out, signals)
+    y_op = np.array([op[n] for n in signals])
+    dyn = np.column_stack([lin[n] for n in signals]) - (y_op + np.outer(u - op.u[i], K))
+    return ChainResponse(path.static(signals, u), dyn)
+
+
+def predict_reduced(reduced: ChainResponse, reference: ChainResponse) -> float:
+    """Predicted difference of a reduced chain (``symmetric``, ``grouped``) to a
+    reference chain (``full``, or a grouped chain as a convergence estimate), both
+    :func:`chain_response` on paths with the same nodes: the difference of the statics
+    plus that of the linearised dynamic parts, each relative to the span of the
+    reference's static response (max over time, then over the signals); the nonlinear
+    interplay of the two is left out."""
+    span = _span(reference.static)
+    e_static = np.max(np.abs(reduced.static - reference.static), axis=0) / span
+    e_dyn = np.max(np.abs(reduced.dynamic - reference.dynamic), axis=0) / span
+    return float(np.max(e_static + e_dyn))
+
+
+def static_difference(
+    reduced: Path,
+    reference: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals: Sequence[str],
+) -> float:
+    """The static part of :func:`predict_reduced` alone, from the two chains' paths (no
+    linearisation): a lower bound of the prediction, enough to rule a chain out."""
+    _, sig = single_input(inputs)
+    signals = list(signals)
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    y_ref = reference.static(signals, u)
+    diff = np.max(np.abs(reduced.static(signals, u) - y_ref), axis=0) / _span(y_ref)
+    return float(np.max(diff))
