@@ -174,7 +174,9 @@ def bind(sc: Scenario) -> Binding:
     )
 
 
-def _fidelity(sc: Scenario, allow_auto: bool) -> str:
+def fidelity_level(sc: Scenario, allow_auto: bool) -> str:
+    """``[model] fidelity``, checked: a level of the set-ups (or ``"auto"`` where
+    allowed)."""
     fid = sc.model.fidelity
     allowed = FIDELITIES + (("auto",) if allow_auto else ())
     if fid not in allowed:
@@ -236,7 +238,7 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     """
     sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance", "control", "cosim")
     b = bind(sc)
-    fid = _fidelity(sc, allow_auto=False)
+    fid = fidelity_level(sc, allow_auto=False)
     check_n(sc, ("model", "n"), b.n, fid)
     if not sc.sweep or sc.sweep[0].name != "pressure":
         raise sc.error(("sweep",), "the first sweep axis must be 'pressure'")
@@ -278,10 +280,17 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
 
 
 def check_n(sc: Scenario, path: tuple, n: float, fidelity: str) -> None:
-    """Refuse an n that is not a whole number >= 1 or above the level's :data:`N_LIMITS`."""
+    """Refuse an n that is not a whole number >= 1, above the level's :data:`N_LIMITS`,
+    or (grouped) not above 2 GROUPS."""
     if n != round(n) or n < 1:
         raise sc.error(path, f"{n:g} is not a whole number of units >= 1")
     level = "full" if fidelity == "auto" else fidelity  # auto may end at full
+    if fidelity == "grouped" and n <= 2 * GROUPS:
+        raise sc.error(
+            path,
+            f"grouped needs n > {2 * GROUPS}: at n = {n:g} its {GROUPS} groups of two "
+            "half-groups are the chain itself (use 'full', which names every unit)",
+        )
     if n > N_LIMITS[level]:
         others = ", ".join(f"{k} {v}" for k, v in N_LIMITS.items())
         raise sc.error(
@@ -522,7 +531,7 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     if sc.model.fidelity != "auto":
         sc.refuse_unused("outputs.tolerance")
     b = bind(sc)
-    fid = _fidelity(sc, allow_auto=True)
+    fid = fidelity_level(sc, allow_auto=True)
     check_n(sc, ("model", "n"), b.n, fid)
     extra = {"aps_params": _aps_dict(b.aps), "setup": b.setup}
     metrics = {}

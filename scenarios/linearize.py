@@ -28,7 +28,7 @@ from sarcomere.dynamics.errors import ScenarioError
 from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.units import to_si
 
-from .dynamic import _fidelity, _inputs, bind
+from .dynamic import _inputs, bind, fidelity_level
 from .loader import load_scenario
 from .outdir import check_out_dir, staged
 from .output import version
@@ -72,7 +72,7 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
             sc.file, "scenario.kind", "'static' is the paper's closed-form model: no dynamics"
         )
     b = bind(sc)
-    fid = _fidelity(sc, allow_auto=False)
+    fid = fidelity_level(sc, allow_auto=False)
     model = b.build(fid)
     if sc.kind == "transient":
         _inputs(sc, model)  # the scene's inputs are checked as a run would

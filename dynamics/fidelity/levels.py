@@ -35,6 +35,7 @@ from ..simulation.linear import (
     input_values,
     linear_result,
     linear_trajectory,
+    refine_steps,
     step_times,
 )
 
@@ -198,6 +199,7 @@ def path_trajectory(
         As.append(np.array(fn(e.x, e.z, e.u, e.p)[0]))
     t_out = np.asarray(t_out, float)
     times, keep = step_times(t_out, breakpoints(inputs, float(t_out[0]), float(t_out[-1])))
+    times, keep = refine_steps(times, keep, inputs)
     op = path.operating_point
     u_right, u_left = input_values(model, inputs, op.u, times)
     right, left = u_right[:, i], u_left[:, i]

@@ -4,6 +4,7 @@ choice is checked against the full model here, not in the run."""
 import numpy as np
 import pytest
 
+from sarcomere.dynamics.errors import ScenarioError
 from sarcomere.scenarios import dynamic, parse_scenario, run
 
 SCENE = """
@@ -103,8 +104,18 @@ def test_a_cared_signal_the_level_lacks_rules_it_out(tmp_path):
     assert "aps3" in why["grouped"] and "aps3" in why["symmetric"]
 
 
-@pytest.mark.parametrize("level", ["grouped", "symmetric"])
-def test_reduced_levels_run_as_fixed_fidelity(tmp_path, level):
-    text = _scene(level, STEP, "0.5 s")
+@pytest.mark.parametrize(("level", "n"), [("grouped", 10), ("symmetric", 3)])
+def test_reduced_levels_run_as_fixed_fidelity(tmp_path, level, n):
+    text = _scene(level, STEP, "0.5 s", n=n)
     out = run(parse_scenario(text, "t.toml"), tmp_path, quiet=True)
     assert out.metrics["pressure_final_kPa"] == pytest.approx(100.0, rel=0.02)
+
+
+def test_grouped_on_a_short_chain_is_refused_at_validation(tmp_path):
+    """At n <= 6 the grouped chain is the chain itself: refused with the reason, before
+    a plot of an inner unit's signal fails (it names the chain ends only)."""
+    text = _scene("grouped", STEP, "0.5 s").replace(
+        "[outputs]", '[outputs.plots]\ntension = ["myofibril.actin3.T"]\n[outputs]'
+    )
+    with pytest.raises(ScenarioError, match=r"model\.n.*grouped needs n > 6: at n = 3"):
+        run(parse_scenario(text, "t.toml"), tmp_path, quiet=True)
