@@ -14,8 +14,9 @@ are ruled out:
   ``groups^-1.7``; measured about ``groups^-2`` on steps);
 * ``linear`` and ``equilibrium_path`` by their defect on the full model
   (:func:`~.predictions.predict_linear`, :func:`~.predictions.predict_path`), ruled out
-  at once when the static nonlinearity (linear), or the command's jumps times it (the
-  path), exceed the tolerance.
+  at once when the static nonlinearity (linear), or the command's jumps or the
+  deviation from a coarse path times it (the path), exceed the tolerance: early exits
+  that only ever rule a level out, so they never make auto's error larger.
 
 The reduced chains are considered only where grouped has fewer representative units
 than the chain (n > 2 GROUPS), the two levels on the full model only where it does not:
@@ -56,7 +57,7 @@ REDUCED_PATH_NODES = 5
 
 #: Equilibria along the command's range for the ``linear`` level's prediction (the static
 #: nonlinearity over the range) and its operating point (the middle one).
-LINEAR_PATH_NODES = 5
+LINEAR_PATH_NODES = 3
 
 #: A signal of one unit of the full chain (the reduced chains have those of the ends).
 _UNIT_SIGNAL = re.compile(r"^myofibril\.(aps|tube|actin)\d+\.")
@@ -277,9 +278,15 @@ def choose(scene: Scene) -> Choice:
             what = "static nonlinearity alone"
         else:
             path5 = run.path("full", LINEAR_PATH_NODES)
-            bound = predictions.path_jump_bound(path5, sc.inputs, sc.t_out, sc.signals, static)
-            early = SAFETY * bound
+            early = SAFETY * predictions.path_jump_bound(
+                path5, sc.inputs, sc.t_out, sc.signals, static
+            )
             what = "the command's jumps times the static nonlinearity"
+            if early <= tol:
+                early = SAFETY * predictions.path_deviation_bound(
+                    full, path5, sc.inputs, sc.t_out, sc.signals, static
+                )
+                what = "the deviation from the path times the static nonlinearity"
         if early > tol:
             against[level] += f" ({what})"
             predicted[level] = early

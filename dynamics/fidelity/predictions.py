@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import SarcomereError
 from ..modeling.model import Model
 from ..simulation.linear import Trajectory, simulate_linear, static_gain
-from .levels import Path, exact_step, level_result, single_input, trajectory
+from .levels import Path, level_result, single_input, step_matrices, trajectory
 
 CORRECTIONS = 2
 """Defect corrections of :func:`defect_error`: two converge to 1 % of the error on the
@@ -62,31 +62,31 @@ def defect_error(
     if model.nz:
         raise SarcomereError(f"the defect estimate needs an ODE model; '{model.name}' has z")
     N = len(traj.times)
-    f = model.function("ode").map(N - 1)
-    P = np.repeat(np.asarray(p, float)[:, None], N - 1, axis=1)
-    z = np.zeros((0, N - 1))
+    f = model.function("ode")  # called on columns: mapped by CasADi, p shared
+    p = np.asarray(p, float)
+    z = np.zeros((0, N))
+    jumps = np.flatnonzero(np.any(traj.u_left[1:] != traj.u_right[1:], axis=1)) + 1
     h = np.diff(traj.times)
-    A = [traj.A[int(w)] for w in traj.which]  # per step
+    A = np.array([traj.A[int(w)] for w in traj.which])  # per step
     E = np.zeros_like(traj.x)
     drive = np.zeros((N - 1, traj.x.shape[1]))
-    cache: dict = {}
+    steps = step_matrices(traj.A, traj.which, h, {})
     k = traj.keep
-    g = model.signals_function(list(signals), len(k))
-    Pk = np.repeat(np.asarray(p, float)[:, None], len(k), axis=1)
+    g = model.signals_function(list(signals))
     outputs = []  # g(x + e, u) after each correction
     for _ in range(CORRECTIONS if corrections is None else corrections):
-        start, end = traj.x[:-1] + E[:-1], traj.x[1:] + E[1:]
-        own0 = traj.slope_start + np.einsum("kij,kj->ki", A, E[:-1]) + drive
-        own1 = traj.slope_end + np.einsum("kij,kj->ki", A, E[1:]) + drive
-        r0 = np.array(f(start.T, z, traj.u_right[:-1].T, P)).T - own0
-        r1 = np.array(f(end.T, z, traj.u_left[1:].T, P)).T - own1
+        X = traj.x + E
+        F_right = np.array(f(X.T, z, traj.u_right.T, p)).T  # the ODE just after each time
+        F_left = F_right.copy()  # and just before: differs only where an input jumps
+        if jumps.size:
+            F_left[jumps] = np.array(f(X[jumps].T, z[:, : len(jumps)], traj.u_left[jumps].T, p)).T
+        r0 = F_right[:-1] - (traj.slope_start + np.einsum("kij,kj->ki", A, E[:-1]) + drive)
+        r1 = F_left[1:] - (traj.slope_end + np.einsum("kij,kj->ki", A, E[1:]) + drive)
         drive = drive + 0.5 * (r0 + r1)
-        for j in range(N - 1):
-            w = int(traj.which[j])
-            Phi, Psi = exact_step(traj.A[w], (w, round(float(h[j]), 15)), cache)
+        for j, (Phi, Psi) in enumerate(steps):
             E[j + 1] = Phi @ E[j] + Psi @ drive[j]
-        out = np.array(g((traj.x[k] + E[k]).T, np.zeros((0, len(k))), traj.u_right[k].T, Pk))
-        outputs.append(out.reshape(len(signals), len(k)).T)
+        out = np.array(g((traj.x[k] + E[k]).T, z[:, : len(k)], traj.u_right[k].T, p))
+        outputs.append(out.T)
     last, change = outputs[-1], np.abs(outputs[-1] - outputs[-2]) if len(outputs) > 1 else 0.0
     err = np.max(np.abs(last - y) + change, axis=0) / _span(last)
     return np.where(np.isfinite(err), err, np.inf)
@@ -181,6 +181,29 @@ def path_jump_bound(
     span = _span(path.static(signals, u))
     jump = np.abs(path.static(signals, after) - path.static(signals, before))
     return float(np.max(e_lin * np.max(jump, axis=0) / span))
+
+
+def path_deviation_bound(
+    model: Model,
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    signals,
+    e_lin: np.ndarray,
+) -> float:
+    """The equilibrium path's second early exit: ``e_lin d`` with ``d`` the largest
+    deviation of the path level's outputs from the statics over the span (on ``path``,
+    a coarse one: no evaluation of the model's ODE), the nonlinearity such a deviation
+    meets (fast inputs: a sweep through the load mode deviates by the whole span)."""
+    _, sig = single_input(inputs)
+    signals = list(signals)
+    traj = trajectory("equilibrium_path", model, path, inputs, t_out)
+    y = level_result("equilibrium_path", model, path, traj, t_out, signals)
+    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
+    y_static = path.static(signals, u)
+    Y = np.column_stack([y[n] for n in signals])
+    d = np.max(np.abs(Y - y_static), axis=0) / _span(y_static)
+    return float(np.max(e_lin * d))
 
 
 def predict(
