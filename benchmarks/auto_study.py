@@ -9,7 +9,8 @@ auto chose, its predicted error, its measured error (``max |y - y_ref| / span(y_
 over the scene's signals, the reference ``full`` at rtol 1e-9, atol 1e-12), and the wall
 time of the transient runner end to end (what ``summary.json`` reports) for auto and for
 full at the scene's own settings (CVODES, rtol 1e-6), one BLAS thread, one run each
-after a warm-up run of both.
+(full first; single runs on a shared machine: +/- 30 %). ``--part k/m`` measures every
+m-th scene from the k-th (same draws), for m processes side by side.
 
 Usage::
 
@@ -75,8 +76,7 @@ def draw(rng: np.random.Generator, index: int, n_max: int = 60) -> dict:
     elif kind == "ramp":
         dur = float(rng.uniform(0.3, 4.0))
         cmd = (
-            f'type = "ramp"\nfinal = {_kpa(hi)}\nduration = "{dur:.3f} s"\n'
-            f'start = "{start:.3f} s"'
+            f'type = "ramp"\nfinal = {_kpa(hi)}\nduration = "{dur:.3f} s"\nstart = "{start:.3f} s"'
         )
         stop = start + dur + float(rng.uniform(0.2, 1.0))
     elif kind == "staircase":
@@ -143,9 +143,8 @@ def run(text: str):
 def measure(scene: dict, timing: bool = True) -> dict:
     """Auto's choice, predicted and measured error, and (``timing``) auto's and full's
     end-to-end wall times."""
-    if timing:  # warm-up: CasADi Functions, imports
-        run(scene_text(scene, "auto"))
-        run(scene_text(scene, "full"))
+    if timing:
+        _, t_full = run(scene_text(scene, "full"))
     auto, t_auto = run(scene_text(scene, "auto"))
     ref, _ = run(scene_text(scene, "full", tight=True))
     a, r = auto.results["main"], ref.results["main"]
@@ -160,16 +159,19 @@ def measure(scene: dict, timing: bool = True) -> dict:
         "predicted_all": rep["predicted_error"],
     }
     if timing:
-        _, t_full = run(scene_text(scene, "full"))
         row.update(auto_s=t_auto, full_s=t_full, cost_ratio=t_auto / t_full)
     return row
 
 
-def study(count: int, seed: int, n_max: int = 60, timing: bool = True) -> list[dict]:
+def study(
+    count: int, seed: int, n_max: int = 60, timing: bool = True, part: tuple = (0, 1)
+) -> list[dict]:
     rng = np.random.default_rng(seed)
     rows = []
     for i in range(count):
         scene = draw(rng, i, n_max)
+        if i % part[1] != part[0]:
+            continue
         row = measure(scene, timing)
         rows.append(row)
         cost = f"auto/full {row['cost_ratio']:.2f}" if timing else ""
@@ -198,15 +200,26 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _order(row: dict) -> str:
+    return row["name"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=40)
     parser.add_argument("--seed", type=int, default=17)
     parser.add_argument("--n-max", type=int, default=60)
     parser.add_argument("--out", type=Path, default=Path("out/bench/auto_study.json"))
+    parser.add_argument("--part", default="0/1", help="k/m: every m-th scene from the k-th")
+    parser.add_argument("--table", nargs="+", type=Path, help="only print the table of these")
     args = parser.parse_args()
+    if args.table:
+        rows = sorted((r for f in args.table for r in json.loads(f.read_text())), key=_order)
+        print(table(rows))
+        return
+    part = tuple(int(v) for v in args.part.split("/"))
     with limited_blas():
-        rows = study(args.scenes, args.seed, args.n_max)
+        rows = study(args.scenes, args.seed, args.n_max, part=part)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
     print(table(rows))

@@ -32,7 +32,7 @@ def model():
     return hanging_load(3, load_kg=0.05)
 
 
-def _errors(model, scene):
+def _errors(model, scene, nodes=fidelity.PATH_NODES):
     """(measured error per level against full at rtol 1e-9, predicted error per level):
     max over SIGNALS of max |y - y_full| / span(y_full)."""
     sig, stop, dt = SCENES[scene]
@@ -47,7 +47,7 @@ def _errors(model, scene):
         t_out=t,
         signals=SIGNALS,
     )
-    path = fidelity.equilibrium_path(model, P, sig(t))
+    path = fidelity.equilibrium_path(model, P, sig(t), nodes=nodes)
     measured = {}
     for level, run in (
         ("linear", fidelity.run_linear),
@@ -76,28 +76,54 @@ def test_linear_level_valid_for_a_small_sweep_invalid_for_the_large_step(model):
     assert step["linear"] > 0.05  # measured 15 %: the static map is 9.5 % off a line
     # the prediction (static nonlinearity over the input's range) decides the same way
     assert pred_small["linear"] < 0.01 < pred_step["linear"]
-    assert 0.5 < pred_small["linear"] / small["linear"] < 2
+    assert small["linear"] <= pred_small["linear"] < 2 * small["linear"]  # bound, and close
+    assert step["linear"] <= pred_step["linear"]
 
 
 def test_equilibrium_path_valid_for_the_slow_ramp_invalid_for_the_step(model):
     ramp, pred_ramp = _errors(model, "ramp-50g")
     step, pred_step = _errors(model, "step-50g")
-    assert ramp["equilibrium_path"] < 0.001  # measured 0.094 %
+    assert ramp["equilibrium_path"] < 0.005  # measured 0.30 % (9 nodes; 17: 0.094 %)
     assert ramp["linear"] > 0.05  # the ramp crosses the whole nonlinear range
     assert step["equilibrium_path"] > 0.1  # measured 31 %: a step is not a slow scene
     assert pred_ramp["equilibrium_path"] < 0.01 < pred_step["equilibrium_path"]
-    # auto's shortcut for a step: the jump alone, times linear's error, is a lower bound
+    # upper bounds: the defect estimate (times SAFETY) is at least the measured error
+    for measured, predicted in ((ramp, pred_ramp), (step, pred_step)):
+        for level in ("linear", "equilibrium_path"):
+            assert measured[level] <= predicted[level]
+    # auto's early exit for a step: the jump alone, times the static nonlinearity; it
+    # only rules the path out, and is below the path's measured error
     sig, stop, dt = SCENES["step-50g"]
     t = np.linspace(0.0, stop, round(stop / dt) + 1)
     path = fidelity.equilibrium_path(model, P, sig(t), nodes=5)
     e_lin = fidelity.static_nonlinearity(model, path, {P: sig}, t, SIGNALS)
     bound = fidelity.path_jump_bound(path, {P: sig}, t, SIGNALS, e_lin)
-    assert 0.05 < bound <= pred_step["equilibrium_path"]  # 9.5 % <= 10.4 %
+    assert 0.05 < bound <= step["equilibrium_path"]  # 9.5 % <= 31 %
     ramp_sig, ramp_stop, ramp_dt = SCENES["ramp-50g"]
     t = np.linspace(0.0, ramp_stop, round(ramp_stop / ramp_dt) + 1)
     assert fidelity.path_jump_bound(path, {P: ramp_sig}, t, SIGNALS, e_lin) < 1e-12  # no jump
-    # conservative: 0.78 % predicted (node-spacing estimate plus e_lin d)
-    assert pred_ramp["equilibrium_path"] > ramp["equilibrium_path"]
+
+
+def test_predictions_bound_the_staircase_that_fooled_them():
+    """Issue 17: 5 APS, 20 g, staircase 0/40/80/20 kPa (0.5 s each), tolerance 9 %: the
+    path was predicted 7.9 % and measured 20.6 %, linear 9.7 % against 12.9 % (the
+    static nonlinearity alone misses the chambers' filling through the tube's
+    square-root law). The defect estimates bound both, so auto runs neither."""
+    model = hanging_load(5, load_kg=0.02)
+    sig = Staircase(levels=(0.0, 4e4, 8e4, 2e4), dwell=0.5, unit="Pa")
+    t = np.linspace(0.0, 2.0, 501)
+    start = solve_equilibrium(model, {P: 0.0})
+    settings = SolverSettings("cvodes", 1e-9, 1e-12)
+    full = simulate(model, 2.0, {P: sig}, x0=start.x, settings=settings, t_out=t, signals=SIGNALS)
+    path = fidelity.equilibrium_path(model, P, sig(t))
+    predicted = fidelity.predict(model, path, {P: sig}, t, SIGNALS)
+    for level, run in (
+        ("linear", fidelity.run_linear),
+        ("equilibrium_path", fidelity.run_equilibrium_path),
+    ):
+        res = run(model, path, {P: sig}, t, SIGNALS)
+        error = max(np.max(np.abs(res[n] - full[n])) / np.ptp(full[n]) for n in SIGNALS)
+        assert 0.09 < error <= predicted[level]  # measured 12.9 % and 20.6 %
 
 
 def test_equilibrium_path_follows_the_ringing_of_a_long_chain():
@@ -105,8 +131,8 @@ def test_equilibrium_path_follows_the_ringing_of_a_long_chain():
     ramp's corners; the deviation scheduled on the path's nodes follows it (a single
     linearisation at mid-range is 1 % off here)."""
     model = hanging_load(10, load_kg=0.05)
-    measured, predicted = _errors(model, "ramp-50g")
-    assert measured["equilibrium_path"] < 0.002  # measured 0.063 %
+    measured, predicted = _errors(model, "ramp-50g", nodes=17)
+    assert measured["equilibrium_path"] < 0.002  # measured 0.063 % (9 nodes: 0.23 %)
     assert measured["equilibrium_path"] < predicted["equilibrium_path"] < 0.01
 
 
