@@ -1,6 +1,9 @@
 """``fidelity = "auto"``: the cheapest level predicted within tolerance runs, alone; the
 choice is checked against the full model here, not in the run."""
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -119,3 +122,43 @@ def test_grouped_on_a_short_chain_is_refused_at_validation(tmp_path):
     )
     with pytest.raises(ScenarioError, match=r"model\.n.*grouped needs n > 6: at n = 3"):
         run(parse_scenario(text, "t.toml"), tmp_path, quiet=True)
+
+
+def _study():
+    """benchmarks/auto_study.py (the scene generator of the randomised study)."""
+    path = Path(__file__).parents[2] / "benchmarks" / "auto_study.py"
+    spec = importlib.util.spec_from_file_location("auto_study", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("index", range(4))
+def test_random_scene_stays_within_its_tolerance(index):
+    """Four scenes of the randomised study's generator (seed 5, n <= 6: where linear and
+    equilibrium_path are on the ladder): the chosen level's error against full at rtol
+    1e-9 is within the tolerance, and within its prediction."""
+    study = _study()
+    rng = np.random.default_rng(5)
+    scenes = [study.draw(rng, i, n_max=6) for i in range(index + 1)]
+    row = study.measure(scenes[index], timing=False)
+    assert row["measured"] <= row["tolerance"]
+    if row["chosen"] != "full":
+        assert row["measured"] <= row["predicted"]
+
+
+def test_staircase_with_a_round_off_breakpoint_is_finite_and_within_tolerance(tmp_path):
+    """Issue 17: 3 APS, 0 g, 50/52/48/51 kPa for 0.4 s each, tolerance 2 %: a switch
+    2.2e-16 s from an output time made the linear level divide by zero, and the run
+    returned NaN from 1.2032 s on without an error."""
+    stair = 'type = "staircase"\nlevels = ["50 kPa", "52 kPa", "48 kPa", "51 kPa"]\ndwell = "0.4 s"'
+    out = {}
+    for fid in ("auto", "full"):
+        text = _scene(fid, stair, "1.6 s").replace('load = "50 g"', 'load = "0 g"')
+        text = text.replace('output_interval = "5 ms"\n', "").replace('"1 %"', '"2 %"')
+        out[fid] = run(parse_scenario(text, f"{fid}.toml"), tmp_path / fid, quiet=True)
+    assert out["auto"].fidelity == "linear"
+    a, f = (out[k].results["main"] for k in ("auto", "full"))
+    assert all(np.all(np.isfinite(a[n])) for n in a.names)
+    error = np.max(np.abs(a["myofibril.length"] - f["myofibril.length"]))
+    assert error / np.ptp(f["myofibril.length"]) < 0.02
