@@ -35,6 +35,7 @@ from ..simulation.linear import (
     input_values,
     linear_result,
     linear_trajectory,
+    recurse,
     refine_steps,
     step_times,
 )
@@ -122,14 +123,20 @@ def single_input(inputs: Mapping[str, object]) -> tuple[str, object]:
 
 
 def trajectory(
-    level: str, model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray
+    level: str,
+    model: Model,
+    path: Path,
+    inputs: Mapping[str, object],
+    t_out: np.ndarray,
+    refine: bool = True,
 ) -> Trajectory:
     """The states of ``level`` (one of :data:`LEVELS`) on ``t_out``: the linearisation
-    at the path's operating point, or the path plus the scheduled deviation."""
+    at the path's operating point, or the path plus the scheduled deviation (``refine``:
+    steps halved where a smooth input leaves its chord; without, for a rough estimate)."""
     single_input(inputs)
     if level == "linear":
         return linear_trajectory(model, path.operating_point, inputs, t_out)
-    return path_trajectory(model, path, inputs, t_out)
+    return path_trajectory(model, path, inputs, t_out, refine=refine)
 
 
 def level_result(
@@ -184,6 +191,7 @@ def path_trajectory(
     inputs: Mapping[str, object],
     t_out: np.ndarray,
     use: Sequence[int] | None = None,
+    refine: bool = True,
 ) -> Trajectory:
     """The states ``x_eq(u) + xi`` of the equilibrium path level, the deviation from the
     path ``xi = x - x_eq(u)`` following ``xi' = A xi - (dx_eq/du) du/dt`` with ``A`` of
@@ -201,7 +209,8 @@ def path_trajectory(
         As.append(np.array(fn(e.x, e.z, e.u, e.p)[0]))
     t_out = np.asarray(t_out, float)
     times, keep = step_times(t_out, breakpoints(inputs, float(t_out[0]), float(t_out[-1])))
-    times, keep = refine_steps(times, keep, inputs)
+    if refine:
+        times, keep = refine_steps(times, keep, inputs)
     op = path.operating_point
     u_right, u_left = input_values(model, inputs, op.u, times)
     right, left = u_right[:, i], u_left[:, i]
@@ -212,17 +221,27 @@ def path_trajectory(
     which = np.abs(mid[:, None] - nodes[None, :]).argmin(axis=1)
     jumps = path.state(right) - path.state(left)
     nx = As[0].shape[0]
-    xi = np.zeros((len(times), nx))
-    end = np.zeros((len(h), nx))  # xi at the end of each step, before the path jumps
     steps = step_matrices(As, which, h, path.steps, [use[w] for w in range(len(As))])
-    for k, (Phi, Psi) in enumerate(steps):
-        end[k] = Phi @ xi[k] + Psi @ drive[k]
-        xi[k + 1] = end[k] - jumps[k + 1]  # the state is continuous where the path jumps
-    A_step = np.array(As)[which]
-    slope_start = np.einsum("kij,kj->ki", A_step, xi[:-1])
-    slope_end = np.einsum("kij,kj->ki", A_step, end)
+    # xi[k+1] = Phi xi[k] + Psi drive[k] - jump[k+1]: the state is continuous where the
+    # path jumps; ``end`` is xi at the end of each step, before the jump
+    forcing = apply_each([P for _, P in steps], drive) - jumps[1:]
+    xi = recurse(np.zeros(nx), [Phi for Phi, _ in steps], forcing)
+    end = xi[1:] + jumps[1:]
+    A_step = [As[w] for w in which]
+    slope_start, slope_end = apply_each(A_step, xi[:-1]), apply_each(A_step, end)
     x = path.state(right) + xi
     return Trajectory(times, keep, x, u_right, u_left, slope_start, slope_end, As, which)
+
+
+def apply_each(mats: list, v: np.ndarray) -> np.ndarray:
+    """``mats[k] @ v[k]`` for every k, shape of ``v``: one product per distinct matrix
+    object (the steps share a few)."""
+    out = np.empty_like(v)
+    ids = np.array([id(M) for M in mats])
+    for u, first in zip(*np.unique(ids, return_index=True), strict=True):
+        sel = ids == u
+        out[sel] = v[sel] @ mats[first].T
+    return out
 
 
 def step_matrices(

@@ -25,8 +25,15 @@ import numpy as np
 
 from ..errors import SarcomereError
 from ..modeling.model import Model
-from ..simulation.linear import Trajectory, simulate_linear, static_gain
-from .levels import Path, level_result, single_input, step_matrices, trajectory
+from ..simulation.linear import Trajectory, recurse, simulate_linear, static_gain
+from .levels import (
+    Path,
+    apply_each,
+    level_result,
+    single_input,
+    step_matrices,
+    trajectory,
+)
 
 CORRECTIONS = 2
 """Defect corrections of :func:`defect_error`: two converge to 1 % of the error on the
@@ -67,10 +74,12 @@ def defect_error(
     z = np.zeros((0, N))
     jumps = np.flatnonzero(np.any(traj.u_left[1:] != traj.u_right[1:], axis=1)) + 1
     h = np.diff(traj.times)
-    A = np.array([traj.A[int(w)] for w in traj.which])  # per step
+    A = [traj.A[w] for w in traj.which]  # per step
     E = np.zeros_like(traj.x)
     drive = np.zeros((N - 1, traj.x.shape[1]))
     steps = step_matrices(traj.A, traj.which, h, {})
+    Phis, Psis = [Phi for Phi, _ in steps], [Psi for _, Psi in steps]
+    nx = traj.x.shape[1]
     k = traj.keep
     g = model.signals_function(list(signals))
     outputs = []  # g(x + e, u) after each correction
@@ -80,11 +89,10 @@ def defect_error(
         F_left = F_right.copy()  # and just before: differs only where an input jumps
         if jumps.size:
             F_left[jumps] = np.array(f(X[jumps].T, z[:, : len(jumps)], traj.u_left[jumps].T, p)).T
-        r0 = F_right[:-1] - (traj.slope_start + np.einsum("kij,kj->ki", A, E[:-1]) + drive)
-        r1 = F_left[1:] - (traj.slope_end + np.einsum("kij,kj->ki", A, E[1:]) + drive)
+        r0 = F_right[:-1] - (traj.slope_start + apply_each(A, E[:-1]) + drive)
+        r1 = F_left[1:] - (traj.slope_end + apply_each(A, E[1:]) + drive)
         drive = drive + 0.5 * (r0 + r1)
-        for j, (Phi, Psi) in enumerate(steps):
-            E[j + 1] = Phi @ E[j] + Psi @ drive[j]
+        E = recurse(np.zeros(nx), Phis, apply_each(Psis, drive))
         out = np.array(g((traj.x[k] + E[k]).T, z[:, : len(k)], traj.u_right[k].T, p))
         outputs.append(out.T)
     last, change = outputs[-1], np.abs(outputs[-1] - outputs[-2]) if len(outputs) > 1 else 0.0
@@ -193,11 +201,12 @@ def path_deviation_bound(
 ) -> float:
     """The equilibrium path's second early exit: ``e_lin d`` with ``d`` the largest
     deviation of the path level's outputs from the statics over the span (on ``path``,
-    a coarse one: no evaluation of the model's ODE), the nonlinearity such a deviation
-    meets (fast inputs: a sweep through the load mode deviates by the whole span)."""
+    a coarse one, the steps not refined: no evaluation of the model's ODE), the
+    nonlinearity such a deviation meets (fast inputs: a sweep through the load mode
+    deviates by the whole span)."""
     _, sig = single_input(inputs)
     signals = list(signals)
-    traj = trajectory("equilibrium_path", model, path, inputs, t_out)
+    traj = trajectory("equilibrium_path", model, path, inputs, t_out, refine=False)
     y = level_result("equilibrium_path", model, path, traj, t_out, signals)
     u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
     y_static = path.static(signals, u)

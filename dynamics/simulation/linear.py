@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import expm
+from scipy.signal import lfilter
 
 from ..errors import SarcomereError
 from ..modeling.model import Model
@@ -113,6 +114,48 @@ def refine_steps(
             break
         times = np.sort(np.concatenate([times, mid[bad]]))
     return times, np.searchsorted(times, marks)
+
+
+#: Runs of at least this many equal steps go through :func:`scipy.signal.lfilter` in the
+#: eigenbasis of the step's matrix (one C loop per mode instead of a Python loop).
+FILTER_RUN = 32
+
+
+def recurse(x0: np.ndarray, Phis: list, forcing: np.ndarray) -> np.ndarray:
+    """``X[k + 1] = Phis[k] @ X[k] + forcing[k]`` from ``X[0] = x0``, shape (N, n).
+
+    Runs of :data:`FILTER_RUN` or more steps with the same matrix object are filtered
+    per mode (``Phi = V diag(w) V^-1``; exact up to round-off, used only where ``V`` is
+    well conditioned), the rest stepped one by one."""
+    N = len(forcing) + 1
+    X = np.empty((N, len(x0)))
+    X[0] = x0
+    j = 0
+    while j < N - 1:
+        k = j
+        while k + 1 < N - 1 and Phis[k + 1] is Phis[j]:
+            k += 1
+        if k - j + 1 < FILTER_RUN or not _filtered(X, Phis[j], forcing, j, k):
+            for i in range(j, k + 1):
+                X[i + 1] = Phis[i] @ X[i] + forcing[i]
+        j = k + 1
+    return X
+
+
+def _filtered(X: np.ndarray, Phi: np.ndarray, forcing: np.ndarray, j: int, k: int) -> bool:
+    """Steps ``j..k`` of :func:`recurse` with the one matrix ``Phi`` by mode; False (and
+    nothing done) where its eigenvectors are ill conditioned."""
+    w, V = np.linalg.eig(Phi)
+    if np.linalg.cond(V) > 1e6:
+        return False
+    Vi = np.linalg.inv(V)
+    b = forcing[j : k + 1] @ Vi.T  # (run, n) in the modes
+    z0 = Vi @ X[j]
+    Z = np.empty_like(b)
+    for m in range(len(w)):
+        Z[:, m] = lfilter([1.0], [1.0, -w[m]], b[:, m], zi=[w[m] * z0[m]])[0]
+    X[j + 1 : k + 2] = (Z @ V.T).real
+    return True
 
 
 def static_gain(model: Model, operating_point, signals: Sequence[str]) -> np.ndarray:
@@ -205,10 +248,7 @@ def linear_trajectory(
         sel = keys == key
         ua, ub = du_right[:-1][sel], du_left[1:][sel]
         F[sel] = ua @ G1.T + (ub - ua) @ G2.T
-    X = np.empty((len(times), A.shape[0]))
-    X[0] = dx
-    for i in range(len(h)):
-        X[i + 1] = Phis[keys[i]] @ X[i] + F[i]
+    X = recurse(dx, [Phis[key] for key in keys], F)
     return Trajectory(
         times,
         keep,

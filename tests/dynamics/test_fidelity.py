@@ -3,6 +3,7 @@ validity: each on a scene where it is valid and one where it is not."""
 
 import numpy as np
 import pytest
+from scipy.linalg import expm
 
 from sarcomere.dynamics import fidelity
 from sarcomere.dynamics.assemblies import hanging_load
@@ -11,7 +12,7 @@ from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import SolverError
 from sarcomere.dynamics.results import Result
 from sarcomere.dynamics.signals import Chirp, Ramp, Staircase, Step
-from sarcomere.dynamics.simulation.linear import foh_matrices, step_times
+from sarcomere.dynamics.simulation.linear import foh_matrices, recurse, step_times
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 P = "regulator.p_cmd"
@@ -242,3 +243,22 @@ def test_a_non_finite_result_is_an_error_naming_the_signal_and_time():
     with pytest.raises(SolverError, match=r"linear: signal 'y' is nan at time = 1 s"):
         res.require_finite("linear")
     assert res.select(["x"]).require_finite("linear")["x"][-1] == 3.0
+
+
+def test_recurse_filters_runs_of_equal_steps_as_the_loop_does():
+    """Runs of one matrix go through lfilter by mode, the rest step by step: the same
+    states as the plain loop to round-off (a defective matrix falls back to the loop)."""
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6)) - 3 * np.eye(6)
+    Phi1, Phi2 = (np.asarray(expm(A * h)) for h in (0.01, 0.003))
+    jordan = np.array([[0.9, 1.0], [0.0, 0.9]])  # not diagonalisable
+    for mats in (
+        [Phi1] * 50 + [Phi2] * 3 + [Phi1] * 100,
+        [np.kron(np.eye(3), jordan)] * 60,
+    ):
+        forcing = rng.normal(size=(len(mats), 6))
+        x0 = rng.normal(size=6)
+        loop = [x0]
+        for M, f in zip(mats, forcing, strict=True):
+            loop.append(M @ loop[-1] + f)
+        assert np.allclose(recurse(x0, mats, forcing), np.array(loop), rtol=1e-10, atol=1e-10)
