@@ -37,6 +37,7 @@ from ..simulation.linear import (
     linear_trajectory,
     recurse,
     refine_steps,
+    step_keys,
     step_times,
 )
 
@@ -251,7 +252,7 @@ def step_matrices(
     (matrix, h) computed once; ``names`` name the matrices in ``cache`` (default their
     index)."""
     names = list(range(len(As))) if names is None else names
-    hk = np.round(h, 15)
+    hk = step_keys(h)
     distinct = {}
     for w, step in set(zip(which.tolist(), hk.tolist(), strict=True)):
         distinct[w, step] = exact_step(As[w], (names[w], step), cache)
@@ -260,7 +261,7 @@ def step_matrices(
 
 def exact_step(A: np.ndarray, key: tuple, cache: dict) -> tuple[np.ndarray, np.ndarray]:
     """``Phi = e^(A h)``, ``Psi = int_0^h e^(A s) ds = A^-1 (Phi - I)`` with ``h =
-    key[-1]``, cached under ``key`` (which matrix, h rounded to 1e-15 s)."""
+    key[-1]``, cached under ``key`` (which matrix, h as :func:`step_keys` rounds it)."""
     if key not in cache:
         Phi = expm(A * key[-1])
         cache[key] = (Phi, np.linalg.solve(A, Phi - np.eye(len(A))))
