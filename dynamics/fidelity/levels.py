@@ -129,15 +129,13 @@ def trajectory(
     path: Path,
     inputs: Mapping[str, object],
     t_out: np.ndarray,
-    refine: bool = True,
 ) -> Trajectory:
     """The states of ``level`` (one of :data:`LEVELS`) on ``t_out``: the linearisation
-    at the path's operating point, or the path plus the scheduled deviation (``refine``:
-    steps halved where a smooth input leaves its chord; without, for a rough estimate)."""
+    at the path's operating point, or the path plus the scheduled deviation."""
     single_input(inputs)
     if level == "linear":
         return linear_trajectory(model, path.operating_point, inputs, t_out)
-    return path_trajectory(model, path, inputs, t_out, refine=refine)
+    return path_trajectory(model, path, inputs, t_out)
 
 
 def level_result(
@@ -192,7 +190,6 @@ def path_trajectory(
     inputs: Mapping[str, object],
     t_out: np.ndarray,
     use: Sequence[int] | None = None,
-    refine: bool = True,
 ) -> Trajectory:
     """The states ``x_eq(u) + xi`` of the equilibrium path level, the deviation from the
     path ``xi = x - x_eq(u)`` following ``xi' = A xi - (dx_eq/du) du/dt`` with ``A`` of
@@ -210,8 +207,7 @@ def path_trajectory(
         As.append(np.array(fn(e.x, e.z, e.u, e.p)[0]))
     t_out = np.asarray(t_out, float)
     times, keep = step_times(t_out, breakpoints(inputs, float(t_out[0]), float(t_out[-1])))
-    if refine:
-        times, keep = refine_steps(times, keep, inputs)
+    times, keep = refine_steps(times, keep, inputs)
     op = path.operating_point
     u_right, u_left = input_values(model, inputs, op.u, times)
     right, left = u_right[:, i], u_left[:, i]

@@ -200,18 +200,12 @@ def path_deviation_bound(
     e_lin: np.ndarray,
 ) -> float:
     """The equilibrium path's second early exit: ``e_lin d`` with ``d`` the largest
-    deviation of the path level's outputs from the statics over the span (on ``path``,
-    a coarse one, the steps not refined: no evaluation of the model's ODE), the
-    nonlinearity such a deviation meets (fast inputs: a sweep through the load mode
-    deviates by the whole span)."""
-    _, sig = single_input(inputs)
-    signals = list(signals)
-    traj = trajectory("equilibrium_path", model, path, inputs, t_out, refine=False)
-    y = level_result("equilibrium_path", model, path, traj, t_out, signals)
-    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
-    y_static = path.static(signals, u)
-    Y = np.column_stack([y[n] for n in signals])
-    d = np.max(np.abs(Y - y_static), axis=0) / _span(y_static)
+    dynamic part of the linearised response at the path's operating point (``y_lin -
+    y_op - K du``, :func:`chain_response`; every step one matrix, so cheap) over the
+    span of the statics: how far the state leaves the path, and so the nonlinearity it
+    meets (fast inputs: a sweep through the load mode deviates by the whole span)."""
+    resp = chain_response(model, path, inputs, t_out, signals)
+    d = np.max(np.abs(resp.dynamic), axis=0) / _span(resp.static)
     return float(np.max(e_lin * d))
 
 
