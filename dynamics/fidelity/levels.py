@@ -104,15 +104,21 @@ def equilibrium_path(
     params: Mapping[str, object] | None = None,
     nodes: int = PATH_NODES,
     guess: Equilibrium | None = None,
+    known: Sequence[Equilibrium] = (),
 ) -> Path:
     """Equilibria of ``model`` at ``nodes`` values spanning the input samples ``u``, by
-    continuation from ``guess`` (an equilibrium of ``model``; default: its start values)."""
+    continuation from ``guess`` (an equilibrium of ``model``; default: its start values);
+    ``known`` equilibria (of the same model and parameters) at a node's value, to 1e-12,
+    are taken as they are (a coarser path's nodes are among a finer one's)."""
     lo, hi = float(np.min(u)), float(np.max(u))
     values = np.linspace(lo, hi, nodes) if hi > lo else np.array([lo])
+    i = model.input_names.index(input_name)
     eqs = []
     for v in values:
-        guess = solve_equilibrium(model, {input_name: float(v)}, params, guess=guess)
+        same = [e for e in known if abs(e.u[i] - v) <= 1e-12 * max(1.0, abs(v))]
+        guess = same[0] if same else solve_equilibrium(model, {input_name: v}, params, guess=guess)
         eqs.append(guess)
+    values = np.array([e.u[i] for e in eqs])
     return Path(input_name, values, eqs, eqs[len(eqs) // 2])
 
 

@@ -161,7 +161,10 @@ class _Ladder:
             sc = self.scene
             name, sig = next(iter(sc.inputs.items()))
             m, guess = self.model(level, groups), self.known(level, groups)
-            self.paths[key] = equilibrium_path(m, name, sig(sc.t_out), sc.params, nodes, guess)
+            found = [e for k, p in self.paths.items() if k[:2] == key[:2] for e in p.equilibria]
+            self.paths[key] = equilibrium_path(
+                m, name, sig(sc.t_out), sc.params, nodes, guess, found
+            )
         return self.paths[key]
 
     def known(self, level: str, groups: int = GROUPS) -> Equilibrium | None:

@@ -142,27 +142,35 @@ def recurse(x0: np.ndarray, Phis: list, forcing: np.ndarray) -> np.ndarray:
     X[0] = x0
     ids = np.array([id(M) for M in Phis])
     starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])  # runs of one matrix
+    modes: dict = {}  # id -> the matrix's eigen-decomposition, None if ill conditioned
     for j, k in zip(starts, np.r_[starts[1:], N - 1] - 1, strict=True):
-        if k - j + 1 < FILTER_RUN or not _filtered(X, Phis[j], forcing, j, k):
+        if k - j + 1 >= FILTER_RUN and ids[j] not in modes:
+            modes[ids[j]] = _modes(Phis[j])
+        if k - j + 1 < FILTER_RUN or modes[ids[j]] is None:
             for i in range(j, k + 1):
                 X[i + 1] = Phis[i] @ X[i] + forcing[i]
+        else:
+            _filter(X, modes[ids[j]], forcing, j, k)
     return X
 
 
-def _filtered(X: np.ndarray, Phi: np.ndarray, forcing: np.ndarray, j: int, k: int) -> bool:
-    """Steps ``j..k`` of :func:`recurse` with the one matrix ``Phi`` by mode; False (and
-    nothing done) where its eigenvectors are ill conditioned."""
+def _modes(Phi: np.ndarray) -> tuple | None:
+    """``(w, V, V^-1)`` of ``Phi = V diag(w) V^-1``, None where ``V`` is ill conditioned."""
     w, V = np.linalg.eig(Phi)
     if np.linalg.cond(V) > 1e6:
-        return False
-    Vi = np.linalg.inv(V)
+        return None
+    return w, V, np.linalg.inv(V)
+
+
+def _filter(X: np.ndarray, modes: tuple, forcing: np.ndarray, j: int, k: int) -> None:
+    """Steps ``j..k`` of :func:`recurse` with one matrix, by mode (its :func:`_modes`)."""
+    w, V, Vi = modes
     b = forcing[j : k + 1] @ Vi.T  # (run, n) in the modes
     z0 = Vi @ X[j]
     Z = np.empty_like(b)
     for m in range(len(w)):
         Z[:, m] = lfilter([1.0], [1.0, -w[m]], b[:, m], zi=[w[m] * z0[m]])[0]
     X[j + 1 : k + 2] = (Z @ V.T).real
-    return True
 
 
 def static_gain(model: Model, operating_point, signals: Sequence[str]) -> np.ndarray:
