@@ -263,9 +263,12 @@ def predict_reduced(reduced: ChainResponse, reference: ChainResponse) -> float:
     reference chain (``full``, or a grouped chain as a convergence estimate), both
     :func:`chain_response` on paths with the same nodes: the difference of the statics
     plus that of the linearised dynamic parts, each relative to the span of the
-    reference's static response (max over time, then over the signals); the nonlinear
-    interplay of the two is left out."""
-    span = _span(reference.static)
+    reference's response, static plus dynamic part (max over time, then over the
+    signals; what the measured error divides by: above a resonance the response swings
+    less than the statics, 0.64x on a 4.1 Hz dither at n = 14, and relative to the
+    statics' span the prediction was as much too low); the nonlinear interplay of the
+    two is left out."""
+    span = _span(reference.static + reference.dynamic)
     e_static = np.max(np.abs(reduced.static - reference.static), axis=0) / span
     e_dyn = np.max(np.abs(reduced.dynamic - reference.dynamic), axis=0) / span
     return float(np.max(e_static + e_dyn))
