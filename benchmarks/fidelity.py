@@ -26,7 +26,7 @@ threads the CLI uses (``SARCOMERE_BLAS_THREADS``, default 1; scenarios/threads.p
 Usage::
 
     python benchmarks/fidelity.py --out out/bench/fidelity.json [--repeats 3] [--quick]
-        [--only step-50g-n30-auto ...]
+        [--only step-50g-n30-auto ...] [--levels auto ...]
 """
 
 from __future__ import annotations
@@ -97,9 +97,10 @@ def _ladder_level(text: str, level: str, signals: list[str]):
     sc = parse_scenario(_with_level(text, "full"), "scene.toml")
     b = dynamic.bind(sc)
     full = b.build("full")
-    inputs, wanted, grid = dynamic._prepare(sc, b, full)
+    inputs = {dynamic.INPUT_ALIASES.get(k, k): v for k, v in sc.inputs.items()}
+    grid = dynamic.time_grid(sc.simulation)
     name = next(iter(inputs))
-    nodes = dynamic.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
+    nodes = ladder.policy.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
     path = ladder.equilibrium_path(full, name, inputs[name](grid), b.overrides, nodes)
     run = ladder.run_linear if level == "linear" else ladder.run_equilibrium_path
     return run(full, path, inputs, grid, signals), {}
@@ -126,7 +127,9 @@ def _signals(text: str) -> list[str]:
     return list(sc.outputs.signals) or ["myofibril.length"]
 
 
-def study(repeats: int, quick: bool, only: list[str] | None = None) -> dict:
+def study(
+    repeats: int, quick: bool, only: list[str] | None = None, keep: list[str] | None = None
+) -> dict:
     rows = {}
     for scene, text in scenes(quick).items():
         if only and scene not in only:
@@ -134,6 +137,8 @@ def study(repeats: int, quick: bool, only: list[str] | None = None) -> dict:
         signals = _signals(text)
         long_chain = int(re.search(r"(?m)^n = (\d+)$", text).group(1)) >= 30
         levels = LONG_CHAIN_LEVELS if long_chain else LEVELS
+        if keep:
+            levels = tuple(lv for lv in levels if lv in keep or lv == "full")
         calls, row, walls = {}, {}, {}
         for level in levels:
             if level in ("linear", "equilibrium_path"):
@@ -175,12 +180,13 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="no chains of 30 and more")
     parser.add_argument("--only", nargs="+", help="these scenes alone")
+    parser.add_argument("--levels", nargs="+", help="these levels alone (and full)")
     parser.add_argument(
         "--blas-threads", choices=("cli", "default"), default="cli", help="BLAS thread pools"
     )
     args = parser.parse_args()
     with limited_blas() if args.blas_threads == "cli" else contextlib.nullcontext():
-        rows = study(args.repeats, args.quick, args.only)
+        rows = study(args.repeats, args.quick, args.only, args.levels)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import SarcomereError
+from .errors import SarcomereError, SolverError
 
 
 @dataclass
@@ -75,6 +75,19 @@ class Result:
     def final(self, name: str) -> float:
         """Last value of a signal."""
         return float(self[name][-1])
+
+    def require_finite(self, source: str) -> Result:
+        """This Result, or a :class:`SolverError` naming ``source`` (the method or level
+        that produced it), the first non-finite signal and its index value."""
+        for name, values in self.signals.items():
+            bad = ~np.isfinite(values)
+            if bad.any():
+                at = float(self.index[np.argmax(bad)])
+                raise SolverError(
+                    f"{source}: signal '{name}' is {values[np.argmax(bad)]} at "
+                    f"{self.index_name} = {at:.9g} {self.index_unit}"
+                )
+        return self
 
     def select(self, names: list[str]) -> Result:
         """A Result with only the named signals (same index and meta)."""

@@ -40,7 +40,7 @@ import numpy as np
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.units import to_si
 
-from .dynamic import Binding, _fidelity, _settings, bind, check_n
+from .dynamic import Binding, _settings, bind, check_n, fidelity_level
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
 from .spec import Scenario, describe, unknown_key
@@ -131,7 +131,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
 
     sc.refuse_unused("inputs", "sweep", "outputs.tolerance", "cosim")
     b = bind(sc)
-    fid = _fidelity(sc, allow_auto=False)
+    fid = fidelity_level(sc, allow_auto=False)
     check_n(sc, ("model", "n"), b.n, fid)
     if sc.simulation is None:
         raise sc.error(("simulation",), "a closed loop needs [simulation] stop_time")

@@ -48,7 +48,7 @@ from sarcomere.dynamics.assemblies import (
     hanging_load,
     isometric,
 )
-from sarcomere.dynamics.components.aps import APSParams, GroupedMyofibril, chain_end_names
+from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
@@ -301,7 +301,9 @@ def bind(sc: Scenario) -> Binding:
     )
 
 
-def _fidelity(sc: Scenario, allow_auto: bool) -> str:
+def fidelity_level(sc: Scenario, allow_auto: bool) -> str:
+    """``[model] fidelity``, checked: a level of the set-ups (or ``"auto"`` where
+    allowed)."""
     fid = sc.model.fidelity
     allowed = FIDELITIES + (("auto",) if allow_auto else ())
     if fid not in allowed:
@@ -376,7 +378,7 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     """
     sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance", "control", "cosim")
     b = bind(sc)
-    fid = _fidelity(sc, allow_auto=False)
+    fid = fidelity_level(sc, allow_auto=False)
     check_n(sc, ("model", "n"), b.n, fid)
     if not sc.sweep or sc.sweep[0].name != "pressure":
         raise sc.error(("sweep",), "the first sweep axis must be 'pressure'")
@@ -426,10 +428,17 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
 
 
 def check_n(sc: Scenario, path: tuple, n: float, fidelity: str) -> None:
-    """Refuse an n that is not a whole number >= 1 or above the level's :data:`N_LIMITS`."""
+    """Refuse an n that is not a whole number >= 1, above the level's :data:`N_LIMITS`,
+    or (grouped) not above 2 GROUPS."""
     if n != round(n) or n < 1:
         raise sc.error(path, f"{n:g} is not a whole number of units >= 1")
     level = "full" if fidelity == "auto" else fidelity  # auto may end at full
+    if fidelity == "grouped" and n <= 2 * GROUPS:
+        raise sc.error(
+            path,
+            f"grouped needs n > {2 * GROUPS}: at n = {n:g} its {GROUPS} groups of two "
+            "half-groups are the chain itself (use 'full', which names every unit)",
+        )
     if n > N_LIMITS[level]:
         others = ", ".join(f"{k} {v}" for k, v in N_LIMITS.items())
         raise sc.error(
@@ -679,7 +688,7 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     if sc.model.fidelity != "auto":
         sc.refuse_unused("outputs.tolerance")
     b = bind(sc)
-    fid = _fidelity(sc, allow_auto=True)
+    fid = fidelity_level(sc, allow_auto=True)
     check_n(sc, ("model", "n"), b.n, fid)
     extra = {"aps_params": _aps_dict(b.aps), "setup": b.setup}
     metrics = {}
@@ -763,211 +772,49 @@ def rise_time(
     return float(t90 - t10), ""
 
 
-#: The levels "auto" considers, cheapest first: the reduced chains (their cost does not
-#: grow with n), the two levels on the full model that integrate nothing, then full
-#: (docs/numerics.md, scene x level table).
-AUTO_LADDER = ("symmetric", "grouped", "linear", "equilibrium_path", "full")
-
-#: Equilibria along the command's range when a reduced chain is compared with its
-#: reference (statics on a cubic spline; the equilibrium path level uses
-#: :data:`~sarcomere.dynamics.fidelity.PATH_NODES`). The predictions of the step, ramp
-#: and slow cycles at n = 10, 30, 60 are the same to 3 digits with 9 nodes: the largest
-#: static difference sits at the range's ends, which are nodes.
-REDUCED_PATH_NODES = 5
-
-#: Equilibria along the command's range for the ``linear`` level's prediction (the static
-#: nonlinearity over the range) and its operating point (the middle one).
-LINEAR_PATH_NODES = 5
-
-
-class _Ladder:
-    """The models, equilibrium paths and chain responses of one auto run, each built
-    once."""
-
-    def __init__(self, sc: Scenario, b: Binding, inputs: dict, grid: np.ndarray) -> None:
-        self.sc, self.b, self.inputs, self.grid = sc, b, inputs, grid
-        self.care = list(sc.outputs.signals) or ["myofibril.length"]
-        self.models: dict[tuple[str, int], Model] = {}
-        self.paths: dict[tuple[str, int, int], ladder.Path] = {}
-        self.responses: dict[tuple[str, int], ladder.ChainResponse] = {}
-
-    def model(self, level: str, groups: int = GROUPS) -> Model:
-        key = (level, groups if level == "grouped" else 0)
-        if key not in self.models:
-            self.models[key] = self.b.build(level, groups=groups)
-        return self.models[key]
-
-    def path(self, level: str, nodes: int, groups: int = GROUPS) -> ladder.Path:
-        key = (level, groups if level == "grouped" else 0, nodes)
-        if key not in self.paths:
-            u = self.inputs[P_CMD](self.grid)
-            m = self.model(level, groups)
-            guess = self.known(level, groups)
-            self.paths[key] = ladder.equilibrium_path(m, P_CMD, u, self.b.overrides, nodes, guess)
-        return self.paths[key]
-
-    def known(self, level: str, groups: int = GROUPS) -> Equilibrium | None:
-        """An equilibrium of the model already found (a continuation start: long chains
-        need seconds of settling to find their first one)."""
-        key = (level, groups if level == "grouped" else 0)
-        return next((p.equilibria[0] for k, p in self.paths.items() if k[:2] == key), None)
-
-    def static_difference(self, level: str, ref_groups: int) -> float:
-        """The static part of a reduced chain's prediction against grouped with
-        ``ref_groups`` groups (:func:`~sarcomere.dynamics.fidelity.static_difference`)."""
-        return ladder.static_difference(
-            self.path(level, REDUCED_PATH_NODES),
-            self.path("grouped", REDUCED_PATH_NODES, ref_groups),
-            self.inputs,
-            self.grid,
-            self.care,
-        )
-
-    def response(self, level: str, groups: int = GROUPS) -> ladder.ChainResponse:
-        key = (level, groups if level == "grouped" else 0)
-        if key not in self.responses:
-            path = self.path(level, REDUCED_PATH_NODES, groups)
-            m = self.model(level, groups)
-            self.responses[key] = ladder.chain_response(m, path, self.inputs, self.grid, self.care)
-        return self.responses[key]
-
-
-#: A signal of one unit of the full chain (the reduced chains have those of the ends).
-_UNIT_SIGNAL = re.compile(r"^myofibril\.(aps|tube|actin)\d+\.")
-
-
-def grouped_units(n: int, groups: int = GROUPS) -> int:
-    """Representative units of the "grouped" level of an n-unit chain (its cost)."""
-    return GroupedMyofibril.units(n, min(groups, n))
-
-
 def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
-    """Predict each level's error from the scene and run only the cheapest predicted
-    within ``[outputs] tolerance`` (default 1 %) of "full" (:data:`AUTO_LADDER`).
-
-    Error: max over the scenario's ``[outputs] signals`` (default ``myofibril.length``)
-    of ``max |y - y_full| / span(y_full)``. Predictions (:mod:`sarcomere.dynamics.fidelity`,
-    before any nonlinear simulation), each from the statics along the command's range
-    and exact linearisations, built only when the cheaper levels are ruled out:
-
-    * ``symmetric`` against ``grouped`` (what it drops: the weight gradient and the body
-      inertia);
-    * ``grouped`` (:data:`GROUPS` groups) against grouped with one group fewer: the
-      change when the groups grow, a convergence estimate that needs no full model
-      (conservative while the error falls at least like ``groups^-1.7``; measured
-      about ``groups^-2`` on steps);
-    * ``linear`` by the static nonlinearity of the full model over the command's range,
-      ``equilibrium_path`` by how the lag changes along the path (ruled out at once
-      when the command's jumps alone, times linear's error, exceed the tolerance:
-      :func:`~sarcomere.dynamics.fidelity.path_jump_bound`).
-
-    The reduced chains are considered only where grouped has fewer representative units
-    than the chain (n > 2 :data:`GROUPS`), and the two levels on the full model only
-    where it does not (n <= 2 :data:`GROUPS`): beyond, their equilibria, Jacobians and
-    matrix exponentials of the full model cost more than running it (measured 3x at
-    n = 10, 17x at n = 30). A scene with more than one varying input, or a level without
-    a signal the scene cares about, is predicted invalid. The choice depends on the
-    scene (its n included) alone, never on timings.
-    """
+    """Bind the scene to the auto policy (:func:`sarcomere.dynamics.fidelity.choose`:
+    the cheapest level predicted within ``[outputs] tolerance``, default 1 %, of
+    "full", over ``[outputs] signals``, default ``myofibril.length``) and run the
+    chosen level alone; the auto run's wall time is in the report."""
     tic = time.perf_counter()
-    tol = sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01
-    care = list(sc.outputs.signals) or ["myofibril.length"]
-    named = {*care, *(n for names in sc.outputs.plots.values() for n in names)}
     if sc.simulation is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
     grid = time_grid(sc.simulation)
-    reduces = grouped_units(b.n) < b.n
-    first = "symmetric" if reduces else "full"  # the first model the ladder needs
-    cheap = b.build(first)
+    first = "symmetric" if ladder.grouped_units(b.n) < b.n else "full"
+    cheap = b.build(first)  # the first model the ladder needs: inputs checked on it
     inputs = _inputs(sc, cheap)
     _check_commands(sc, cheap, b.overrides, inputs, grid)
-    run = _Ladder(sc, b, inputs, grid)
-    run.models[first, 0] = cheap
-    predicted: dict[str, float] = {}
-    why: dict[str, str] = {}
-    against: dict[str, str] = {}
-    if not reduces:
-        for level in ("symmetric", "grouped"):
-            why[level] = (
-                f"not cheaper at n = {b.n}: grouped has {grouped_units(b.n)} representative "
-                "units, and a prediction against full costs more than it saves"
-            )
-    else:
-        for level in ("linear", "equilibrium_path"):
-            why[level] = (
-                f"not cheaper at n = {b.n}: the full model's equilibria, exact Jacobians and "
-                "matrix exponentials cost more than its run (3x at n = 10, 17x at n = 30)"
-            )
-    unit_signals = sorted(
-        n
-        for n in named
-        if _UNIT_SIGNAL.match(n) and n.removeprefix("myofibril.") not in chain_end_names(b.n)
+    care = list(sc.outputs.signals) or ["myofibril.length"]
+    # what linear and equilibrium_path return: full's signals (they run at n <= 6 only)
+    wanted = _prepare(sc, b, cheap)[1] if first == "full" else care
+    models = {(first, GROUPS): cheap}
+
+    def build(level: str, groups: int = GROUPS) -> Model:
+        key = (level, groups if level == "grouped" else GROUPS)
+        if key not in models:
+            models[key] = b.build(level, groups=groups)
+        return models[key]
+
+    scene = ladder.Scene(
+        n=b.n,
+        build=build,
+        inputs=inputs,
+        t_out=grid,
+        params=b.overrides,
+        signals=care,
+        named={*care, *(n for names in sc.outputs.plots.values() for n in names)},
+        keep=wanted,
+        tolerance=sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01,
     )
-    if reduces and unit_signals:  # known without building them
-        for level in ("symmetric", "grouped"):
-            why[level] = f"has no signal {unit_signals} (it names the chain ends only)"
-    if list(inputs) != [P_CMD]:
-        for level in AUTO_LADDER[:-1]:
-            why[level] = "its prediction needs the pressure command as only input"
-    chosen, e_lin, path = "full", None, None
-    for level in AUTO_LADDER[:-1]:  # cheapest first; stop at the first predicted within tol
-        if level in why:
-            continue
-        if level in ("symmetric", "grouped"):
-            lacking = sorted(n for n in named if n not in run.model(level).signal_names)
-            if lacking:
-                why[level] = f"has no signal {lacking}"
-                continue
-            ref = GROUPS - 1 if level == "grouped" else GROUPS
-            against[level] = f"grouped ({ref} groups)"
-            predicted[level] = run.static_difference(level, ref)
-            if predicted[level] > tol:  # a lower bound already beyond: no linearisation
-                against[level] += ", static part alone"
-            else:
-                predicted[level] = ladder.predict_reduced(
-                    run.response(level), run.response("grouped", ref)
-                )
-        elif level == "linear":
-            full, path = run.model("full"), run.path("full", LINEAR_PATH_NODES)
-            against[level] = "full"
-            e_lin = ladder.predict_linear(full, path, inputs, grid, care)
-            predicted[level] = float(e_lin.max())
-        else:
-            bound = (
-                0.0 if e_lin is None else ladder.path_jump_bound(path, inputs, grid, care, e_lin)
-            )
-            against[level] = "full"
-            if bound > tol:
-                against[level] += " (lower bound: the command's jumps times linear's error)"
-                predicted[level] = bound
-            else:
-                full, path = run.model("full"), run.path("full", ladder.PATH_NODES)
-                predicted[level] = ladder.predict_path(full, path, inputs, grid, care)
-        if predicted[level] <= tol:
-            chosen = level
-            break
-    if chosen == "full":
-        predicted["full"] = 0.0
-    if chosen in ("linear", "equilibrium_path"):
-        nodes = LINEAR_PATH_NODES if chosen == "linear" else ladder.PATH_NODES
-        full, path = run.model("full"), run.path("full", nodes)
-        wanted = _prepare(sc, b, full)[1]
-        step = ladder.run_linear if chosen == "linear" else ladder.run_equilibrium_path
-        res = step(full, path, inputs, grid, wanted)
-    else:
-        res = _simulate(sc, b, chosen, run.model(chosen), run.known(chosen))[1]
-    report = {
-        "chosen": chosen,
-        "tolerance": tol,
-        "signals": care,
-        "predicted_error": {f: predicted.get(f) for f in AUTO_LADDER},
-        "predicted_against": against,
-        "not_predicted": why,
-        "wall_time_s": time.perf_counter() - tic,
-    }
-    if chosen == "grouped":
-        report["groups"] = GROUPS
-    return chosen, res, report
+    choice = ladder.choose(scene)
+    res = choice.result
+    if res is None:
+        res = _simulate(sc, b, choice.level, choice.model, choice.start)[1]
+    res.require_finite(choice.level)
+    report = choice.report(scene)
+    report["wall_time_s"] = time.perf_counter() - tic
+    return choice.level, res, report
 
 
 register_runner("equilibrium", run_equilibrium)

@@ -66,7 +66,7 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
     from sarcomere.controllers.linearize import classify_poles, linearize, operating_point
     from sarcomere.dynamics.modeling.labels import to_label
 
-    from .dynamic import _fidelity, _inputs, bind, command_range, distinct
+    from .dynamic import _inputs, bind, command_range, distinct, fidelity_level
     from .loader import load_scenario
 
     sc = load_scenario(source)
@@ -75,7 +75,7 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
             sc.file, "scenario.kind", "'static' is the paper's closed-form model: no dynamics"
         )
     b = bind(sc)
-    fid = _fidelity(sc, allow_auto=False)
+    fid = fidelity_level(sc, allow_auto=False)
     model = b.build(fid)
     if sc.kind == "transient":
         _inputs(sc, model)  # the scene's inputs are checked as a run would

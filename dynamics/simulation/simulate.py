@@ -89,8 +89,9 @@ def simulate(
     ParameterError
         For a bad argument or an output larger than ``max_values``.
     SolverError
-        When the method fails or the trajectory leaves the physical domain (names the
-        time, the state and the cause).
+        When the method fails, the trajectory leaves the physical domain (names the
+        time, the state and the cause) or a returned signal is not finite (names it and
+        the time).
     """
     settings = settings or SolverSettings()
     if not (np.isfinite(t_final) and t_final > 0):
@@ -127,7 +128,7 @@ def simulate(
         "x_final": X[-1].tolist(),
         **sim.stats,
     }
-    return Result("time", "s", t_out, values, units, meta)
+    return Result("time", "s", t_out, values, units, meta).require_finite(settings.method)
 
 
 def _check_size(

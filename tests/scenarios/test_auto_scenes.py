@@ -39,4 +39,5 @@ def test_auto_scene_picks_a_cheaper_level_within_its_tolerance_of_full(name, lev
     # the prediction is what chose the level; here it is checked against the measurement
     predicted = report["predicted_error"][level]
     assert predicted <= sc.outputs.tolerance
-    assert 0.5 * error < predicted  # measured: 0.81 (linear), 1.7-3.4 (grouped)
+    # predicted/measured: 1.24 (linear: 0.80 / 0.65 %), 1.5-1.7 (grouped: 2.8-4.7 %)
+    assert error <= predicted < 2 * error
