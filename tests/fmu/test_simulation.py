@@ -111,7 +111,11 @@ def test_rebuild_from_the_archive_sources(which, platform, tmp_path, request):
     sig = _step_input(0.0, 0.05, 0.1, 1e4, 8e4)
     rebuilt = simulate_fmu(str(folder), input=sig, **kw)
     packed = simulate_fmu(str(iso_fmu), input=sig, **kw)
-    np.testing.assert_allclose(rebuilt["sensor.f"], packed["sensor.f"], rtol=1e-12)
+    # the same model: the importer's compiler flags (fmpy's cmake, not ours) change the
+    # roundoff, which the adaptive doStep's step-size control carries into its step
+    # sequence (1.6e-12 seen); far below the step's own tolerance (rtol 1e-8), far above
+    # what a different model or parameter would give
+    np.testing.assert_allclose(rebuilt["sensor.f"], packed["sensor.f"], rtol=1e-10)
 
 
 def test_casadi_imports_the_fmu(iso_fmu, tmp_path):

@@ -124,7 +124,7 @@ def test_calibrate_checks_out_before_fitting(tmp_path, capsys, monkeypatch):
     def fit(**kwargs):
         raise AssertionError("fitted before checking --out")
 
-    monkeypatch.setattr("sarcomere.scenarios.calibrate.calibrate", fit)
+    monkeypatch.setattr("sarcomere.dynamics.calibration.calibrate", fit)
     assert main(["calibrate", "--out", str(tmp_path / "f")]) == 2
     assert "existing file" in capsys.readouterr().err
 
@@ -136,7 +136,7 @@ def test_bench_checks_out_before_running(tmp_path, capsys):
 
 
 def test_calibrate_family_failure_writes_nothing(tmp_path, capsys, monkeypatch):
-    from sarcomere.scenarios import calibrate as command
+    from sarcomere.dynamics import calibration as command  # the handler's imports
 
     class Fit:
         def to_dict(self) -> dict:
@@ -157,7 +157,7 @@ def test_calibrate_family_writes_every_file_of_one_run(tmp_path, monkeypatch):
     from sarcomere.dynamics import calibration
 
     two = functools.partial(calibration.family, (8e-3, 20e-3))
-    monkeypatch.setattr("sarcomere.scenarios.calibrate.family", two)
+    monkeypatch.setattr("sarcomere.dynamics.calibration.family", two)
     out = tmp_path / "cal"
     assert main(["calibrate", "--family", "--out", str(out)]) == 0
     names = {p.name for p in out.iterdir()}
