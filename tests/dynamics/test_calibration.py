@@ -58,6 +58,7 @@ def test_calibration_meets_the_papers_three_targets(fit):
 @pytest.mark.parametrize(
     "factors", _CORNERS + _RANDOM, ids=lambda f: "x".join(f"{v:.2f}" for v in f)
 )
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_every_start_in_the_region_reaches_the_same_fit(fit, factors):
     """Each corner of START_REGION and fixed-seed random starts inside it: the targets
     to VERIFY_RTOL (checked by equilibrium solves from scratch) and the same parameters.
@@ -107,6 +108,7 @@ def test_packaged_defaults_are_the_calibration_result(fit):
         assert achieved[key] == pytest.approx(target, rel=1e-3), key
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_family_members_meet_the_targets_but_disagree_under_load():
     """L_r = 8 mm and the default 20 mm both meet the three targets exactly; under 50 g at
     0.1 MPa they predict strains 1.6 and 2.5 % (the compliance split is not identified)."""

@@ -14,6 +14,8 @@ import pytest
 from sarcomere.fmu import archive
 from sarcomere.fmu.archive import FmuArchiveError, open_fmu
 
+pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
+
 
 def _rewrite(good: Path, out: Path, *, drop=(), replace=None, extra=()) -> Path:
     """A copy of ``good`` without the entries starting with ``drop``, with

@@ -25,6 +25,8 @@ from sarcomere.fmu.controller import export_controller_fmu, pid_system
 from sarcomere.fmu.participants import fmi2_callbacks
 from sarcomere.fmu.sampled import export_sampled_fmu
 
+pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
+
 DT = 0.01
 """Sample period [s]."""
 U0 = 5e4

@@ -17,6 +17,8 @@ from sarcomere.scenarios import resolve_scenario, run
 from sarcomere.scenarios.cli import main
 from sarcomere.scenarios.export_fmu import scenario_setup
 
+pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
+
 P_CMD = "regulator.p_cmd"
 P_OUT = "regulator.p_out"
 SIGNALS = ["myofibril.length", "myofibril.actin0.T", P_OUT]

@@ -15,6 +15,8 @@ from sarcomere.fmu import export_fmu, open_fmu
 from sarcomere.fmu.cosim import CosimError
 from sarcomere.scenarios.studies import cosim_coupling as study
 
+pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
+
 COMMAND = (2e4, 8e4, 0.02)
 """0.02 -> 0.08 MPa at 20 ms [Pa, Pa, s]."""
 

@@ -16,6 +16,8 @@ from sarcomere.fmu import FmuError, export_fmu
 from sarcomere.fmu.description import base_units
 from sarcomere.scenarios.cli import main
 
+pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
+
 
 def test_fmi2_fmus_validate(step_fmu, iso_fmu):
     assert validate_fmu(str(step_fmu)) == []

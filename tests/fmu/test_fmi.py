@@ -395,6 +395,7 @@ def test_a_tampered_serialized_state_is_refused(step_loaded, tamper, why):
     fmu.freeInstance()
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_a_do_step_past_its_step_limit_is_reported(tmp_path, monkeypatch, load):
     """An FMU built with at most 3 Radau IIA steps per doStep: a 0.1 s step through the
     filling after a pressure step needs more, and doStep fails naming the limit and the

@@ -15,6 +15,8 @@ import pytest
 
 from sarcomere.fmu.export import fmi_headers
 
+pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
+
 DRIVER = Path(__file__).parent / "c" / "misuse_driver.c"
 SANITIZE = ["-fsanitize=address,undefined", "-fsanitize=float-cast-overflow"]
 OK, ERROR = 0, 3

@@ -33,6 +33,8 @@ from sarcomere.dynamics.modeling.component import System
 from sarcomere.fmu import export_fmu
 from sarcomere.fmu.me_import import compose, import_me
 
+pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
+
 LOAD = {"c": 200.0, "s_rel0": 0.01, "m": 0.02}
 """The load FMU: a spring [N/m] of rest length [m] to a mass [kg] (no gravity)."""
 

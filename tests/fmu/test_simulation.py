@@ -25,6 +25,8 @@ from sarcomere.dynamics.assemblies import isometric
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.simulation import radau
 
+pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
+
 TOL = 1e-4
 
 

@@ -25,6 +25,7 @@ def _run(text: str):
 
 
 @pytest.mark.parametrize(("name", "level"), SCENES)
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_auto_scene_picks_a_cheaper_level_within_its_tolerance_of_full(name, level):
     text = packaged_scenarios()[name].read_text()
     sc, auto = _run(text)

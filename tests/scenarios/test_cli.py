@@ -189,6 +189,7 @@ def test_list_matches_the_loaded_scenarios(capsys) -> None:
         assert row.split()[:2] == [name, sc.kind] and row.endswith(sc.description)
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_a_transient_run_imports_neither_python_control_nor_pyplot(tmp_path: Path) -> None:
     code = (
         "import sys; from sarcomere.scenarios.cli import main;"

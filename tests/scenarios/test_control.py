@@ -61,6 +61,7 @@ def test_packaged_scenes_load():
         }
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_length_scene_shortened_end_to_end(tmp_path, drawn_png):
     sc = parse_scenario(_short_length_scene(), "control-length-short.toml")
     out = run(sc, tmp_path, quiet=True)
@@ -92,6 +93,7 @@ def test_length_scene_shortened_end_to_end(tmp_path, drawn_png):
         assert column in header
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_force_scene_shortened(tmp_path):
     text = _text("control-force").replace('stop_time = "11.5 s"', 'stop_time = "1.2 s"')
     text = re.sub(
@@ -170,6 +172,7 @@ def test_linearize_command_refuses_in_one_line_and_writes_nothing(tmp_path, caps
     assert not out.exists()
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_a_registered_controller_runs_in_the_scene_with_the_common_settings(tmp_path):
     """What part B's MPCs rely on: register a factory, name it in [control.controllers],
     get the common settings, including a builder of the set-up with the smooth flow law."""

@@ -19,6 +19,8 @@ from sarcomere.scenarios.cli import main
 from sarcomere.scenarios.loader import parse_scenario
 from sarcomere.scenarios.progress import progress
 
+pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
+
 SCENE = """
 [scenario]
 name = "small-system"

@@ -134,6 +134,7 @@ def _study():
 
 
 @pytest.mark.parametrize("index", range(4))
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_random_scene_stays_within_its_tolerance(index):
     """Four scenes of the randomised study's generator (seed 5, n <= 6: where linear and
     equilibrium_path are on the ladder): the chosen level's error against full at rtol

@@ -152,6 +152,7 @@ def test_calibrate_family_failure_writes_nothing(tmp_path, capsys, monkeypatch):
     assert list(tmp_path.iterdir()) == []  # no calibration.json without its family
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_calibrate_family_writes_every_file_of_one_run(tmp_path, monkeypatch):
     """The CLI end to end on a two-member family (the full family takes a minute)."""
     from sarcomere.dynamics import calibration
@@ -264,6 +265,7 @@ sys.exit(main(["run", sys.argv[1], "--out", sys.argv[2]]))
 
 
 @pytest.mark.parametrize(("signum", "status", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_an_interrupted_run_says_one_line_and_leaves_nothing(tmp_path, signum, status, word):
     """Ctrl-C printed a 30-line traceback; SIGTERM left a hidden .o.*.tmp folder."""
     scene = tmp_path / "slow.toml"

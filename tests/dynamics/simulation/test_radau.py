@@ -105,6 +105,7 @@ class Lag(Component):
         b.der(x, (u - x) / tau)
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_stiff_lag_driven_by_a_sine_where_explicit_fails():
     """tau = 1 us (lambda = -1e6 1/s) over 1 s: RK45 runs out of steps; radau takes about
     a hundred, the sine integrated as an expression of time. At the step ends (here the
@@ -184,6 +185,7 @@ def step_reference():
     return sc, model, wp.Reference(res, X, np.where(scale > 0, scale, 1.0), res.meta)
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_tight_tolerances_on_the_muscle_track_cvodes(step_reference):
     """The scene of issue 17 at rtol 1e-10 / atol 1e-13 and 1e-12 / 1e-14 (SI units):
     both run, each below its tolerance, and the tighter one is closer. Before the Newton
@@ -268,6 +270,7 @@ def test_bad_options_are_refused(oscillator, option, value):
         simulate(oscillator, 0.1, settings=s)
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_compiled_once_per_model_and_input_law(oscillator, monkeypatch):
     builds = []
     build = radau._build
@@ -321,6 +324,7 @@ def _processes(tmp_path, *modes: str) -> list[list[str]]:
     return [o.split() for o in outs]
 
 
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_disk_cache_is_shared_by_concurrent_processes_and_reused(tmp_path):
     """Two processes building the same library at once both succeed and leave one file
     (no partial file); a third loads it without invoking the compiler; the same end
