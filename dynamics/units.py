@@ -3,26 +3,73 @@
 Plain numbers are taken to be in the SI unit asked for already (``bare_ok=False``, as for
 scenario files, refuses a bare non-zero number of a dimensioned unit instead). Strings are
 parsed by pint; a wrong dimension raises :class:`~sarcomere.dynamics.errors.ParameterError`.
+The common case, a plain number and one of the units in :data:`_UNITS` ("0.1 MPa",
+"50 g", "10 ms"), is converted without pint (pint's import and registry cost 0.35 s of
+every CLI run: BENCHMARKS.md, start-up), with pint's own arithmetic (the magnitude times
+the unit's factor: the same float, tested against pint); anything else goes to pint.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-
-import pint
+import re
 
 from .errors import ParameterError
 
+_UNITS = {
+    "Pa": ("pressure", 1.0),
+    "kPa": ("pressure", 1e3),
+    "MPa": ("pressure", 1e6),
+    "bar": ("pressure", 1e5),
+    "m": ("length", 1.0),
+    "mm": ("length", 1e-3),
+    "cm": ("length", 1e-2),
+    "um": ("length", 1e-6),
+    "kg": ("mass", 1.0),
+    "g": ("mass", 1e-3),
+    "mg": ("mass", 1e-6),
+    "s": ("time", 1.0),
+    "ms": ("time", 1e-3),
+    "us": ("time", 1e-6),
+    "min": ("time", 60.0),
+    "N": ("force", 1.0),
+    "mN": ("force", 1e-3),
+    "Hz": ("frequency", 1.0),
+    "kHz": ("frequency", 1e3),
+    "%": ("1", 1e-2),
+    "1": ("1", 1.0),
+    "": ("1", 1.0),
+}
+"""Units converted without pint: symbol -> (dimension, factor to its SI unit)."""
+
+_PLAIN = re.compile(r"\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-z%]*)\s*")
+
 
 @functools.cache
-def _registry() -> pint.UnitRegistry:
+def _registry():
+    import pint  # on first use only: CLI start-up
+
     return pint.UnitRegistry()
 
 
 @functools.cache
 def _dimensionless(unit: str) -> bool:
+    if unit in _UNITS:
+        return _UNITS[unit][0] == "1"
     return _registry().Unit(unit or "dimensionless").dimensionless
+
+
+def _fast(text: str, unit: str) -> float | None:
+    """``text`` in ``unit`` without pint, or None where pint must decide (another unit or
+    form, or a dimension mismatch, which pint words)."""
+    m = _PLAIN.fullmatch(text)
+    if m is None or unit not in _UNITS or m.group(2) not in _UNITS:
+        return None
+    (dim, factor), (target_dim, target_factor) = _UNITS[m.group(2)], _UNITS[unit]
+    if m.group(2) in ("", "1") or dim != target_dim or target_factor != 1.0:
+        return None
+    return float(m.group(1)) * factor
 
 
 def to_si(value: object, unit: str, name: str = "value", bare_ok: bool = True) -> float:
@@ -38,7 +85,11 @@ def to_si(value: object, unit: str, name: str = "value", bare_ok: bool = True) -
     if isinstance(value, int | float):  # no unit registry: tables convert a million of these
         out = float(value)
         _check_bare(out, value, unit, name, bare_ok)
+    elif isinstance(value, str) and (fast := _fast(value, unit)) is not None:
+        out = fast
     elif isinstance(value, str):
+        import pint
+
         ureg = _registry()
         target = ureg.Unit(unit or "dimensionless")
         try:

@@ -190,11 +190,11 @@ def test_list_matches_the_loaded_scenarios(capsys) -> None:
 
 
 @pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
-def test_a_transient_run_imports_neither_python_control_nor_pyplot(tmp_path: Path) -> None:
+def test_a_transient_run_imports_neither_python_control_nor_pyplot_nor_pint(tmp_path: Path) -> None:
     code = (
         "import sys; from sarcomere.scenarios.cli import main;"
         f"s = main(['run', 'step-50g', '--quiet', '--out', {str(tmp_path / 'o')!r}]);"
-        "print(s, sorted(m for m in ('control', 'matplotlib.pyplot', 'scipy.signal',"
+        "print(s, sorted(m for m in ('control', 'matplotlib.pyplot', 'scipy.signal', 'pint',"
         " 'sarcomere.scenarios.cosim', 'sarcomere.controllers') if m in sys.modules))"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
