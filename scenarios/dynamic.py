@@ -776,7 +776,9 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
     """Bind the scene to the auto policy (:func:`sarcomere.dynamics.fidelity.choose`:
     the cheapest level predicted within ``[outputs] tolerance``, default 1 %, of
     "full", over ``[outputs] signals``, default ``myofibril.length``) and run the
-    chosen level alone; the auto run's wall time is in the report."""
+    chosen level alone; at n <= 6 the full run is handed to the policy to run first, in
+    pieces it may pause between ("full first"). The auto run's wall time is in the
+    report."""
     tic = time.perf_counter()
     if sc.simulation is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
