@@ -327,7 +327,7 @@ def choose(scene: Scene) -> Choice:
         predicted[level] = SAFETY * max(defect, float(np.max(static)) if level == "linear" else 0)
         if predicted[level] <= tol:
             res = level_result(level, full, path, traj, sc.t_out, sc.keep)
-            return Choice(level, _all(predicted), against, why, full, result=res)
+            return Choice(level, _all(predicted), against, why, full, result=res, notes=paused)
     predicted["full"] = 0.0
     res = sc.full.result() if paused else None  # paused by full first: go on from there
     return Choice(

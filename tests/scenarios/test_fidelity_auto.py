@@ -131,6 +131,20 @@ def test_step_on_a_long_chain_runs_the_grouped_level_without_a_full_model(tmp_pa
     assert "not cheaper at n = 10" in report["not_predicted"]["equilibrium_path"]
 
 
+def test_paused_full_is_dropped_when_the_ladder_picks_a_level(tmp_path, monkeypatch):
+    """The small sweep on a 2 ms grid (two pieces): paused full, then linear within
+    tolerance; the report says full first did not finish."""
+    monkeypatch.setattr(policy, "FULL_FIRST_BUDGET_S", 1e-9)  # pauses after a piece
+    out = {}
+    for fid in ("auto", "full"):
+        text = _scene(fid, SMALL_CHIRP, "4 s").replace('"5 ms"', '"2 ms"')
+        out[fid] = run(parse_scenario(text, f"{fid}.toml"), tmp_path / fid, quiet=True)
+    report = out["auto"].extra["fidelity_auto"]
+    assert out["auto"].fidelity == "linear" and report["full_first"]["finished"] is False
+    a, f = (out[k].results["main"]["myofibril.length"] for k in ("auto", "full"))
+    assert np.max(np.abs(a - f)) / np.ptp(f) <= report["predicted_error"]["linear"] < 0.01
+
+
 def test_short_chain_does_not_predict_the_reduced_chains(tmp_path, ladder_only):
     """At n = 3 grouped is the chain itself, and symmetric could only be predicted
     against full, which costs more than running full."""
