@@ -11,6 +11,8 @@ time of the transient runner end to end (what ``summary.json`` reports) for auto
 full at the scene's own settings (CVODES, rtol 1e-6), one BLAS thread, one run each
 (full first; single runs on a shared machine: +/- 30 %). ``--part k/m`` measures every
 m-th scene from the k-th (same draws), for m processes side by side.
+``--full-first-budget 0`` turns auto's full first off (n <= 6; docs/numerics.md): the
+ladder's own choices, as the study measured them before full first.
 
 Usage::
 
@@ -27,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sarcomere.dynamics.fidelity import policy
 from sarcomere.scenarios import dynamic, parse_scenario
 from sarcomere.scenarios.threads import limited_blas
 
@@ -212,7 +215,16 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("out/bench/auto_study.json"))
     parser.add_argument("--part", default="0/1", help="k/m: every m-th scene from the k-th")
     parser.add_argument("--table", nargs="+", type=Path, help="only print the table of these")
+    parser.add_argument(
+        "--full-first-budget",
+        type=float,
+        default=policy.FULL_FIRST_BUDGET_S,
+        help="seconds of full first at n <= 6 (0: off, the ladder alone)",
+    )
     args = parser.parse_args()
+    if not args.full_first_budget >= 0:
+        parser.error(f"--full-first-budget {args.full_first_budget}: need >= 0 s")
+    policy.FULL_FIRST_BUDGET_S = args.full_first_budget
     if args.table:
         rows = sorted((r for f in args.table for r in json.loads(f.read_text())), key=_order)
         print(table(rows))

@@ -54,7 +54,7 @@ from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
 from sarcomere.dynamics.signals import Table
-from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
+from sarcomere.dynamics.simulation.simulate import PausableRun, SolverSettings, simulate
 from sarcomere.dynamics.units import to_si
 
 from .output import RunOutput, quantity_tag
@@ -776,7 +776,9 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
     """Bind the scene to the auto policy (:func:`sarcomere.dynamics.fidelity.choose`:
     the cheapest level predicted within ``[outputs] tolerance``, default 1 %, of
     "full", over ``[outputs] signals``, default ``myofibril.length``) and run the
-    chosen level alone; the auto run's wall time is in the report."""
+    chosen level alone; at n <= 6 the full run is handed to the policy to run first, in
+    pieces it may pause between ("full first"). The auto run's wall time is in the
+    report."""
     tic = time.perf_counter()
     if sc.simulation is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
@@ -788,6 +790,7 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
     care = list(sc.outputs.signals) or ["myofibril.length"]
     # what linear and equilibrium_path return: full's signals (they run at n <= 6 only)
     wanted = _prepare(sc, b, cheap)[1] if first == "full" else care
+    full = _pausable_full(sc, b, cheap, inputs, wanted, grid) if first == "full" else None
     models = {(first, GROUPS): cheap}
 
     def build(level: str, groups: int = GROUPS) -> Model:
@@ -806,6 +809,7 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
         named={*care, *(n for names in sc.outputs.plots.values() for n in names)},
         keep=wanted,
         tolerance=sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01,
+        full=full,
     )
     choice = ladder.choose(scene)
     res = choice.result
@@ -815,6 +819,15 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
     report = choice.report(scene)
     report["wall_time_s"] = time.perf_counter() - tic
     return choice.level, res, report
+
+
+def _pausable_full(sc: Scenario, b: Binding, model: Model, inputs, wanted, grid) -> PausableRun:
+    """The full model's run from the start equilibrium as auto's "full first" runs it
+    (:data:`~sarcomere.dynamics.fidelity.policy.FULL_FIRST_BUDGET_S`), not yet started."""
+    u0 = {k: float(sig(grid[0])) for k, sig in inputs.items()}
+    start = solve_equilibrium(model, u0, b.overrides)
+    settings = _settings(sc, model)
+    return PausableRun(model, inputs, b.overrides, start.x, start.z, settings, grid, wanted)
 
 
 register_runner("equilibrium", run_equilibrium)

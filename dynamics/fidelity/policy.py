@@ -18,12 +18,19 @@ are ruled out:
   deviation from a coarse path times it (the path), exceed the tolerance: early exits
   that only ever rule a level out, so they never make auto's error larger.
 
+Full first, where the ladder would predict levels on the full model (n <= 2 GROUPS):
+the full run starts before any prediction, in pieces, and if it finishes within
+:data:`FULL_FIRST_BUDGET_S` of integration it is the answer (error 0: full is cheaper
+than predicting); otherwise it pauses, the ladder predicts, and if the ladder ends at
+full the paused run goes on where it stopped (nothing integrated twice).
+
 The reduced chains are considered only where grouped has fewer representative units
 than the chain (n > 2 GROUPS), the two levels on the full model only where it does not:
 beyond, their equilibria, Jacobians and matrix exponentials of the full model cost more
 than running it (3x at n = 10, 17x at n = 30). A scene with more than one varying input,
-or a level without a signal the scene names, is predicted invalid. The choice depends on
-the scene alone, never on timings.
+or a level without a signal the scene names, is predicted invalid. The predictions
+depend on the scene alone; only whether full finished within its budget depends on the
+machine, and full is exact whichever way it goes.
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ from ..components.aps import GroupedMyofibril, chain_end_names
 from ..equilibrium import Equilibrium
 from ..modeling.model import Model
 from ..results import Result
+from ..simulation.simulate import PausableRun
 from . import predictions
 from .levels import PATH_NODES, Path, equilibrium_path, level_result, trajectory
 from .predictions import SAFETY
@@ -58,6 +66,14 @@ REDUCED_PATH_NODES = 5
 #: Equilibria along the command's range for the ``linear`` level's prediction (the static
 #: nonlinearity over the range) and its operating point (the middle one).
 LINEAR_PATH_NODES = 3
+
+#: Integration wall time [s] the full run may take before the ladder predicts (n <= 2
+#: GROUPS). Measured (BENCHMARKS.md s6, one BLAS thread): the packaged n = 3 scenes
+#: integrate full in 7-65 ms, up to ~3x that on the loaded 2-core machine, while the
+#: ladder's predictions there cost 10-30 ms and its levels 10-100 ms more; so a full run
+#: within 0.2 s is never beaten by more than the predictions' cost, and one beyond it has
+#: predictions costing under 15 % of it.
+FULL_FIRST_BUDGET_S = 0.2  # 0: no full first, the ladder predicts at once
 
 #: A signal of one unit of the full chain (the reduced chains have those of the ends).
 _UNIT_SIGNAL = re.compile(r"^myofibril\.(aps|tube|actin)\d+\.")
@@ -92,6 +108,9 @@ class Scene:
         The signals a level without an integrator returns.
     tolerance : float
         Allowed error, relative to each signal's span (0.01 = 1 %).
+    full : PausableRun, optional
+        The full model's run from the start equilibrium, not yet started (n <= 2 GROUPS:
+        "full first"); None to predict at once.
     """
 
     n: int
@@ -103,6 +122,7 @@ class Scene:
     named: set[str]
     keep: list[str]
     tolerance: float
+    full: PausableRun | None = None
 
 
 @dataclass
@@ -136,6 +156,7 @@ class Choice:
         }
         if self.groups is not None:
             out["groups"] = self.groups
+        out.update(self.notes)
         return out
 
 
@@ -237,6 +258,12 @@ def choose(scene: Scene) -> Choice:
     what its prediction is computed from)."""
     tol, sc = scene.tolerance, scene
     reduces = grouped_units(sc.n) < sc.n
+    paused = {}
+    if not reduces and sc.full is not None and FULL_FIRST_BUDGET_S > 0:
+        first = _full_first(sc.full)
+        if first.level == "full":
+            return first
+        paused = first.notes
     run = _Ladder(scene)
     why = _ruled_out(scene, reduces)
     predicted: dict[str, float] = {}
@@ -300,9 +327,42 @@ def choose(scene: Scene) -> Choice:
         predicted[level] = SAFETY * max(defect, float(np.max(static)) if level == "linear" else 0)
         if predicted[level] <= tol:
             res = level_result(level, full, path, traj, sc.t_out, sc.keep)
-            return Choice(level, _all(predicted), against, why, full, result=res)
+            return Choice(level, _all(predicted), against, why, full, result=res, notes=paused)
     predicted["full"] = 0.0
-    return Choice("full", _all(predicted), against, why, run.model("full"), run.known("full"))
+    res = sc.full.result() if paused else None  # paused by full first: go on from there
+    return Choice(
+        "full",
+        _all(predicted),
+        against,
+        why,
+        run.model("full"),
+        run.known("full"),
+        res,
+        notes=paused,
+    )
+
+
+def _full_first(full: PausableRun) -> Choice:
+    """Run ``full`` for :data:`FULL_FIRST_BUDGET_S`: level "full" with its result if it
+    finished, else level "" (paused; the ladder predicts)."""
+    done = full.run(FULL_FIRST_BUDGET_S)
+    note = {
+        "budget_s": FULL_FIRST_BUDGET_S,
+        "wall_s": full.wall_s,
+        "finished": done,
+        "fraction_run": full.fraction,
+    }
+    if not done:
+        return Choice("", {}, {}, {}, notes={"full_first": note})
+    why = {
+        level: f"full is cheaper than predicting: it ran in {full.wall_s:.3g} s, within the "
+        f"{FULL_FIRST_BUDGET_S:g} s budget"
+        for level in AUTO_LADDER[:-1]
+    }
+    predicted = {"full": 0.0}
+    return Choice(
+        "full", _all(predicted), {}, why, result=full.result(), notes={"full_first": note}
+    )
 
 
 def _all(predicted: dict[str, float]) -> dict[str, float | None]:

@@ -1,13 +1,17 @@
 """``fidelity = "auto"``: the cheapest level predicted within tolerance runs, alone; the
-choice is checked against the full model here, not in the run."""
+choice is checked against the full model here, not in the run. At n <= 6 auto runs full
+first: the ladder's tests give it no budget (``ladder_only``): the ladder predicts at
+once."""
 
 import importlib.util
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sarcomere.dynamics.errors import ScenarioError
+from sarcomere.dynamics.fidelity import policy
 from sarcomere.scenarios import dynamic, parse_scenario, run
 
 SCENE = """
@@ -35,6 +39,12 @@ SMALL_CHIRP = (
 STEP = 'type = "step"\nfinal = "0.1 MPa"\ntime = "0.1 s"'
 
 
+@pytest.fixture
+def ladder_only(monkeypatch):
+    """No full first: the ladder predicts at once."""
+    monkeypatch.setattr(policy, "FULL_FIRST_BUDGET_S", 0.0)
+
+
 def _scene(fidelity: str, command: str, stop: str, n: int = 3) -> str:
     tolerance = 'tolerance = "1 %"\n' if fidelity == "auto" else ""
     return SCENE.format(fidelity=fidelity, command=command, stop=stop, tolerance=tolerance, n=n)
@@ -50,7 +60,9 @@ def _both(tmp_path, command, stop, n=3):
     return out["auto"], out["full"], float(np.max(np.abs(a - f)) / np.ptp(f))
 
 
-def test_slow_ramp_runs_the_equilibrium_path_alone_within_tolerance(tmp_path, monkeypatch):
+def test_slow_ramp_runs_the_equilibrium_path_alone_within_tolerance(
+    tmp_path, monkeypatch, ladder_only
+):
     calls = []
     simulate = dynamic.simulate
     monkeypatch.setattr(dynamic, "simulate", lambda *a, **k: calls.append(1) or simulate(*a, **k))
@@ -62,9 +74,40 @@ def test_slow_ramp_runs_the_equilibrium_path_alone_within_tolerance(tmp_path, mo
     assert auto.metrics["fidelity_predicted_error"] == report["predicted_error"]["equilibrium_path"]
     assert error <= report["predicted_error"]["equilibrium_path"] < 0.01  # 0.30 %, 0.39 %
     assert report["predicted_error"]["linear"] > 0.05  # the ramp spans the nonlinear range
+    assert "full_first" not in report
 
 
-def test_small_sweep_runs_the_linear_level_within_tolerance(tmp_path):
+def test_full_first_returns_full_when_it_is_cheaper_than_predicting(tmp_path, monkeypatch):
+    """With the budget to finish, the slow ramp (equilibrium_path on the ladder) runs full,
+    exact to the solver's tolerance, and predicts nothing: no equilibrium path is built."""
+    monkeypatch.setattr(policy, "FULL_FIRST_BUDGET_S", math.inf)
+    monkeypatch.setattr(policy, "equilibrium_path", lambda *a, **k: pytest.fail("predicted"))
+    auto, _, error = _both(tmp_path, RAMP, "2.5 s")
+    report = auto.extra["fidelity_auto"]
+    assert auto.fidelity == report["chosen"] == "full"
+    assert report["full_first"]["finished"] is True
+    assert report["predicted_error"] == {**dict.fromkeys(policy.AUTO_LADDER), "full": 0.0}
+    assert all("cheaper than predicting" in w for w in report["not_predicted"].values())
+    assert error == 0.0  # one piece of 501 points: simulate's run
+
+
+def test_paused_full_goes_on_when_the_ladder_ends_at_full(tmp_path, monkeypatch):
+    """The step at n = 3 rules out linear and the path: the paused full run (1201 points,
+    two pieces) is finished, not run again."""
+    monkeypatch.setattr(policy, "FULL_FIRST_BUDGET_S", 1e-9)  # pauses after a piece
+    calls = []
+    simulate = dynamic.simulate
+    monkeypatch.setattr(dynamic, "simulate", lambda *a, **k: calls.append(1) or simulate(*a, **k))
+    auto, _, error = _both(tmp_path, STEP, "6 s")
+    report = auto.extra["fidelity_auto"]
+    assert auto.fidelity == "full" and report["full_first"]["finished"] is False
+    assert 0 < report["full_first"]["fraction_run"] < 1
+    assert len(calls) == 1  # the full run of _both only
+    assert report["predicted_error"]["linear"] > 0.01
+    assert error == 0.0  # paused where simulate restarts anyway: a held input
+
+
+def test_small_sweep_runs_the_linear_level_within_tolerance(tmp_path, ladder_only):
     auto, _, error = _both(tmp_path, SMALL_CHIRP, "4 s")
     assert auto.fidelity == "linear"
     assert error <= auto.extra["fidelity_auto"]["predicted_error"]["linear"] < 0.01
@@ -88,7 +131,21 @@ def test_step_on_a_long_chain_runs_the_grouped_level_without_a_full_model(tmp_pa
     assert "not cheaper at n = 10" in report["not_predicted"]["equilibrium_path"]
 
 
-def test_short_chain_does_not_predict_the_reduced_chains(tmp_path):
+def test_paused_full_is_dropped_when_the_ladder_picks_a_level(tmp_path, monkeypatch):
+    """The small sweep on a 2 ms grid (two pieces): paused full, then linear within
+    tolerance; the report says full first did not finish."""
+    monkeypatch.setattr(policy, "FULL_FIRST_BUDGET_S", 1e-9)  # pauses after a piece
+    out = {}
+    for fid in ("auto", "full"):
+        text = _scene(fid, SMALL_CHIRP, "4 s").replace('"5 ms"', '"2 ms"')
+        out[fid] = run(parse_scenario(text, f"{fid}.toml"), tmp_path / fid, quiet=True)
+    report = out["auto"].extra["fidelity_auto"]
+    assert out["auto"].fidelity == "linear" and report["full_first"]["finished"] is False
+    a, f = (out[k].results["main"]["myofibril.length"] for k in ("auto", "full"))
+    assert np.max(np.abs(a - f)) / np.ptp(f) <= report["predicted_error"]["linear"] < 0.01
+
+
+def test_short_chain_does_not_predict_the_reduced_chains(tmp_path, ladder_only):
     """At n = 3 grouped is the chain itself, and symmetric could only be predicted
     against full, which costs more than running full."""
     out = run(parse_scenario(_scene("auto", STEP, "2 s"), "t.toml"), tmp_path, quiet=True)
@@ -135,7 +192,7 @@ def _study():
 
 @pytest.mark.parametrize("index", range(4))
 @pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
-def test_random_scene_stays_within_its_tolerance(index):
+def test_random_scene_stays_within_its_tolerance(index, ladder_only):
     """Four scenes of the randomised study's generator (seed 5, n <= 6: where linear and
     equilibrium_path are on the ladder): the chosen level's error against full at rtol
     1e-9 is within the tolerance, and within its prediction."""
@@ -148,7 +205,9 @@ def test_random_scene_stays_within_its_tolerance(index):
         assert row["measured"] <= row["predicted"]
 
 
-def test_staircase_with_a_round_off_breakpoint_is_finite_and_within_tolerance(tmp_path):
+def test_staircase_with_a_round_off_breakpoint_is_finite_and_within_tolerance(
+    tmp_path, ladder_only
+):
     """Issue 17: 3 APS, 0 g, 50/52/48/51 kPa for 0.4 s each, tolerance 2 %: a switch
     2.2e-16 s from an output time made the linear level divide by zero, and the run
     returned NaN from 1.2032 s on without an error."""
