@@ -75,6 +75,13 @@ LINEAR_PATH_NODES = 3
 #: predictions costing under 15 % of it.
 FULL_FIRST_BUDGET_S = 0.2  # 0: no full first, the ladder predicts at once
 
+#: A paused full run whose rest, extrapolated from its pace so far (wall time / share
+#: run), is at most this long [s] is finished instead of predicting: at n <= 6 the
+#: ladder's levels cost about as much per output point as full (BENCHMARKS.md s6), so
+#: dropping the paused work only adds it to the bill (a 150 s dither at n = 3: full
+#: 0.60 s, pause at 0.2 s, then linear: x1.56 of full).
+FULL_FIRST_FINISH_S = 1.0  # 0: a paused full run always goes to the ladder
+
 #: A signal of one unit of the full chain (the reduced chains have those of the ends).
 _UNIT_SIGNAL = re.compile(r"^myofibril\.(aps|tube|actin)\d+\.")
 
@@ -352,13 +359,19 @@ def _full_first(full: PausableRun) -> Choice:
         "finished": done,
         "fraction_run": full.fraction,
     }
+    reason = f"it ran in {full.wall_s:.3g} s, within the {FULL_FIRST_BUDGET_S:g} s budget"
     if not done:
-        return Choice("", {}, {}, {}, notes={"full_first": note})
-    why = {
-        level: f"full is cheaper than predicting: it ran in {full.wall_s:.3g} s, within the "
-        f"{FULL_FIRST_BUDGET_S:g} s budget"
-        for level in AUTO_LADDER[:-1]
-    }
+        rest = full.wall_s * (1.0 - full.fraction) / max(full.fraction, 1e-12)
+        note["extrapolated_rest_s"] = rest
+        if rest > FULL_FIRST_FINISH_S:
+            return Choice("", {}, {}, {}, notes={"full_first": note})
+        full.run()  # a short rest: finishing costs less than predicting
+        note["finished_after_pause"] = True
+        reason = (
+            f"paused at {note['wall_s']:.3g} s with {note['fraction_run']:.0%} run, its "
+            f"rest extrapolated to {rest:.3g} s (<= {FULL_FIRST_FINISH_S:g} s): finished"
+        )
+    why = {level: f"full is cheaper than predicting: {reason}" for level in AUTO_LADDER[:-1]}
     predicted = {"full": 0.0}
     return Choice(
         "full", _all(predicted), {}, why, result=full.result(), notes={"full_first": note}

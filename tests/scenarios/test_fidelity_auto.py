@@ -95,6 +95,7 @@ def test_paused_full_goes_on_when_the_ladder_ends_at_full(tmp_path, monkeypatch)
     """The step at n = 3 rules out linear and the path: the paused full run (1201 points,
     two pieces) is finished, not run again."""
     monkeypatch.setattr(policy, "FULL_FIRST_BUDGET_S", 1e-9)  # pauses after a piece
+    monkeypatch.setattr(policy, "FULL_FIRST_FINISH_S", 0.0)  # and always asks the ladder
     calls = []
     simulate = dynamic.simulate
     monkeypatch.setattr(dynamic, "simulate", lambda *a, **k: calls.append(1) or simulate(*a, **k))
@@ -105,6 +106,25 @@ def test_paused_full_goes_on_when_the_ladder_ends_at_full(tmp_path, monkeypatch)
     assert len(calls) == 1  # the full run of _both only
     assert report["predicted_error"]["linear"] > 0.01
     assert error == 0.0  # paused where simulate restarts anyway: a held input
+
+
+def test_a_paused_full_run_with_a_short_rest_is_finished_not_predicted(tmp_path, monkeypatch):
+    """The small sweep on a 2 ms grid pauses after its first piece; the rest, extrapolated
+    from the pace so far, is far below FULL_FIRST_FINISH_S: full is finished and nothing
+    is predicted (before: the ladder ran and the paused work was dropped)."""
+    monkeypatch.setattr(policy, "FULL_FIRST_BUDGET_S", 1e-9)  # pauses after a piece
+    monkeypatch.setattr(policy, "FULL_FIRST_FINISH_S", 1e3)
+    out = {}
+    for fid in ("auto", "full"):
+        text = _scene(fid, SMALL_CHIRP, "4 s").replace('"5 ms"', '"2 ms"')
+        out[fid] = run(parse_scenario(text, f"{fid}.toml"), tmp_path / fid, quiet=True)
+    report = out["auto"].extra["fidelity_auto"]
+    first = report["full_first"]
+    assert out["auto"].fidelity == "full" and first["finished_after_pause"] is True
+    assert 0 < first["fraction_run"] < 1 and first["extrapolated_rest_s"] < 1e3
+    assert report["predicted_error"]["linear"] is None  # nothing predicted
+    a, f = (out[k].results["main"]["myofibril.length"] for k in ("auto", "full"))
+    assert np.max(np.abs(a - f)) / np.ptp(f) < 1e-4  # one restart more: solver tolerance
 
 
 def test_small_sweep_runs_the_linear_level_within_tolerance(tmp_path, ladder_only):
@@ -135,6 +155,7 @@ def test_paused_full_is_dropped_when_the_ladder_picks_a_level(tmp_path, monkeypa
     """The small sweep on a 2 ms grid (two pieces): paused full, then linear within
     tolerance; the report says full first did not finish."""
     monkeypatch.setattr(policy, "FULL_FIRST_BUDGET_S", 1e-9)  # pauses after a piece
+    monkeypatch.setattr(policy, "FULL_FIRST_FINISH_S", 0.0)  # and always asks the ladder
     out = {}
     for fid in ("auto", "full"):
         text = _scene(fid, SMALL_CHIRP, "4 s").replace('"5 ms"', '"2 ms"')
