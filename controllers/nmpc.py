@@ -482,42 +482,11 @@ class NonlinearMPC(RecedingHorizon):
         pb = _Problem(model, s, self.dt, np.where(big > 1e-12, big, 1e-2))
         self.problem = pb
         self.engine = _RealTimeIteration(pb) if s.solver == "rti" else _CollocationNLP(pb, s.solver)
-        self._p_nominal = np.asarray(model.parameters(params), dtype=float).ravel()
         self.reset(u_op)
-
-    @property
-    def runtime_parameters(self) -> tuple[str, ...]:
-        """Every parameter of the prediction model: all are run-time inputs of the
-        solver's Function (see :meth:`set_parameters`)."""
-        return tuple(self.model.param_names)
-
-    @property
-    def parameters(self) -> dict[str, float]:
-        """The parameter values [SI] the prediction uses now, by name."""
-        return dict(zip(self.model.param_names, self._p.tolist(), strict=True))
-
-    def set_parameters(self, values: Mapping[str, float]) -> None:
-        """Predict with ``values`` [SI, by name] from the next sample on (e.g. an
-        estimator's load); the others keep their values. :meth:`reset` restores the
-        values given at construction.
-
-        Raises
-        ------
-        ParameterError
-            For a name not of the prediction model or a non-finite value.
-        """
-        names = self.model.param_names
-        for name, value in values.items():
-            if name not in names:
-                raise ParameterError(f"nmpc.parameters.{name}", value, f"one of {names}")
-            if not (isinstance(value, int | float) and np.isfinite(value)):
-                raise ParameterError(f"nmpc.parameters.{name}", value, "a finite number [SI]")
-            self._p[names.index(name)] = float(value)
 
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
         self._offset = 0.0
-        self._p = self._p_nominal.copy()
         if isinstance(self.engine, _RealTimeIteration):
             self.engine.guess = None
         else:

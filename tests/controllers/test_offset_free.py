@@ -1,13 +1,16 @@
-"""Offset-free NMPC: the prediction's parameters are run-time inputs of the solver's
+"""Offset-free MPC: the prediction's parameters are run-time inputs of the NMPC's solver
 Function, and on an EKF the estimated load is fed to them, so a load step leaves no steady
-offset without integral action (with the nominal load baked in it leaves millimetres)."""
+offset without integral action (with the nominal load baked in it leaves millimetres); the
+LMPC re-linearises at a parameter fed to it."""
 
 import numpy as np
 import pytest
 
 from sarcomere.controllers import make_controller
-from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.controllers.base import Controller
+from sarcomere.controllers.lmpc import LinearMPC
+from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
+from sarcomere.controllers.qp import zoh
 from sarcomere.dynamics import Simulator, hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 
@@ -116,3 +119,58 @@ def test_the_ekfs_load_estimate_removes_the_offset_without_integral():
 def test_the_integral_stays_an_option_on_the_ekf():
     offset, mpc, *_ = load_step_offset({"integral_gain": 5.0})
     assert mpc.inner.settings.integral_gain == 5.0 and offset < 1e-6
+
+
+def test_the_lmpc_relinearises_at_a_parameter_set_at_run_time():
+    plant = hanging_load(1, load_kg=0.02)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    mpc = LinearMPC(plant, eq.x, eq.u, 0.01)
+    y = {n: eq[n] for n in mpc.outputs}
+    mpc.checked(0.0, y, {L: eq[L]})
+    assert mpc.relinearizations == 1
+    m0 = eq.p[plant.param_names.index(M)]
+    mpc.set_parameters({M: m0 * 1.04})  # within relinearize_rel (5 %): kept
+    mpc.checked(0.01, y, {L: eq[L]})
+    assert mpc.relinearizations == 1
+    mpc.set_parameters({M: m0 + 0.05})
+    mpc.checked(0.02, y, {L: eq[L]})
+    assert mpc.relinearizations == 2 and mpc.parameters[M] == m0 + 0.05
+    # the QP's model is the linearisation at the new load, not at the nominal one
+    lin = plant.linearization([L])
+    heavy = np.array(plant.parameters({M: m0 + 0.05}), dtype=float).ravel()
+    A, B, *_ = (np.array(X) for X in lin(eq.x, np.zeros(0), eq.u, heavy))
+    A0, *_ = (np.array(X) for X in lin(eq.x, np.zeros(0), eq.u, plant.parameters()))
+    Ad, _ = zoh(A, B, 0.01)
+    assert np.allclose(mpc._qp.Ad, Ad, rtol=1e-12, atol=1e-12)
+    assert not np.allclose(A, A0, rtol=1e-3)
+
+
+def lmpc_load_step_residual(feed):
+    """+50 g at 0.5 s, LMPC on the EKF holding the length (3 APS, 20 g): the largest error
+    over the last 0.3 s of 3 s [m]."""
+    plant = hanging_load(3, load_kg=0.02)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    mpc = make_controller("lmpc", plant, eq, 0.01, TASK)
+    assert mpc.fed == [M]
+    if not feed:
+        mpc.fed = []
+    sim = Simulator(plant)
+    sim.reset(x0=eq.x)
+    sim.p = eq.p.copy()
+    errors = []
+    for k in range(300):
+        if k == 50:
+            p = sim.p.copy()
+            p[plant.param_names.index(M)] += 0.05
+            sim.p = p
+        y = sim.signals(mpc.outputs)
+        sim.step(mpc.checked(sim.t, y, {L: eq[L]}), 0.01)
+        errors.append(sim.signal(L) - eq[L])
+    return float(np.max(np.abs(errors[-30:])))
+
+
+def test_the_lmpc_on_the_ekfs_load_settles_faster():
+    """The velocity form is offset-free either way; linearised at the nominal 20 g it is
+    still 0.19 mm off 2.5 s after the step, at the estimated 70 g a few micrometres."""
+    fed, nominal = lmpc_load_step_residual(True), lmpc_load_step_residual(False)
+    assert fed < 2e-5 and nominal > 1e-4
