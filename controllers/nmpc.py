@@ -100,7 +100,8 @@ class NMPCSettings:
         Integral action [1/s]: the reference given to the optimiser is moved by
         ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound), so
         a load or model error the prediction does not know leaves no steady offset; 0
-        turns it off.
+        turns it off (:func:`make_nmpc` on an EKF that feeds the load estimate defaults to
+        0: the prediction then knows the load).
     """
 
     horizon: int = 20
