@@ -84,6 +84,26 @@ class Controller(ABC):
         before the first sample [SI]."""
         self.stats = ControllerStats()
 
+    @property
+    def runtime_parameters(self) -> tuple[str, ...]:
+        """Names of the model parameters :meth:`set_parameters` accepts (none here; a
+        model-based controller such as the NMPC lists its prediction's)."""
+        return ()
+
+    def set_parameters(self, values: Mapping[str, float]) -> None:
+        """Use ``values`` [SI, by name] for parameters of the controller's model from the
+        next sample on (an estimator feeds its estimates here).
+
+        Raises
+        ------
+        ParameterError
+            Here for any name: this controller has no run-time parameters.
+        """
+        if values:
+            raise ParameterError(
+                f"{self.slug}.parameters", sorted(values), "none: no run-time parameters"
+            )
+
     @abstractmethod
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         """The inputs [SI] to hold from ``t`` to ``t + dt``, given the measurement ``y``

@@ -174,9 +174,21 @@ def make_ekf(
     finds it in 3 but hardly filters) and ``substeps``."""
     if not isinstance(settings, Mapping):
         raise ParameterError("ekf", settings, "a table of EKF settings")
-    dist = {"load.m": 0.002} if "load.m" in model.param_names else {}
+    dist = default_disturbances(model)
     own = own_settings("ekf", settings, {"input_std": 2e3, "disturbance_std": dist, "substeps": 2})
     meas = list(measured)
     given = dict(noise_std or {})
     std = {n: given.get(n) or DEFAULT_STD.get(model.unit(n), 1e-6) for n in meas}
     return EKF(model, op, dt, meas, std, own["input_std"], own["disturbance_std"], own["substeps"])
+
+
+def default_disturbances(model: Model) -> dict[str, float]:
+    """The parameters :func:`make_ekf` estimates unless told otherwise, with their
+    random-walk intensity [SI/sqrt(s)]: the load mass (2 g/sqrt(s)) where the model has one."""
+    return {"load.m": 0.002} if "load.m" in model.param_names else {}
+
+
+def estimated_parameters(model: Model, settings: Mapping[str, object]) -> list[str]:
+    """Names of the parameters :func:`make_ekf` estimates with these ``settings``."""
+    dist = settings.get("disturbance_std") if isinstance(settings, Mapping) else None
+    return list(dist) if isinstance(dist, Mapping) else list(default_disturbances(model))

@@ -5,7 +5,10 @@ few signals are measured (the length and the regulator pressure, with noise). Th
 reads what is measured, updates the :class:`~.ekf.EKF` (on the plant model) with the input
 it applied last, and hands the inner controller the estimated states, and its other
 signals evaluated on the estimate, by name. The prediction models' state names are a
-subset of the full plant's, so this works for every prediction fidelity.
+subset of the full plant's, so this works for every prediction fidelity. Parameters the EKF
+estimates (by default the load mass) that the inner controller accepts
+(:attr:`~.base.Controller.runtime_parameters`, e.g. the NMPC's) are passed to it every
+sample through :meth:`~.base.Controller.set_parameters`, before it computes its input.
 """
 
 from __future__ import annotations
@@ -43,6 +46,8 @@ class OnEstimate(Controller):
         states = set(plant.state_names)
         self._derived = [n for n in inner.outputs if n not in states]
         self._signals = plant.signals_function(self._derived)
+        accepted = set(inner.runtime_parameters)
+        self.fed = [n for n in ekf.disturbances if n in accepted]  # passed to inner
         self.reset(dict(zip(plant.input_names, op.u.tolist(), strict=True)))
 
     def reset(self, u0: Mapping[str, float]) -> None:
@@ -56,6 +61,9 @@ class OnEstimate(Controller):
         est = dict(zip(self.plant.state_names, x.tolist(), strict=True))
         values = np.array(self._signals(x, np.zeros(self.plant.nz), self._u, self.op.p))
         est.update(zip(self._derived, values.ravel().tolist(), strict=True))
+        if self.fed:
+            estimates = self.ekf.parameters
+            self.inner.set_parameters({n: estimates[n] for n in self.fed})
         u = self.inner.checked(t, est, r)
         self.stats.fallbacks = self.inner.stats.fallbacks
         self._u = np.array(

@@ -17,7 +17,9 @@ penalty). The QP is condensed (only the moves and slacks are unknowns) and solve
 
 The model is re-linearised at the measured point ``(x, u)`` when the tracked output has
 moved more than ``relinearize_m`` (default 2 mm, about a quarter of the 8.8 mm 3-APS stroke at
-20 g) from where it was last linearised.
+20 g) from where it was last linearised, or when a parameter set at run time
+(:meth:`~.receding.RecedingHorizon.set_parameters`, e.g. the EKF's load estimate) moved more
+than ``relinearize_rel`` (default 5 %) of its value there.
 """
 
 from __future__ import annotations
@@ -65,6 +67,9 @@ class LMPCSettings:
         Linear and quadratic penalty on a soft-bound violation [per unit of the signal].
     relinearize_m : float
         Re-linearise when the tracked output moved this far from the last point [m].
+    relinearize_rel : float
+        Re-linearise when a parameter (one set at run time, e.g. an estimated load) moved
+        this fraction of its value at the last point [-] (default 5 %: 3.5 g of 70 g).
     output : str
         The tracked signal.
     qp_solver : str
@@ -80,6 +85,7 @@ class LMPCSettings:
     soft_min: tuple = ()
     weight_slack: float = 1.0e4
     relinearize_m: float = 2.0e-3
+    relinearize_rel: float = 0.05
     output: str = "myofibril.length"
     qp_solver: str = "daqp"
 
@@ -90,6 +96,7 @@ class LMPCSettings:
         positive("lmpc", "rate_max", self.rate_max)
         positive("lmpc", "weight_slack", self.weight_slack)
         positive("lmpc", "relinearize_m", self.relinearize_m)
+        positive("lmpc", "relinearize_rel", self.relinearize_rel)
         if not self.u_min < self.u_max:
             raise ParameterError("lmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
 
@@ -244,7 +251,6 @@ class LinearMPC(RecedingHorizon):
         names = model.input_names
         reads = list(dict.fromkeys([*model.state_names, s.output, *(n for n, _ in s.soft_min)]))
         super().__init__(model, dt, s, reads, params)
-        self.p = model.parameters(params)
         self._soft = [name for name, _ in s.soft_min]
         self._soft_min = np.array([float(v) for _, v in s.soft_min])
         self._lin = model.linearization([s.output, *self._soft])
@@ -260,15 +266,15 @@ class LinearMPC(RecedingHorizon):
         self.reset(u_op)
 
     def _linearize(self, x: np.ndarray, u: np.ndarray) -> VelocityQP:
-        A, B, C, _ = (np.array(M) for M in self._lin(x, np.zeros(0), u, self.p))
+        A, B, C, _ = (np.array(M) for M in self._lin(x, np.zeros(0), u, self._p))
         Ad, Bd = zoh(A, B, self.dt)
         s = self.settings
         qp = VelocityQP(
             Ad, Bd, C[:1], C[1:], s.horizon, s.weight_y, s.weight_du, s.weight_slack,
             self._u_scale, self._solver,
         )  # fmt: skip
-        out = self.model.signals_function([s.output])(x, np.zeros(0), u, self.p)
-        self._y_lin = float(out)
+        out = self.model.signals_function([s.output])(x, np.zeros(0), u, self._p)
+        self._y_lin, self._p_lin = float(out), self._p.copy()
         self._lin_point = (x.copy(), u.copy(), self._y_lin)
         self.relinearizations += 1
         return qp
@@ -313,7 +319,8 @@ class LinearMPC(RecedingHorizon):
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
         out = float(y[s.output])
         ref = self.clip(r)
-        if abs(out - self._y_lin) > s.relinearize_m:
+        moved = np.abs(self._p - self._p_lin) > s.relinearize_rel * np.abs(self._p_lin)
+        if abs(out - self._y_lin) > s.relinearize_m or np.any(moved):
             self._qp = self._linearize(x, self._u)
         dx = np.zeros_like(x) if self._x_prev is None else x - self._x_prev
         self._x_prev = x

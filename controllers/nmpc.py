@@ -23,9 +23,16 @@ Solvers (``NMPCSettings.solver``):
   Newton, its sensitivities come from the implicit function theorem, the QP is condensed onto
   the input moves in one CasADi Function and solved by ``casadi.conic`` (DAQP or qpOASES).
 
-Integral action (``integral_gain``, default 5 1/s): the reference the optimiser sees is
-moved by the integrated tracking error, so a load the prediction does not know (the +50 g
-disturbance) leaves no steady offset.
+Parameters of the prediction (the load, the geometry, the regulator) are run-time inputs of
+the solver's Function, not constants: :meth:`NonlinearMPC.set_parameters` changes them
+between samples, and on an EKF (:class:`~.estimated.OnEstimate`) the estimated load is fed
+every sample, so the prediction carries the load the plant has (offset-free by the
+disturbance model).
+
+Integral action (``integral_gain``, default 5 1/s; :func:`make_nmpc` makes it 0 when an
+EKF feeds a parameter estimate): the reference the optimiser sees is moved by the
+integrated tracking error, so a load the prediction does not know (the +50 g disturbance)
+leaves no steady offset.
 
 A failed solve (infeasible QP, NLP not converged) falls back to the previous plan shifted
 by one sample and is counted in ``stats.fallbacks``.
@@ -45,6 +52,7 @@ from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
 from .base import Controller
+from .ekf import estimated_parameters
 from .qp import qp_solver
 from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
 from .registry import count, positive, register_controller
@@ -92,7 +100,8 @@ class NMPCSettings:
         Integral action [1/s]: the reference given to the optimiser is moved by
         ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound), so
         a load or model error the prediction does not know leaves no steady offset; 0
-        turns it off.
+        turns it off (:func:`make_nmpc` on an EKF that feeds the load estimate defaults to
+        0: the prediction then knows the load).
     """
 
     horizon: int = 20
@@ -141,23 +150,24 @@ def radau_residual(f: cs.Function, nx: int, nu: int, degree: int) -> cs.Function
 
 
 class _Problem:
-    """The prediction model in scaled variables: ``x = xs * xi``, ``u = us * v``."""
+    """The prediction model in scaled variables: ``x = xs * xi``, ``u = us * v``; the
+    model's parameter vector ``p`` [SI, in ``model.param_names`` order] is an argument of
+    every Function, so the parameters are run-time inputs, not constants."""
 
-    def __init__(
-        self, model: Model, s: NMPCSettings, dt: float, xs: np.ndarray, p: np.ndarray
-    ) -> None:
+    def __init__(self, model: Model, s: NMPCSettings, dt: float, xs: np.ndarray) -> None:
         m = model
-        self.nx, self.nu = m.nx, len(m.input_names)
+        self.nx, self.nu, self.np = m.nx, len(m.input_names), m.p.numel()
         self.xs, self.us = xs, np.full(self.nu, s.u_max - s.u_min)
-        xi, v = cs.SX.sym("xi", self.nx), cs.SX.sym("v", self.nu)
+        xi, v, p = cs.SX.sym("xi", self.nx), cs.SX.sym("v", self.nu), cs.SX.sym("p", self.np)
         x, u = xi * xs, v * self.us
         ode = m.function("ode")(x, cs.SX(0, 1), u, p) / xs
-        self.f = cs.Function("f", [xi, v], [ode])
+        # the parameters ride along with the input: constant over an interval, like it
+        self.f = cs.Function("f", [xi, cs.vertcat(v, p)], [ode])
         self.tensions = [n for n in m.signal_names if TENSION.fullmatch(n)]
         sig = m.signals_function([s.output, *self.tensions])(x, cs.SX(0, 1), u, p)
-        self.y = cs.Function("y", [xi], [sig[0]])
-        self.T = cs.Function("T", [xi], [sig[1:]])
-        self.res = radau_residual(self.f, self.nx, self.nu, s.degree)
+        self.y = cs.Function("y", [xi, p], [sig[0]])
+        self.T = cs.Function("T", [xi, p], [sig[1:]])
+        self.res = radau_residual(self.f, self.nx, self.nu + self.np, s.degree)
         self.dt, self.s = dt, s
 
 
@@ -166,8 +176,10 @@ class _CollocationNLP:
 
     def __init__(self, pb: _Problem, solver: str) -> None:
         s, nx, nu, d, N = pb.s, pb.nx, pb.nu, pb.s.degree, pb.s.horizon
-        P = cs.SX.sym("P", nx + nu + 1)  # measured x [SI], previous u [SI], reference [SI]
+        # measured x [SI], previous u [SI], reference [SI], model parameters [SI]
+        P = cs.SX.sym("P", nx + nu + 1 + pb.np)
         xi0, vprev, ref = P[:nx] / pb.xs, P[nx : nx + nu] / pb.us, P[nx + nu]
+        p = P[nx + nu + 1 :]
         w, lbw, ubw, g, lbg, ubg, eq = [], [], [], [], [], [], []
         J = 0
 
@@ -195,13 +207,13 @@ class _CollocationNLP:
             if k == 0:
                 con(S - cs.vertcat(xi0, vprev), 0, 0, True)
             else:
-                con(pb.T(X), s.tension_min, inf, False)
-            con(pb.res(X, Xc, V, pb.dt), 0, 0, True)
+                con(pb.T(X, p), s.tension_min, inf, False)
+            con(pb.res(X, Xc, cs.vertcat(V, p), pb.dt), 0, 0, True)
             con(V - Vp, -dv, dv, False)
             J += s.weight_du * cs.sumsqr((V - Vp) * pb.us)
-            J += s.weight_y * (pb.y(S_next[:nx]) - ref) ** 2
+            J += s.weight_y * (pb.y(S_next[:nx], p) - ref) ** 2
             S = S_next
-        con(pb.T(S[:nx]), s.tension_min, inf, False)
+        con(pb.T(S[:nx], p), s.tension_min, inf, False)
         self.stage = nx + nu + nu + nx * d
         nlp = {"x": cs.vertcat(*w), "p": P, "f": J, "g": cs.vertcat(*g)}
         if solver == "ipopt":
@@ -239,12 +251,16 @@ class _CollocationNLP:
         stage = np.concatenate([xi, v, v, np.tile(xi, d)])
         return np.concatenate([np.tile(stage, self.pb.s.horizon), xi, v])
 
-    def solve(self, x: np.ndarray, u_prev: np.ndarray, ref: float) -> tuple[np.ndarray, bool]:
-        """The input plan [SI] (horizon x nu) and whether the solver converged."""
+    def solve(
+        self, x: np.ndarray, u_prev: np.ndarray, ref: float, p: np.ndarray
+    ) -> tuple[np.ndarray, bool]:
+        """The input plan [SI] (horizon x nu) and whether the solver converged, for the
+        model parameters ``p`` [SI]."""
         pb = self.pb
         if "x0" not in self.warm:
             self.warm = {"x0": self.initial(x / pb.xs, u_prev / pb.us)}
-        sol = self.solver(p=np.concatenate([x, u_prev, [ref]]), **self.warm, **self.bounds)
+        P = np.concatenate([x, u_prev, [ref], p])
+        sol = self.solver(p=P, **self.warm, **self.bounds)
         ok = bool(self.solver.stats()["success"])
         wopt = np.array(sol["x"]).ravel()
         ok = ok and bool(np.all(np.isfinite(wopt)))
@@ -284,25 +300,31 @@ class _RealTimeIteration:
     def __init__(self, pb: _Problem) -> None:
         s, nx, nu, d, N = pb.s, pb.nx, pb.nu, pb.s.degree, pb.s.horizon
         V, xi, v = cs.SX.sym("V", nx * d), cs.SX.sym("xi", nx), cs.SX.sym("v", nu)
-        R = pb.res(xi, V, v, pb.dt)
+        ps = cs.SX.sym("p", pb.np)
+        R = pb.res(xi, V, cs.vertcat(v, ps), pb.dt)
         lin = cs.Function(
-            "radau_lin", [V, xi, v], [R, cs.jacobian(R, V), cs.jacobian(R, cs.vertcat(xi, v))]
+            "radau_lin",
+            [V, xi, v, ps],
+            [R, cs.jacobian(R, V), cs.jacobian(R, cs.vertcat(xi, v))],
         )
         Vm, xm, vm = cs.MX.sym("V", nx * d), cs.MX.sym("xi", nx), cs.MX.sym("v", nu)
-        Rk, RV, Rp = lin(Vm, xm, vm)
+        pm = cs.MX.sym("p", pb.np)
+        Rk, RV, Rp = lin(Vm, xm, vm, pm)
         # LAPACK QR: LU (dgetrf) of this size goes multi-threaded in the OpenBLAS CasADi ships
         # and ran 5-7x slower whenever the other core was busy (QR: 1.4 ms either way)
         sol = -cs.solve(RV, cs.horzcat(Rk, Rp), "lapackqr")  # [dV0, S]
-        lift = cs.Function("lift", [Vm, xm, vm], [sol]).map(N)
-        yT = cs.vertcat(pb.y(xi), pb.T(xi))
-        outs = cs.Function("outs", [xi], [yT, cs.jacobian(yT, xi)]).map(N)
+        lift = cs.Function("lift", [Vm, xm, vm, pm], [sol]).map(N)
+        yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
+        outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
         nT = len(pb.tensions)
-        # the condensing, one MX Function of the guess and the measurement
+        # the condensing, one MX Function of the guess, the measurement and the parameters
         Xb, Ub = cs.MX.sym("Xb", nx, N + 1), cs.MX.sym("Ub", nu, N)
         Vb = cs.MX.sym("Vb", nx * d, N)
         x0, vp, ref = cs.MX.sym("x0", nx), cs.MX.sym("vp", nu), cs.MX.sym("ref")
-        L = lift(Vb, Xb[:, :N], Ub)  # (nx d) x (N (1 + nx + nu))
-        YT, CYT = outs(Xb[:, 1:])
+        p = cs.MX.sym("p", pb.np)
+        P = cs.repmat(p, 1, N)
+        L = lift(Vb, Xb[:, :N], Ub, P)  # (nx d) x (N (1 + nx + nu))
+        YT, CYT = outs(Xb[:, 1:], P)
         w = 1 + nx + nu
         a = x0 - Xb[:, 0]  # dx_0 = a_0 + G_0 dv, G_0 = 0
         Gk = cs.MX(nx, N * nu)
@@ -359,16 +381,20 @@ class _RealTimeIteration:
         self.step = _Call(
             cs.Function(
                 "rti",
-                [Xb, Ub, Vb, x0, vp, ref],
+                [Xb, Ub, Vb, x0, vp, ref, p],
                 [shift(X), shift(U), shift(V), U, viol],
-                ["Xb", "Ub", "Vb", "x0", "vp", "ref"],
+                ["Xb", "Ub", "Vb", "x0", "vp", "ref", "p"],
                 ["Xn", "Un", "Vn", "U", "violation"],
             )
         )
         self.pb = pb
         self.guess: list[np.ndarray] | None = None
 
-    def solve(self, x: np.ndarray, u_prev: np.ndarray, ref: float) -> tuple[np.ndarray, bool]:
+    def solve(
+        self, x: np.ndarray, u_prev: np.ndarray, ref: float, p: np.ndarray
+    ) -> tuple[np.ndarray, bool]:
+        """The input plan [SI] (horizon x nu) and whether the QP's answer is feasible, for
+        the model parameters ``p`` [SI]."""
         pb, N, nx, nu = self.pb, self.pb.s.horizon, self.pb.nx, self.pb.nu
         xi, vp = x / pb.xs, u_prev / pb.us
         if self.guess is None:
@@ -377,7 +403,7 @@ class _RealTimeIteration:
                 np.tile(vp[:, None], (1, N)),
                 np.tile(xi[:, None], (pb.s.degree, N)),
             ]
-        Xn, Un, Vn, U, viol = self.step(*self.guess, xi, vp, [ref])
+        Xn, Un, Vn, U, viol = self.step(*self.guess, xi, vp, [ref], p)
         if not (viol[0] <= 1e-6 and np.all(np.isfinite(U)) and np.all(np.isfinite(Xn))):
             self.guess = None  # restart from the measurement next time
             return np.zeros((N, nu)), False
@@ -390,6 +416,7 @@ class _Call:
     (about 1 us of overhead per call instead of some 30 us of conversions per argument)."""
 
     def __init__(self, F: cs.Function) -> None:
+        self.function = F
         self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
         self.res = [np.zeros(F.nnz_out(i)) for i in range(F.n_out())]
         self.buf, self.trigger = F.buffer()
@@ -453,7 +480,7 @@ class NonlinearMPC(RecedingHorizon):
         # state scales: the largest magnitude at the ends of the input range; states that
         # are zero there (velocities) get 1 cm/s
         big = np.abs(np.vstack([e.x for e in self.clip.ends])).max(axis=0)
-        pb = _Problem(model, s, self.dt, np.where(big > 1e-12, big, 1e-2), model.parameters(params))
+        pb = _Problem(model, s, self.dt, np.where(big > 1e-12, big, 1e-2))
         self.problem = pb
         self.engine = _RealTimeIteration(pb) if s.solver == "rti" else _CollocationNLP(pb, s.solver)
         self.reset(u_op)
@@ -472,7 +499,7 @@ class NonlinearMPC(RecedingHorizon):
         # integral action: the reference the optimiser sees is shifted by the integrated
         # error, kept inside the reachable range
         shifted = min(max(ref + self._offset, self.clip.low), self.clip.high)
-        plan, ok = self.engine.solve(x, self._u, shifted)
+        plan, ok = self.engine.solve(x, self._u, shifted, self._p)
         u = self.apply(plan if ok else None)
         if np.all((self._u > self._u_lo) & (self._u < self._u_hi)):  # no windup at a bound
             error = ref - float(y[self.settings.output])
@@ -501,7 +528,10 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     overrides).
     Common keys: ``output``, ``input``, ``u_min``, ``u_max``, ``tension_min`` (the hard
     tension bound, default 0). Own keys: the other :class:`NMPCSettings` fields,
-    ``fidelity``, ``estimator`` ("none" or "ekf") and ``ekf``.
+    ``fidelity``, ``estimator`` ("none" or "ekf") and ``ekf``. On an EKF that estimates a
+    parameter of the prediction (by default the load mass), the estimate is fed to the
+    prediction every sample and ``integral_gain`` defaults to 0 (set it to keep the
+    integral reference shift as well).
     """
     extra = {"fidelity": DEFAULT_FIDELITY}
     own, est, ekf_settings = mpc_settings("nmpc", model, settings, NMPCSettings, extra)
@@ -520,6 +550,11 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
             "a System flattened by hand records no set-up to rebuild for prediction",
         )
     params = {n: given[n] for n in pred.param_names if n in given}
+    fed = est == "ekf" and any(
+        n in pred.param_names for n in estimated_parameters(model, ekf_settings)
+    )
+    if fed and "integral_gain" not in settings:  # the load estimate removes the offset
+        own["integral_gain"] = 0.0
     s = NMPCSettings(
         **own,
         output=settings["output"],

@@ -133,7 +133,8 @@ class RecedingHorizon(Controller):
     outputs : list of str
         The signals the controller reads.
     params : mapping of str to float, optional
-        Parameter overrides of ``model`` by name (SI), e.g. the plant's load.
+        Parameter overrides of ``model`` by name (SI), e.g. the plant's load; the values
+        :meth:`reset` restores (:meth:`set_parameters` changes them at run time).
 
     Attributes
     ----------
@@ -157,6 +158,38 @@ class RecedingHorizon(Controller):
         self._u_lo = np.full(len(names), s.u_min)
         self._u_hi = np.full(len(names), s.u_max)
         self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max), params)
+        self._p_nominal = np.asarray(model.parameters(params), dtype=float).ravel()
+        self._p = self._p_nominal.copy()
+
+    @property
+    def runtime_parameters(self) -> tuple[str, ...]:
+        """Every parameter of the prediction model: all are run-time inputs of the
+        prediction (see :meth:`set_parameters`)."""
+        return tuple(self.model.param_names)
+
+    @property
+    def parameters(self) -> dict[str, float]:
+        """The parameter values [SI] the prediction uses now, by name."""
+        return dict(zip(self.model.param_names, self._p.tolist(), strict=True))
+
+    def set_parameters(self, values: Mapping[str, float]) -> None:
+        """Predict with ``values`` [SI, by name] from the next sample on (e.g. an
+        estimator's load); the others keep their values. :meth:`reset` restores the
+        values given at construction.
+
+        Raises
+        ------
+        ParameterError
+            For a name not of the prediction model or a non-finite value.
+        """
+        names = self.model.param_names
+        for name, value in values.items():
+            where = f"{self.slug}.parameters.{name}"
+            if name not in names:
+                raise ParameterError(where, value, f"one of {names}")
+            if not (isinstance(value, int | float) and math.isfinite(value)):
+                raise ParameterError(where, value, "a finite number [SI]")
+            self._p[names.index(name)] = float(value)
 
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         """Hold ``u0`` (by name, or a vector in input order; clipped into the bounds) and
@@ -165,6 +198,7 @@ class RecedingHorizon(Controller):
         vec = [u0[n] for n in self.inputs] if isinstance(u0, Mapping) else u0
         self._u = np.clip(np.asarray(vec, float).reshape(-1), self._u_lo, self._u_hi)
         self._plan: np.ndarray | None = None
+        self._p = self._p_nominal.copy()
 
     def apply(self, plan: np.ndarray | None) -> dict:
         """The inputs to hold now, by name: the first row of ``plan`` (horizon x nu, SI),
