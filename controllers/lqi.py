@@ -7,13 +7,15 @@ D du`` (deviations from the operating point) with the integral of the tracking e
 are set on scaled signals: ``q_y (dy / y_scale)^2 + q_i (xi / (y_scale 1 s))^2 +
 r_u (du / u_scale)^2``. A reference feed-forward moves the target to the steady state
 ``(x_ss, u_ss)`` of the reference, so a step is followed at once, not through the slow
-integral: ``u = u_op + u_ss(r) - Kx (dx - x_ss(r)) - Ki xi``, clamped into the bounds.
+integral: ``u = u_op + u_ss(r) - Kx (dx - x_ss(r)) - Ki xi``, clamped into the bounds
+and, with a rate limit ``rate_max`` [input unit/s], to within ``rate_max dt`` of the
+previous command.
 The steady states are the model's own equilibria on a grid of the input range
 (``feedforward = "equilibria"``, the default: the linear map is 9 % off for a 1.5 mm step
 at 50 kPa, which the integral then takes a second to remove) or the linearisation's
 (``"linear"``).
-Anti-windup by clamping: the integral does not grow while the command is saturated in
-the direction it would push.
+Anti-windup by clamping: the integral does not grow while the command is held (by a bound
+or by the rate limit) in the direction it would push.
 The law is one CasADi Function per feed-forward (:meth:`LQI.law_function`): :class:`LQI`
 evaluates it every sample, and the controller FMU (:mod:`sarcomere.fmu.controller`)
 generates its C code from it.
@@ -40,7 +42,14 @@ from sarcomere.dynamics.modeling.model import Model
 from .base import Controller
 from .ekf import EKF, make_ekf
 from .linearize import linearize
-from .registry import check_input_bounds, own_settings, positive, register_controller
+from .registry import (
+    check_input_bounds,
+    max_step,
+    own_settings,
+    positive,
+    refuse_rate_limit,
+    register_controller,
+)
 
 Y_SCALES = {"m": 1e-3, "N": 1e-2}
 """Default ``y_scale`` by the tracked output's unit: 1 mm of length, 10 mN of force."""
@@ -92,6 +101,8 @@ class LQI(Controller):
         None: the state is read from the plant by name.
     feedforward : str
         "equilibria" (the model's steady states) or "linear".
+    rate_max : float or None
+        Largest rate of the command [input unit/s], > 0; None: no rate limit.
     """
 
     slug = "lqi"
@@ -108,6 +119,7 @@ class LQI(Controller):
         weights: LQIWeights,
         estimator: EKF | None = None,
         feedforward: str = "equilibria",
+        rate_max: float | None = None,
     ) -> None:
         reads = estimator.measured if estimator else [*model.state_names, output]
         check_input_bounds("lqi", model, op, {"input": input, "u_min": u_min, "u_max": u_max})
@@ -118,6 +130,7 @@ class LQI(Controller):
         for key in ("q_i", "r_u", "y_scale", "u_scale"):
             positive("lqi", key, getattr(weights, key))
         self.model, self.op, self.weights, self.estimator = model, op, weights, estimator
+        self.du_max = max_step("lqi", rate_max, self.dt, u_min, u_max)
         self.output, self.input = output, input
         self.x_op = op.x.copy()
         self.y_op = float(op[output])
@@ -171,33 +184,42 @@ class LQI(Controller):
         return np.array(x_ss, dtype=float).ravel(), float(u_ss)
 
     def law_function(self, linear: bool = False) -> cs.Function:
-        """One sample on deviations: ``lqi(xi, dx, dr, dy, g) -> (next xi, u)`` with
-        ``g = (u_min, u_max)`` [SI]; ``linear`` uses the linear steady-state map whatever
-        the setting (:meth:`target_function` otherwise)."""
+        """One sample on deviations: ``lqi(xi, dx, dr, dy, u_prev, g) -> (next xi, u)``
+        with ``u_prev`` the command held before the sample and ``g = (u_min, u_max,
+        du_max)`` [SI] (``du_max``: the largest change per sample); ``linear`` uses the
+        linear steady-state map whatever the setting (:meth:`target_function` otherwise)."""
         n = self.model.nx
         xi, dr, dy = cs.MX.sym("xi"), cs.MX.sym("dr"), cs.MX.sym("dy")
-        dx, g = cs.MX.sym("dx", n), cs.MX.sym("g", 2)
+        dx, u_prev, g = cs.MX.sym("dx", n), cs.MX.sym("u_prev"), cs.MX.sym("g", 3)
         if linear:
             x_ss, u_ss = cs.DM(self.Nx) * dr, self.Nu * dr
         else:
             x_ss, u_ss = self.target_function()(dr)
         v = self.u_op + u_ss - cs.dot(cs.DM(self.Kx), dx - x_ss) - self.Ki * xi
-        u = cs.fmin(cs.fmax(v, g[0]), g[1])
+        lo, hi = cs.fmax(g[0], u_prev - g[2]), cs.fmin(g[1], u_prev + g[2])
+        u = cs.fmin(cs.fmax(v, lo), hi)
         xi_next = xi + self.dt * (dy - dr)
-        # saturated, and integrating would push further out: hold the integral
+        # held (bound or rate), and integrating would push further out: hold the integral
         wind = cs.logic_and(u != v, cs.fabs(v - self.Ki * (xi_next - xi) - u) > cs.fabs(v - u))
         return cs.Function(
             "lqi",
-            [xi, dx, dr, dy, g],
+            [xi, dx, dr, dy, u_prev, g],
             [cs.if_else(wind, xi, xi_next), u],
-            ["xi", "dx", "dr", "dy", "g"],
+            ["xi", "dx", "dr", "dy", "u_prev", "g"],
             ["next", "u"],
         )
 
     def law(
-        self, xi: float, dx: np.ndarray, dr: float, dy: float, linear: bool = False
+        self,
+        xi: float,
+        dx: np.ndarray,
+        dr: float,
+        dy: float,
+        u_prev: float,
+        linear: bool = False,
     ) -> tuple[float, float]:
-        """One sample of :meth:`law_function`: ``(xi, dx, dr, dy) -> (next xi, u)`` [SI]."""
+        """One sample of :meth:`law_function`: ``(xi, dx, dr, dy, u_prev) -> (next xi,
+        u)`` [SI]."""
         if linear not in self._laws:  # bound arrays (Function.buffer): ~1 us per call
             f = self.law_function(linear)
             args = [np.zeros(f.nnz_in(i)) for i in range(f.n_in())]
@@ -207,16 +229,17 @@ class LQI(Controller):
                 buf.set_arg(i, memoryview(a))
             for i, a in enumerate(res):
                 buf.set_res(i, memoryview(a))
-            args[4][:] = self.u_min[self.input], self.u_max[self.input]
+            args[5][:] = self.u_min[self.input], self.u_max[self.input], self.du_max
             self._laws[linear] = (buf, trigger, args, res)
-        _, trigger, (a_xi, a_dx, a_dr, a_dy, _), (r_xi, r_u) = self._laws[linear]
-        a_xi[0], a_dx[:], a_dr[0], a_dy[0] = xi, dx, dr, dy
+        _, trigger, (a_xi, a_dx, a_dr, a_dy, a_u, _), (r_xi, r_u) = self._laws[linear]
+        a_xi[0], a_dx[:], a_dr[0], a_dy[0], a_u[0] = xi, dx, dr, dy, u_prev
         trigger()
         return float(r_xi[0]), float(r_u[0])
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         dx = self.state(y) - self.x_op
-        self.xi, u = self.law(self.xi, dx, r[self.output] - self.y_op, y[self.output] - self.y_op)
+        dr, dy = r[self.output] - self.y_op, y[self.output] - self.y_op
+        self.xi, u = self.law(self.xi, dx, dr, dy, self.u_last)
         self.u_last = u
         return {self.input: u}
 
@@ -225,11 +248,19 @@ class LQI(Controller):
         the operating point: inputs ``reference``, the states and the output (labels as
         :func:`~.linearize.linearize`: link a plant linearised with outputs
         ``state_names + [output]``), output the input; one state, the integral. The
-        feed-forward is the linear one (the plant it is linked with is linear)."""
+        feed-forward is the linear one (the plant it is linked with is linear).
+
+        Raises
+        ------
+        ParameterError
+            For a rate-limited LQI (the I/O system carries no held command).
+        """
+        refuse_rate_limit("lqi", self)
         n = self.model.nx
 
         def step(t, x, u, params):
-            return self.law(float(x[0]), np.asarray(u[1 : 1 + n]), u[0], u[1 + n], True)
+            dx, dy = np.asarray(u[1 : 1 + n]), u[1 + n]
+            return self.law(float(x[0]), dx, u[0], dy, self.u_op, True)
 
         return ct.nlsys(
             lambda t, x, u, params: np.array([step(t, x, u, params)[0]]),
@@ -288,14 +319,17 @@ def _design(sysd: ct.StateSpace, w: LQIWeights, dt: float):
 def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     """Registry factory of ``lqi``. Own settings: the :class:`LQIWeights` fields
     (``y_scale`` default from :data:`Y_SCALES`), ``estimator`` ("none" or "ekf"), the
-    EKF's settings under ``ekf`` (a table, see :func:`~.ekf.make_ekf`) and
-    ``feedforward`` (:data:`FEEDFORWARDS`)."""
+    EKF's settings under ``ekf`` (a table, see :func:`~.ekf.make_ekf`), ``feedforward``
+    (:data:`FEEDFORWARDS`) and ``rate_max`` (the command's largest rate [input unit/s],
+    None: no limit)."""
     out, inp = settings["output"], settings["input"]
     unit = model.unit(out)
     w0 = LQIWeights(y_scale=Y_SCALES.get(unit, 1.0))
     defaults = {k: getattr(w0, k) for k in ("q_y", "q_i", "r_u", "y_scale", "u_scale")}
     own = own_settings(
-        "lqi", settings, {**defaults, "estimator": "none", "ekf": {}, "feedforward": "equilibria"}
+        "lqi",
+        settings,
+        {**defaults, "estimator": "none", "ekf": {}, "feedforward": "equilibria", "rate_max": None},
     )
     if own["estimator"] not in ("none", "ekf"):
         raise ParameterError("lqi.estimator", own["estimator"], "'none' or 'ekf'")
@@ -305,7 +339,9 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
         measured = settings.get("measured") or [out, "regulator.p_out"]
         est = make_ekf(model, op, dt, measured, settings.get("noise_std"), own["ekf"])
     u_min, u_max = float(settings["u_min"]), float(settings["u_max"])
-    return LQI(dt, model, op, out, inp, u_min, u_max, weights, est, own["feedforward"])
+    return LQI(
+        dt, model, op, out, inp, u_min, u_max, weights, est, own["feedforward"], own["rate_max"]
+    )
 
 
 register_controller("lqi", make_lqi)

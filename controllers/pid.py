@@ -1,10 +1,13 @@
 """A sampled PID controller: the baseline the others are compared against.
 
 ``u = u0 + kp e + I + D`` with ``e = r - y``, held for one sample and clamped into the
-input's bounds. The derivative acts on the measurement (no kick at a reference step)
-through a first-order filter ``D = -kd s / (tf s + 1) y``, discretised by backward Euler.
+input's bounds and, with a rate limit ``rate_max`` [input unit/s], to within
+``rate_max dt`` of the previous command. The derivative acts on the measurement (no kick
+at a reference step) through a first-order filter ``D = -kd s / (tf s + 1) y``,
+discretised by backward Euler.
 Anti-windup by back-calculation: the integral is corrected by ``dt / tt (u - v)`` where
-``v`` is the unclamped command, so it stops growing while the command is saturated.
+``v`` is the unclamped command, so it stops growing while the command is held by a bound
+or by the rate limit.
 
 The law is one CasADi Function (:func:`pid_law`), the one source of truth: :class:`PID`
 evaluates it every sample, and the controller FMU (:mod:`sarcomere.fmu.controller`)
@@ -47,7 +50,7 @@ from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
 from .linearize import linearize
-from .registry import own_settings, positive, register_controller
+from .registry import max_step, own_settings, positive, refuse_rate_limit, register_controller
 
 
 @dataclass(frozen=True)
@@ -79,30 +82,34 @@ STATE_NAMES = ("integral", "derivative", "last_measurement", "started")
 """The law's state: the integral and the filtered derivative [input unit], the last
 measurement [output unit] and whether a sample was taken (0 or 1)."""
 
-LAW_PARAMETERS = ("kp", "ki", "kd", "tf", "tt", "u_min", "u_max", "bias")
-"""The law's parameters: the :class:`PIDGains` fields, the input's bounds and the bias."""
+LAW_PARAMETERS = ("kp", "ki", "kd", "tf", "tt", "u_min", "u_max", "du_max", "bias")
+"""The law's parameters: the :class:`PIDGains` fields, the input's bounds, the largest
+change of the command per sample (``rate_max dt``; ``u_max - u_min`` without a rate
+limit) and the bias."""
 
 
 @functools.cache
 def pid_law(dt: float) -> cs.Function:
     """One sample of the PID law at the sample time ``dt`` [s]:
-    ``pid(state[4], r, y, g[8]) -> (next state, u)``, with ``state`` as
-    :data:`STATE_NAMES` and ``g`` as :data:`LAW_PARAMETERS` (SI)."""
+    ``pid(state[4], r, y, u_prev, g[9]) -> (next state, u)``, with ``state`` as
+    :data:`STATE_NAMES`, ``u_prev`` the command held before this sample and ``g`` as
+    :data:`LAW_PARAMETERS` (SI)."""
     state, r, y = cs.SX.sym("state", 4), cs.SX.sym("r"), cs.SX.sym("y")
-    g = cs.SX.sym("g", len(LAW_PARAMETERS))
-    kp, ki, kd, tf, tt, u_min, u_max, bias = cs.vertsplit(g)
+    u_prev, g = cs.SX.sym("u_prev"), cs.SX.sym("g", len(LAW_PARAMETERS))
+    kp, ki, kd, tf, tt, u_min, u_max, du_max, bias = cs.vertsplit(g)
     integral, deriv, y_last, started = cs.vertsplit(state)
     e = r - y
     dy = cs.if_else(started > 0.5, y - y_last, 0.0)  # no derivative kick at the first sample
     deriv = (tf * deriv - kd * dy) / (tf + dt)
     v = bias + kp * e + integral + deriv
-    u = cs.fmin(cs.fmax(v, u_min), u_max)
+    lo, hi = cs.fmax(u_min, u_prev - du_max), cs.fmin(u_max, u_prev + du_max)
+    u = cs.fmin(cs.fmax(v, lo), hi)
     integral = integral + ki * dt * e + dt / tt * (u - v)
     return cs.Function(
         "pid",
-        [state, r, y, g],
+        [state, r, y, u_prev, g],
         [cs.vertcat(integral, deriv, y, 1.0), u],
-        ["state", "r", "y", "g"],
+        ["state", "r", "y", "u_prev", "g"],
         ["next", "u"],
     )
 
@@ -120,6 +127,7 @@ class PID(Controller):
         u_min: float,
         u_max: float,
         gains: PIDGains,
+        rate_max: float | None = None,
     ) -> None:
         super().__init__(dt, [input], [output], {input: u_min}, {input: u_max})
         for key in ("kp", "ki", "kd"):
@@ -129,7 +137,8 @@ class PID(Controller):
         positive("pid", "tt", gains.tt)
         self.gains = gains
         self.output, self.input = output, input
-        self.bias = 0.0
+        self.du_max = max_step("pid", rate_max, self.dt, u_min, u_max)
+        self.bias = self.u_prev = 0.0
         self._state = np.zeros(len(STATE_NAMES))
         # pid_law on bound arrays (Function.buffer): about 1 us per call instead of ~60 us
         law = pid_law(self.dt)
@@ -140,29 +149,34 @@ class PID(Controller):
             self._buffer.set_arg(i, memoryview(a))
         for i, a in enumerate(self._res):
             self._buffer.set_res(i, memoryview(a))
-        self._args[3][:] = self.law_parameters(0.0)  # gains and bounds; the bias (last) per call
+        self._args[4][:] = self.law_parameters(0.0)  # gains and bounds; the bias (last) per call
 
     def reset(self, u0: Mapping[str, float]) -> None:
         """Start from the held input ``u0`` (the bias), integral and derivative zero."""
         super().reset(u0)
-        self.bias = float(u0[self.input])
+        self.bias = self.u_prev = float(u0[self.input])
         self._state = np.zeros(len(STATE_NAMES))
 
     def law_parameters(self, bias: float) -> np.ndarray:
         """The parameter vector ``g`` of :func:`pid_law` (:data:`LAW_PARAMETERS`)."""
         lo, hi = self.u_min[self.input], self.u_max[self.input]
-        return np.array([*astuple(self.gains), lo, hi, bias], dtype=float)
+        return np.array([*astuple(self.gains), lo, hi, self.du_max, bias], dtype=float)
 
-    def law(self, state: np.ndarray, r: float, y: float, bias: float) -> tuple[np.ndarray, float]:
-        """One sample of :func:`pid_law`: ``(state, r, y, bias) -> (next state, u)``;
-        ``state`` as :data:`STATE_NAMES` (zeros before the first sample)."""
-        x, r_in, y_in, g = self._args
-        x[:], r_in[0], y_in[0], g[-1] = state, r, y, bias
+    def law(
+        self, state: np.ndarray, r: float, y: float, u_prev: float, bias: float
+    ) -> tuple[np.ndarray, float]:
+        """One sample of :func:`pid_law`: ``(state, r, y, u_prev, bias) -> (next state,
+        u)``; ``state`` as :data:`STATE_NAMES` (zeros before the first sample), ``u_prev``
+        the command held before the sample."""
+        x, r_in, y_in, u_in, g = self._args
+        x[:], r_in[0], y_in[0], u_in[0], g[-1] = state, r, y, u_prev, bias
         self._trigger()
         return self._res[0].copy(), float(self._res[1][0])
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
-        self._state, u = self.law(self._state, r[self.output], y[self.output], self.bias)
+        y_now = y[self.output]
+        self._state, u = self.law(self._state, r[self.output], y_now, self.u_prev, self.bias)
+        self.u_prev = u
         return {self.input: u}
 
     def as_iosystem(self, op: Equilibrium, model: Model) -> ct.NonlinearIOSystem:
@@ -173,11 +187,17 @@ class PID(Controller):
         The law only sees the error and the change of ``y``, so it runs on deviations
         with the operating input as bias; the output is clamped to the bounds of
         :meth:`update` and returned as a deviation. Start it from the zero state.
+
+        Raises
+        ------
+        ParameterError
+            For a rate-limited PID (the I/O system carries no held command).
         """
+        refuse_rate_limit("pid", self)
         u_op = float(op.u[model.input_names.index(self.input)])
 
         def step(t, x, u, params):
-            return self.law(np.asarray(x, dtype=float), u[0], u[1], u_op)
+            return self.law(np.asarray(x, dtype=float), u[0], u[1], u_op, u_op)
 
         return ct.nlsys(
             lambda t, x, u, params: step(t, x, u, params)[0],
@@ -210,12 +230,10 @@ def imc_gains(sys: ct.StateSpace, closed_loop_s: float) -> tuple[float, float]:
 def make_pid(model: Model, op: Equilibrium, dt: float, settings: dict) -> PID:
     """Registry factory of ``pid``. Own settings: ``kp``, ``ki``, ``kd`` (None: ``kp`` and
     ``ki`` from :func:`imc_gains`, ``kd`` 0), ``closed_loop_s`` (the IMC time constant,
-    default 0.15 s), ``tf`` and ``tt`` (see :class:`PIDGains`; ``tt`` None: ``kp / ki``)."""
-    own = own_settings(
-        "pid",
-        settings,
-        {"kp": None, "ki": None, "kd": 0.0, "closed_loop_s": 0.15, "tf": 0.02, "tt": None},
-    )
+    default 0.15 s), ``tf`` and ``tt`` (see :class:`PIDGains`; ``tt`` None: ``kp / ki``),
+    ``rate_max`` (the command's largest rate [input unit/s], None: no limit)."""
+    defaults = {"kp": None, "ki": None, "kd": 0.0, "closed_loop_s": 0.15, "tf": 0.02}
+    own = own_settings("pid", settings, {**defaults, "tt": None, "rate_max": None})
     out, inp = settings["output"], settings["input"]
     kp, ki = own["kp"], own["ki"]
     if kp is None or ki is None:
@@ -227,7 +245,8 @@ def make_pid(model: Model, op: Equilibrium, dt: float, settings: dict) -> PID:
     if tt is None:
         tt = abs(kp / ki) if ki else 1.0
     gains = PIDGains(float(kp), float(ki), float(own["kd"]), float(own["tf"]), float(tt))
-    return PID(dt, out, inp, float(settings["u_min"]), float(settings["u_max"]), gains)
+    lo, hi = float(settings["u_min"]), float(settings["u_max"])
+    return PID(dt, out, inp, lo, hi, gains, own["rate_max"])
 
 
 register_controller("pid", make_pid)

@@ -179,6 +179,36 @@ def own_settings(slug: str, settings: Mapping[str, object], defaults: Mapping[st
     return out
 
 
+def max_step(slug: str, rate_max: object, dt: float, u_min: float, u_max: float) -> float:
+    """The largest change of the command per sample [input unit]: ``rate_max dt`` for a
+    rate limit ``rate_max`` [input unit/s] > 0, at most ``u_max - u_min`` (None: no rate
+    limit, the whole range in one sample).
+
+    Raises
+    ------
+    ParameterError
+        Naming ``<slug>.rate_max`` for a value not None and not > 0.
+    """
+    span = u_max - u_min
+    if rate_max is None:
+        return span
+    return min(positive(slug, "rate_max", rate_max) * dt, span)
+
+
+def refuse_rate_limit(slug: str, controller) -> None:
+    """Refuse a rate-limited controller (``controller.du_max`` below its input's range)
+    where its held command is not carried (its python-control I/O system)."""
+    name = controller.input
+    span = controller.u_max[name] - controller.u_min[name]
+    if controller.du_max < span:
+        raise ParameterError(
+            f"{slug}.rate_max",
+            controller.du_max / controller.dt,
+            "None (no rate limit)",
+            "the I/O system does not carry the held command a rate limit needs",
+        )
+
+
 def count(name: str, value: object, low: int, high: int, why: str = "") -> int:
     """``value`` as an integer in ``[low, high]`` (a horizon, a degree, an iteration or
     sample count), else a ParameterError naming ``name``, the value and the range

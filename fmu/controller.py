@@ -18,6 +18,8 @@ integral, ...  local       the law's state (PID: :data:`~.pid.STATE_NAMES`; LQI:
 kp, ki, kd,    parameter   PID: the gains (tunable: from the next sample on)
 tf, tt
 u_min, u_max   parameter   the command's bounds (tunable, within the exported ones)
+du_max         parameter   the largest change of the command per sample (the rate
+                           limit times ``dt``; ``u_max - u_min``: no limit; tunable)
 bias           parameter   the command before the first sample (fixed: the start
                            state is computed from it)
 ============== =========== ====================================================
@@ -61,6 +63,7 @@ def pid_system(pid: PID, model: Model, bias: float, name: str = "pid") -> Sample
         "tt": "tracking time constant of the anti-windup",
         "u_min": "lowest command",
         "u_max": "highest command",
+        "du_max": "largest change of the command per sample",
         "bias": "command before the first sample, and the law's offset",
     }
     params = []
@@ -70,6 +73,8 @@ def pid_system(pid: PID, model: Model, bias: float, name: str = "pid") -> Sample
             low = TIME_PARAMETER_MIN_S
         elif key in ("u_min", "u_max", "bias"):
             low, high = lo, hi  # the command stays inside the exported bounds
+        elif key == "du_max":
+            low = 0.0
         params.append(Variable(key, units.get(key, uu), text[key], float(value), low, high))
     integral, derivative, last, started = STATE_NAMES
     states = (
@@ -81,7 +86,7 @@ def pid_system(pid: PID, model: Model, bias: float, name: str = "pid") -> Sample
     )
     x = cs.SX.sym("x", len(states))
     u, p = cs.SX.sym("u", 2), cs.SX.sym("p", len(LAW_PARAMETERS))
-    nxt, cmd = pid_law(pid.dt)(x[: len(STATE_NAMES)], u[0], u[1], p)
+    nxt, cmd = pid_law(pid.dt)(x[: len(STATE_NAMES)], u[0], u[1], x[-1], p)
     bias_sym = p[LAW_PARAMETERS.index("bias")]
     return SampledSystem(
         name,
@@ -131,13 +136,14 @@ def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> Sample
     params = (
         Variable("u_min", uu, "lowest command", lo, lo, hi),
         Variable("u_max", uu, "highest command", hi, lo, hi),
+        Variable("du_max", uu, "largest change of the command per sample", lqi.du_max, 0.0),
         Variable("bias", uu, "command before the first sample", bias, lo, hi),
     )
     x = cs.MX.sym("x", 2)
-    u, p = cs.MX.sym("u", len(inputs)), cs.MX.sym("p", 3)
+    u, p = cs.MX.sym("u", len(inputs)), cs.MX.sym("p", len(params))
     dx = u[2:] - cs.DM(lqi.x_op)
     law = lqi.law_function()
-    nxt, cmd = law(x[0], dx, u[0] - lqi.y_op, u[1] - lqi.y_op, p[:2])
+    nxt, cmd = law(x[0], dx, u[0] - lqi.y_op, u[1] - lqi.y_op, x[1], p[:3])
     return SampledSystem(
         name,
         f"LQI of {lqi.input} on {lqi.output} (full state), sampled every {lqi.dt:g} s (sarcomere)",
@@ -148,7 +154,7 @@ def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> Sample
         params,
         cs.Function("update", [x, u, p], [cs.vertcat(nxt, cmd)]),
         cs.Function("output", [x, p], [x[1]]),
-        cs.Function("start", [u, p], [cs.vertcat(0.0, p[2])]),
+        cs.Function("start", [u, p], [cs.vertcat(0.0, p[3])]),
     )
 
 

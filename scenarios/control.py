@@ -5,8 +5,12 @@ saturating regulator); ``[simulation] stop_time``; ``[solver]`` the plant's inte
 ``[control]``:
 
 - ``output``: the tracked signal ("myofibril.length", "sensor.f");
-- ``operating_pressure``: the start equilibrium's regulator command; ``pressure_max``:
-  the input's upper bound (default 0.1 MPa; the lower bound is 0);
+- ``operating_pressure``: the start equilibrium's regulator command;
+- the input limits, one set applied to every controller of the scene (like for like; a
+  controller's own table may not set them): ``pressure_min`` and ``pressure_max``, the
+  command's bounds (default 0 and 0.1 MPa), and ``pressure_rate_max``, its largest rate
+  (default :data:`RATE_MAX_DEFAULT`, the MPCs' own default; each controller takes it as
+  its ``rate_max`` setting);
 - ``sample_time`` (default 10 ms; from 1 ms to the plant's slowest time constant, see
   :func:`~sarcomere.controllers.registry.check_sample_time`); ``seed`` of the noise
   (default 0); ``tension_min``: the thread tension constraint the violation metric checks
@@ -46,10 +50,18 @@ from .runner import register_runner
 from .spec import Scenario, describe, unknown_key
 
 P_CMD = "regulator.p_cmd"
+RATE_MAX_DEFAULT = "2 MPa/s"
+"""The scene's default rate limit of the command: the MPCs' own default
+(:class:`~sarcomere.controllers.lmpc.LMPCSettings`), a tenth of the 0.1 MPa range per
+10 ms sample times two, slow against the regulator's 50 ms lag."""
+LIMITS = ("u_min", "u_max", "rate_max")
+"""Controller settings the scene's limits set: refused in a controller's own table."""
 KEYS = (
     "output",
     "operating_pressure",
+    "pressure_min",
     "pressure_max",
+    "pressure_rate_max",
     "sample_time",
     "seed",
     "tension_min",
@@ -147,13 +159,20 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     p_op = _quantity(
         sc, ctl.get("operating_pressure"), ("control", "operating_pressure"), "Pa", 0.0
     )
+    p_min = _quantity(sc, ctl.get("pressure_min", 0.0), ("control", "pressure_min"), "Pa", 0.0)
     p_max = _quantity(sc, ctl.get("pressure_max", "0.1 MPa"), ("control", "pressure_max"), "Pa")
-    if not 0 < p_op <= p_max <= model.variables[P_CMD].high:
+    high = model.variables[P_CMD].high
+    if not (p_min <= p_op <= p_max <= high and 0 < p_op and p_min < p_max):
         raise sc.error(
             ("control", "pressure_max"),
-            f"need 0 < operating_pressure ({p_op:g} Pa) <= pressure_max ({p_max:g} Pa) <= "
-            f"the regulator's {model.variables[P_CMD].high:g} Pa",
+            f"need pressure_min ({p_min:g} Pa) <= operating_pressure ({p_op:g} Pa) <= "
+            f"pressure_max ({p_max:g} Pa) <= the regulator's {high:g} Pa, with "
+            "operating_pressure > 0 and pressure_min < pressure_max",
         )
+    rate = ("control", "pressure_rate_max")
+    rate_max = _quantity(sc, ctl.get("pressure_rate_max", RATE_MAX_DEFAULT), rate, "Pa/s", 0.0)
+    if rate_max <= 0:
+        raise sc.error(rate, f"{rate_max:g} Pa/s: expected a rate > 0")
     seed = ctl.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise sc.error(("control", "seed"), f"{seed!r}: expected an integer >= 0")
@@ -182,7 +201,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         )
     stop = sc.simulation.stop_time
     events = sorted({stop, *(a for _, a, _ in sines), *([dist.time] if dist else [])})
-    reach = sorted(operating_point(model, {P_CMD: v}, b.overrides)[output] for v in (0.0, p_max))
+    reach = sorted(operating_point(model, {P_CMD: v}, b.overrides)[output] for v in (p_min, p_max))
     entries = _table(sc, ctl.get("controllers", {}), ("control", "controllers"))
     if not entries:
         raise sc.error(("control", "controllers"), "no controllers to run")
@@ -193,13 +212,21 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         path = ("control", "controllers", key)
         own = dict(_table(sc, raw, path))
         slug = own.pop("type", key)
+        for name in LIMITS:
+            if name in own:
+                raise sc.error(
+                    (*path, name),
+                    "the input limits are the scene's (pressure_min, pressure_max, "
+                    "pressure_rate_max in [control]): one set for every controller",
+                )
         if slug not in CONTROLLERS:
             raise sc.error((*path, "type"), f"'{slug}' is not one of {sorted(CONTROLLERS)}")
         task = {
             "output": output,
             "input": P_CMD,
-            "u_min": 0.0,
+            "u_min": p_min,
             "u_max": p_max,
+            "rate_max": rate_max,
             "measured": list(measured),
             "noise_std": dict(noise),
             "tension_min": t_min,
@@ -244,6 +271,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         results[key] = res
     extra = {
         "operating_point": {"pressure_Pa": p_op, output: y_op},
+        "input_limits": {"u_min_Pa": p_min, "u_max_Pa": p_max, "rate_max_Pa_per_s": rate_max},
         "reachable": {output: reach},
         "controllers": {k: dict(_table(sc, v, ("control",))) for k, v in entries.items()},
     }

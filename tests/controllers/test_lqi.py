@@ -129,3 +129,37 @@ def test_the_class_itself_refuses_bounds_that_cannot_hold_the_operating_point(se
     m, op, c = setup
     with pytest.raises(ParameterError, match=r"'lqi\.u_max' = 1\.0.*\[50000, 600000\] Pa"):
         LQI(DT, m, op, L, P, 0.0, 1.0, c.weights)
+
+
+def test_rate_limit_clamps_the_command_and_holds_the_integral(setup):
+    """rate_max 1 MPa/s at 10 ms (10 kPa per sample), the bounds far away, a reference
+    3 mm shorter with the measurement held at the operating point: the command ramps by
+    exactly 10 kPa a sample and the integral does not move while the rate holds it (it
+    would grow by dt * 3 mm every sample). Back on the operating reference, the command
+    comes down from where the ramp stopped, at the rate limit, with nothing to unwind."""
+    m, op, _ = setup
+    du = 1e6 * DT
+    c = make_controller(
+        "lqi", m, op, DT, {**TASK, "u_max": 5e5, "feedforward": "linear", "rate_max": 1e6}
+    )
+    assert c.du_max == pytest.approx(du)
+    c.reset({P: float(op.u[0])})
+    y = {n: float(v) for n, v in zip(m.state_names, op.x, strict=True)} | {L: op[L]}
+    far = op[L] - 3e-3
+    assert c.u_op - c.Nu * 3e-3 > c.u_op + 5 * du  # the law asks more than 5 moves
+    for k in range(5):
+        u = c.checked(k * DT, y, {L: far})[P]
+        assert u == pytest.approx(op.u[0] + (k + 1) * du, rel=1e-12)
+        assert c.xi == 0.0  # held by the rate: integrating would push further
+    back = c.checked(0.05, y, {L: op[L]})[P]
+    assert back == pytest.approx(u - du, rel=1e-12)  # the law wants u_op: one move down
+    assert c.xi == 0.0
+
+
+def test_rate_limit_is_refused_unless_positive_and_in_the_io_system(setup):
+    m, op, _ = setup
+    with pytest.raises(ParameterError, match=r"'lqi\.rate_max'"):
+        make_controller("lqi", m, op, DT, {**TASK, "rate_max": -1.0})
+    c = make_controller("lqi", m, op, DT, {**TASK, "rate_max": 2e6})
+    with pytest.raises(ParameterError, match=r"'lqi\.rate_max'.*no rate limit"):
+        c.as_iosystem()

@@ -128,3 +128,52 @@ def test_sample_time_outside_what_the_plant_allows_is_refused(dt):
     with pytest.raises(ParameterError, match=r"'pid\.dt'.*0\.05\] s"):
         make_controller("pid", m, op, dt, task)
     make_controller("pid", m, op, 0.04, task)  # just inside
+
+
+def test_rate_limit_clamps_the_change_per_sample():
+    """rate_max 10 /s at 10 ms: the command moves at most 0.1 per sample, and a step that
+    asks for a jump ramps at exactly that rate until the law catches up."""
+    pid = PID(DT, "y", "u", -100, 100, PIDGains(5.0, ki=20.0), rate_max=10.0)
+    y, u = _run(pid, 1.0, 1500)
+    steps = np.diff(np.concatenate([[0.0], u]))
+    assert np.max(np.abs(steps)) <= 0.1 + 1e-12
+    np.testing.assert_allclose(steps[:5], 0.1, rtol=1e-12)  # 5 * 1 asked: held at +0.1
+    assert y[-1] == pytest.approx(1.0, abs=1e-6)  # the integral still removes the error
+
+
+def test_back_calculation_holds_the_integral_at_the_rate_limit():
+    """The measurement held at 0 and r = 1: the command ramps at the rate limit while the
+    law asks for more. The back-calculation sees the rate-held command, so the integral
+    tracks what the command did (``u - kp e`` with ``tt = kp / ki``), far below the
+    ``ki dt e`` per sample an integral blind to the rate limit would gather; back at
+    r = y the command falls from where the ramp stopped, not from a wound-up value.
+
+    With ``tt = kp / ki`` and ``a = dt / tt`` the law gives ``I+ = (1 - a) I + a u``: a
+    first-order filter of the command, which on a ramp of ``rate dt`` per sample settles
+    ``(1 - a) rate dt / a`` behind it."""
+    kp, ki, rate = 2.0, 40.0, 10.0
+    pid = PID(DT, "y", "u", -100, 100, PIDGains(kp, ki=ki, tt=kp / ki), rate_max=rate)
+    pid.reset({"u": 0.0})
+    n = 50
+    for k in range(n):
+        u = pid.checked(k * DT, {"y": 0.0}, {"y": 1.0})["u"]
+        assert u == pytest.approx(rate * DT * (k + 1), rel=1e-12)  # held by the rate
+    integral = pid._state[0]
+    blind = ki * DT * 1.0 * n  # 20: the windup without the rate in the anti-windup
+    a = DT * ki / kp
+    assert integral == pytest.approx(u - (1 - a) * rate * DT / a, abs=1e-3)
+    assert integral < 0.25 * blind
+    u_next = pid.checked(n * DT, {"y": 0.0}, {"y": 0.0})["u"]  # error gone
+    assert u_next < u  # the command comes down at once, nothing to unwind first
+
+
+def test_rate_limit_is_refused_unless_positive_and_in_the_io_system():
+    with pytest.raises(ParameterError, match=r"'pid\.rate_max'"):
+        PID(DT, "y", "u", -1, 1, PIDGains(1.0), rate_max=0.0)
+    m = hanging_load(1, load_kg=0.02)
+    op = operating_point(m, {"regulator.p_cmd": 5e4})
+    task = {"output": "myofibril.length", "input": "regulator.p_cmd", "u_min": 0, "u_max": 1e5}
+    pid = make_controller("pid", m, op, DT, {**task, "rate_max": 2e6})
+    assert pid.du_max == pytest.approx(2e4)
+    with pytest.raises(ParameterError, match=r"'pid\.rate_max'.*no rate limit"):
+        pid.as_iosystem(op, m)

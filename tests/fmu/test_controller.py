@@ -298,3 +298,43 @@ def test_a_serialized_state_keeps_the_sample_grid(fmu, plant):
     restore(deserialize(raw))
     assert steps(s, range(3, 8)) == tail
     s.close()
+
+
+def test_rate_limited_controller_fmus_equal_the_python_controllers(plant, tmp_path):
+    """rate_max 0.2 MPa/s (2 kPa per sample): the FMUs feed their held command back to the
+    law (``du_max`` a parameter) and give the Python PID's and LQI's commands, the rate
+    limit held on many samples."""
+    m, op = plant
+    ys, r = _measurements(op, 200)
+    task = {**TASK, "rate_max": 2e5}
+    pid = make_pid(m, op, DT, {**task, "kd": -50.0})
+    path = export_controller_fmu(pid, m, tmp_path / "pid.fmu", U0, 2)
+    s = Slave((path, 2, extract(str(path), unzipdir=str(tmp_path / "pid"))))
+    assert s.get("du_max") == pytest.approx(2e3)
+    got = []
+    for k, y in enumerate(ys):
+        s.set(reference=r, measurement=y)
+        s.step(k * DT, DT)
+        got.append(s.get("command"))
+    s.close()
+    want = _python(pid, ys, r)
+    moves = np.abs(np.diff(np.concatenate([[U0], want])))
+    assert np.sum(np.isclose(moves, 2e3, rtol=1e-12)) > 10 and moves.max() <= 2e3 * (1 + 1e-12)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * 1e5)
+    lqi = make_lqi(m, op, DT, {**task, "feedforward": "linear"})
+    path = export_controller_fmu(lqi, m, tmp_path / "lqi.fmu", U0, 2)
+    s = Slave((path, 2, extract(str(path), unzipdir=str(tmp_path / "lqi"))), model_identifier="lqi")
+    lqi.reset({TASK["input"]: U0})
+    states = {n: float(v) for n, v in zip(m.state_names, op.x, strict=True)}
+    got, want = [], []
+    for k in range(60):
+        ref = op["myofibril.length"] + (-0.05 if k < 30 else 0.0)
+        y = op["myofibril.length"]
+        want.append(lqi.update(k * DT, {**states, lqi.output: y}, {lqi.output: ref})[lqi.input])
+        s.set(reference=ref, measurement=y, **states)
+        s.step(k * DT, DT)
+        got.append(s.get("command"))
+    s.close()
+    moves = np.abs(np.diff(np.concatenate([[U0], want])))
+    assert np.sum(np.isclose(moves, 2e3, rtol=1e-12)) > 10 and moves.max() <= 2e3 * (1 + 1e-12)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * 1e5)

@@ -6,7 +6,13 @@ import re
 import numpy as np
 import pytest
 
-from sarcomere.controllers import CONTROLLERS, Controller, register_controller
+from sarcomere.controllers import (
+    CONTROLLERS,
+    Controller,
+    make_controller,
+    operating_point,
+    register_controller,
+)
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ScenarioError
 from sarcomere.scenarios import load_scenario, parse_scenario, resolve_scenario, run
@@ -122,12 +128,46 @@ def test_force_scene_shortened(tmp_path):
         ('sample_time = "10 ms"', 'sample_time = "0.1 ms"', "control.sample_time"),
         ('sample_time = "10 ms"', 'sample_time = "0.2 s"', "control.sample_time"),
         ('sample_time = "10 ms"', "sample_time = 0.01", "control.sample_time"),  # no unit
+        ('pressure_rate_max = "2 MPa/s"', 'pressure_rate_max = "0 MPa/s"', "pressure_rate_max"),
+        ('pressure_rate_max = "2 MPa/s"', 'pressure_rate_max = "2 MPa"', "pressure_rate_max"),
+        ('pressure_min = "0 MPa"', 'pressure_min = "0.06 MPa"', "control.pressure_max"),
+        # one set of limits per scene: a controller's own table may not change them
+        ("[control.controllers.pid]", "[control.controllers.pid]\nrate_max = 1e7", "rate_max"),
+        ("[control.controllers.lqi]", "[control.controllers.lqi]\nu_max = 1e5", "u_max"),
+        ("[control.controllers.lmpc]", "[control.controllers.lmpc]\nu_min = 1e4", "u_min"),
     ],
 )
 def test_bad_control_settings_are_refused_by_key(tmp_path, old, new, key):
     text = _short_length_scene().replace(old, new)
     with pytest.raises(ScenarioError, match=re.escape(key.split(".")[-1])):
         run(parse_scenario(text, "bad.toml"), tmp_path / "out", quiet=True)
+
+
+def test_the_scene_rate_limit_holds_every_controller(tmp_path):
+    """pressure_rate_max 1 MPa/s (10 kPa per 10 ms sample): the commands of PID and LQI
+    never move more than that, and the step drives both against it; the MPCs get the same
+    value as their own rate limit."""
+    text = _short_length_scene().replace(
+        'pressure_rate_max = "2 MPa/s"', 'pressure_rate_max = "1 MPa/s"'
+    )
+    text = re.sub(r"\[control\.controllers\.(lqi_ekf|nmpc|nmpc_ekf|lmpc)\]\n(\w.*\n)*", "", text)
+    sc = parse_scenario(text, "rate.toml")
+    assert set(sc.control["controllers"]) == {"pid", "lqi"}
+    out = run(sc, tmp_path, quiet=True)
+    assert out.extra["input_limits"]["rate_max_Pa_per_s"] == 1e6
+    for key in ("pid", "lqi"):
+        csv = tmp_path / f"timeseries_{key}.csv"
+        header = csv.read_text().splitlines()[0].split(",")
+        data = np.loadtxt(csv, delimiter=",", skiprows=1)
+        p_cmd = data[:, header.index("regulator.p_cmd [Pa]")]
+        moves = np.abs(np.diff(p_cmd))
+        assert moves.max() <= 1e4 * (1 + 1e-9), key
+        assert moves.max() >= 1e4 * (1 - 1e-9), key  # the step is held by the rate limit
+    model = hanging_load(3, load_kg=0.02)
+    op = operating_point(model, {"regulator.p_cmd": 5e4})
+    task = {"output": "myofibril.length", "input": "regulator.p_cmd", "u_min": 0.0}
+    lmpc = make_controller("lmpc", model, op, 0.01, {**task, "u_max": 3e5, "rate_max": 1e6})
+    assert lmpc.settings.rate_max == 1e6
 
 
 def test_other_kinds_refuse_a_control_section(tmp_path):
@@ -208,6 +248,7 @@ def test_a_registered_controller_runs_in_the_scene_with_the_common_settings(tmp_
         CONTROLLERS.pop("hold")
     assert out.metrics["hold_solve_time_median_ms"] >= 0
     assert seen["dt"] == 0.01 and seen["u_max"] == 3e5 and seen["tension_min"] == 0.0
+    assert seen["u_min"] == 0.0 and seen["rate_max"] == 2e6
     assert seen["measured"] == ["myofibril.length", "regulator.p_out"]
     assert seen["noise_std"]["myofibril.length"] == pytest.approx(2e-5)
     smooth = seen["build_model"](flow_law="smooth", saturate=False)
