@@ -82,6 +82,24 @@ def test_bad_parameters_are_refused(prediction):
 TASK = {"output": L, "input": P, "u_min": 0.0, "u_max": 3e5, "estimator": "ekf"}
 
 
+def _late_error(plant, eq, mpc, samples: int, k_load: int) -> float:
+    """10 ms samples of ``mpc`` holding the length from ``eq``, +50 g at sample
+    ``k_load``: the largest length error over the last 30 samples [m]."""
+    sim = Simulator(plant)
+    sim.reset(x0=eq.x)
+    sim.p = eq.p.copy()
+    errors = []
+    for k in range(samples):
+        if k == k_load:
+            p = sim.p.copy()
+            p[plant.param_names.index(M)] += 0.05
+            sim.p = p
+        y = sim.signals(mpc.outputs)
+        sim.step(mpc.checked(sim.t, y, {L: eq[L]}), 0.01)
+        errors.append(sim.signal(L) - eq[L])
+    return float(np.max(np.abs(errors[-30:])))
+
+
 def load_step_offset(extra, feed=True):
     """+50 g at 0.2 s on the exact-law plant (1 APS, 20 g), NMPC on the EKF holding the
     length; the largest error over the last 0.3 s of 2 s [m], and the controller."""
@@ -90,19 +108,7 @@ def load_step_offset(extra, feed=True):
     mpc = make_controller("nmpc", plant, eq, 0.01, {**TASK, **extra})
     if not feed:  # the former formulation: the prediction keeps the nominal load
         mpc.fed = []
-    sim = Simulator(plant)
-    sim.reset(x0=eq.x)
-    sim.p = eq.p.copy()
-    errors = []
-    for k in range(200):
-        if k == 20:
-            p = sim.p.copy()
-            p[plant.param_names.index(M)] += 0.05
-            sim.p = p
-        y = sim.signals(mpc.outputs)
-        sim.step(mpc.checked(sim.t, y, {L: eq[L]}), 0.01)
-        errors.append(sim.signal(L) - eq[L])
-    return float(np.max(np.abs(errors[-30:]))), mpc, plant, eq
+    return _late_error(plant, eq, mpc, 200, 20), mpc, plant, eq
 
 
 def test_the_ekfs_load_estimate_removes_the_offset_without_integral():
@@ -154,19 +160,7 @@ def lmpc_load_step_residual(feed):
     assert mpc.fed == [M]
     if not feed:
         mpc.fed = []
-    sim = Simulator(plant)
-    sim.reset(x0=eq.x)
-    sim.p = eq.p.copy()
-    errors = []
-    for k in range(300):
-        if k == 50:
-            p = sim.p.copy()
-            p[plant.param_names.index(M)] += 0.05
-            sim.p = p
-        y = sim.signals(mpc.outputs)
-        sim.step(mpc.checked(sim.t, y, {L: eq[L]}), 0.01)
-        errors.append(sim.signal(L) - eq[L])
-    return float(np.max(np.abs(errors[-30:])))
+    return _late_error(plant, eq, mpc, 300, 50)
 
 
 def test_the_lmpc_on_the_ekfs_load_settles_faster():
