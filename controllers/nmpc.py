@@ -11,8 +11,8 @@ The stage state is ``s_k = [x_k; u_{k-1}]`` (the previous input is carried, so t
 is a constraint of one stage, as fatrop's structure needs); the stage controls are ``u_k``
 and the collocation states. Cost ``sum_k weight_y (y_k - r_k)^2 + weight_du (u_k - u_{k-1})^2``
 with ``r_k`` the reference at node ``k`` (``t + k dt``): the values handed over by
-:meth:`NonlinearMPC.set_preview` when the reference is known ahead, else ``r(t)`` at every
-node;
+:meth:`~.receding.RecedingHorizon.set_preview` when the reference is known ahead, else
+``r(t)`` at every node;
 constraints: the input within ``[u_min, u_max]``, its rate within ``rate_max``, and every
 thread tension ``>= tension_min`` at every node from ``k = 1`` on (hard: no slack).
 
@@ -43,7 +43,7 @@ by one sample and is counted in ``stats.fallbacks``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import casadi as cs
@@ -488,27 +488,9 @@ class NonlinearMPC(RecedingHorizon):
         self.engine = _RealTimeIteration(pb) if s.solver == "rti" else _CollocationNLP(pb, s.solver)
         self.reset(u_op)
 
-    @property
-    def preview_samples(self) -> int:
-        return self.settings.horizon
-
-    def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
-        """The reference of the tracked output at the next ``horizon`` samples [SI], for the
-        next :meth:`update` only (each clipped to the reachable range like ``r(t)``)."""
-        out, n = self.settings.output, self.settings.horizon
-        ahead = np.asarray(values.get(out, ()), float).ravel() if out in values else None
-        if ahead is None or set(values) != {out} or ahead.size != n:
-            raise ParameterError(
-                "nmpc.preview",
-                {k: np.size(v) for k, v in values.items()},
-                f"{{'{out}': {n} values}} (one per node of the horizon)",
-            )
-        self._preview = np.array([self.clip({out: v}) for v in ahead])
-
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
         self._offset = 0.0
-        self._preview: np.ndarray | None = None
         if isinstance(self.engine, _RealTimeIteration):
             self.engine.guess = None
         else:
@@ -519,8 +501,7 @@ class NonlinearMPC(RecedingHorizon):
         ref = self.clip(r)
         # the reference per node: the preview if given for this sample, else r(t) held;
         # integral action shifts it by the integrated error, kept inside the reachable range
-        nodes = np.full(self.settings.horizon, ref) if self._preview is None else self._preview
-        self._preview = None
+        nodes = self.nodes(ref)
         shifted = np.clip(nodes + self._offset, self.clip.low, self.clip.high)
         plan, ok = self.engine.solve(x, self._u, shifted, self._p)
         u = self.apply(plan if ok else None)
