@@ -107,7 +107,7 @@ class Controller(ABC):
     @property
     def preview_samples(self) -> int:
         """How many samples of the reference ahead :meth:`set_preview` takes (0 here: the
-        controller sees ``r(t)`` only; the NMPC takes one per node of its horizon)."""
+        controller sees ``r(t)`` only; the MPCs take one per node of their horizon)."""
         return 0
 
     def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:

@@ -155,7 +155,7 @@ def run_closed_loop(
         The thread tension constraint [N] the violation metric checks.
     preview : bool
         Whether the reference is known ahead: if so, before every update a controller with
-        ``preview_samples > 0`` (the NMPC) gets ``reference`` at its next samples (clipped to
+        ``preview_samples > 0`` (the MPCs) gets ``reference`` at its next samples (clipped to
         ``reachable`` like ``r(t)``); a controller without preview sees ``r(t)`` either way.
     """
     dt = controller.dt

@@ -16,9 +16,9 @@ saturating regulator); ``[simulation] stop_time``; ``[solver]`` the plant's inte
   (default 0); ``tension_min``: the thread tension constraint the violation metric checks
   (default 0 N);
 - ``preview``: whether the reference is known ahead (default true, as for every packaged
-  scene's planned steps and sines): a controller that takes it (the NMPC) then sees the
-  reference at each node of its horizon; false gives it ``r(t)`` held over the horizon,
-  for comparison. The PID, LQI and LMPC use ``r(t)`` either way;
+  scene's planned steps and sines): a controller that takes it (the NMPC, the LMPC) then
+  sees the reference at each node of its horizon; false gives it ``r(t)`` held over the
+  horizon, for comparison. The PID and LQI use ``r(t)`` either way;
 - ``measured``: the signals a realistic sensor set gives (default the output and
   ``regulator.p_out``), read by estimators;
 - ``[control.noise]``: measurement noise standard deviation by signal, with units;
