@@ -104,6 +104,25 @@ class Controller(ABC):
                 f"{self.slug}.parameters", sorted(values), "none: no run-time parameters"
             )
 
+    @property
+    def preview_samples(self) -> int:
+        """How many samples of the reference ahead :meth:`set_preview` takes (0 here: the
+        controller sees ``r(t)`` only; the MPCs take one per node of their horizon)."""
+        return 0
+
+    def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
+        """The reference ahead for the next :meth:`update` only: by tracked signal, its
+        values [SI] at ``t + dt, ..., t + preview_samples dt`` (the loop calls it before
+        every update when the reference is known ahead).
+
+        Raises
+        ------
+        ParameterError
+            Here for any values: this controller takes no preview.
+        """
+        if values:
+            raise ParameterError(f"{self.slug}.preview", sorted(values), "none: no preview")
+
     @abstractmethod
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         """The inputs [SI] to hold from ``t`` to ``t + dt``, given the measurement ``y``

@@ -13,7 +13,7 @@ sample through :meth:`~.base.Controller.set_parameters`, before it computes its 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -55,6 +55,13 @@ class OnEstimate(Controller):
         self.inner.reset(u0)
         self.ekf.reset(self.op.x)
         self._u = np.array([u0[n] for n in self.plant.input_names], dtype=float)
+
+    @property
+    def preview_samples(self) -> int:
+        return self.inner.preview_samples
+
+    def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
+        self.inner.set_preview(values)
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = self.ekf.estimate(y, self._u)

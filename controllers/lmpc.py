@@ -9,11 +9,14 @@ decision variables are the input moves ``du_k``::
 
 A constant disturbance or a model error shifts ``x`` and ``u`` but not the increments, so
 the loop has integral action (offset-free) without an observer. The cost is
-``sum_k q (y_k - r)^2 + r_du du_k^2`` over the horizon; input bounds and rate limits are
-hard (``du = 0`` always satisfies them, so the QP is always feasible); lower bounds on other
-signals (e.g. thread tension) are soft, with one slack per signal (linear and quadratic
-penalty). The QP is condensed (only the moves and slacks are unknowns) and solved by
-``casadi.conic`` (qpOASES or DAQP), built once; each sample passes flat numeric vectors.
+``sum_k q (y_k - r_k)^2 + r_du du_k^2`` over the horizon (``r_k`` the reference at node
+``k``: the preview set by :meth:`~.receding.RecedingHorizon.set_preview` when the reference
+is known ahead, else ``r(t)`` held; ``e_k - (r_k - r(t))`` in the increments); input
+bounds and rate limits are hard (``du = 0`` always satisfies them, so the QP is always
+feasible); lower bounds on other signals (e.g. thread tension) are soft, with one slack
+per signal (linear and quadratic penalty). The QP is condensed (only the moves and slacks
+are unknowns) and solved by ``casadi.conic`` (qpOASES or DAQP), built once; each sample
+passes flat numeric vectors.
 
 The model is re-linearised at the measured point ``(x, u)`` when the tracked output has
 moved more than ``relinearize_m`` (default 2 mm, about a quarter of the 8.8 mm 3-APS stroke at
@@ -162,6 +165,7 @@ class VelocityQP:
         H[N * nu :, N * nu :] = 2 * self.weight_slack * np.eye(ns)
         self.H = H
         self._G = 2 * self.weight_y * Se_u.T @ Se_x  # gradient = G xi0
+        self._Gr = 2 * self.weight_y * Se_u.T  # minus this times the reference ahead
         # inputs: u_k = u_prev + sum_{j<=k} du_j
         T = np.kron(np.tril(np.ones((N, N))), np.diag(self.u_scale))
         # soft signals at k = 1..N: s_0 + Cs (x_k - x_0), x_k - x_0 = sum_{i<=k} dx_i
@@ -188,13 +192,19 @@ class VelocityQP:
         u_hi: np.ndarray,
         du_max: np.ndarray,
         soft_gap: np.ndarray,
+        ahead: np.ndarray | None = None,
     ) -> tuple[np.ndarray | None, bool]:
         """The moves ``du`` (horizon x nu, SI) and whether the solver succeeded.
 
-        ``soft_gap``: each soft bound minus the signal's present value (ns).
+        ``soft_gap``: each soft bound minus the signal's present value (ns). ``ahead``: the
+        reference at nodes ``1..horizon`` minus the one in ``xi0``'s error [SI] (horizon x
+        ny; default zero: the reference held over the horizon).
         """
         N, nu, ns = self.horizon, self.nu, self.ns
-        g = np.concatenate([self._G @ xi0, np.full(ns, self.weight_slack)])
+        grad = self._G @ xi0
+        if ahead is not None:
+            grad = grad - self._Gr @ np.ravel(ahead)
+        g = np.concatenate([grad, np.full(ns, self.weight_slack)])
         lba = np.concatenate([np.tile(u_lo - u_prev, N), np.tile(soft_gap, N) - self._Ssx @ xi0])
         uba = np.concatenate([np.tile(u_hi - u_prev, N), np.full(N * ns, np.inf)])
         lbx = np.concatenate([np.tile(-du_max / self.u_scale, N), np.zeros(ns)])
@@ -326,9 +336,9 @@ class LinearMPC(RecedingHorizon):
         self._x_prev = x
         soft_now = np.array([y[n] for n in self._soft], dtype=float) if self._soft else None
         gap = self._soft_min - soft_now if self._soft else np.zeros(0)
-        du, ok = self._qp.solve(
-            np.concatenate([dx, [out - ref]]), self._u, self._u_lo, self._u_hi, self._du_max, gap
-        )
+        xi0 = np.concatenate([dx, [out - ref]])
+        ahead = self.nodes(ref) - ref  # the reference ahead, relative to r(t)
+        du, ok = self._qp.solve(xi0, self._u, self._u_lo, self._u_hi, self._du_max, gap, ahead)
         return self.apply(self._u + np.cumsum(du, axis=0) if ok else None)
 
 

@@ -3,7 +3,9 @@
 
 At each sample ``t_k = k dt`` the loop reads the signals the controller asks for
 (``controller.outputs``), adds seeded Gaussian noise to those named in ``noise_std``,
-evaluates the reference, calls :meth:`~.base.Controller.checked` (finite, inside the
+evaluates the reference (and, with ``preview``, its values at the controller's
+``preview_samples`` next samples, handed over by :meth:`~.base.Controller.set_preview`),
+calls :meth:`~.base.Controller.checked` (finite, inside the
 bounds, timed) and holds its input over ``[t_k, t_k + dt)``. A load disturbance changes a
 parameter (``load.m``) at the first sample at or after its time. The result holds, at the
 samples: the reference, the true output, the measured output (with noise), the inputs,
@@ -119,6 +121,7 @@ def run_closed_loop(
     reachable: tuple[float, float] | None = None,
     step: tuple[float, float, float, float] | None = None,
     tension_min: float = 0.0,
+    preview: bool = False,
 ) -> ClosedLoopResult:
     """Run ``controller`` on ``model`` from the operating point ``op`` to ``stop_time``.
 
@@ -150,6 +153,10 @@ def run_closed_loop(
         The reference step whose overshoot and settling time are measured.
     tension_min : float
         The thread tension constraint [N] the violation metric checks.
+    preview : bool
+        Whether the reference is known ahead: if so, before every update a controller with
+        ``preview_samples > 0`` (the MPCs) gets ``reference`` at its next samples (clipped to
+        ``reachable`` like ``r(t)``); a controller without preview sees ``r(t)`` either way.
     """
     dt = controller.dt
     if not (math.isfinite(stop_time) and dt <= stop_time <= MAX_SAMPLES * dt):
@@ -189,6 +196,14 @@ def run_closed_loop(
             if name in y and std > 0:
                 y[name] += std * rng.standard_normal()
         r = float(reference(float(tk)))
+        if preview and controller.preview_samples:
+            ahead = [
+                float(reference(float(tk + j * dt)))
+                for j in range(1, 1 + controller.preview_samples)
+            ]
+            if reachable is not None:
+                ahead = np.clip(ahead, reachable[0], reachable[1]).tolist()
+            controller.set_preview({output: ahead})
         if reachable is not None and not reachable[0] <= r <= reachable[1]:
             r = min(max(r, reachable[0]), reachable[1])
             if not clipped:

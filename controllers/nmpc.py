@@ -9,7 +9,10 @@ Discretisation: one Radau IIA collocation element of ``degree`` points (default 
 L-stable) per sample interval, states scaled by their magnitude over the operating range.
 The stage state is ``s_k = [x_k; u_{k-1}]`` (the previous input is carried, so the rate limit
 is a constraint of one stage, as fatrop's structure needs); the stage controls are ``u_k``
-and the collocation states. Cost ``sum_k weight_y (y_k - r)^2 + weight_du (u_k - u_{k-1})^2``;
+and the collocation states. Cost ``sum_k weight_y (y_k - r_k)^2 + weight_du (u_k - u_{k-1})^2``
+with ``r_k`` the reference at node ``k`` (``t + k dt``): the values handed over by
+:meth:`~.receding.RecedingHorizon.set_preview` when the reference is known ahead, else
+``r(t)`` at every node;
 constraints: the input within ``[u_min, u_max]``, its rate within ``rate_max``, and every
 thread tension ``>= tension_min`` at every node from ``k = 1`` on (hard: no slack).
 
@@ -176,10 +179,10 @@ class _CollocationNLP:
 
     def __init__(self, pb: _Problem, solver: str) -> None:
         s, nx, nu, d, N = pb.s, pb.nx, pb.nu, pb.s.degree, pb.s.horizon
-        # measured x [SI], previous u [SI], reference [SI], model parameters [SI]
-        P = cs.SX.sym("P", nx + nu + 1 + pb.np)
-        xi0, vprev, ref = P[:nx] / pb.xs, P[nx : nx + nu] / pb.us, P[nx + nu]
-        p = P[nx + nu + 1 :]
+        # measured x [SI], previous u [SI], reference per node [SI], model parameters [SI]
+        P = cs.SX.sym("P", nx + nu + N + pb.np)
+        xi0, vprev, ref = P[:nx] / pb.xs, P[nx : nx + nu] / pb.us, P[nx + nu : nx + nu + N]
+        p = P[nx + nu + N :]
         w, lbw, ubw, g, lbg, ubg, eq = [], [], [], [], [], [], []
         J = 0
 
@@ -211,7 +214,7 @@ class _CollocationNLP:
             con(pb.res(X, Xc, cs.vertcat(V, p), pb.dt), 0, 0, True)
             con(V - Vp, -dv, dv, False)
             J += s.weight_du * cs.sumsqr((V - Vp) * pb.us)
-            J += s.weight_y * (pb.y(S_next[:nx], p) - ref) ** 2
+            J += s.weight_y * (pb.y(S_next[:nx], p) - ref[k]) ** 2
             S = S_next
         con(pb.T(S[:nx], p), s.tension_min, inf, False)
         self.stage = nx + nu + nu + nx * d
@@ -252,14 +255,14 @@ class _CollocationNLP:
         return np.concatenate([np.tile(stage, self.pb.s.horizon), xi, v])
 
     def solve(
-        self, x: np.ndarray, u_prev: np.ndarray, ref: float, p: np.ndarray
+        self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray
     ) -> tuple[np.ndarray, bool]:
         """The input plan [SI] (horizon x nu) and whether the solver converged, for the
-        model parameters ``p`` [SI]."""
+        reference at nodes 1..horizon and the model parameters ``p`` [SI]."""
         pb = self.pb
         if "x0" not in self.warm:
             self.warm = {"x0": self.initial(x / pb.xs, u_prev / pb.us)}
-        P = np.concatenate([x, u_prev, [ref], p])
+        P = np.concatenate([x, u_prev, ref, p])
         sol = self.solver(p=P, **self.warm, **self.bounds)
         ok = bool(self.solver.stats()["success"])
         wopt = np.array(sol["x"]).ravel()
@@ -320,7 +323,7 @@ class _RealTimeIteration:
         # the condensing, one MX Function of the guess, the measurement and the parameters
         Xb, Ub = cs.MX.sym("Xb", nx, N + 1), cs.MX.sym("Ub", nu, N)
         Vb = cs.MX.sym("Vb", nx * d, N)
-        x0, vp, ref = cs.MX.sym("x0", nx), cs.MX.sym("vp", nu), cs.MX.sym("ref")
+        x0, vp, ref = cs.MX.sym("x0", nx), cs.MX.sym("vp", nu), cs.MX.sym("ref", N)
         p = cs.MX.sym("p", pb.np)
         P = cs.repmat(p, 1, N)
         L = lift(Vb, Xb[:, :N], Ub, P)  # (nx d) x (N (1 + nx + nu))
@@ -339,7 +342,7 @@ class _RealTimeIteration:
         ey, Jy, tb, TJ = [], [], [], []
         for k in range(N):
             c = CYT[:, k * nx : (k + 1) * nx]
-            ey.append(YT[0, k] + cs.mtimes(c[0, :], rows_a[k + 1]) - ref)
+            ey.append(YT[0, k] + cs.mtimes(c[0, :], rows_a[k + 1]) - ref[k])
             Jy.append(cs.mtimes(c[0, :], rows_G[k + 1]))
             tb.append(YT[1:, k] + cs.mtimes(c[1:, :], rows_a[k + 1]))
             TJ.append(cs.mtimes(c[1:, :], rows_G[k + 1]))
@@ -391,10 +394,10 @@ class _RealTimeIteration:
         self.guess: list[np.ndarray] | None = None
 
     def solve(
-        self, x: np.ndarray, u_prev: np.ndarray, ref: float, p: np.ndarray
+        self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray
     ) -> tuple[np.ndarray, bool]:
         """The input plan [SI] (horizon x nu) and whether the QP's answer is feasible, for
-        the model parameters ``p`` [SI]."""
+        the reference at nodes 1..horizon and the model parameters ``p`` [SI]."""
         pb, N, nx, nu = self.pb, self.pb.s.horizon, self.pb.nx, self.pb.nu
         xi, vp = x / pb.xs, u_prev / pb.us
         if self.guess is None:
@@ -403,7 +406,7 @@ class _RealTimeIteration:
                 np.tile(vp[:, None], (1, N)),
                 np.tile(xi[:, None], (pb.s.degree, N)),
             ]
-        Xn, Un, Vn, U, viol = self.step(*self.guess, xi, vp, [ref], p)
+        Xn, Un, Vn, U, viol = self.step(*self.guess, xi, vp, ref, p)
         if not (viol[0] <= 1e-6 and np.all(np.isfinite(U)) and np.all(np.isfinite(Xn))):
             self.guess = None  # restart from the measurement next time
             return np.zeros((N, nu)), False
@@ -496,9 +499,10 @@ class NonlinearMPC(RecedingHorizon):
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
         ref = self.clip(r)
-        # integral action: the reference the optimiser sees is shifted by the integrated
-        # error, kept inside the reachable range
-        shifted = min(max(ref + self._offset, self.clip.low), self.clip.high)
+        # the reference per node: the preview if given for this sample, else r(t) held;
+        # integral action shifts it by the integrated error, kept inside the reachable range
+        nodes = self.nodes(ref)
+        shifted = np.clip(nodes + self._offset, self.clip.low, self.clip.high)
         plan, ok = self.engine.solve(x, self._u, shifted, self._p)
         u = self.apply(plan if ok else None)
         if np.all((self._u > self._u_lo) & (self._u < self._u_hi)):  # no windup at a bound

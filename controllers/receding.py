@@ -15,7 +15,7 @@ import dataclasses
 import math
 import re
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -199,6 +199,37 @@ class RecedingHorizon(Controller):
         self._u = np.clip(np.asarray(vec, float).reshape(-1), self._u_lo, self._u_hi)
         self._plan: np.ndarray | None = None
         self._p = self._p_nominal.copy()
+        self._preview: np.ndarray | None = None
+
+    @property
+    def preview_samples(self) -> int:
+        """One reference per node of the horizon."""
+        return self.settings.horizon
+
+    def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
+        """The reference of the tracked output at the next ``horizon`` samples [SI], for the
+        next :meth:`update` only (each clipped to the reachable range like ``r(t)``).
+
+        Raises
+        ------
+        ParameterError
+            Unless ``values`` holds exactly the tracked output with ``horizon`` values.
+        """
+        out, n = self.settings.output, self.settings.horizon
+        if set(values) != {out} or np.size(values[out]) != n:
+            raise ParameterError(
+                f"{self.slug}.preview",
+                {k: int(np.size(v)) for k, v in values.items()},
+                f"{{'{out}': {n} values}} (one per node of the horizon)",
+            )
+        ahead = np.asarray(values[out], float).ravel()
+        self._preview = np.array([self.clip({out: v}) for v in ahead])
+
+    def nodes(self, ref: float) -> np.ndarray:
+        """The reference at nodes ``1..horizon`` [SI] for this sample: the preview if one was
+        set since the last update (then forgotten), else ``ref`` (``r(t)``, clipped) held."""
+        ahead, self._preview = self._preview, None
+        return np.full(self.settings.horizon, ref) if ahead is None else ahead
 
     def apply(self, plan: np.ndarray | None) -> dict:
         """The inputs to hold now, by name: the first row of ``plan`` (horizon x nu, SI),

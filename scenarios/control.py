@@ -15,6 +15,10 @@ saturating regulator); ``[simulation] stop_time``; ``[solver]`` the plant's inte
   :func:`~sarcomere.controllers.registry.check_sample_time`); ``seed`` of the noise
   (default 0); ``tension_min``: the thread tension constraint the violation metric checks
   (default 0 N);
+- ``preview``: whether the reference is known ahead (default true, as for every packaged
+  scene's planned steps and sines): a controller that takes it (the NMPC, the LMPC) then
+  sees the reference at each node of its horizon; false gives it ``r(t)`` held over the
+  horizon, for comparison. The PID and LQI use ``r(t)`` either way;
 - ``measured``: the signals a realistic sensor set gives (default the output and
   ``regulator.p_out``), read by estimators;
 - ``[control.noise]``: measurement noise standard deviation by signal, with units;
@@ -65,6 +69,7 @@ KEYS = (
     "sample_time",
     "seed",
     "tension_min",
+    "preview",
     "measured",
     "noise",
     "reference",
@@ -177,6 +182,9 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise sc.error(("control", "seed"), f"{seed!r}: expected an integer >= 0")
     t_min = _quantity(sc, ctl.get("tension_min", 0.0), ("control", "tension_min"), "N")
+    preview = ctl.get("preview", True)
+    if not isinstance(preview, bool):
+        raise sc.error(("control", "preview"), f"{preview!r}: expected true or false")
     measured = ctl.get("measured", [output, "regulator.p_out"])
     if not (isinstance(measured, list) and all(m in model.signal_names for m in measured)):
         raise sc.error(("control", "measured"), f"{measured!r}: expected signals of the model")
@@ -255,6 +263,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
             reachable=(reach[0], reach[1]),
             step=(y_op, y_op + step, t_step, step_end) if step else None,
             tension_min=t_min,
+            preview=preview,
         )
         res = run.result
         err = res[output] - res["reference"]
@@ -273,6 +282,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         "operating_point": {"pressure_Pa": p_op, output: y_op},
         "input_limits": {"u_min_Pa": p_min, "u_max_Pa": p_max, "rate_max_Pa_per_s": rate_max},
         "reachable": {output: reach},
+        "reference_known_ahead": preview,
         "controllers": {k: dict(_table(sc, v, ("control",))) for k, v in entries.items()},
     }
     return RunOutput(

@@ -135,3 +135,32 @@ def test_simulator_is_untouched_by_noise(plant):
     noisy = run_closed_loop(m, c2, op, lambda t: 0, 0.5, output=L, noise_std={L: 1e-3})
     np.testing.assert_array_equal(exact.result[L], noisy.result[L])
     assert c2.seen[3][L] != c1.seen[3][L]
+
+
+class Previewed(Schedule):
+    """A schedule that takes three samples of preview and records them (a test double)."""
+
+    preview_samples = 3
+
+    def set_preview(self, values):
+        self.previews.append(list(values[L]))
+
+
+def test_preview_hands_the_reference_at_the_next_samples_clipped(plant):
+    m, op = plant
+    ctl = Previewed([5e4] * 4)
+    ctl.previews = []
+    ramp = lambda t: 0.1 + t  # noqa: E731
+    with pytest.warns(UserWarning, match="clipped"):
+        run_closed_loop(m, ctl, op, ramp, 0.04, output=L, reachable=(0.0, 0.125), preview=True)
+    assert np.allclose(ctl.previews[0], [0.11, 0.12, 0.125])  # t + dt, t + 2 dt, clipped
+    assert np.allclose(ctl.previews[1], [0.12, 0.125, 0.125])
+    assert len(ctl.previews) == 4
+    ctl.previews = []
+    run_closed_loop(m, ctl, op, ramp, 0.04, output=L)  # not known ahead: no preview
+    assert ctl.previews == []
+
+
+def test_a_controller_without_preview_refuses_one():
+    with pytest.raises(ParameterError, match="preview"):
+        Schedule([5e4]).set_preview({L: [0.1]})
