@@ -71,6 +71,18 @@ MESSAGES: list[str] = []
 """What the FMI 2.0 instances logged."""
 
 
+def _fmu_commands(s, ys, r) -> list[float]:
+    """The controller FMU ``s`` stepped once per measurement (reference ``r``), its
+    commands; the slave is closed afterwards."""
+    got = []
+    for k, y in enumerate(ys):
+        s.set(reference=r, measurement=y)
+        s.step(k * DT, DT)
+        got.append(s.get("command"))
+    s.close()
+    return got
+
+
 def _callbacks(instance_name: str = "c"):
     """FMI 2.0 callbacks through the project's one process-wide logger."""
     return fmi2_callbacks(instance_name, lambda status, msg: MESSAGES.append(msg.decode()))
@@ -132,12 +144,7 @@ def test_controller_fmu_equals_the_python_pid_step_by_step(fmu, plant, pid):
     assert np.sum((expected > 0) & (expected < 1e5)) > 50  # and the linear range
     s = Slave(fmu)
     assert s.get("command") == U0  # before the first sample: the bias
-    got = []
-    for k, y in enumerate(ys):
-        s.set(reference=r, measurement=y)
-        s.step(k * DT, DT)
-        got.append(s.get("command"))
-    s.close()
+    got = _fmu_commands(s, ys, r)
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12 * 1e5)
 
 
@@ -311,12 +318,7 @@ def test_rate_limited_controller_fmus_equal_the_python_controllers(plant, tmp_pa
     path = export_controller_fmu(pid, m, tmp_path / "pid.fmu", U0, 2)
     s = Slave((path, 2, extract(str(path), unzipdir=str(tmp_path / "pid"))))
     assert s.get("du_max") == pytest.approx(2e3)
-    got = []
-    for k, y in enumerate(ys):
-        s.set(reference=r, measurement=y)
-        s.step(k * DT, DT)
-        got.append(s.get("command"))
-    s.close()
+    got = _fmu_commands(s, ys, r)
     want = _python(pid, ys, r)
     moves = np.abs(np.diff(np.concatenate([[U0], want])))
     assert np.sum(np.isclose(moves, 2e3, rtol=1e-12)) > 10 and moves.max() <= 2e3 * (1 + 1e-12)
