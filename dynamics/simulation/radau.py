@@ -109,18 +109,6 @@ def library(model: Model, law: InputLaw) -> Library:
     return model.cached(("radau", law.key()), lambda: _build(model, law))
 
 
-def c_functions(model: Model, law: InputLaw) -> tuple[cs.Function, cs.Function]:
-    """``sm_rhs`` and ``sm_jac`` ``(t, x, w, p)``: the right-hand side under ``law`` and
-    its dense Jacobian, as ``c/radau.c`` calls them (generated to C with ``casadi_int``
-    = ``int``; the FMU's Co-Simulation compiles them too, ``fmu/codegen.py``)."""
-    d = law_dae(model, law)
-    args = [d.t, d.x, d.w, d.p]
-    # common subexpressions merged (cs.cse): 34 % fewer operations at n = 3
-    rhs = cs.Function("sm_rhs", args, [cs.cse(cs.densify(d.ode))])
-    jac = cs.Function("sm_jac", args, [cs.cse(cs.densify(cs.jacobian(d.ode, d.x)))])
-    return rhs, jac
-
-
 def generate_sources(
     rhs: cs.Function, folder: Path, chunk: int = CHUNK, sparse: bool = True
 ) -> list[Path]:

@@ -205,7 +205,7 @@ def test_the_cosim_integrator_is_the_simulators_radau(iso_fmu):
         names = zf.namelist()
         source = zf.read("sources/radau.c")
     assert source == radau.SOURCE.read_bytes()
-    assert {"sources/sm_radau_model.c", "sources/sm_radau.h"} <= set(names)
+    assert {"sources/sm_rhs.c", "sources/sm_jac.c", "sources/sm_radau.h"} <= set(names)
     assert "sources/sm_casadi.c" in names
 
 
