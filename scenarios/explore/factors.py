@@ -57,7 +57,8 @@ class Target:
             return "one of " + ", ".join(f"{v:g} {self.unit}" for v in self.levels)
         lo, hi = ("(" if self.low_open else "["), (")" if self.high_open else "]")
         kind = "whole numbers in " if self.integer else ""
-        return f"{kind}{lo}{self.low:g}, {self.high:g}{hi} {self.unit}"
+        text = f"{kind}{lo}{self.low:g}, {self.high:g}{hi} {self.unit}"
+        return f"{text} ({self.long_name})" if self.category == "relative" else text
 
     def contains(self, value: float) -> bool:
         if self.levels:

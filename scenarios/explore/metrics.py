@@ -14,7 +14,6 @@ from ..dynamic import RISE_MIN_STROKE_M, rise_time
 from .spec import MetricDef
 
 LENGTH = "myofibril.length"
-FLOW = "regulator.port.m_flow"
 
 #: Metric name -> (SI unit, long name).
 STANDARD = {
@@ -24,7 +23,7 @@ STANDARD = {
     "overshoot": ("1", "overshoot of the length past its final value, fraction of the stroke"),
     "peak_tension": ("N", "peak thread tension (every thread, whole run)"),
     "min_tension": ("N", "minimum thread tension (every thread, whole run)"),
-    "air_mass": ("kg", "air mass drawn from the supply (integral of the regulator's outflow)"),
+    "air_mass": ("kg", "air mass added to the chambers, end minus start (every chamber)"),
     "peak_pressure": ("Pa", "peak chamber pressure, gauge (every chamber, whole run)"),
 }
 
@@ -44,6 +43,11 @@ def pressures(names) -> list[str]:
     return [n for n in names if n.endswith(".chamber.p_gauge")]
 
 
+def chambers(names) -> list[str]:
+    """The chamber air mass signals among ``names`` (one per unit at per-unit levels)."""
+    return [n for n in names if n.endswith(".chamber.m_air")]
+
+
 def needed_signals(signal_names, metrics, series) -> list[str]:
     """The model signals the metrics and series read (a subset of ``signal_names``)."""
     want = [LENGTH]
@@ -53,7 +57,7 @@ def needed_signals(signal_names, metrics, series) -> list[str]:
     if "peak_pressure" in names:
         want += pressures(signal_names)
     if "air_mass" in names:
-        want.append(FLOW)
+        want += chambers(signal_names)
     want += [m.signal for m in metrics if m.signal]
     if series is not None:
         want += list(series.signals)
@@ -90,8 +94,7 @@ def compute(res, metrics) -> tuple[dict[str, float], list[str]]:
         elif m.name == "peak_pressure":
             out[m.name] = float(np.max([res[n] for n in pressures(res.names)]))
         elif m.name == "air_mass":
-            flow = np.maximum(np.asarray(res[FLOW], float), 0.0)
-            out[m.name] = float(np.sum(0.5 * (flow[1:] + flow[:-1]) * np.diff(t)))
+            out[m.name] = float(sum(res[n][-1] - res[n][0] for n in chambers(res.names)))
     return out, notes
 
 

@@ -550,9 +550,8 @@ def _factor(r: _Reader, name: str, item, path: tuple, ctx, kind: str) -> Factor:
     if kind == "sensitivity" and dist == "levels":
         raise r.error((*path, dist), "a sensitivity study needs continuous factors")
     unit = "1" if relative else target.unit
-    from .factors import Target
 
-    check = Target(name, "relative", "1", 0.0, np.inf, low_open=True) if relative else target
+    check = _relative_target(r, path, target, ctx) if relative else target
     where = (*path, dist)
     if dist == "levels":
         values = _values(r, item[dist], where, check)
@@ -560,6 +559,29 @@ def _factor(r: _Reader, name: str, item, path: tuple, ctx, kind: str) -> Factor:
     args = _distribution(r, dist, item[dist], where, unit, check)
     long_name = f"{target.long_name} (relative)" if relative else target.long_name
     return Factor(name, unit, "continuous", (), dist, args, relative, long_name)
+
+
+def _relative_target(r: _Reader, path: tuple, target, ctx):
+    """The multipliers that keep ``target`` in its range about the scene's value."""
+    from .factors import Target
+
+    name = target.name
+    if target.category == "aps":
+        base = getattr(ctx.binding.aps, name.removeprefix("aps."))
+    else:
+        base = ctx.base_value(name, ctx.binding.n)
+    if not base > 0:
+        raise r.error((*path, "relative"), f"the scene's {name} is {base:g}: scale a value > 0")
+    return Target(
+        name,
+        "relative",
+        "1",
+        target.low / base,
+        target.high / base,
+        target.low_open,
+        target.high_open,
+        f"multiplier of the scene's {name} = {base:g} {target.unit}",
+    )
 
 
 def _distribution(r: _Reader, dist: str, raw, path: tuple, unit: str, check) -> tuple:
@@ -631,11 +653,13 @@ def _sensitivity(r: _Reader, tbl, factors) -> tuple[str, dict]:
 
 
 def _metrics(r: _Reader, study, ctx, kind, options):
-    from .metrics import STANDARD, value_at_metric
+    from .metrics import STANDARD, chambers, value_at_metric
 
     path = ("study", "metrics")
     tbl = r.table(study.get("metrics", {}), path, ("names", "value_at"))
-    names = tbl.get("names", list(STANDARD))
+    every_chamber = len(chambers(ctx.model.signal_names)) == ctx.binding.n
+    default = [n for n in STANDARD if every_chamber or n != "air_mass"]
+    names = tbl.get("names", default)
     if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
         raise r.error((*path, "names"), f"{names!r}: expected a list of metric names")
     out = {}
@@ -643,6 +667,12 @@ def _metrics(r: _Reader, study, ctx, kind, options):
         if n not in STANDARD:
             raise r.error((*path, "names"), unknown_key(n, list(STANDARD)).replace("key", "metric"))
         out[n] = MetricDef(n, *STANDARD[n])
+    if "air_mass" in out and not every_chamber:
+        raise r.error(
+            (*path, "names"),
+            f"'air_mass' sums every unit's chamber; fidelity '{ctx.fidelity}' does not name "
+            "each (use 'full')",
+        )
     sim = ctx.scene.simulation
     for label, spec in r.table(tbl.get("value_at", {}), (*path, "value_at")).items():
         where = (*path, "value_at", label)
