@@ -55,10 +55,19 @@ class Target:
         """The allowed values, for messages."""
         if self.levels:
             return "one of " + ", ".join(f"{v:g} {self.unit}" for v in self.levels)
-        lo, hi = ("(" if self.low_open else "["), (")" if self.high_open else "]")
+        lo = "(" if self.low_open or self.low == -math.inf else "["
+        hi = ")" if self.high_open or self.high == math.inf else "]"
         kind = "whole numbers in " if self.integer else ""
-        text = f"{kind}{lo}{self.low:g}, {self.high:g}{hi} {self.unit}"
+        unit = "" if self.unit == "1" else f" {self.unit}"
+        text = f"{kind}{lo}{self.low:g}, {self.high:g}{hi}{unit}"
         return f"{text} ({self.long_name})" if self.category == "relative" else text
+
+    def refusal(self, value: float) -> str:
+        """Why ``value`` is refused, naming what is allowed."""
+        shown = f"{value:g}" if self.unit == "1" else f"{value:g} {self.unit}"
+        if self.levels:
+            return f"{shown} is not {self.allowed()}"
+        return f"{shown} is outside {self.allowed()}"
 
     def contains(self, value: float) -> bool:
         if self.levels:

@@ -125,7 +125,7 @@ class MetricDef:
     unit: str
     long_name: str
     signal: str = ""
-    time: float = math.nan
+    time: float | None = None
 
 
 @dataclass(frozen=True)
@@ -168,7 +168,7 @@ class StudyDef:
             "kind": self.kind,
             "method": self.method,
             "factors": [f.definition() for f in self.factors],
-            "metrics": [_json_safe(dataclasses.asdict(m)) for m in self.metrics],
+            "metrics": [dataclasses.asdict(m) for m in self.metrics],
             "series": None if self.series is None else dataclasses.asdict(self.series),
             "seed": self.seed,
             "batch": self.batch,
@@ -197,10 +197,6 @@ class StudyDef:
     @property
     def factor_names(self) -> tuple[str, ...]:
         return tuple(f.name for f in self.factors)
-
-
-def _json_safe(d: dict) -> dict:
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 
 # ---------------------------------------------------------------------------- loading
@@ -275,22 +271,23 @@ def parse_study(text: str, file: str = "<string>") -> StudyDef:
     elif "scenario" not in data:
         raise r.error(("study", "base"), "a study TOML without [scenario] needs base = SCENE")
     scene_text = dump_toml(scene_data)
-    sc = _parse_scene(scene_text, scene_file, file, lines, base_lines)
+    sc, ctx = _parse_scene(scene_text, scene_file, file, lines, base_lines)
     name = study.get("name", Path(file).stem if file != "<string>" else sc.name)
-    return _check_study(r, study, sc, str(name), base or sc.name, text, scene_text, scene_file)
+    return _check_study(r, study, ctx, str(name), base or sc.name, text, scene_text, scene_file)
 
 
 def _parse_scene(text: str, scene_file: str, file: str, lines: dict, base_lines: dict):
-    """The merged scene; an error is placed in the study file if it wrote the key, else
-    in the base scene."""
-    from ..loader import parse_scenario
+    """The merged scene and its :class:`~.factors.SceneContext`; an error is placed in the
+    study file if it wrote the key, else in the base scene."""
+    from ..loader import _key_parts, parse_scenario
 
     try:
-        return parse_scenario(text, scene_file)
+        sc = parse_scenario(text, scene_file)
+        return sc, scene_context(sc)
     except ScenarioError as exc:
-        path = tuple(exc.key.replace('"', "").split("."))
+        path = _key_parts(exc.key)
         message = str(exc).split(f"key '{exc.key}': ", 1)[-1]
-        if line_of(lines, path) and path[0] in lines and file != scene_file:
+        if line_of(lines, path) and file != scene_file:
             raise StudyError(file, exc.key, message, line_of(lines, path)) from None
         raise StudyError(scene_file, exc.key, message, line_of(base_lines, path)) from None
 
@@ -418,7 +415,7 @@ def scene_context(sc):
 _CONTEXTS: dict = {}
 
 
-def _check_study(r: _Reader, study, sc, name, base, text, scene_text, scene_file) -> StudyDef:
+def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_file) -> StudyDef:
     S = ("study",)
     kind = r.choice(study, S, "kind", KINDS)
     seed = r.integer(study, S, "seed", 0)
@@ -435,11 +432,6 @@ def _check_study(r: _Reader, study, sc, name, base, text, scene_text, scene_file
     for key in refused:
         if key in study:
             raise r.error((*S, key), f"kind '{kind}' does not use [study.{key}]; remove it")
-    try:
-        ctx = scene_context(sc)
-    except ScenarioError as exc:
-        message = str(exc).split(f"key '{exc.key}': ", 1)[-1]
-        raise StudyError(exc.file, exc.key, message, exc.line) from None
     if kind == "grid":
         factors, method, options = _grid(r, study["grid"], ctx), "grid", {}
         options["grid_shape"] = [len(f.values) for f in factors]
@@ -486,7 +478,7 @@ def _target(r: _Reader, path: tuple, name: str, ctx):
     try:
         return ctx.target(name)
     except ParameterError as exc:
-        raise r.error(path, f"'{name}': {exc.allowed} ({str(exc).rsplit('(', 1)[-1]}") from None
+        raise r.error(path, describe(exc)) from None
 
 
 def _values(r: _Reader, raw, path: tuple, target) -> tuple[float, ...]:
@@ -506,7 +498,7 @@ def _values(r: _Reader, raw, path: tuple, target) -> tuple[float, ...]:
         raise r.error(path, f"{raw!r}: the values repeat")
     for v in values:
         if not target.contains(v):
-            raise r.error(path, f"{v:g} {target.unit} is outside {target.allowed()}")
+            raise r.error(path, target.refusal(v))
     return values
 
 
@@ -593,7 +585,7 @@ def _distribution(r: _Reader, dist: str, raw, path: tuple, unit: str, check) -> 
             raise r.error(path, f"{raw!r}: need low < high")
         for v in (low, high):
             if not check.contains(v):
-                raise r.error(path, f"{v:g} {unit} is outside {check.allowed()}")
+                raise r.error(path, check.refusal(v))
         return (low, high)
     keys = ("mean", "std") if dist == "normal" else ("median", "sigma")
     r.table(raw, path, keys, keys)
@@ -604,7 +596,7 @@ def _distribution(r: _Reader, dist: str, raw, path: tuple, unit: str, check) -> 
     if dist == "lognormal" and not center > 0:
         raise r.error((*path, keys[0]), f"{raw[keys[0]]!r}: a lognormal median must be > 0")
     if not check.contains(center):
-        raise r.error((*path, keys[0]), f"{center:g} {unit} is outside {check.allowed()}")
+        raise r.error((*path, keys[0]), check.refusal(center))
     return (center, spread)
 
 
