@@ -157,13 +157,13 @@ class StudyDef:
     scene_text: str
     scene_file: str
     file: str = "<string>"
+    description: str = ""
 
     def definition(self) -> dict:
-        """Canonical, JSON-serialisable; equal iff the same study (``max_samples``, the
-        cap, and the file names are left out)."""
+        """Canonical, JSON-serialisable; equal iff the same study: the scene it runs (base
+        and overrides merged), the factors, design, metrics and series. The name, the
+        description, how the base is written and ``max_samples`` (a cap) are left out."""
         return {
-            "name": self.name,
-            "base": self.base,
             "scene": tomllib.loads(self.scene_text),
             "kind": self.kind,
             "method": self.method,
@@ -471,6 +471,7 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
         scene_text=scene_text,
         scene_file=scene_file,
         file=r.file,
+        description=r.text(study, ("study",), "description", ""),
     )
 
 
