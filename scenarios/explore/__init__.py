@@ -5,3 +5,13 @@ checked by :mod:`.spec`, its sample points made by :mod:`.designs`, each sample 
 and reduced to named metrics by :mod:`.evaluate` (with :mod:`.metrics`). Heavy libraries
 (dask, xarray, zarr, SALib) are imported only inside the functions that need them.
 """
+
+from importlib import resources
+
+
+def packaged_studies() -> dict:
+    """Studies shipped with the package (``studies/*.toml``): name -> resource, sorted by
+    name; light (no model, no CasADi), for listings."""
+    root = resources.files(__name__) / "studies"
+    found = {p.name.removesuffix(".toml"): p for p in root.iterdir() if p.name.endswith(".toml")}
+    return dict(sorted(found.items()))

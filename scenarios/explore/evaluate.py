@@ -2,10 +2,12 @@
 the base scene, simulate with the scene's solver from the start equilibrium, reduce to
 metrics.
 
-A sample that fails (a solver error, a value the model refuses) is recorded with status
-1 and its one-line message and never stops the batch. Models are flattened once per
-process and structure (:func:`~.factors.model_for`), compiled ``radau`` code is loaded
-once per model; the scene is bound once per process and study (:func:`context`).
+A sample that fails (a solver error, a value the model refuses, CasADi's RuntimeError) is
+recorded with status 1 and its one-line message and never stops the batch; a programming
+error (TypeError, KeyError, ...) is not a sample's failure and propagates. Models are
+flattened once per process and structure (:func:`~.factors.model_for`), compiled
+``radau`` code is loaded once per model; the scene is bound once per process and study
+(:func:`context`).
 """
 
 from __future__ import annotations
@@ -84,7 +86,7 @@ def evaluate_batch(study: StudyDef, indices) -> BatchResult:
                 for s, v in mx.series_values(res, study.series).items():
                     series[s][j] = v
             errors[j] = "; ".join(notes)
-        except (SarcomereError, ValueError, ArithmeticError) as exc:
+        except (SarcomereError, ValueError, ArithmeticError, RuntimeError) as exc:
             status[j] = 1
             errors[j] = _one_line(exc)
             for v in out.values():

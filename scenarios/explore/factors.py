@@ -81,6 +81,9 @@ class Target:
 
 # ---------------------------------------------------------------------------- models
 
+#: Models kept per process (a study over many structures keeps the latest).
+MAX_MODELS = 32
+
 _MODELS: dict[tuple, Model] = {}
 _PROBES: dict[tuple, tuple[tuple[str, float], ...] | None] = {}
 BUILDS = {"models": 0, "probes": 0}
@@ -92,6 +95,8 @@ def model_for(binding: dynamic.Binding, key: tuple, fidelity: str, n: int, aps: 
     ``key`` (the scene's structure) and reused."""
     full_key = (key, fidelity, n, aps)
     if full_key not in _MODELS:
+        if len(_MODELS) >= MAX_MODELS:
+            del _MODELS[next(iter(_MODELS))]  # the oldest
         _MODELS[full_key] = dataclasses.replace(binding, aps=aps).build(fidelity, n)
         BUILDS["models"] += 1
     return _MODELS[full_key]

@@ -34,6 +34,7 @@ from sarcomere.dynamics.files import path_kind, read_text
 from sarcomere.dynamics.units import to_si
 
 from ..spec import describe, did_you_mean, dotted, line_of, unknown_key
+from . import packaged_studies
 
 KINDS = ("grid", "sample", "sensitivity")
 SAMPLE_METHODS = ("lhs", "sobol", "montecarlo")
@@ -182,10 +183,13 @@ class StudyDef:
         return hashlib.sha256(text.encode()).hexdigest()
 
     def design(self):
-        """The sample points (:class:`~.designs.Design`)."""
+        """The sample points (:class:`~.designs.Design`); a StudyError if a point drawn
+        from a normal or lognormal lies outside its parameter's range."""
         from .designs import make_design
 
-        return make_design(self)
+        design = make_design(self)
+        _check_draws(self, design)
+        return design
 
     def scene(self):
         """The base scene with this study's overrides (a
@@ -199,14 +203,31 @@ class StudyDef:
         return tuple(f.name for f in self.factors)
 
 
+def _check_draws(study: StudyDef, design) -> None:
+    """Refuse a design whose unbounded draws (normal, lognormal) leave a factor's range,
+    naming the factor, the first such value and the range."""
+    from ..loader import key_lines
+
+    ctx = None
+    for j, f in enumerate(study.factors):
+        if f.dist not in ("normal", "lognormal"):
+            continue
+        r = _Reader(study.file, key_lines(study.source_text))
+        path = ("study", "factors", f.name, f.dist)
+        ctx = ctx or scene_context(study.scene())
+        target = ctx.target(f.name)
+        check = _relative_target(r, path, target, ctx) if f.relative else target
+        bad = [v for v in design.points[:, j] if not check.contains(v)]
+        if bad:
+            i = int(np.flatnonzero(design.points[:, j] == bad[0])[0])
+            raise r.error(
+                path,
+                f"sample {i} draws {check.refusal(bad[0])} ({len(bad)} of {len(design.points)} "
+                "draws outside); narrow the distribution or use uniform",
+            )
+
+
 # ---------------------------------------------------------------------------- loading
-
-
-def packaged_studies() -> dict:
-    """Studies shipped with the package: name -> resource, sorted by name."""
-    root = resources.files("sarcomere.scenarios.explore") / "studies"
-    found = {p.name.removesuffix(".toml"): p for p in root.iterdir() if p.name.endswith(".toml")}
-    return dict(sorted(found.items()))
 
 
 def _resolve(source: str | Path, anchor: Path | None = None) -> tuple[str, str]:

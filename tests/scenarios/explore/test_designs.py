@@ -135,3 +135,15 @@ def test_family_members_meet_the_calibration_targets():
             assert got[key] == pytest.approx(target, rel=1e-6), (m.L_r, key)
     with pytest.raises(KeyError, match="no calibration family member"):
         designs.family_member(5e-3)
+
+
+def test_normal_draws_outside_the_range_are_refused_before_work():
+    from sarcomere.scenarios.explore.spec import StudyError
+
+    body = '[study.sample]\nmethod = "montecarlo"\ncount = 64\n'
+    body += '[study.factors."aps.k_s"]\nnormal = {mean = "700 N/m", std = "500 N/m"}\n'
+    s = study("sample", body)
+    with pytest.raises(StudyError, match=r'factors."aps.k_s".normal\': sample \d+ draws -?\d'):
+        s.design()
+    narrow = study("sample", body.replace("500 N/m", "50 N/m"))
+    assert narrow.design().points.min() > 0
