@@ -140,7 +140,14 @@ class SeriesDef:
 @dataclass(frozen=True)
 class StudyDef:
     """A checked study. Plain data: it pickles (it travels to Dask workers); the scene is
-    parsed again from ``scene_text`` where it is needed (:meth:`scene`)."""
+    parsed again from ``scene_text`` where it is needed (:meth:`scene`).
+
+    ``method``: "grid", "lhs", "sobol", "montecarlo", "sobol-saltelli" or "morris";
+    ``count``: the number of samples; ``options``: the design's settings as sorted
+    (key, value) pairs: ``grid_shape``; ``count``; ``base_count``, ``calc_second_order``
+    (Sobol') or ``levels`` (Morris) and ``metrics`` (the metrics to analyse).
+    ``source_text``: the study file's text; ``scene_text``: the merged scene (TOML).
+    """
 
     name: str
     base: str
@@ -487,7 +494,9 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
         batch=batch,
         max_samples=max_samples,
         count=count,
-        options=tuple(sorted((k, v) for k, v in options.items() if k != "metrics")),
+        options=tuple(
+            sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in options.items())
+        ),
         source_text=text,
         scene_text=scene_text,
         scene_file=scene_file,
