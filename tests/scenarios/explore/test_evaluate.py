@@ -177,3 +177,13 @@ def _units(values: dict):
     from sarcomere.dynamics.components.aps import APSParams
 
     return [(k, v, APSParams.unit(k)) for k, v in values.items()]
+
+
+def test_points_given_by_the_caller_skip_the_design(fresh_caches):
+    s = study(
+        '[study.grid]\npressure = ["0.09 MPa", "0.1 MPa"]\n[study.metrics]\nnames = ["stroke"]\n'
+    )
+    rows = np.array([[1e5]])
+    given = evaluate_batch(s, [1], points=rows)
+    assert evaluate._CONTEXTS[s.fingerprint()]._design is None  # never made here
+    assert given.metrics["stroke"].tolist() == evaluate_batch(s, [1]).metrics["stroke"].tolist()
