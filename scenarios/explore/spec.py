@@ -541,9 +541,31 @@ def _grid(r: _Reader, tbl, ctx) -> tuple[Factor, ...]:
     out = []
     for name, raw in tbl.items():
         target = _target(r, (*path, name), name, ctx)
+        _check_aps(r, (*path, name), target, ctx, discrete=True)
         values = _values(r, raw, (*path, name), target)
         out.append(Factor(name, target.unit, "discrete", values, long_name=target.long_name))
     return tuple(out)
+
+
+def _check_aps(r: _Reader, path: tuple, target, ctx, discrete: bool) -> None:
+    """Refuse an APS field that sets no parameter of the model (it would change nothing),
+    or one that is not a run-time parameter (one model per value) drawn continuously."""
+    if target.category != "aps":
+        return
+    from .factors import aps_map
+
+    b, field = ctx.binding, target.name.removeprefix("aps.")
+    mapped = aps_map(b, ctx.key, ctx.fidelity, b.n, field)
+    where = f"fidelity '{ctx.fidelity}', thermal '{b.aps.thermal}'"
+    if mapped == ():
+        raise r.error(path, f"'{target.name}' sets no parameter of this model ({where})")
+    if mapped is None and not discrete:
+        raise r.error(
+            path,
+            f"'{target.name}' is not a run-time parameter of this model ({where}; its base "
+            f"value {getattr(b.aps, field):g} {target.unit}): each value builds a model; "
+            "give levels = [...]",
+        )
 
 
 def _factors(r: _Reader, tbl, ctx, kind: str) -> tuple[Factor, ...]:
@@ -563,6 +585,7 @@ def _factor(r: _Reader, name: str, item, path: tuple, ctx, kind: str) -> Factor:
             path, f"give exactly one of {', '.join(DISTRIBUTIONS)} (got {given or 'none'})"
         )
     dist = given[0]
+    _check_aps(r, path, target, ctx, dist == "levels")
     relative = item.get("relative", False)
     if not isinstance(relative, bool):
         raise r.error((*path, "relative"), f"{relative!r}: expected true or false")

@@ -187,3 +187,17 @@ def test_points_given_by_the_caller_skip_the_design(fresh_caches):
     given = evaluate_batch(s, [1], points=rows)
     assert evaluate._CONTEXTS[s.fingerprint()]._design is None  # never made here
     assert given.metrics["stroke"].tolist() == evaluate_batch(s, [1]).metrics["stroke"].tolist()
+
+
+def test_a_structural_aps_field_builds_one_model_per_level(fresh_caches):
+    s = study(
+        '[study.grid]\n"aps.C3" = ["0 Pa", "2 kPa"]\n[study.metrics]\nnames = ["length_final"]\n'
+    )
+    before = factors.BUILDS["models"]
+    got = evaluate_batch(s, [0, 1])
+    assert factors.BUILDS["models"] - before == 1  # C3 = 0 is the base model
+    text = packaged_scenarios()["step-50g"].read_text(encoding="utf-8")
+    sc = parse_scenario(text + '\n[parameters]\n"aps.C3" = "2 kPa"\n', "scene.toml")
+    L = dynamic._simulate(sc, dynamic.bind(sc), "full")[1]["myofibril.length"]
+    assert got.metrics["length_final"][1] == pytest.approx(L[-1], abs=1e-8)
+    assert abs(got.metrics["length_final"][1] - got.metrics["length_final"][0]) > 1e-6

@@ -162,6 +162,20 @@ def test_bad_grid_is_one_line_naming_key_value_and_what_is_allowed(change, fragm
         (('"aps.k_s"', "family"), ["levels"]),
         (('"aps.k_s"', '"aps.thermal"'), ["aps.thermal", "nearest"]),
         (('"aps.k_s"', '"regulator.p_max"'), ["regulator.p_max", "built into the model"]),
+        (
+            (
+                '"aps.k_s"]\nuniform = ["600 N/m", "800 N/m"]',
+                '"aps.h_jz"]\nuniform = ["1 mm", "3 mm"]',
+            ),
+            ["'aps.h_jz' sets no parameter of this model", "thermal 'isothermal'"],
+        ),
+        (
+            (
+                '"aps.k_s"]\nuniform = ["600 N/m", "800 N/m"]',
+                '"aps.C3"]\nuniform = ["0 Pa", "1 kPa"]',
+            ),
+            ["'aps.C3' is not a run-time parameter", "base value 0 Pa", "levels"],
+        ),
     ],
 )
 def test_bad_sample_study_is_one_line(change, fragments):
