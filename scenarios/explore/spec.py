@@ -482,6 +482,7 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
             "points or raise [study] max_samples",
         )
     metrics, series = _metrics(r, study, ctx, kind, options)
+    _check_every_n(r, factors, metrics, series, ctx, kind)
     return StudyDef(
         name=name,
         base=base,
@@ -503,6 +504,26 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
         file=r.file,
         description=r.text(study, ("study",), "description", ""),
     )
+
+
+def _check_every_n(r: _Reader, factors, metrics, series, ctx, kind: str) -> None:
+    """With ``n`` a factor: every model parameter factor and named signal exists at every
+    n (``myofibril.aps3...`` does not at n = 2)."""
+    n_factor = next((f for f in factors if f.name == "n"), None)
+    params = [f.name for f in factors if f.name not in OPTION_FACTORS and "." in f.name]
+    params = [p for p in params if not p.startswith("aps.")]
+    signals = [m.signal for m in metrics if m.signal] + list(series.signals if series else ())
+    if n_factor is None or not (params or signals):
+        return
+    section = "grid" if kind == "grid" else "factors"
+    for n in n_factor.values:
+        model = ctx.model_at(int(n))
+        for name in params:
+            if name not in model.param_names:
+                raise r.error(("study", section, name), f"no parameter '{name}' at n = {n:g}")
+        for name in signals:
+            if name not in model.signal_names:
+                raise r.error(("study", section, "n"), f"n = {n:g} has no signal '{name}'")
 
 
 def _target(r: _Reader, path: tuple, name: str, ctx):

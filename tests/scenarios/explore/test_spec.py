@@ -255,3 +255,17 @@ def test_missing_file_is_a_study_error(tmp_path):
         load_study("no-such-study")
     with pytest.raises(StudyError, match="missing"):
         load_study(str(tmp_path / "x.toml"))
+
+
+def test_parameters_and_signals_must_exist_at_every_n():
+    n = "[study.grid]\nn = [2, 3]\n"
+    refused(
+        GRID.replace("[study.grid]", n.strip()) + "[study.metrics]\nvalue_at = {p3 = "
+        '{signal = "myofibril.aps3.chamber.p_gauge", time = "1 s"}}\n',
+        "study.grid.n",
+        "n = 2 has no signal 'myofibril.aps3.chamber.p_gauge'",
+    )
+    refused(
+        GRID.replace("[study.grid]", n.strip() + '\n"myofibril.tube3.C" = ["2e-9 m^3/(s*Pa)"]'),
+        "no parameter 'myofibril.tube3.C' at n = 2",
+    )
