@@ -720,7 +720,7 @@ def _sensitivity(r: _Reader, tbl, factors) -> tuple[str, dict]:
 
 
 def _metrics(r: _Reader, study, ctx, kind, options):
-    from .metrics import STANDARD, chambers, value_at_metric
+    from .metrics import STANDARD, chambers, metric_signals, value_at_metric
 
     path = ("study", "metrics")
     tbl = r.table(study.get("metrics", {}), path, ("names", "value_at"))
@@ -740,6 +740,9 @@ def _metrics(r: _Reader, study, ctx, kind, options):
             f"'air_mass' sums every unit's chamber; fidelity '{ctx.fidelity}' does not name "
             "each (use 'full')",
         )
+    for n in out:
+        if not metric_signals(n, ctx.model.signal_names):
+            raise r.error((*path, "names"), f"'{n}': the model has no signal it reads")
     sim = ctx.scene.simulation
     for label, spec in r.table(tbl.get("value_at", {}), (*path, "value_at")).items():
         where = (*path, "value_at", label)
