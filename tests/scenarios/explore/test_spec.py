@@ -269,3 +269,21 @@ def test_parameters_and_signals_must_exist_at_every_n():
         GRID.replace("[study.grid]", n.strip() + '\n"myofibril.tube3.C" = ["2e-9 m^3/(s*Pa)"]'),
         "no parameter 'myofibril.tube3.C' at n = 2",
     )
+
+
+def test_base_is_a_scene_relative_to_the_study_file(tmp_path):
+    scene = tmp_path / "scenes" / "mine.toml"
+    scene.parent.mkdir()
+    from sarcomere.scenarios.catalog import packaged_scenarios
+
+    scene.write_text(packaged_scenarios()["step-50g"].read_text(encoding="utf-8"))
+    study = tmp_path / "s.toml"
+    study.write_text(GRID.replace('"step-50g"', '"scenes/mine.toml"'))
+    assert load_study(study).scene_file == str(scene)
+    study.write_text(GRID.replace('"step-50g"', '"design-map"'))  # a study is not a scene
+    with pytest.raises(StudyError, match="study.base.: no such file or packaged scene"):
+        load_study(study)
+    scene.write_text("[scenario\n")
+    study.write_text(GRID.replace('"step-50g"', '"scenes/mine.toml"'))
+    with pytest.raises(StudyError, match="mine.toml: key '\\(toml syntax\\)': TOML syntax"):
+        load_study(study)
