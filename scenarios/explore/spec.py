@@ -262,7 +262,9 @@ def _resolve(source: str | Path, anchor: Path | None = None) -> tuple[str, str]:
     hint = did_you_mean(text, names) if bare else ""
     packaged = "packaged scene" if anchor else "packaged study or scene"
     what = f"no such file or {packaged}" if bare else f"{kind}"
-    raise StudyError(text, "study" if anchor is None else "study.base", f"{what}{hint}")
+    if anchor is None:
+        raise StudyError(text, "study", f"{what}{hint}")
+    raise StudyError(str(anchor), "study.base", f"'{text}': {what}{hint}")
 
 
 def load_study(source: str | Path) -> StudyDef:

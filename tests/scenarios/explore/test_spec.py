@@ -281,7 +281,9 @@ def test_base_is_a_scene_relative_to_the_study_file(tmp_path):
     study.write_text(GRID.replace('"step-50g"', '"scenes/mine.toml"'))
     assert load_study(study).scene_file == str(scene)
     study.write_text(GRID.replace('"step-50g"', '"design-map"'))  # a study is not a scene
-    with pytest.raises(StudyError, match="study.base.: no such file or packaged scene"):
+    with pytest.raises(
+        StudyError, match="s.toml: key 'study.base': 'design-map': no such file or packaged scene"
+    ):
         load_study(study)
     scene.write_text("[scenario\n")
     study.write_text(GRID.replace('"step-50g"', '"scenes/mine.toml"'))
