@@ -491,6 +491,7 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
         )
     metrics, series = _metrics(r, study, ctx, kind, options)
     _check_every_n(r, factors, metrics, series, ctx, kind)
+    _check_family(r, factors, kind)
     return StudyDef(
         name=name,
         base=base,
@@ -512,6 +513,26 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
         file=r.file,
         description=r.text(study, ("study",), "description", ""),
     )
+
+
+def _check_family(r: _Reader, factors, kind: str) -> None:
+    """Refuse an absolute APS factor the family member also sets (which would win?)."""
+    from .designs import family_member
+
+    if "family" not in {f.name for f in factors}:
+        return
+    fields = family_member(FAMILY_DEFAULT_L_R)
+    for f in factors:
+        if f.name.startswith("aps.") and f.name[4:] in fields and not f.relative:
+            raise r.error(
+                ("study", "grid" if kind == "grid" else "factors", f.name),
+                f"the family member sets {f.name}; scale it with relative = true or remove "
+                f"family ({', '.join(fields)} come with each member)",
+            )
+
+
+#: Any member's L_r (only its field names are used).
+FAMILY_DEFAULT_L_R = 20e-3
 
 
 def _check_every_n(r: _Reader, factors, metrics, series, ctx, kind: str) -> None:

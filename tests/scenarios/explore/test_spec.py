@@ -160,6 +160,10 @@ def test_bad_grid_is_one_line_naming_key_value_and_what_is_allowed(change, fragm
         (("seed = 3\n", ""), ["study.seed", "missing"]),
         (('method = "lhs"', 'method = "halton"'), ["'halton'", "lhs, sobol, montecarlo"]),
         (('"aps.k_s"', "family"), ["levels"]),
+        (
+            ("[study.factors", '[study.factors.family]\nlevels = "all"\n[study.factors'),
+            ["the family member sets aps.k_s", "relative = true"],
+        ),
         (('"aps.k_s"', '"aps.thermal"'), ["aps.thermal", "nearest"]),
         (('"aps.k_s"', '"regulator.p_max"'), ["regulator.p_max", "built into the model"]),
         (
