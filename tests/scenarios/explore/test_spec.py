@@ -293,3 +293,17 @@ def test_base_is_a_scene_relative_to_the_study_file(tmp_path):
     study.write_text(GRID.replace('"step-50g"', '"scenes/mine.toml"'))
     with pytest.raises(StudyError, match="mine.toml: key '\\(toml syntax\\)': TOML syntax"):
         load_study(study)
+
+
+def test_a_study_section_in_a_scene_file(tmp_path):
+    from sarcomere.scenarios.catalog import packaged_scenarios
+
+    scene = packaged_scenarios()["step-50g"].read_text(encoding="utf-8")
+    path = tmp_path / "scene-study.toml"
+    path.write_text(scene + '\n[study]\nkind = "grid"\n[study.grid]\nload = ["10 g", "30 g"]\n')
+    s = load_study(path)
+    assert s.base == "step-50g" and s.scene_file == str(path) and s.count == 2
+    assert s.scene().name == "step-50g" and "study" not in s.definition()["scene"]
+    path.write_text(scene.replace('kind = "transient"', 'kind = "transient"\nbogus = 1'))
+    with pytest.raises(StudyError, match="missing the \\[study\\] table"):
+        load_study(path)
