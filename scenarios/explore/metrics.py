@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dynamic import RISE_MIN_STROKE_M, rise_time
-from .spec import MetricDef
+from .metric_def import MetricDef
 
 LENGTH = "myofibril.length"
 

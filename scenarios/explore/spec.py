@@ -35,6 +35,7 @@ from sarcomere.dynamics.units import to_si
 
 from ..spec import describe, did_you_mean, dotted, line_of, unknown_key
 from . import packaged_studies
+from .metric_def import MetricDef
 
 KINDS = ("grid", "sample", "sensitivity")
 SAMPLE_METHODS = ("lhs", "sobol", "montecarlo")
@@ -115,18 +116,6 @@ class Factor:
     def definition(self) -> dict:
         """Canonical JSON-serialisable form."""
         return dataclasses.asdict(self)
-
-
-@dataclass(frozen=True)
-class MetricDef:
-    """A named scalar per sample: unit (SI) and long name; ``signal``/``time`` for a value
-    at a named time."""
-
-    name: str
-    unit: str
-    long_name: str
-    signal: str = ""
-    time: float | None = None
 
 
 @dataclass(frozen=True)
