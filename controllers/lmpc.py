@@ -40,7 +40,7 @@ from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .qp import qp_solver, zoh
+from .qp import zoh
 from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
 from .registry import positive, register_controller
 
@@ -76,7 +76,9 @@ class LMPCSettings:
     output : str
         The tracked signal.
     qp_solver : str
-        "daqp" (default) or "qpoases".
+        The QP solver :meth:`LinearMPC.update` evaluates the law with: "daqp" (default),
+        "qpoases" or "qrqp" (the one the controller FMU's generated C uses; slow
+        interpreted, see :data:`LAW_QP`).
     """
 
     horizon: int = 20
@@ -120,8 +122,9 @@ class VelocityQP:
     weight_y, weight_du, weight_slack : float
     u_scale : numpy.ndarray
         Scale of each input [SI]: the QP's unknowns are ``du / u_scale``.
-    solver : casadi.Function
-        A conic solver for the sparsities :meth:`sparsities` gives.
+    solver : casadi.Function or None
+        A conic solver for the sparsities :meth:`sparsities` gives, for :meth:`solve`
+        (None in :class:`LinearMPC`: its law, :func:`velocity_law`, solves the QP).
     """
 
     Ad: np.ndarray
@@ -133,7 +136,7 @@ class VelocityQP:
     weight_du: float
     weight_slack: float
     u_scale: np.ndarray
-    solver: cs.Function
+    solver: cs.Function | None
     H: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
@@ -180,6 +183,12 @@ class VelocityQP:
         A[N * nu :, N * nu :] = np.kron(np.ones((N, 1)), np.eye(ns))
         self.A = A
 
+    def data(self) -> np.ndarray:
+        """The condensed QP as one flat vector (the ``p`` part :func:`law_function` reads):
+        ``H, G, Gr, A, Ssx`` column-major, then ``u_scale`` and ``weight_slack``."""
+        parts = (self.H, self._G, self._Gr, self.A, self._Ssx, self.u_scale, [self.weight_slack])
+        return np.concatenate([np.ravel(np.asarray(a, float), order="F") for a in parts])
+
     def sparsities(self) -> tuple[cs.Sparsity, cs.Sparsity]:
         """Dense sparsities of the Hessian and the constraint matrix."""
         return cs.Sparsity.dense(*self.H.shape), cs.Sparsity.dense(*self.A.shape)
@@ -213,6 +222,109 @@ class VelocityQP:
         v = np.array(sol["x"]).ravel()
         ok = bool(self.solver.stats()["success"]) and bool(np.all(np.isfinite(v)))
         return (v[: N * nu].reshape(N, nu) * self.u_scale if ok else None), ok
+
+
+LAW_QP = {
+    "qrqp": {
+        "print_iter": False,
+        "print_header": False,
+        "print_info": False,
+        "error_on_fail": False,
+        "max_iter": 200,
+    },
+    "daqp": {"error_on_fail": False},
+    "qpoases": {"printLevel": "none", "error_on_fail": False},
+}
+"""QP solvers of :func:`velocity_law`. ``qrqp`` (CasADi's own active-set solver) is the
+one whose C code CasADi generates without an external library (the generated code of DAQP
+includes ``daqp/api.h``, qpOASES and HPIPM link theirs): the controller FMU's law. It is
+slow in CasADi's virtual machine (8 ms for the 24-unknown, 100-row QP of control-length,
+5 iterations; DAQP 0.3 ms), so the Python LMPC evaluates the same Function built with
+``LMPCSettings.qp_solver`` (default DAQP); both solve the same strictly convex QP."""
+
+LAW_TOL = 1e-6
+"""Largest scaled constraint violation of the QP's answer still accepted [-] (the solver's
+own flag is not reachable from inside a Function)."""
+
+
+def velocity_law(nx: int, nu: int, ns: int, horizon: int, solver: str = "qrqp") -> cs.Function:
+    """One sample of the LMPC at a fixed linearisation as one CasADi Function::
+
+        lmpc(memory, x, u_prev, ref, p) -> (memory_next, u, ok)
+
+    ``memory = [x_prev (nx); started (1); plan (horizon nu, column-major nu x horizon)]``:
+    the states at the last sample, whether there was one, and the last plan of inputs [SI];
+    ``x = [states (nx); tracked output (1); soft signals (ns)]`` [SI] as measured now;
+    ``u_prev`` the input held since the last sample [SI]; ``ref`` the reference now
+    (clipped) and at nodes ``1..horizon`` [SI]; ``p = [VelocityQP.data(); u_lo; u_hi;
+    du_max; soft_min]`` (:meth:`LinearMPC.law_parameters`). The QP (``solver``, one of
+    :data:`LAW_QP`) is solved for the moves; ``u`` is the first input of the new plan
+    clipped into the bounds, or, when the answer is not feasible to :data:`LAW_TOL`
+    (``ok = 0``), of the last plan shifted by one sample. Re-linearisation is outside: it
+    changes ``p``.
+    """
+    N, n = horizon, nx + 1
+    nq, nv, na = N * nu, N * nu + ns, N * (nu + ns)
+    mem = cs.MX.sym("memory", nx + 1 + nq)
+    x, u_prev = cs.MX.sym("x", nx + 1 + ns), cs.MX.sym("u_prev", nu)
+    ref = cs.MX.sym("ref", N + 1)
+    sizes = [nv * nv, nq * n, nq * N, na * nv, N * ns * n, nu, 1, nu, nu, nu, ns]
+    p = cs.MX.sym("p", sum(sizes))
+    H, G, Gr, A, Ssx, us, ws, lo, hi, dmax, smin = cs.vertsplit(p, np.cumsum([0, *sizes]).tolist())
+    H, G, Gr = cs.reshape(H, nv, nv), cs.reshape(G, nq, n), cs.reshape(Gr, nq, N)
+    A, Ssx = cs.reshape(A, na, nv), cs.reshape(Ssx, N * ns, n)
+    x_prev, started, plan = mem[:nx], mem[nx], cs.reshape(mem[nx + 1 :], nu, N)
+    dx = cs.if_else(started > 0, x[:nx] - x_prev, cs.MX.zeros(nx))
+    xi0 = cs.vertcat(dx, x[nx] - ref[0])
+    gap = smin - x[nx + 1 :]
+    g = cs.vertcat(cs.mtimes(G, xi0) - cs.mtimes(Gr, ref[1:] - ref[0]), cs.repmat(ws, ns, 1))
+    lba = cs.vertcat(cs.repmat(lo - u_prev, N, 1), cs.repmat(gap, N, 1) - cs.mtimes(Ssx, xi0))
+    uba = cs.vertcat(cs.repmat(hi - u_prev, N, 1), cs.DM.inf(N * ns))
+    lbx = cs.vertcat(cs.repmat(-dmax / us, N, 1), cs.DM.zeros(ns))
+    ubx = cs.vertcat(cs.repmat(dmax / us, N, 1), cs.DM.inf(ns))
+    if solver not in LAW_QP:
+        raise ParameterError("lmpc.qp_solver", solver, f"one of {sorted(LAW_QP)}")
+    qp = cs.conic("lmpc_qp", solver, {"h": H.sparsity(), "a": A.sparsity()}, LAW_QP[solver])
+    v = qp(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)["x"]
+    Av = cs.mtimes(A, v)
+    scale = 1 + cs.fabs(Av)
+    viol = cs.mmax(cs.vertcat((lba - Av) / scale, (Av - uba) / scale, lbx - v, v - ubx, 0))
+    finite = cs.sum1(cs.fabs(v) < cs.inf) == nv  # false for a NaN
+    ok = cs.logic_and(viol <= LAW_TOL, finite)
+    moves = cs.reshape(v[:nq], nu, N) * cs.repmat(us, 1, N)
+    solved = cs.repmat(u_prev, 1, N) + cs.cumsum(moves, 1)
+    shifted = cs.horzcat(plan[:, 1:], plan[:, -1])
+    new = cs.if_else(ok, solved, shifted)
+    u = cs.fmin(cs.fmax(new[:, 0], lo), hi)
+    return cs.Function(
+        "lmpc",
+        [mem, x, u_prev, ref, p],
+        [cs.vertcat(x[:nx], 1, cs.vec(new)), u, ok],
+        ["memory", "x", "u_prev", "ref", "p"],
+        ["memory_next", "u", "ok"],
+    )
+
+
+class _Buffered:
+    """Repeated calls of a CasADi Function on bound numpy arrays (``Function.buffer``:
+    about 1 us per call instead of some 30 us of conversions per argument)."""
+
+    def __init__(self, F: cs.Function) -> None:
+        self.function = F
+        self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
+        self.res = [np.zeros(F.nnz_out(i)) for i in range(F.n_out())]
+        self.buf, self.trigger = F.buffer()
+        for i, arr in enumerate(self.args):
+            self.buf.set_arg(i, memoryview(arr))
+        for i, arr in enumerate(self.res):
+            self.buf.set_res(i, memoryview(arr))
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        """Arguments as flat arrays; copies of the outputs."""
+        for arr, value in zip(self.args, args, strict=True):
+            arr[:] = value
+        self.trigger()
+        return [r.copy() for r in self.res]
 
 
 class LinearMPC(RecedingHorizon):
@@ -266,14 +378,34 @@ class LinearMPC(RecedingHorizon):
         self._lin = model.linearization([s.output, *self._soft])
         self._du_max = np.full(len(names), s.rate_max * self.dt)
         self._u_scale = self._u_hi - self._u_lo
-        n_v = s.horizon * len(names) + len(self._soft)
-        n_a = s.horizon * (len(names) + len(self._soft))
-        self._solver = qp_solver(
-            s.qp_solver, cs.Sparsity.dense(n_v, n_v), cs.Sparsity.dense(n_a, n_v)
-        )
+        self._law = _Buffered(self.law_function())
         self.relinearizations = 0
         self._qp = self._linearize(np.asarray(x_op, float), np.asarray(u_op, float))
         self.reset(u_op)
+
+    def law_function(self, solver: str | None = None) -> cs.Function:
+        """The law of one sample at a fixed linearisation, :func:`velocity_law` for this
+        controller's sizes: :meth:`update` evaluates it every sample with
+        ``settings.qp_solver`` (after re-linearising when due, which only changes
+        :meth:`law_parameters`); the controller FMU generates C code from it with
+        ``solver="qrqp"`` (the default of :func:`velocity_law`: no external library)."""
+        s = self.settings
+        return velocity_law(
+            self.model.nx, len(self.inputs), len(self._soft), s.horizon, solver or s.qp_solver
+        )
+
+    def law_parameters(self) -> np.ndarray:
+        """The ``p`` of :meth:`law_function` at the present linearisation: the condensed
+        QP (:meth:`VelocityQP.data`), the input bounds, the largest move per sample and the
+        soft lower bounds [SI]."""
+        return np.concatenate(
+            [self._qp.data(), self._u_lo, self._u_hi, self._du_max, self._soft_min]
+        )
+
+    @property
+    def memory(self) -> np.ndarray:
+        """The ``memory`` of :meth:`law_function` now (see :func:`velocity_law`)."""
+        return self._memory.copy()
 
     def _linearize(self, x: np.ndarray, u: np.ndarray) -> VelocityQP:
         A, B, C, _ = (np.array(M) for M in self._lin(x, np.zeros(0), u, self._p))
@@ -281,17 +413,19 @@ class LinearMPC(RecedingHorizon):
         s = self.settings
         qp = VelocityQP(
             Ad, Bd, C[:1], C[1:], s.horizon, s.weight_y, s.weight_du, s.weight_slack,
-            self._u_scale, self._solver,
+            self._u_scale, None,
         )  # fmt: skip
         out = self.model.signals_function([s.output])(x, np.zeros(0), u, self._p)
         self._y_lin, self._p_lin = float(out), self._p.copy()
         self._lin_point = (x.copy(), u.copy(), self._y_lin)
         self.relinearizations += 1
+        self._p_law = None  # rebuilt by law_parameters() on the next update
         return qp
 
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
-        self._x_prev: np.ndarray | None = None
+        nx, N = self.model.nx, self.settings.horizon
+        self._memory = np.concatenate([np.zeros(nx + 1), np.tile(self._u, N)])
 
     def as_iosystem(self) -> ct.NonlinearIOSystem:
         """The law as a discrete python-control I/O system, in deviations from the point of
@@ -300,15 +434,18 @@ class LinearMPC(RecedingHorizon):
         ``state_names + [output]``), output the input; states the last states and input.
         A linear plant needs no re-linearisation, reference clip or soft bound: none here.
         """
-        m, n = self.model, self.model.nx
+        m, n, N, ns = self.model, self.model.nx, self.settings.horizon, len(self._soft)
         x_op, u_op, _ = self._lin_point
-        off = np.full(len(self._soft), -np.inf)  # soft bounds inactive
+        p = self.law_parameters()
+        p[len(p) - ns :] = -np.inf  # soft bounds inactive
+        f = self.law_function()
 
         def law(xs, inp):
             x_prev, u_prev, x = x_op + xs[:n], u_op + xs[n:], x_op + inp[1 : 1 + n]
-            xi0 = np.concatenate([x - x_prev, [inp[1 + n] - inp[0]]])
-            du, ok = self._qp.solve(xi0, u_prev, self._u_lo, self._u_hi, self._du_max, off)
-            return np.clip(u_prev + du[0] if ok else u_prev, self._u_lo, self._u_hi)
+            memory = np.concatenate([x_prev, [1.0], np.tile(u_prev, N)])
+            meas = np.concatenate([x, [inp[1 + n]], np.zeros(ns)])
+            _, u, _ = f(memory, meas, u_prev, np.full(N + 1, inp[0]), p)
+            return np.array(u).ravel()
 
         return ct.nlsys(
             lambda t, xs, inp, params: np.concatenate([inp[1 : 1 + n], law(xs, inp) - u_op]),
@@ -332,14 +469,16 @@ class LinearMPC(RecedingHorizon):
         moved = np.abs(self._p - self._p_lin) > s.relinearize_rel * np.abs(self._p_lin)
         if abs(out - self._y_lin) > s.relinearize_m or np.any(moved):
             self._qp = self._linearize(x, self._u)
-        dx = np.zeros_like(x) if self._x_prev is None else x - self._x_prev
-        self._x_prev = x
-        soft_now = np.array([y[n] for n in self._soft], dtype=float) if self._soft else None
-        gap = self._soft_min - soft_now if self._soft else np.zeros(0)
-        xi0 = np.concatenate([dx, [out - ref]])
-        ahead = self.nodes(ref) - ref  # the reference ahead, relative to r(t)
-        du, ok = self._qp.solve(xi0, self._u, self._u_lo, self._u_hi, self._du_max, gap, ahead)
-        return self.apply(self._u + np.cumsum(du, axis=0) if ok else None)
+        if self._p_law is None:
+            self._p_law = self.law_parameters()
+        meas = np.concatenate([x, [out], [y[n] for n in self._soft]])
+        refs = np.concatenate([[ref], self.nodes(ref)])
+        self._memory, u, ok = self._law(self._memory, meas, self._u, refs, self._p_law)
+        if not ok[0]:
+            self.stats.fallbacks += 1
+        self._plan = self._memory[self.model.nx + 1 :].reshape(s.horizon, -1)
+        self._u = u
+        return dict(zip(self.inputs, u.tolist(), strict=True))
 
 
 def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Controller:
