@@ -35,14 +35,17 @@ import control as ct
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import Equilibrium
-from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
+from .disturbance import DISTURBANCES, RANDOM_WALK, DisturbanceFilter, check_disturbance
+from .ekf import DEFAULT_STD, estimated_parameters
 from .qp import zoh
 from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
 from .registry import positive, register_controller
+from .target import SteadyTarget
 
 
 @dataclass(frozen=True)
@@ -73,6 +76,21 @@ class LMPCSettings:
     relinearize_rel : float
         Re-linearise when a parameter (one set at run time, e.g. an estimated load) moved
         this fraction of its value at the last point [-] (default 5 %: 3.5 g of 70 g).
+    relinearize_x : float
+        Re-linearise when a state moved this fraction of its span over the input range
+        (the difference of its values at the two ends, at the nominal parameters) from the
+        last point [-] (default a quarter; states equal at both ends, the velocities, do
+        not count: they are zero at every steady state).
+    relinearize_u : float
+        Re-linearise when an input moved this fraction of its range ``u_max - u_min``
+        from the last point [-] (default a quarter).
+    disturbance : str or None
+        The disturbance model of the LMPC's own Kalman filter (:mod:`.disturbance`):
+        "load", "input", "output" or "none"; None (default): "load" where the model has a
+        ``load.m``, else "input".
+    input_std, output_std : float or None
+        The filter's noise: of the input [Pa] (default 2 kPa, the EKF's) and of the
+        tracked output as read [SI] (None: :data:`~.ekf.DEFAULT_STD` of its unit).
     output : str
         The tracked signal.
     qp_solver : str
@@ -91,6 +109,11 @@ class LMPCSettings:
     weight_slack: float = 1.0e4
     relinearize_m: float = 2.0e-3
     relinearize_rel: float = 0.05
+    relinearize_x: float = 0.25
+    relinearize_u: float = 0.25
+    disturbance: str | None = None
+    input_std: float = 2.0e3
+    output_std: float | None = None
     output: str = "myofibril.length"
     qp_solver: str = "daqp"
 
@@ -102,6 +125,13 @@ class LMPCSettings:
         positive("lmpc", "weight_slack", self.weight_slack)
         positive("lmpc", "relinearize_m", self.relinearize_m)
         positive("lmpc", "relinearize_rel", self.relinearize_rel)
+        positive("lmpc", "relinearize_x", self.relinearize_x)
+        positive("lmpc", "relinearize_u", self.relinearize_u)
+        positive("lmpc", "input_std", self.input_std, allow_zero=True)
+        if self.output_std is not None:
+            positive("lmpc", "output_std", self.output_std)
+        if self.disturbance is not None and self.disturbance not in DISTURBANCES:
+            raise ParameterError("lmpc.disturbance", self.disturbance, f"one of {DISTURBANCES}")
         if not self.u_min < self.u_max:
             raise ParameterError("lmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
 
@@ -379,8 +409,30 @@ class LinearMPC(RecedingHorizon):
         self._du_max = np.full(len(names), s.rate_max * self.dt)
         self._u_scale = self._u_hi - self._u_lo
         self._law = _Buffered(self.law_function())
-        self.relinearizations = 0
-        self._qp = self._linearize(np.asarray(x_op, float), np.asarray(u_op, float))
+        if model.nz:
+            raise ParameterError("lmpc.model", model.name, "an explicit model (no algebraic)")
+        kind = s.disturbance or ("load" if "load.m" in model.param_names else "input")
+        self.disturbance = check_disturbance("lmpc", kind, model.param_names)
+        ends = np.vstack([e.x for e in self.clip.ends])
+        big = np.abs(ends).max(axis=0)
+        big = np.where(big > 1e-12, big, 1e-2)  # velocities (zero at rest): 1 cm/s
+        self._x_span = np.abs(ends[1] - ends[0])
+        self._x_moves = self._x_span > 1e-6 * big  # not the velocities
+        scale = np.concatenate([big, self._u_scale])
+        self._target = SteadyTarget(model, s.output, scale)
+        self._x_floor = 1e-6 * scale[: model.nx]
+        self._y_std = s.output_std or DEFAULT_STD.get(model.unit(s.output), 1e-6)
+        z = cs.SX(0, 1)
+        fy = cs.vertcat(
+            model.function("ode")(model.x, z, model.u, model.p),
+            model.signals_function([s.output])(model.x, z, model.u, model.p),
+        )
+        k_m = model.param_names.index("load.m") if "load.m" in model.param_names else 0
+        self._k_m = k_m
+        self._fy = cs.Function(
+            "fy", [model.x, model.u, model.p], [fy, cs.jacobian(fy, model.p)[:, k_m]]
+        )
+        self._op = (np.asarray(x_op, float).copy(), np.asarray(u_op, float).copy())
         self.reset(u_op)
 
     def law_function(self, solver: str | None = None) -> cs.Function:
@@ -408,24 +460,120 @@ class LinearMPC(RecedingHorizon):
         return self._memory.copy()
 
     def _linearize(self, x: np.ndarray, u: np.ndarray) -> VelocityQP:
-        A, B, C, _ = (np.array(M) for M in self._lin(x, np.zeros(0), u, self._p))
+        """The QP of the model linearised at ``(x, u)`` with the present parameters and
+        disturbances; the disturbance filter restarts there (its variance kept)."""
+        s, nx = self.settings, self.model.nx
+        d_in, d_out = self._d
+        ue = u + d_in
+        A, B, C, D = (np.array(M) for M in self._lin(x, np.zeros(0), ue, self._p))
         Ad, Bd = zoh(A, B, self.dt)
-        s = self.settings
+        fy, fy_m = (np.array(v, dtype=float).ravel() for v in self._fy(x, ue, self._p))
+        _, drift = zoh(A, fy[:nx, None], self.dt)  # one sample's motion of the point itself
         qp = VelocityQP(
             Ad, Bd, C[:1], C[1:], s.horizon, s.weight_y, s.weight_du, s.weight_slack,
             self._u_scale, None,
         )  # fmt: skip
-        out = self.model.signals_function([s.output])(x, np.zeros(0), u, self._p)
-        self._y_lin, self._p_lin = float(out), self._p.copy()
+        self._y_lin, self._p_lin, self._d_lin = (
+            float(fy[nx]) + d_out,
+            self._p.copy(),
+            self._d.copy(),
+        )
         self._lin_point = (x.copy(), u.copy(), self._y_lin)
+        self._drift, self._D = drift[:, 0], D[0]
         self.relinearizations += 1
         self._p_law = None  # rebuilt by law_parameters() on the next update
+        if self.disturbance == "none":
+            return qp
+        if self.disturbance == "load":
+            _, Ed = zoh(A, fy_m[:nx, None], self.dt)
+            E = np.concatenate([Ed[:, 0], fy_m[nx:]])
+        elif self.disturbance == "input":
+            E = np.concatenate([Bd[:, 0], D[0]])
+        else:
+            E = np.concatenate([np.zeros(nx), [1.0]])
+        S = np.zeros((nx + 1, nx + 1))
+        S[:nx, :nx] = s.input_std**2 * Bd @ Bd.T + np.diag(self._x_floor**2)
+        S[nx, nx] = self._y_std**2
+        q = self.dt * RANDOM_WALK[self.disturbance] ** 2
+        variance = 10 * q if self._filter is None else self._filter.variance
+        self._filter = DisturbanceFilter(E, S, q, variance)
         return qp
+
+    @property
+    def disturbance_estimate(self) -> float:
+        """The estimated disturbance now [SI]: the load mass [kg], the input offset [Pa],
+        the output offset [SI], or 0 for ``"none"``."""
+        if self.disturbance == "load":
+            return float(self._p[self._k_m])
+        return float(self._d[0] if self.disturbance == "input" else self._d[1])
+
+    def _estimate(self, x: np.ndarray, out: float) -> None:
+        """Correct the disturbance filter with this sample's residual (module docstring of
+        :mod:`.disturbance`) and move the disturbance the prediction uses."""
+        nx, qp = self.model.nx, self._qp
+        x_l, u_l, y_l = self._lin_point
+        du = self._u - u_l
+        e_x = x - x_l - qp.Ad @ (self._memory[:nx] - x_l) - qp.Bd @ du - self._drift
+        e_y = out - y_l - qp.C[0] @ (x - x_l) - self._D @ du
+        d = self._filter.update(np.concatenate([e_x, [e_y]]))
+        if self.disturbance == "load":
+            self._p[self._k_m] = self._p_lin[self._k_m] + d
+        else:
+            self._d[0 if self.disturbance == "input" else 1] = (
+                self._d_lin[0 if self.disturbance == "input" else 1] + d
+            )
+
+    def _far(self, x: np.ndarray, u: np.ndarray, y: float) -> bool:
+        """Whether ``(x, u, y)`` is past a threshold from the linearisation point: the
+        output, a state (of its span) or the input (of its range); see
+        :class:`LMPCSettings`."""
+        s = self.settings
+        x_l, u_l, y_l = self._lin_point
+        moved = np.abs(x - x_l)[self._x_moves] > s.relinearize_x * self._x_span[self._x_moves]
+        return bool(
+            abs(y - y_l) > s.relinearize_m
+            or np.any(moved)
+            or np.any(np.abs(u - u_l) > s.relinearize_u * self._u_scale)
+        )
+
+    def _moved(self) -> bool:
+        """Whether a parameter or a disturbance moved past its threshold from the values
+        at the linearisation (:class:`LMPCSettings`)."""
+        s = self.settings
+        dd = np.abs(self._d - self._d_lin)
+        return bool(
+            np.any(np.abs(self._p - self._p_lin) > s.relinearize_rel * np.abs(self._p_lin))
+            or dd[0] > s.relinearize_u * self._u_scale[0]
+            or dd[1] > s.relinearize_m
+        )
+
+    def _relinearize(self, x: np.ndarray, ref: float, moved: bool) -> None:
+        """Linearise at the target: the steady state with the output on ``ref`` at the
+        present parameters and disturbances (:class:`~.target.SteadyTarget`). Where these
+        did not move (``moved`` false: the measurement left the point) and the target is
+        still near the present point (the loop is on its way there), or where there is no
+        target (counted in :attr:`targets_missed`), at the measured point ``(x, u)``. Newton
+        starts from the last target found (a steady state)."""
+        try:
+            xs, us = self._target(self._steady, ref, self._p, *self._d)
+        except SolverError:
+            self.targets_missed += 1
+            xs, us = x, self._u
+        else:
+            self._steady = np.concatenate([xs, us])
+            if not (moved or self._far(xs, us, ref - self._d[1])):
+                xs, us = x, self._u
+        self._qp = self._linearize(xs, us)
 
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
         nx, N = self.model.nx, self.settings.horizon
         self._memory = np.concatenate([np.zeros(nx + 1), np.tile(self._u, N)])
+        # the operating point's model again, with the nominal parameters, no disturbance
+        self._d, self._filter = np.zeros(2), None
+        self.relinearizations, self.targets_missed = 0, 0
+        self._steady = np.concatenate(self._op)
+        self._qp = self._linearize(*self._op)
 
     def as_iosystem(self) -> ct.NonlinearIOSystem:
         """The law as a discrete python-control I/O system, in deviations from the point of
@@ -466,9 +614,11 @@ class LinearMPC(RecedingHorizon):
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
         out = float(y[s.output])
         ref = self.clip(r)
-        moved = np.abs(self._p - self._p_lin) > s.relinearize_rel * np.abs(self._p_lin)
-        if abs(out - self._y_lin) > s.relinearize_m or np.any(moved):
-            self._qp = self._linearize(x, self._u)
+        if self._filter is not None and self._memory[self.model.nx] > 0:
+            self._estimate(x, out)
+        moved = self._moved()
+        if moved or self._far(x, self._u, out):
+            self._relinearize(x, ref, moved)
         if self._p_law is None:
             self._p_law = self.law_parameters()
         meas = np.concatenate([x, [out], [y[n] for n in self._soft]])
@@ -488,8 +638,17 @@ def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     ``tension_min`` (if set) becomes a soft lower bound on every thread tension. Own keys:
     the other :class:`LMPCSettings` fields, ``estimator`` ("none", or "ekf": run on an
     EKF fed the ``measured`` signals, see :mod:`.estimated`) and ``ekf`` (its settings).
+    The output's noise (``noise_std``) sets ``output_std`` unless given. On an EKF that
+    estimates a parameter of the model (by default the load), the estimate is fed to the
+    LMPC and ``disturbance`` defaults to "none" (the EKF's estimate, not a second one).
     """
     own, est, ekf_settings = mpc_settings("lmpc", model, settings, LMPCSettings, {})
+    noise = (settings.get("noise_std") or {}).get(settings["output"])
+    if own["output_std"] is None and noise:
+        own["output_std"] = float(noise)
+    if est == "ekf" and "disturbance" not in settings:
+        fed = set(estimated_parameters(model, ekf_settings)) & set(model.param_names)
+        own["disturbance"] = "none" if fed else own["disturbance"]
     tmin = settings.get("tension_min")
     soft = own.pop("soft_min")
     if tmin is not None:

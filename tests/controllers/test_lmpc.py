@@ -54,14 +54,21 @@ def test_rate_limit_and_bound_are_active(plant):
     assert np.all(np.abs(np.diff(mpc._plan[:, 0])) <= 5e3 + 1e-6)
 
 
-def test_relinearized_when_the_output_moved_far(plant):
+def test_relinearized_at_the_target_when_the_output_moved_far(plant):
+    """Past ``relinearize_m`` the model is linearised at the target: the steady state with
+    the output on the reference (here the 80 kPa equilibrium, solved independently)."""
     model, eq = plant
-    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(relinearize_m=1e-4))
+    # the state jumps (no filter) and the input stays behind (no input trigger)
+    s = LMPCSettings(relinearize_m=1e-4, relinearize_u=1.0, disturbance="none")
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, s)
     mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})
     assert mpc.relinearizations == 1
     far = solve_equilibrium(model, {P: 8e4})  # 0.5 mm shorter
     mpc.checked(0.01, measure(mpc, far), {L: far[L]})
-    assert mpc.relinearizations == 2 and mpc._y_lin == pytest.approx(far[L], rel=1e-12)
+    x_l, u_l, y_l = mpc._lin_point
+    assert mpc.relinearizations == 2 and y_l == pytest.approx(far[L], rel=1e-12)
+    assert u_l[0] == pytest.approx(8e4, rel=1e-9)
+    assert x_l == pytest.approx(far.x, rel=1e-8, abs=1e-12)
     mpc.checked(0.02, measure(mpc, far), {L: far[L]})
     assert mpc.relinearizations == 2  # near the new point: kept
 

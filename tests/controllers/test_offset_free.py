@@ -6,9 +6,9 @@ LMPC re-linearises at a parameter fed to it."""
 import numpy as np
 import pytest
 
-from sarcomere.controllers import make_controller
+from sarcomere.controllers import make_controller, operating_point
 from sarcomere.controllers.base import Controller
-from sarcomere.controllers.lmpc import LinearMPC
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.controllers.qp import zoh
 from sarcomere.dynamics import Simulator, hanging_load, solve_equilibrium
@@ -128,9 +128,12 @@ def test_the_integral_stays_an_option_on_the_ekf():
 
 
 def test_the_lmpc_relinearises_at_a_parameter_set_at_run_time():
+    """A parameter fed from outside (an EKF's load; the LMPC's own filter off) moved past
+    ``relinearize_rel``: the QP's model becomes the linearisation at the steady state
+    for the reference at the new load (solved independently by ``operating_point``)."""
     plant = hanging_load(1, load_kg=0.02)
     eq = solve_equilibrium(plant, {P: 5e4})
-    mpc = LinearMPC(plant, eq.x, eq.u, 0.01)
+    mpc = LinearMPC(plant, eq.x, eq.u, 0.01, LMPCSettings(u_max=3e5, disturbance="none"))
     y = {n: eq[n] for n in mpc.outputs}
     mpc.checked(0.0, y, {L: eq[L]})
     assert mpc.relinearizations == 1
@@ -141,13 +144,14 @@ def test_the_lmpc_relinearises_at_a_parameter_set_at_run_time():
     mpc.set_parameters({M: m0 + 0.05})
     mpc.checked(0.02, y, {L: eq[L]})
     assert mpc.relinearizations == 2 and mpc.parameters[M] == m0 + 0.05
-    # the QP's model is the linearisation at the new load, not at the nominal one
+    heavy = operating_point(plant, {P: 5e4}, {M: m0 + 0.05}, target=(L, eq[L]), tol=1e-12)
+    x_l, u_l, _ = mpc._lin_point
+    assert u_l[0] == pytest.approx(heavy.u[0], rel=1e-8)
     lin = plant.linearization([L])
-    heavy = np.array(plant.parameters({M: m0 + 0.05}), dtype=float).ravel()
-    A, B, *_ = (np.array(X) for X in lin(eq.x, np.zeros(0), eq.u, heavy))
-    A0, *_ = (np.array(X) for X in lin(eq.x, np.zeros(0), eq.u, plant.parameters()))
+    A, B, *_ = (np.array(X) for X in lin(heavy.x, np.zeros(0), heavy.u, heavy.p))
+    A0, *_ = (np.array(X) for X in lin(eq.x, np.zeros(0), eq.u, eq.p))
     Ad, _ = zoh(A, B, 0.01)
-    assert np.allclose(mpc._qp.Ad, Ad, rtol=1e-12, atol=1e-12)
+    assert np.allclose(mpc._qp.Ad, Ad, rtol=1e-6, atol=1e-9)
     assert not np.allclose(A, A0, rtol=1e-3)
 
 
