@@ -51,13 +51,37 @@ def test_the_rti_functions_parameter_input_is_the_value_given(prediction):
     mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(solver="rti"))
     F = mpc.engine.step
     i = F.function.name_in().index("p")
-    assert F.function.nnz_in(i) == len(model.param_names)
-    mpc.set_parameters({M: 0.0567})
+    # the model's parameters, then the input and output disturbances
+    assert F.function.nnz_in(i) == len(model.param_names) + 2
+    assert mpc.runtime_parameters[-2:] == ("disturbance.input", "disturbance.output")
+    mpc.set_parameters({M: 0.0567, "disturbance.input": 123.0})
     mpc.checked(0.0, {n: eq[n] for n in mpc.outputs}, {L: eq[L]})
     passed = F.args[i]
     assert passed[model.param_names.index(M)] == 0.0567
     expected = np.array(model.parameters({M: 0.0567}), dtype=float).ravel()
-    assert np.array_equal(passed, expected)
+    assert np.array_equal(passed, [*expected, 123.0, 0.0])
+
+
+@pytest.mark.parametrize("offset", ["disturbance.input", "disturbance.output"])
+def test_an_offset_fed_to_the_nmpc_is_the_one_predicted_with(prediction, offset):
+    """Told the plant adds 10 kPa to its command (or 0.2 mm to its measured length), the
+    NMPC holds the steady state that has the output on the reference with it: 10 kPa
+    less (or the equilibrium 0.2 mm longer, solved independently)."""
+    model, eq = prediction
+    settings = NMPCSettings(solver="rti", u_max=3e5, integral_gain=0.0)
+    if offset == "disturbance.input":
+        value, state = 1e4, eq
+        u_hold = eq.u[0] - 1e4
+    else:  # the true length is 0.2 mm shorter than measured: the target is that length
+        value = 2e-4
+        state = operating_point(model, {P: 5e4}, target=(L, eq[L] - 2e-4), tol=1e-12)
+        u_hold = state.u[0]
+    mpc = NonlinearMPC(model, np.array([u_hold]), 0.01, settings)
+    mpc.set_parameters({offset: value})
+    y = {n: state[n] for n in mpc.outputs}
+    for k in range(3):
+        u = mpc.checked(0.01 * k, y, {L: eq[L]})[P]
+        assert u == pytest.approx(u_hold, abs=1.0)
 
 
 def test_bad_parameters_are_refused(prediction):
