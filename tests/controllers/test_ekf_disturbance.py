@@ -2,7 +2,6 @@
 parameters), the NMPC's disturbance models fed from them, and the EKF's refusal of the
 DAE fidelity level."""
 
-import numpy as np
 import pytest
 
 from sarcomere.controllers import make_controller
