@@ -108,7 +108,8 @@ class NMPCSettings:
         The tracked signal.
     integral_gain : float
         Integral action [1/s]: the reference given to the optimiser is moved by
-        ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound), so
+        ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound or
+        moves at the rate limit: anti-windup), so
         a load or model error the prediction does not know leaves no steady offset; 0
         turns it off (:func:`make_nmpc` on an EKF that feeds the load estimate defaults to
         0: the prediction then knows the load).
@@ -516,9 +517,14 @@ class NonlinearMPC(RecedingHorizon):
         # integral action shifts it by the integrated error, kept inside the reachable range
         nodes = self.nodes(ref)
         shifted = np.clip(nodes + self._offset, self.clip.low, self.clip.high)
+        u_prev = self._u.copy()
         plan, ok = self.engine.solve(x, self._u, shifted, self._p)
         u = self.apply(plan if ok else None)
-        if np.all((self._u > self._u_lo) & (self._u < self._u_hi)):  # no windup at a bound
+        # anti-windup: no integration while the command is held by a bound or moves at
+        # the rate limit (the optimiser could not follow a larger shift either)
+        at_rate = np.abs(self._u - u_prev) >= self.settings.rate_max * self.dt * (1 - 1e-6)
+        at_bound = (self._u <= self._u_lo) | (self._u >= self._u_hi)
+        if not np.any(at_rate | at_bound):
             error = ref - float(y[self.settings.output])
             self._offset += self.settings.integral_gain * self.dt * error
         return u

@@ -196,3 +196,26 @@ def test_the_lmpc_on_the_ekfs_load_settles_faster():
     still 0.19 mm off 2.5 s after the step, at the estimated 70 g a few micrometres."""
     fed, nominal = lmpc_load_step_residual(True), lmpc_load_step_residual(False)
     assert fed < 2e-5 and nominal > 1e-4
+
+
+def test_the_integral_does_not_wind_up_while_the_command_moves_at_the_rate_limit(prediction):
+    """A 2 mm step with 2 kPa per sample: the command ramps at the rate limit for many
+    samples, far from its bounds; the integral of the error is frozen on each of them
+    (it grew on every one before), and integrates again once the command is free."""
+    model, eq = prediction
+    s = NMPCSettings(solver="rti", u_max=3e5, rate_max=2e5, integral_gain=5.0)
+    mpc = NonlinearMPC(model, eq.u, 0.01, s)
+    sim = Simulator(model)
+    sim.reset(x0=eq.x)
+    ramp, free = 0, 0
+    for k in range(60):
+        before, u_prev = mpc._offset, mpc._u[0]
+        u = mpc.checked(0.01 * k, sim.signals(mpc.outputs), {L: eq[L] - 2e-3})[P]
+        assert 0.0 < u < 3e5  # never at a bound
+        if abs(u - u_prev) >= 2e3 * (1 - 1e-6):
+            ramp += 1
+            assert mpc._offset == before
+        elif mpc._offset != before:
+            free += 1
+        sim.step({P: u}, 0.01)
+    assert ramp >= 10 and free >= 10
