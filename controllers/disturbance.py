@@ -25,7 +25,8 @@ and ``d y / d m``; ``input``: ``Bd`` and ``D``; ``output``: zero and 1) and ``S`
 process noise of the input (``dt std_u^2 Bd Bd^T``), a floor of ``(1e-6 scale)^2`` on
 each state and the output's noise variance. The estimate is relative to the
 linearisation's value; it restarts at 0 (keeping its variance) when the model is
-re-linearised there.
+re-linearised there. The linear MPC keeps the total inside a range (the load's; the
+input's range either side of 0; the reachable output span either side of 0).
 """
 
 from __future__ import annotations

@@ -15,14 +15,24 @@ is known ahead, else ``r(t)`` held; ``e_k - (r_k - r(t))`` in the increments); i
 bounds and rate limits are hard (``du = 0`` always satisfies them, so the QP is always
 feasible); lower bounds on other signals (e.g. thread tension) are soft, with one slack
 per signal (linear and quadratic penalty). The QP is condensed (only the moves and slacks
-are unknowns) and solved by ``casadi.conic`` (qpOASES or DAQP), built once; each sample
-passes flat numeric vectors.
+are unknowns). One sample at a fixed linearisation is one CasADi Function,
+:func:`velocity_law` (``(memory, x, u_prev, ref, p) -> (memory_next, u, ok)``, the QP
+inside, its matrices in ``p``): :meth:`LinearMPC.update` evaluates it every sample (DAQP),
+and the controller FMU generates its C code (qrqp, no external library).
 
-The model is re-linearised at the measured point ``(x, u)`` when the tracked output has
-moved more than ``relinearize_m`` (default 2 mm, about a quarter of the 8.8 mm 3-APS stroke at
-20 g) from where it was last linearised, or when a parameter set at run time
-(:meth:`~.receding.RecedingHorizon.set_parameters`, e.g. the EKF's load estimate) moved more
-than ``relinearize_rel`` (default 5 %) of its value there.
+Outside the law, between samples: a Kalman filter of one constant disturbance on the
+states read (:mod:`.disturbance`; ``disturbance = "load"`` by default: the load mass), and
+re-linearisation. The model is re-linearised when the tracked output moved more than
+``relinearize_m`` (2 mm), a state more than ``relinearize_x`` of its span over the input
+range, or the input more than ``relinearize_u`` of its range from the point of the last
+linearisation, or when a parameter (the filter's load, or one set at run time by
+:meth:`~.receding.RecedingHorizon.set_parameters`, e.g. an EKF's) moved more than
+``relinearize_rel`` (5 %) of its value there, or a disturbance past the input or output
+threshold. The new point is the target (:class:`~.target.SteadyTarget`): the steady state
+with the output on the reference at the present load and disturbances, so after +50 g
+the model is the 70 g plant's where it is going (the 20 g model on the 70 g plant rang at
+3 Hz in the control-length scene); where only the measurement left the point and the
+target did not move, the measured point.
 """
 
 from __future__ import annotations
@@ -429,6 +439,15 @@ class LinearMPC(RecedingHorizon):
         )
         k_m = model.param_names.index("load.m") if "load.m" in model.param_names else 0
         self._k_m = k_m
+        # the range of the estimate: the load's, +-the input range, +-the reachable span
+        if self.disturbance == "load":
+            var = model.variables["load.m"]
+            self._d_range = (var.low, var.high)
+        elif self.disturbance == "input":
+            self._d_range = (-self._u_scale[0], self._u_scale[0])
+        else:
+            span = self.clip.high - self.clip.low
+            self._d_range = (-span, span)
         self._fy = cs.Function(
             "fy", [model.x, model.u, model.p], [fy, cs.jacobian(fy, model.p)[:, k_m]]
         )
@@ -517,11 +536,16 @@ class LinearMPC(RecedingHorizon):
         e_y = out - y_l - qp.C[0] @ (x - x_l) - self._D @ du
         d = self._filter.update(np.concatenate([e_x, [e_y]]))
         if self.disturbance == "load":
-            self._p[self._k_m] = self._p_lin[self._k_m] + d
+            base = self._p_lin[self._k_m]
         else:
-            self._d[0 if self.disturbance == "input" else 1] = (
-                self._d_lin[0 if self.disturbance == "input" else 1] + d
-            )
+            k = 0 if self.disturbance == "input" else 1
+            base = self._d_lin[k]
+        value = float(np.clip(base + d, *self._d_range))
+        self._filter.value = value - base  # kept inside its range, like the EKF's
+        if self.disturbance == "load":
+            self._p[self._k_m] = value
+        else:
+            self._d[k] = value
 
     def _far(self, x: np.ndarray, u: np.ndarray, y: float) -> bool:
         """Whether ``(x, u, y)`` is past a threshold from the linearisation point: the
