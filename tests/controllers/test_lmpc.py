@@ -264,3 +264,29 @@ def test_update_is_the_law_function_and_qrqp_gives_the_same_moves(plant):
         assert float(u_q) == pytest.approx(u, rel=1e-9)
         assert np.array(mem_q).ravel() == pytest.approx(mpc.memory, rel=1e-9)
     assert u > 4e4 + 1e3  # it moved
+
+
+def test_relinearized_on_the_state_distance_and_on_the_input_distance(plant):
+    """Each trigger alone (the others set out of reach): a jump to the 80 kPa equilibrium
+    moves the chamber's air mass about 40 % of its span over 0-0.1 MPa (past a quarter);
+    a reference 2 mm shorter ramps the command past 5 % of its range in a few samples."""
+    model, eq = plant
+    far = solve_equilibrium(model, {P: 8e4})
+    only_x = LMPCSettings(relinearize_m=1.0, relinearize_u=10.0, disturbance="none")
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, only_x)
+    mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})
+    assert mpc.relinearizations == 1
+    mpc.checked(0.01, measure(mpc, far), {L: far[L]})
+    assert mpc.relinearizations == 2  # the state moved
+    only_u = LMPCSettings(
+        relinearize_m=1.0, relinearize_x=10.0, relinearize_u=0.05, disturbance="none"
+    )
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, only_u)
+    y, held = measure(mpc, eq), [4e4]
+    for k in range(10):
+        held.append(mpc.checked(0.01 * k, y, {L: eq[L] - 2e-3})[P])
+        if mpc.relinearizations == 2:
+            break
+    # re-linearised at the first sample whose held command had left the 5 kPa band
+    assert mpc.relinearizations == 2
+    assert abs(held[-2] - 4e4) > 5e3 and abs(held[-3] - 4e4) <= 5e3
