@@ -408,6 +408,15 @@ class LinearMPC(RecedingHorizon):
     params : mapping of str to float, optional
         Parameter overrides of ``model`` by name (SI), e.g. the plant's load.
 
+    Attributes
+    ----------
+    disturbance : str
+        The model of its own disturbance filter ("load", "input", "output", "none").
+    relinearizations : int
+        Linearisations since the last reset (the first at ``(x_op, u_op)``).
+    targets_missed : int
+        Re-linearisations where the target had no solution (at the measured point).
+
     Examples
     --------
     >>> from sarcomere.dynamics import hanging_load, solve_equilibrium
