@@ -63,6 +63,9 @@ from .registry import count, positive, register_controller
 SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
 
+LINSOL = "lapackqr"
+"""Linear solver of the lifted Radau equations (see _RealTimeIteration._lifts)."""
+
 QP_FEASIBLE = 1e-6
 """Largest violation (rows scaled by ``1 + |A du|``, bounds in scaled input units) of a QP
 answer the real-time iteration accepts; above it the sample falls back."""
@@ -117,6 +120,11 @@ class NMPCSettings:
         a load or model error the prediction does not know leaves no steady offset; 0
         turns it off (:func:`make_nmpc` on an EKF that feeds the load estimate defaults to
         0: the prediction then knows the load).
+    terminal_weight : float
+        Extra weight of the squared tracking error at the last node [1/m^2], added to
+        ``weight_y`` there (default 0: the 0.2 s horizon outlasts the regulator lag and
+        the chain's settling, so the last node needs no extra pull; raise it for short
+        horizons).
     soft_constraints : bool
         Soften the thread-tension bounds (default true): every bound row of every node
         gets a slack ``s >= 0`` [N] costing ``tension_l1 s + tension_l2 s^2``; false keeps
@@ -144,6 +152,7 @@ class NMPCSettings:
     qp_solver: str = "daqp"
     output: str = "myofibril.length"
     integral_gain: float = 5.0
+    terminal_weight: float = 0.0
     soft_constraints: bool = True
     tension_l1: float = 1.0e6
     tension_l2: float = 1.0e6
@@ -155,6 +164,7 @@ class NMPCSettings:
         positive("nmpc", "weight_du", self.weight_du, allow_zero=True)
         positive("nmpc", "rate_max", self.rate_max)
         positive("nmpc", "tol", self.tol)
+        positive("nmpc", "terminal_weight", self.terminal_weight, allow_zero=True)
         positive("nmpc", "tension_l1", self.tension_l1)
         positive("nmpc", "tension_l2", self.tension_l2, allow_zero=True)
         if not isinstance(self.soft_constraints, bool):
@@ -328,26 +338,32 @@ class _RealTimeIteration:
     ``dV0 = -R_V^{-1} R`` and ``S = -R_V^{-1} [R_x, R_v]`` from one factorisation, so
     the interval's end is ``x_end + dx_end`` linear in ``(dx, dv)``. The node gaps, the
     tracking and move residuals (Gauss-Newton) and the linearised tension constraints are
-    condensed onto the input moves ``du``.
+    condensed onto the corrections of the input moves ``dm`` (the QP's variables: the
+    rate limits are then bounds), with one tension slack per node when the bounds are
+    soft.
 
-    Preparation and feedback: everything condensed is affine in the measured state
-    ``x0``, the previous input and the reference, so :attr:`prepare` (memory, x, u_prev,
-    p -> data) does the lifting, the linearisation and the condensing, and
-    :attr:`feedback` (data, memory, x, u_prev, ref -> memory_next, u, violation,
-    fallback) only the affine update of the QP's gradient and bounds, the QP solve and
-    the next guess. The measurement enters the preparation only when memory holds no
-    guess (the first sample, or after a fallback): the guess is then the measured state
-    and the previous input held. :attr:`law` is the composition, one Function.
+    Three Functions, composed into one :attr:`law`:
 
-    Memory layout (:meth:`memory_slices`): the guess ``Xb`` (nx x N+1), ``Ub`` (nu x N),
+    * :attr:`prepare` ``(memory, x, u_prev, p) -> data``: the lifting, the linearisation
+      and the condensing. Everything condensed is affine in the measured state, the
+      previous input and the reference, so none of them enters here, except when memory
+      holds no guess (the first sample, or after a fallback): the guess is then the
+      measured state and the previous input held.
+    * :attr:`feedback` ``(data, memory, x, u_prev, ref) -> (u, violation, fallback,
+      slack, step)``: the affine update of the QP's gradient and bounds, the QP and the
+      command: the measurement-to-command latency.
+    * :attr:`update` ``(data, memory, x, u_prev, step) -> memory_next``: the next guess
+      (the corrected trajectory shifted by one sample) and the plan, after the command.
+
+    Memory layout (:attr:`slices`): the guess ``Xb`` (nx x N+1), ``Ub`` (nu x N),
     ``Vb`` (nx degree x N), all scaled and column-major, a 0/1 flag "holds a guess", the
     last plan [SI] (nu x N) and a 0/1 flag "holds a plan".
 
-    Fallback (exactly :meth:`~.receding.RecedingHorizon.apply`'s logic, by ``if_else``):
-    the QP's answer counts as failed when its violation exceeds :data:`QP_FEASIBLE` or a
-    value is not finite; the guess is then dropped (the next sample restarts from the
-    measurement) and the command is the previous plan shifted by one sample (its last
-    input repeated), else, with no plan yet, the previous input held.
+    Fallback (:meth:`~.receding.RecedingHorizon.apply`'s logic, by ``if_else``): the QP's
+    answer counts as failed when its violation exceeds :data:`QP_FEASIBLE` or the answer
+    or the linearisation is not finite; the guess is then dropped (the next sample
+    restarts from the measurement) and the command is the previous plan shifted by one
+    sample (its last input repeated), else, with no plan yet, the previous input held.
     """
 
     def __init__(self, pb: _Problem) -> None:
@@ -369,26 +385,47 @@ class _RealTimeIteration:
         self._lifts(pb)
         self.prepare = self._prepare_function()
         self.feedback = self._feedback_function()
+        self.update = self._update_function()
         mem, x, u, ref = (cs.MX.sym(n, k) for n, k in self._io())
         p = cs.MX.sym("p", pb.np)
-        out = self.feedback(self.prepare(mem, x, u, p), mem, x, u, ref)
+        data = self.prepare(mem, x, u, p)
+        u_now, viol, fallback, slack, step = self.feedback(data, mem, x, u, ref)
         self.law = cs.Function(
             "nmpc_law",
             [mem, x, u, ref, p],
-            out,
+            [self.update(data, mem, x, u, step), u_now, viol, fallback, slack],
             ["memory", "x", "u_prev", "ref", "p"],
             ["memory_next", "u", "violation", "fallback", "slack"],
         )
         self.step = _Call(self.law)
-        self.memory = np.zeros(self.n_memory)
+        self.calls = {k: _Call(getattr(self, k)) for k in ("prepare", "feedback", "update")}
+        self.reset()
 
     def _io(self) -> list[tuple[str, int]]:
         return [("memory", self.n_memory), ("x", self.pb.nx), ("u_prev", self.pb.nu),
                 ("ref", self.N)]  # fmt: skip
 
     def reset(self) -> None:
-        """Forget the guess and the plan."""
+        """Forget the guess, the plan and the prepared data."""
         self.memory = np.zeros(self.n_memory)
+        self.data: np.ndarray | None = None
+        self.data_p: np.ndarray | None = None
+
+    def sample(self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray):
+        """One sample split as in real time: the preparation made after the previous one
+        (redone now if memory holds no guess or the parameters changed), the feedback,
+        then the update and the next preparation. Equal to :attr:`law` (the same
+        Functions); returns ``(u, violation, fallback, slack)`` as arrays."""
+        c = self.calls
+        if self.data is None or not np.array_equal(p, self.data_p):
+            self.data = c["prepare"](self.memory, x, u_prev, p)[0]
+        u, viol, fallback, slack, step = c["feedback"](self.data, self.memory, x, u_prev, ref)
+        self.memory = c["update"](self.data, self.memory, x, u_prev, step)[0]
+        self.data = None
+        if self.memory[self.slices["has_guess"]][0]:  # between samples: x, u unused
+            self.data = c["prepare"](self.memory, x, u, p)[0]
+            self.data_p = p.copy()
+        return u, viol, fallback, slack
 
     def _lifts(self, pb: _Problem) -> None:
         """The per-interval linearisation (mapped over the horizon) and the outputs'."""
@@ -406,7 +443,7 @@ class _RealTimeIteration:
         Rk, RV, Rp = lin(Vm, xm, vm, pm)
         # LAPACK QR: LU (dgetrf) of this size goes multi-threaded in the OpenBLAS CasADi ships
         # and ran 5-7x slower whenever the other core was busy (QR: 1.4 ms either way)
-        sol = -cs.solve(RV, cs.horzcat(Rk, Rp), "lapackqr")  # [dV0, S]
+        sol = -cs.solve(RV, cs.horzcat(Rk, Rp), LINSOL)  # [dV0, S]
         self.lift = cs.Function("lift", [Vm, xm, vm, pm], [sol]).map(N)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
         self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
@@ -421,7 +458,7 @@ class _RealTimeIteration:
         return Xb, Ub, Vb
 
     def _prepare_function(self) -> cs.Function:
-        """(memory, x, u_prev, p) -> data: the condensed QP affine in the measurement."""
+        """(memory, x, u_prev, p) -> data: the condensed QP, affine in the measurement."""
         pb, N = self.pb, self.N
         s, nx, nu = pb.s, pb.nx, pb.nu
         nq, w = N * nu, 1 + nx + nu
@@ -433,15 +470,11 @@ class _RealTimeIteration:
         YT, CYT = self.outs(Xb[:, 1:], P)
         # node k's state correction: dX_k = c_k + Phi_k a0 + G_k du, a0 = x0 - Xb_0
         c, Phi, G = cs.MX(nx, 1), cs.MX.eye(nx), cs.MX(nx, nq)
-        cc, PP, GG, V0, VA, VU = [c], [Phi], [G], [], [], []
+        cc, PP, GG = [c], [Phi], [G]
         for k in range(N):
-            Lk = L[:, k * w : (k + 1) * w]
-            Sx, Su = Lk[:, 1 : 1 + nx], Lk[:, 1 + nx :]
-            V0.append(Vb[:, k] + Lk[:, 0] + cs.mtimes(Sx, c))
-            VA.append(cs.mtimes(Sx, Phi))
-            VU.append(cs.mtimes(Sx, G) + _at(Su, k, N, nu))
-            Ak, Bk = Sx[-nx:, :], Su[-nx:, :]  # the interval's end
-            c = Vb[-nx:, k] + Lk[-nx:, 0] + cs.mtimes(Ak, c) - Xb[:, k + 1]
+            Lk = L[-nx:, k * w : (k + 1) * w]  # the interval's end
+            Ak, Bk = Lk[:, 1 : 1 + nx], Lk[:, 1 + nx :]
+            c = Vb[-nx:, k] + Lk[:, 0] + cs.mtimes(Ak, c) - Xb[:, k + 1]
             Phi, G = cs.mtimes(Ak, Phi), cs.mtimes(Ak, G) + _at(Bk, k, N, nu)
             cc.append(c), PP.append(Phi), GG.append(G)
         ey0, Ey, Jy, tb0, Et, TJ = [], [], [], [], [], []
@@ -453,36 +486,41 @@ class _RealTimeIteration:
             tb0.append(YT[1:, k] + cs.mtimes(cT, cc[k + 1]))
             Et.append(cs.mtimes(cT, PP[k + 1]))
             TJ.append(cs.mtimes(cT, GG[k + 1]))
-        Jy, Ey = cs.vertcat(*Jy), cs.vertcat(*Ey)
         # the QP's variables are the moves' corrections dm = Dk du (du = C dm, C = Dk^-1):
-        # the rate limits become bounds, which keeps qrqp's active sets regular
+        # the rate limits are then bounds, which keeps the active sets regular
         Dk, C = _moves(N, nu), _cumulative(N, nu)
         Ubv = cs.vec(Ub)
-        m0 = cs.mtimes(Dk, Ubv)  # the guess's moves, but the first from 0
-        wy2, wu2 = s.weight_y, s.weight_du * pb.us[0] ** 2
-        JyC = cs.mtimes(Jy, C)
+        m0 = cs.mtimes(Dk, Ubv)  # the guess's moves, the first from 0
+        wy = np.full(N, s.weight_y)
+        wy[-1] += s.terminal_weight
+        W = cs.DM(np.diag(wy))
+        JyC, Ey = cs.mtimes(cs.vertcat(*Jy), C), cs.vertcat(*Ey)
+        WJ = cs.mtimes(W, JyC)
+        wu2 = s.weight_du * pb.us[0] ** 2
         data = {
             "Xb0": Xb[:, 0],
-            "H": 2 * (wy2 * cs.mtimes(JyC.T, JyC) + wu2 * cs.DM.eye(nq)),
+            "H": 2 * (cs.mtimes(JyC.T, WJ) + wu2 * cs.DM.eye(nq)),
             "AT": cs.mtimes(cs.vertcat(*TJ), C),
-            "g": 2 * (wy2 * cs.mtimes(JyC.T, cs.vertcat(*ey0)) + wu2 * m0),
-            "Ga": 2 * wy2 * cs.mtimes(JyC.T, Ey),
-            "Gr": -2 * wy2 * JyC.T,
+            "g": 2 * (cs.mtimes(WJ.T, cs.vertcat(*ey0)) + wu2 * m0),
+            "Ga": 2 * cs.mtimes(WJ.T, Ey),
+            "Gr": -2 * WJ.T,
             "m0": m0,
             "tb0": cs.vertcat(*tb0),
             "Et": cs.vertcat(*Et),
             "Ub": Ubv,
-            "X0": cs.vec(Xb + cs.horzcat(*cc)),
-            "XA": cs.vertcat(*PP),
-            "XU": cs.mtimes(cs.vertcat(*GG), C),
-            "V0": cs.vertcat(*V0),
-            "VA": cs.vertcat(*VA),
-            "VU": cs.mtimes(cs.vertcat(*VU), C),
+            "Xb": Xb,
+            "Vb": Vb,
+            "L": L,
         }
         self.data_shapes = {k: v.shape for k, v in data.items()}
-        flat = cs.vertcat(*(cs.vec(v) for v in data.values()))
+        flat = cs.densify(cs.vertcat(*(cs.vec(v) for v in data.values())))
+        ok = _finite(flat)  # a linearisation that is not finite is a failed sample
         return cs.Function(
-            "nmpc_prepare", [mem, x, u, p], [flat], ["memory", "x", "u_prev", "p"], ["data"]
+            "nmpc_prepare",
+            [mem, x, u, p],
+            [cs.vertcat(flat, ok)],
+            ["memory", "x", "u_prev", "p"],
+            ["data"],
         )
 
     def _unpack(self, data: cs.MX) -> dict[str, cs.MX]:
@@ -490,38 +528,47 @@ class _RealTimeIteration:
         for name, (r, c) in self.data_shapes.items():
             out[name] = cs.reshape(data[start : start + r * c], r, c)
             start += r * c
+        out["ok"] = data[start]
         return out
 
+    def _data_symbol(self) -> cs.MX:
+        return cs.MX.sym("data", sum(r * c for r, c in self.data_shapes.values()) + 1)
+
+    def _held(self, mem: cs.MX, u_prev: cs.MX) -> cs.MX:
+        """The plan of a failed sample (SI, nu x N): the last plan one sample on, else the
+        previous input held."""
+        nu, N, sl = self.pb.nu, self.N, self.slices
+        last = cs.reshape(mem[sl["plan"]], nu, N)
+        if N == 1:
+            return cs.repmat(u_prev, 1, N)
+        return cs.if_else(mem[sl["has_plan"]], _ahead(last), cs.repmat(u_prev, 1, N))
+
     def _feedback_function(self) -> cs.Function:
-        """(data, memory, x, u_prev, ref) -> (memory_next, u, violation, fallback)."""
+        """(data, memory, x, u_prev, ref) -> (u, violation, fallback, slack, step)."""
         pb, N = self.pb, self.N
-        s, nx, nu, d = pb.s, pb.nx, pb.nu, pb.s.degree
+        s, nu = pb.s, pb.nu
         nq, nT = N * nu, len(pb.tensions)
-        n_data = sum(r * c for r, c in self.data_shapes.values())
-        data = cs.MX.sym("data", n_data)
+        data = self._data_symbol()
         mem, x, u_prev, ref = (cs.MX.sym(n, k) for n, k in self._io())
         D = self._unpack(data)
         a0, vp = x / pb.xs - D["Xb0"], u_prev / pb.us
         E1vp = cs.vertcat(vp, cs.MX(nq - nu, 1))
-        rate = E1vp - D["m0"]  # the guess's moves from the previous input, negated
+        rate = E1vp - D["m0"]  # minus the guess's moves from the previous input
         wu2 = s.weight_du * pb.us[0] ** 2
         g = D["g"] + cs.mtimes(D["Ga"], a0) + cs.mtimes(D["Gr"], ref) - 2 * wu2 * E1vp
         dv = s.rate_max * pb.dt / pb.us[0]
         C = _cumulative(N, nu)
-        # rows: the input bounds (C dm), then the tensions; bounds: the rate limits
-        lba = cs.vertcat(
-            s.u_min / pb.us[0] - D["Ub"], s.tension_min - D["tb0"] - cs.mtimes(D["Et"], a0)
-        )
+        # rows: the input bounds (C dm), then the tensions; variable bounds: the rates
+        T_low = s.tension_min - D["tb0"] - cs.mtimes(D["Et"], a0)
+        lba = cs.vertcat(s.u_min / pb.us[0] - D["Ub"], T_low)
         uba = cs.vertcat(s.u_max / pb.us[0] - D["Ub"], cs.DM.inf(nT * N))
         lbx, ubx = rate - dv, rate + dv
-        if s.soft_constraints:  # QP variables [dm; slack / SLACK_UNIT], one slack per row
-            nS = nT * N
+        if s.soft_constraints:  # variables [dm; slack / SLACK_UNIT], one slack per node
+            nS = N
             H = cs.diagcat(D["H"], 2 * s.tension_l2 * SLACK_UNIT**2 * cs.DM.eye(nS))
             g = cs.vertcat(g, cs.DM.ones(nS) * s.tension_l1 * SLACK_UNIT)
-            A = cs.vertcat(
-                cs.horzcat(C, cs.DM(nq, nS)),
-                cs.horzcat(D["AT"], SLACK_UNIT * cs.DM.eye(nS)),
-            )
+            E = cs.DM(np.kron(np.eye(N), np.ones((nT, 1)))) * SLACK_UNIT
+            A = cs.vertcat(cs.horzcat(C, cs.DM(nq, nS)), cs.horzcat(D["AT"], E))
             lbx, ubx = cs.vertcat(lbx, cs.DM.zeros(nS)), cs.vertcat(ubx, cs.DM.inf(nS))
         else:
             nS, H, A = 0, D["H"], cs.vertcat(C, D["AT"])
@@ -530,43 +577,59 @@ class _RealTimeIteration:
             cs.Sparsity.dense(nq + nS, nq + nS),
             cs.Sparsity.dense(nq + nT * N, nq + nS),
         )
-        qp = self.qp(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
-        z = qp["x"]
-        dm, du = z[:nq], cs.mtimes(C, z[:nq])
+        z = self.qp(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)["x"]
+        dm = z[:nq]
         slack = cs.mmax(cs.vertcat(z[nq:] * SLACK_UNIT, cs.DM.zeros(1)))  # [N]
         # how far the QP's answer is from feasible (the solver's flag is not reachable
         # from inside a Function): constraint rows scaled by their size, and the bounds
-        Ad = cs.mtimes(A, z)
-        scale = 1 + cs.fabs(Ad)
+        Az = cs.mtimes(A, z)
+        scale = 1 + cs.fabs(Az)
         viol = cs.mmax(
-            cs.vertcat((lba - Ad) / scale, (Ad - uba) / scale, lbx - z, z - ubx, cs.DM.zeros(1))
+            cs.vertcat((lba - Az) / scale, (Az - uba) / scale, lbx - z, z - ubx, cs.DM.zeros(1))
         )
-        X = cs.reshape(D["X0"] + cs.mtimes(D["XA"], a0) + cs.mtimes(D["XU"], dm), nx, N + 1)
-        V = cs.reshape(D["V0"] + cs.mtimes(D["VA"], a0) + cs.mtimes(D["VU"], dm), nx * d, N)
-        U = cs.reshape(D["Ub"] + du, nu, N)
-        Xn, Un, Vn = _ahead(X), _ahead(U), _ahead(V)
-        ok = (viol <= QP_FEASIBLE) * _finite(U) * _finite(Xn)
-        guess = cs.if_else(
-            ok,
-            cs.vertcat(cs.vec(Xn), cs.vec(Un), cs.vec(Vn)),
-            cs.MX(self.slices["has_guess"].start, 1),
-        )
-        # RecedingHorizon.apply: the new plan, else the last one shifted, else hold
-        sl = self.slices
-        last = cs.reshape(mem[sl["plan"]], nu, N)
-        if N > 1:
-            held = cs.if_else(mem[sl["has_plan"]], _ahead(last), cs.repmat(u_prev, 1, N))
-        else:
-            held = cs.repmat(u_prev, 1, N)
-        plan = cs.if_else(ok, U * pb.us, held)
-        u = cs.fmin(cs.fmax(plan[:, 0], s.u_min), s.u_max)
-        memory_next = cs.vertcat(guess, ok, cs.vec(plan), 1)
+        U = D["Ub"] + cs.mtimes(C, dm)
+        ok = (viol <= QP_FEASIBLE) * _finite(z) * D["ok"]
+        first = cs.if_else(ok, U[:nu] * pb.us, self._held(mem, u_prev)[:, 0])
+        u = cs.fmin(cs.fmax(first, s.u_min), s.u_max)
         return cs.Function(
             "nmpc_feedback",
             [data, mem, x, u_prev, ref],
-            [memory_next, u, viol, 1 - ok, slack],
+            [u, viol, 1 - ok, slack, cs.vertcat(dm, ok)],
             ["data", "memory", "x", "u_prev", "ref"],
-            ["memory_next", "u", "violation", "fallback", "slack"],
+            ["u", "violation", "fallback", "slack", "step"],
+        )
+
+    def _update_function(self) -> cs.Function:
+        """(data, memory, x, u_prev, step) -> memory_next: the corrected trajectory
+        shifted by one sample (the next guess) and the plan."""
+        pb, N = self.pb, self.N
+        nx, nu = pb.nx, pb.nu
+        nq, w = N * nu, 1 + nx + nu
+        data = self._data_symbol()
+        mem, x, u_prev = (cs.MX.sym(n, k) for n, k in self._io()[:3])
+        step = cs.MX.sym("step", nq + 1)
+        D = self._unpack(data)
+        dm, ok = step[:nq], step[nq]
+        du = cs.reshape(cs.mtimes(_cumulative(N, nu), dm), nu, N)
+        Xb, Vb, L = D["Xb"], D["Vb"], D["L"]
+        dX, dV = [x / pb.xs - D["Xb0"]], []
+        for k in range(N):
+            Lk = L[:, k * w : (k + 1) * w]
+            dV.append(Lk[:, 0] + cs.mtimes(Lk[:, 1:], cs.vertcat(dX[k], du[:, k])))
+            dX.append(Vb[-nx:, k] + dV[k][-nx:] - Xb[:, k + 1])
+        X, V = Xb + cs.horzcat(*dX), Vb + cs.horzcat(*dV)
+        U = cs.reshape(D["Ub"], nu, N) + du
+        Xn, Un, Vn = _ahead(X), _ahead(U), _ahead(V)
+        keep = ok * _finite(Xn) * _finite(Vn)
+        guess = cs.vertcat(cs.vec(Xn), cs.vec(Un), cs.vec(Vn))
+        guess = cs.if_else(keep, guess, cs.MX(self.slices["has_guess"].start, 1))
+        plan = cs.if_else(ok, U * pb.us, self._held(mem, u_prev))
+        return cs.Function(
+            "nmpc_update",
+            [data, mem, x, u_prev, step],
+            [cs.vertcat(guess, keep, cs.vec(plan), 1)],
+            ["data", "memory", "x", "u_prev", "step"],
+            ["memory_next"],
         )
 
 
@@ -711,8 +774,8 @@ class NonlinearMPC(RecedingHorizon):
     def _rti(self, x: np.ndarray, ref: np.ndarray) -> dict:
         """One sample of the RTI law; the command by name."""
         eng = self.engine
-        mem, u, viol, fallback, slack = eng.step(eng.memory, x, self._u, ref, self._p)
-        eng.memory = mem
+        u, viol, fallback, slack = eng.sample(x, self._u, ref, self._p)
+        mem = eng.memory
         self.stats.fallbacks += int(fallback[0])
         self.violation, self.slack = float(viol[0]), float(slack[0])
         self._plan = mem[eng.slices["plan"]].reshape(-1, len(self._u))

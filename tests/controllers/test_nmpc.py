@@ -274,8 +274,10 @@ def test_the_rti_gets_one_reference_per_node(prediction, monkeypatch):
     model, eq = prediction
     mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(horizon=5, integral_gain=0.0))
     y = {n: eq[n] for n in mpc.outputs}
-    seen, step = [], mpc.engine.step
-    monkeypatch.setattr(mpc.engine, "step", lambda *a: seen.append(np.array(a[3])) or step(*a))
+    seen, step = [], mpc.engine.calls["feedback"]
+    monkeypatch.setitem(
+        mpc.engine.calls, "feedback", lambda *a: seen.append(np.array(a[4])) or step(*a)
+    )
     ahead = eq[L] - np.array([0.0, 0.0, 1e-4, 2e-4, 3e-4])
     mpc.set_preview({L: ahead})
     mpc.checked(0.0, y, {L: eq[L]})
