@@ -59,12 +59,15 @@ from .ekf import estimated_parameters
 from .qp import qp_solver
 from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
 from .registry import count, positive, register_controller
+from .rti_compiled import compiled_functions
 
 SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
 
-LINSOL = "lapackqr"
-"""Linear solver of the lifted Radau equations (see _RealTimeIteration._lifts)."""
+LINEAR_SOLVERS = ("auto", "lapackqr", "qr")
+"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense QR (the faster in
+Python) or CasADi's own sparse QR (the one that generates C); "auto" takes "qr" when
+compiled, else "lapackqr"."""
 
 QP_FEASIBLE = 1e-6
 """Largest violation (rows scaled by ``1 + |A du|``, bounds in scaled input units) of a QP
@@ -125,6 +128,14 @@ class NMPCSettings:
         ``weight_y`` there (default 0: the 0.2 s horizon outlasts the regulator lag and
         the chain's settling, so the last node needs no extra pull; raise it for short
         horizons).
+    compiled : bool
+        Run the RTI's prepare, feedback and update Functions as generated C, compiled
+        with gcc and cached on disk (:mod:`.rti_compiled`); default false (BENCHMARKS.md,
+        section 5: measured compile time against the time saved per step).
+    linear_solver : str
+        Linear solver of the lifted Radau equations: "lapackqr", "qr" (the one that
+        generates C: use it for a law to export) or "auto" (default: "qr" when compiled,
+        else "lapackqr").
     soft_constraints : bool
         Soften the thread-tension bounds (default true): every bound row of every node
         gets a slack ``s >= 0`` [N] costing ``tension_l1 s + tension_l2 s^2``; false keeps
@@ -153,6 +164,8 @@ class NMPCSettings:
     output: str = "myofibril.length"
     integral_gain: float = 5.0
     terminal_weight: float = 0.0
+    compiled: bool = False
+    linear_solver: str = "auto"
     soft_constraints: bool = True
     tension_l1: float = 1.0e6
     tension_l2: float = 1.0e6
@@ -167,8 +180,20 @@ class NMPCSettings:
         positive("nmpc", "terminal_weight", self.terminal_weight, allow_zero=True)
         positive("nmpc", "tension_l1", self.tension_l1)
         positive("nmpc", "tension_l2", self.tension_l2, allow_zero=True)
-        if not isinstance(self.soft_constraints, bool):
-            raise ParameterError("nmpc.soft_constraints", self.soft_constraints, "true or false")
+        for name in ("soft_constraints", "compiled"):
+            if not isinstance(getattr(self, name), bool):
+                raise ParameterError(f"nmpc.{name}", getattr(self, name), "true or false")
+        if self.linear_solver not in LINEAR_SOLVERS:
+            raise ParameterError(
+                "nmpc.linear_solver", self.linear_solver, f"one of {LINEAR_SOLVERS}"
+            )
+        if self.compiled and (self.solver != "rti" or self.linear_solver == "lapackqr"):
+            raise ParameterError(
+                "nmpc.compiled",
+                True,
+                "false with solver ipopt/fatrop or linear_solver lapackqr",
+                "only the RTI's Functions with the 'qr' linear solver generate C",
+            )
         count("nmpc.max_iter", self.max_iter, 1, MAX_ITER, "a limit per sample, not a budget")
         if not self.u_min < self.u_max:
             raise ParameterError("nmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
@@ -235,29 +260,45 @@ class _CollocationNLP:
 
         inf, dv = np.inf, s.rate_max * pb.dt / pb.us
         vlo, vhi = s.u_min / pb.us, s.u_max / pb.us
-        # stage k: variables [s_k, u_k, V_k]; constraints: the gap to s_{k+1} first, then
+        # stage k: variables [s_k, u_k, V_k, sigma_k]; constraints: the gap to s_{k+1} first, then
         # the stage's own (the order fatrop's structure detection reads)
         S = cs.SX.sym("S0", nx + nu)
         w.append(S), lbw.extend([-inf] * (nx + nu)), ubw.extend([inf] * (nx + nu))
+        ns = 1 if s.soft_constraints else 0  # one tension slack [N] per node
+
+        def tension(X, sigma):
+            """The node's tension bounds, softened by its slack ``sigma`` (cost added)."""
+            if not ns:
+                con(pb.T(X, p), s.tension_min, inf, False)
+                return 0
+            con(pb.T(X, p) + sigma, s.tension_min, inf, False)
+            return s.tension_l1 * sigma + s.tension_l2 * sigma**2
+
+        wy = [s.weight_y] * (N - 1) + [s.weight_y + s.terminal_weight]
         for k in range(N):
             V, Xc = cs.SX.sym(f"U{k}", nu), cs.SX.sym(f"Xc{k}", nx * d)
-            w += [V, Xc]
-            lbw.extend([*vlo, *[-inf] * (nx * d)]), ubw.extend([*vhi, *[inf] * (nx * d)])
+            sig = cs.SX.sym(f"sigma{k}", ns)
+            w += [V, Xc, sig]
+            lbw.extend([*vlo, *[-inf] * (nx * d), *[0.0] * ns])
+            ubw.extend([*vhi, *[inf] * (nx * d), *[inf] * ns])
             X, Vp = S[:nx], S[nx:]
             S_next = cs.SX.sym(f"S{k + 1}", nx + nu)
             w.append(S_next), lbw.extend([-inf] * (nx + nu)), ubw.extend([inf] * (nx + nu))
             con(S_next - cs.vertcat(Xc[-nx:], V), 0, 0, True)
             if k == 0:
                 con(S - cs.vertcat(xi0, vprev), 0, 0, True)
+                J += s.tension_l1 * cs.sum1(sig)  # node 0 is measured: no bound, slack 0
             else:
-                con(pb.T(X, p), s.tension_min, inf, False)
+                J += tension(X, sig)
             con(pb.res(X, Xc, cs.vertcat(V, p), pb.dt), 0, 0, True)
             con(V - Vp, -dv, dv, False)
             J += s.weight_du * cs.sumsqr((V - Vp) * pb.us)
-            J += s.weight_y * (pb.y(S_next[:nx], p) - ref[k]) ** 2
+            J += wy[k] * (pb.y(S_next[:nx], p) - ref[k]) ** 2
             S = S_next
-        con(pb.T(S[:nx], p), s.tension_min, inf, False)
-        self.stage = nx + nu + nu + nx * d
+        sig = cs.SX.sym("sigmaN", ns)
+        w.append(sig), lbw.extend([0.0] * ns), ubw.extend([inf] * ns)
+        J += tension(S[:nx], sig)
+        self.stage, self.ns = nx + nu + nu + nx * d + ns, ns
         nlp = {"x": cs.vertcat(*w), "p": P, "f": J, "g": cs.vertcat(*g)}
         if solver == "ipopt":
             opts = {
@@ -290,9 +331,9 @@ class _CollocationNLP:
 
     def initial(self, xi: np.ndarray, v: np.ndarray) -> np.ndarray:
         """A guess holding the state ``xi`` and input ``v`` over the horizon."""
-        d = self.pb.s.degree
-        stage = np.concatenate([xi, v, v, np.tile(xi, d)])
-        return np.concatenate([np.tile(stage, self.pb.s.horizon), xi, v])
+        d, zero = self.pb.s.degree, np.zeros(self.ns)
+        stage = np.concatenate([xi, v, v, np.tile(xi, d), zero])
+        return np.concatenate([np.tile(stage, self.pb.s.horizon), xi, v, zero])
 
     def solve(
         self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray
@@ -398,7 +439,11 @@ class _RealTimeIteration:
             ["memory_next", "u", "violation", "fallback", "slack"],
         )
         self.step = _Call(self.law)
-        self.calls = {k: _Call(getattr(self, k)) for k in ("prepare", "feedback", "update")}
+        parts = [self.prepare, self.feedback, self.update]
+        if pb.s.compiled:
+            built = compiled_functions(parts, "nmpc_rti")
+            parts = [built[f.name()] for f in parts]
+        self.calls = dict(zip(("prepare", "feedback", "update"), map(_Call, parts), strict=True))
         self.reset()
 
     def _io(self) -> list[tuple[str, int]]:
@@ -441,9 +486,12 @@ class _RealTimeIteration:
         Vm, xm, vm = cs.MX.sym("V", nx * d), cs.MX.sym("xi", nx), cs.MX.sym("v", nu)
         pm = cs.MX.sym("p", pb.np)
         Rk, RV, Rp = lin(Vm, xm, vm, pm)
-        # LAPACK QR: LU (dgetrf) of this size goes multi-threaded in the OpenBLAS CasADi ships
-        # and ran 5-7x slower whenever the other core was busy (QR: 1.4 ms either way)
-        sol = -cs.solve(RV, cs.horzcat(Rk, Rp), LINSOL)  # [dV0, S]
+        # LAPACK QR, not LU: dgetrf of this size goes multi-threaded in the OpenBLAS CasADi
+        # ships and ran 5-7x slower whenever the other core was busy (QR: 1.4 ms either way)
+        linsol = pb.s.linear_solver
+        if linsol == "auto":
+            linsol = "qr" if pb.s.compiled else "lapackqr"
+        sol = -cs.solve(RV, cs.horzcat(Rk, Rp), linsol)  # [dV0, S]
         self.lift = cs.Function("lift", [Vm, xm, vm, pm], [sol]).map(N)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
         self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
