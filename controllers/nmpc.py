@@ -43,8 +43,10 @@ by one sample and is counted in ``stats.fallbacks``.
 
 from __future__ import annotations
 
+import ctypes
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as cs
 import numpy as np
@@ -64,10 +66,10 @@ from .rti_compiled import compiled_functions
 SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
 
-LINEAR_SOLVERS = ("auto", "lapackqr", "qr")
-"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense QR (the faster in
-Python) or CasADi's own sparse QR (the one that generates C); "auto" takes "qr" when
-compiled, else "lapackqr"."""
+LINEAR_SOLVERS = ("auto", "lapacklu", "lapackqr", "qr")
+"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense LU (the fastest in
+Python) or QR, or CasADi's own sparse QR (the one that generates C); "auto" takes "qr"
+when compiled, else "lapacklu"."""
 
 QP_FEASIBLE = 1e-6
 """Largest violation (rows scaled by ``1 + |A du|``, bounds in scaled input units) of a QP
@@ -133,9 +135,9 @@ class NMPCSettings:
         with gcc and cached on disk (:mod:`.rti_compiled`); default false (BENCHMARKS.md,
         section 5: measured compile time against the time saved per step).
     linear_solver : str
-        Linear solver of the lifted Radau equations: "lapackqr", "qr" (the one that
-        generates C: use it for a law to export) or "auto" (default: "qr" when compiled,
-        else "lapackqr").
+        Linear solver of the lifted Radau equations: "lapacklu", "lapackqr", "qr" (the
+        one that generates C: use it for a law to export) or "auto" (default: "qr" when
+        compiled, else "lapacklu").
     soft_constraints : bool
         Soften the thread-tension bounds (default true): every bound row of every node
         gets a slack ``s >= 0`` [N] costing ``tension_l1 s + tension_l2 s^2``; false keeps
@@ -187,11 +189,11 @@ class NMPCSettings:
             raise ParameterError(
                 "nmpc.linear_solver", self.linear_solver, f"one of {LINEAR_SOLVERS}"
             )
-        if self.compiled and (self.solver != "rti" or self.linear_solver == "lapackqr"):
+        if self.compiled and (self.solver != "rti" or self.linear_solver.startswith("lapack")):
             raise ParameterError(
                 "nmpc.compiled",
                 True,
-                "false with solver ipopt/fatrop or linear_solver lapackqr",
+                "false with solver ipopt/fatrop or a LAPACK linear_solver",
                 "only the RTI's Functions with the 'qr' linear solver generate C",
             )
         count("nmpc.max_iter", self.max_iter, 1, MAX_ITER, "a limit per sample, not a budget")
@@ -486,11 +488,11 @@ class _RealTimeIteration:
         Vm, xm, vm = cs.MX.sym("V", nx * d), cs.MX.sym("xi", nx), cs.MX.sym("v", nu)
         pm = cs.MX.sym("p", pb.np)
         Rk, RV, Rp = lin(Vm, xm, vm, pm)
-        # LAPACK QR, not LU: dgetrf of this size goes multi-threaded in the OpenBLAS CasADi
-        # ships and ran 5-7x slower whenever the other core was busy (QR: 1.4 ms either way)
         linsol = pb.s.linear_solver
         if linsol == "auto":
-            linsol = "qr" if pb.s.compiled else "lapackqr"
+            linsol = "qr" if pb.s.compiled else "lapacklu"
+        if linsol.startswith("lapack"):
+            _one_blas_thread()
         sol = -cs.solve(RV, cs.horzcat(Rk, Rp), linsol)  # [dV0, S]
         self.lift = cs.Function("lift", [Vm, xm, vm, pm], [sol]).map(N)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
@@ -679,6 +681,17 @@ class _RealTimeIteration:
             ["data", "memory", "x", "u_prev", "step"],
             ["memory_next"],
         )
+
+
+def _one_blas_thread() -> None:
+    """Run the OpenBLAS bundled with CasADi (its LAPACK linear solvers' BLAS, not numpy's)
+    on one thread, for the whole process: its 54 x 54 LU (dgetrf) went multi-threaded and
+    ran 5x slower (2.8 against 0.54 ms for the 20 intervals) whenever the other core was
+    busy; matrices this small gain nothing from threads. (``OPENBLAS_NUM_THREADS=1`` does
+    the same from outside.)"""
+    path = Path(cs.__file__).parent / "libcasadi-tp-openblas.so.0"
+    if path.is_file():
+        ctypes.CDLL(str(path)).openblas_set_num_threads(1)
 
 
 def _at(M: cs.MX, k: int, N: int, nu: int) -> cs.MX:
