@@ -13,8 +13,10 @@ and the collocation states. Cost ``sum_k weight_y (y_k - r_k)^2 + weight_du (u_k
 with ``r_k`` the reference at node ``k`` (``t + k dt``): the values handed over by
 :meth:`~.receding.RecedingHorizon.set_preview` when the reference is known ahead, else
 ``r(t)`` at every node;
-constraints: the input within ``[u_min, u_max]``, its rate within ``rate_max``, and every
-thread tension ``>= tension_min`` at every node from ``k = 1`` on (hard: no slack).
+plus ``terminal_weight (y_N - r_N)^2``; constraints: the input within ``[u_min, u_max]``,
+its rate within ``rate_max``, and every thread tension ``>= tension_min`` at every node
+from ``k = 1`` on: soft by default (one slack per node, exact L1 plus quadratic penalty:
+the hard solution wherever that is feasible), hard with ``soft_constraints = False``.
 
 Solvers (``NMPCSettings.solver``):
 
@@ -24,7 +26,9 @@ Solvers (``NMPCSettings.solver``):
 * ``"rti"``: real-time iteration (one Gauss-Newton SQP step per sample) on the multiple-
   shooting form: each interval is integrated by the same Radau IIA equations solved by
   Newton, its sensitivities come from the implicit function theorem, the QP is condensed onto
-  the input moves in one CasADi Function and solved by ``casadi.conic`` (DAQP or qpOASES).
+  the input moves and solved by ``casadi.conic`` (DAQP by default), all in pure CasADi
+  Functions (preparation, feedback, update; :meth:`NonlinearMPC.law_function` composes
+  them into one law), optionally generated to C and compiled (``compiled``).
 
 Parameters of the prediction (the load, the geometry, the regulator) are run-time inputs of
 the solver's Function, not constants: :meth:`NonlinearMPC.set_parameters` changes them
