@@ -811,16 +811,22 @@ class NonlinearMPC(RecedingHorizon):
     def law_function(self) -> cs.Function:
         """The RTI's whole per-sample law as one pure CasADi Function (solver "rti")::
 
-            nmpc_law(memory, x, u_prev, ref, p) -> (memory_next, u, violation, fallback)
+            nmpc_law(memory, x, u_prev, ref, p)
+                -> (memory_next, u, violation, fallback, slack)
 
         ``memory`` (zeros at the start) carries the guess and the plan between samples
         (:class:`_RealTimeIteration`), ``x`` the state [SI, ``model.state_names``],
         ``u_prev`` the input held [SI], ``ref`` the reference at nodes 1..horizon [SI, as
         the optimiser sees it: clipped, shifted by the integral action], ``p`` the
         prediction's parameters [SI, ``model.param_names``]; ``u`` the command [SI],
-        ``violation`` the QP answer's, ``fallback`` 1 when the sample fell back. This
-        controller calls exactly this Function each sample; its QP solver (qrqp by
-        default) generates C that links statically (the DAQP library in the casadi wheel).
+        ``violation`` the QP answer's, ``fallback`` 1 when the sample fell back, ``slack``
+        the plan's largest tension slack [N]. This
+        controller calls exactly these Functions each sample (split: ``engine.sample``).
+        For C generation build the controller with ``linear_solver="qr"`` (or
+        ``compiled=True``): LAPACK (the default "lapacklu") has no code generation. The
+        QP solver DAQP's generated C includes ``daqp/api.h`` and links statically
+        against ``libdaqpstat.a``, both in the casadi wheel (``casadi/include``,
+        :data:`.rti_compiled.LINK_FLAGS`).
 
         Raises
         ------
