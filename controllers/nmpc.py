@@ -71,9 +71,9 @@ SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
 
 LINEAR_SOLVERS = ("auto", "lapacklu", "lapackqr", "qr")
-"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense LU (the fastest in
-Python) or QR, or CasADi's own sparse QR (the one that generates C); "auto" takes "qr"
-when compiled, else "lapacklu"."""
+"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense LU (the fastest:
+"auto") or QR, or CasADi's own sparse QR (the one that generates C, 1.3 against 0.97 ms
+for the 20 intervals compiled)."""
 
 QP_FEASIBLE = 1e-6
 """Largest violation (rows scaled by ``1 + |A du|``, bounds in scaled input units) of a QP
@@ -135,13 +135,13 @@ class NMPCSettings:
         the chain's settling, so the last node needs no extra pull; raise it for short
         horizons).
     compiled : bool
-        Run the RTI's prepare, feedback and update Functions as generated C, compiled
-        with gcc and cached on disk (:mod:`.rti_compiled`); default false (BENCHMARKS.md,
-        section 5: measured compile time against the time saved per step).
+        Run the RTI as generated C, compiled with gcc and cached on disk
+        (:mod:`.rti_compiled`): the linearisation, the condensing, the feedback and the
+        update; the lifted linear solves stay LAPACK calls (``linear_solver``). Default
+        false (BENCHMARKS.md, section 5: measured compile time against the time saved).
     linear_solver : str
         Linear solver of the lifted Radau equations: "lapacklu", "lapackqr", "qr" (the
-        one that generates C: use it for a law to export) or "auto" (default: "qr" when
-        compiled, else "lapacklu").
+        one that generates C: use it for a law to export) or "auto" (default: LAPACK LU).
     soft_constraints : bool
         Soften the thread-tension bounds (default true): every bound row of every node
         gets a slack ``s >= 0`` [N] costing ``tension_l1 s + tension_l2 s^2``; false keeps
@@ -193,12 +193,9 @@ class NMPCSettings:
             raise ParameterError(
                 "nmpc.linear_solver", self.linear_solver, f"one of {LINEAR_SOLVERS}"
             )
-        if self.compiled and (self.solver != "rti" or self.linear_solver.startswith("lapack")):
+        if self.compiled and self.solver != "rti":
             raise ParameterError(
-                "nmpc.compiled",
-                True,
-                "false with solver ipopt/fatrop or a LAPACK linear_solver",
-                "only the RTI's Functions with the 'qr' linear solver generate C",
+                "nmpc.compiled", True, "false with solver ipopt or fatrop", "only the RTI compiles"
             )
         count("nmpc.max_iter", self.max_iter, 1, MAX_ITER, "a limit per sample, not a budget")
         if not self.u_min < self.u_max:
@@ -430,7 +427,9 @@ class _RealTimeIteration:
             start += n
         self.n_memory = start
         self._lifts(pb)
-        self.prepare = self._prepare_function()
+        head = self._head_function()
+        tail = self._tail_function(head)
+        self.prepare = self._prepare_function(head, tail)
         self.feedback = self._feedback_function()
         self.update = self._update_function()
         mem, x, u, ref = (cs.MX.sym(n, k) for n, k in self._io())
@@ -446,9 +445,10 @@ class _RealTimeIteration:
         )
         self.step = _Call(self.law)
         parts = [self.prepare, self.feedback, self.update]
-        if pb.s.compiled:
-            built = compiled_functions(parts, "nmpc_rti")
-            parts = [built[f.name()] for f in parts]
+        if pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
+            built = compiled_functions([head, tail, self.feedback, self.update], "nmpc_rti")
+            parts = [self._prepare_function(built["nmpc_head"], built["nmpc_tail"])]
+            parts += [built["nmpc_feedback"], built["nmpc_update"]]
         self.calls = dict(zip(("prepare", "feedback", "update"), map(_Call, parts), strict=True))
         self.reset()
 
@@ -479,26 +479,19 @@ class _RealTimeIteration:
         return u, viol, fallback, slack
 
     def _lifts(self, pb: _Problem) -> None:
-        """The per-interval linearisation (mapped over the horizon) and the outputs'."""
+        """The per-interval linearisation, its linear solves (both mapped over the horizon)
+        and the outputs' linearisation."""
         nx, nu, d, N = pb.nx, pb.nu, pb.s.degree, pb.s.horizon
         V, xi, v = cs.SX.sym("V", nx * d), cs.SX.sym("xi", nx), cs.SX.sym("v", nu)
         ps = cs.SX.sym("p", pb.np)
         R = pb.res(xi, V, cs.vertcat(v, ps), pb.dt)
-        lin = cs.Function(
-            "radau_lin",
-            [V, xi, v, ps],
-            [R, cs.jacobian(R, V), cs.jacobian(R, cs.vertcat(xi, v))],
-        )
-        Vm, xm, vm = cs.MX.sym("V", nx * d), cs.MX.sym("xi", nx), cs.MX.sym("v", nu)
-        pm = cs.MX.sym("p", pb.np)
-        Rk, RV, Rp = lin(Vm, xm, vm, pm)
-        linsol = pb.s.linear_solver
-        if linsol == "auto":
-            linsol = "qr" if pb.s.compiled else "lapacklu"
+        RV, RB = cs.jacobian(R, V), cs.horzcat(R, cs.jacobian(R, cs.vertcat(xi, v)))
+        self.lin = cs.Function("radau_lin", [V, xi, v, ps], [RV, RB]).map(N)
+        linsol = "lapacklu" if pb.s.linear_solver == "auto" else pb.s.linear_solver
         if linsol.startswith("lapack"):
             _one_blas_thread()
-        sol = -cs.solve(RV, cs.horzcat(Rk, Rp), linsol)  # [dV0, S]
-        self.lift = cs.Function("lift", [Vm, xm, vm, pm], [sol]).map(N)
+        A, B = cs.MX.sym("RV", RV.sparsity()), cs.MX.sym("RB", RB.sparsity())
+        self.solve = cs.Function("lift_solve", [A, B], [-cs.solve(A, B, linsol)]).map(N)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
         self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
 
@@ -511,17 +504,44 @@ class _RealTimeIteration:
         Vb = cs.if_else(has, cs.reshape(mem[sl["Vb"]], nx * d, N), cs.repmat(xi0, d, N))
         return Xb, Ub, Vb
 
-    def _prepare_function(self) -> cs.Function:
-        """(memory, x, u_prev, p) -> data: the condensed QP, affine in the measurement."""
+    def _head_function(self) -> cs.Function:
+        """(memory, x, u_prev, p) -> the guess, the Radau equations' residuals and
+        Jacobians per interval, and the outputs' linearisation (all but the solves)."""
         pb, N = self.pb, self.N
-        s, nx, nu = pb.s, pb.nx, pb.nu
-        nq, w = N * nu, 1 + nx + nu
         mem, x, u = (cs.MX.sym(n, k) for n, k in self._io()[:3])
         p = cs.MX.sym("p", pb.np)
         Xb, Ub, Vb = self._guess(mem, x / pb.xs, u / pb.us)
         P = cs.repmat(p, 1, N)
-        L = self.lift(Vb, Xb[:, :N], Ub, P)  # (nx d) x (N (1 + nx + nu))
+        RV, RB = self.lin(Vb, Xb[:, :N], Ub, P)
         YT, CYT = self.outs(Xb[:, 1:], P)
+        names = ["Xb", "Ub", "Vb", "RV", "RB", "YT", "CYT"]
+        return cs.Function(
+            "nmpc_head",
+            [mem, x, u, p],
+            [Xb, Ub, Vb, RV, RB, YT, CYT],
+            ["memory", "x", "u_prev", "p"],
+            names,
+        )
+
+    def _prepare_function(self, head: cs.Function, tail: cs.Function) -> cs.Function:
+        """(memory, x, u_prev, p) -> data: ``head``, the lifted solves, ``tail``."""
+        mem, x, u = (cs.MX.sym(n, k) for n, k in self._io()[:3])
+        p = cs.MX.sym("p", self.pb.np)
+        Xb, Ub, Vb, RV, RB, YT, CYT = head(mem, x, u, p)
+        data = tail(Xb, Ub, Vb, self.solve(RV, RB), YT, CYT)
+        return cs.Function(
+            "nmpc_prepare", [mem, x, u, p], [data], ["memory", "x", "u_prev", "p"], ["data"]
+        )
+
+    def _tail_function(self, head: cs.Function) -> cs.Function:
+        """(Xb, Ub, Vb, L, YT, CYT) -> data: the condensed QP, affine in the measurement;
+        ``L = [dV0, S]`` per interval (the lifted solves)."""
+        pb, N = self.pb, self.N
+        s, nx, nu = pb.s, pb.nx, pb.nu
+        nq, w = N * nu, 1 + nx + nu
+        Xb, Ub, Vb = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("Xb", "Ub", "Vb"))
+        YT, CYT = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("YT", "CYT"))
+        L = cs.MX.sym("L", nx * pb.s.degree, N * w)
         # node k's state correction: dX_k = c_k + Phi_k a0 + G_k du, a0 = x0 - Xb_0
         c, Phi, G = cs.MX(nx, 1), cs.MX.eye(nx), cs.MX(nx, nq)
         cc, PP, GG = [c], [Phi], [G]
@@ -570,10 +590,10 @@ class _RealTimeIteration:
         flat = cs.densify(cs.vertcat(*(cs.vec(v) for v in data.values())))
         ok = _finite(flat)  # a linearisation that is not finite is a failed sample
         return cs.Function(
-            "nmpc_prepare",
-            [mem, x, u, p],
+            "nmpc_tail",
+            [Xb, Ub, Vb, L, YT, CYT],
             [cs.vertcat(flat, ok)],
-            ["memory", "x", "u_prev", "p"],
+            ["Xb", "Ub", "Vb", "L", "YT", "CYT"],
             ["data"],
         )
 
@@ -822,8 +842,8 @@ class NonlinearMPC(RecedingHorizon):
         ``violation`` the QP answer's, ``fallback`` 1 when the sample fell back, ``slack``
         the plan's largest tension slack [N]. This
         controller calls exactly these Functions each sample (split: ``engine.sample``).
-        For C generation build the controller with ``linear_solver="qr"`` (or
-        ``compiled=True``): LAPACK (the default "lapacklu") has no code generation. The
+        For C generation build the controller with ``linear_solver="qr"``: LAPACK (the
+        default "lapacklu") has no code generation. The
         QP solver DAQP's generated C includes ``daqp/api.h`` and links statically
         against ``libdaqpstat.a``, both in the casadi wheel (``casadi/include``,
         :data:`.rti_compiled.LINK_FLAGS`).

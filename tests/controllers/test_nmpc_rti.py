@@ -80,7 +80,6 @@ def test_the_terminal_weight_pulls_the_last_node_to_the_reference():
     ("kwargs", "name"),
     [
         ({"compiled": True, "solver": "ipopt"}, "nmpc.compiled"),
-        ({"compiled": True, "linear_solver": "lapackqr"}, "nmpc.compiled"),
         ({"linear_solver": "lu"}, "nmpc.linear_solver"),
         ({"tension_l1": 0.0}, "nmpc.tension_l1"),
         ({"terminal_weight": -1.0}, "nmpc.terminal_weight"),
@@ -94,12 +93,13 @@ def test_bad_new_settings_name_the_setting(kwargs, name):
 
 @pytest.fixture(scope="module")
 def compiled_pair():
-    """One compiled build per session (cached on disk) and its CasADi twin."""
+    """One compiled build per session (cached on disk) and its CasADi twin (both with
+    LAPACK's LU for the lifted solves, which the compiled RTI calls too)."""
     model = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
     eq = solve_equilibrium(model, {P: 5e4})
-    s = NMPCSettings(tension_min=0.19, integral_gain=0.0)
+    s = NMPCSettings(horizon=10, tension_min=0.19, integral_gain=0.0)  # 10: a shorter build
     c = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(**{**s.__dict__, "compiled": True}))
-    py = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(**{**s.__dict__, "linear_solver": "qr"}))
+    py = NonlinearMPC(model, eq.u, 0.01, s)
     return c, py
 
 
@@ -118,3 +118,28 @@ def test_the_compiled_rti_gives_the_casadi_functions_commands(compiled_pair):
         sim.step({P: a}, 0.01)
     assert compiled.stats.fallbacks == 0
     assert "external" in compiled.engine.calls["feedback"].function.class_name().lower()
+
+
+@pytest.mark.slow
+def test_the_law_with_the_qr_solver_generates_self_contained_c(tmp_path):
+    """With ``linear_solver = "qr"`` the whole law generates C (LAPACK has none) and
+    compiles; it calls DAQP, linked statically from the casadi wheel."""
+    import casadi as cs
+
+    from sarcomere.controllers.rti_compiled import compiled_functions
+
+    model = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
+    eq = solve_equilibrium(model, {P: 5e4})
+    s = NMPCSettings(horizon=5, linear_solver="qr", integral_gain=0.0)  # 5: a shorter build
+    mpc = NonlinearMPC(model, eq.u, 0.01, s)
+    law = compiled_functions([mpc.law_function()], "nmpc_law_test")["nmpc_law"]
+    y = {n: eq[n] for n in mpc.outputs}
+    x = np.array([eq[n] for n in model.state_names])
+    memory = np.zeros(mpc.engine.n_memory)
+    for k in range(3):
+        ref = np.full(5, eq[L] - 2e-4)
+        u_prev = mpc._u.copy()
+        expected = mpc.checked(0.01 * k, y, {L: eq[L] - 2e-4})[P]
+        memory, u, *_ = (np.array(v).ravel() for v in law(memory, x, u_prev, ref, mpc._p))
+        assert u[0] == pytest.approx(expected, rel=1e-12)
+    assert isinstance(law, cs.Function)
