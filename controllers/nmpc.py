@@ -486,7 +486,8 @@ class _RealTimeIteration:
         ps = cs.SX.sym("p", pb.np)
         R = pb.res(xi, V, cs.vertcat(v, ps), pb.dt)
         RV, RB = cs.jacobian(R, V), cs.horzcat(R, cs.jacobian(R, cs.vertcat(xi, v)))
-        self.lin = cs.Function("radau_lin", [V, xi, v, ps], [RV, RB]).map(N)
+        # common subexpressions of both Jacobians merged: 5114 instead of 6077 instructions
+        self.lin = cs.Function("radau_lin", [V, xi, v, ps], cs.cse([RV, RB])).map(N)
         linsol = "lapacklu" if pb.s.linear_solver == "auto" else pb.s.linear_solver
         if linsol.startswith("lapack"):
             _one_blas_thread()
@@ -527,8 +528,9 @@ class _RealTimeIteration:
         """(memory, x, u_prev, p) -> data: ``head``, the lifted solves, ``tail``."""
         mem, x, u = (cs.MX.sym(n, k) for n, k in self._io()[:3])
         p = cs.MX.sym("p", self.pb.np)
-        Xb, Ub, Vb, RV, RB, YT, CYT = head(mem, x, u, p)
-        data = tail(Xb, Ub, Vb, self.solve(RV, RB), YT, CYT)
+        inline = not head.is_a("External")  # CasADi's own: one graph, no calls between
+        Xb, Ub, Vb, RV, RB, YT, CYT = head.call([mem, x, u, p], inline, False)
+        (data,) = tail.call([Xb, Ub, Vb, self.solve(RV, RB), YT, CYT], inline, False)
         return cs.Function(
             "nmpc_prepare", [mem, x, u, p], [data], ["memory", "x", "u_prev", "p"], ["data"]
         )
@@ -551,15 +553,17 @@ class _RealTimeIteration:
             c = Vb[-nx:, k] + Lk[:, 0] + cs.mtimes(Ak, c) - Xb[:, k + 1]
             Phi, G = cs.mtimes(Ak, Phi), cs.mtimes(Ak, G) + _at(Bk, k, N, nu)
             cc.append(c), PP.append(Phi), GG.append(G)
-        ey0, Ey, Jy, tb0, Et, TJ = [], [], [], [], [], []
-        for k in range(N):
-            cy, cT = CYT[0, k * nx : (k + 1) * nx], CYT[1:, k * nx : (k + 1) * nx]
-            ey0.append(YT[0, k] + cs.mtimes(cy, cc[k + 1]))
-            Ey.append(cs.mtimes(cy, PP[k + 1]))
-            Jy.append(cs.mtimes(cy, GG[k + 1]))
-            tb0.append(YT[1:, k] + cs.mtimes(cT, cc[k + 1]))
-            Et.append(cs.mtimes(cT, PP[k + 1]))
-            TJ.append(cs.mtimes(cT, GG[k + 1]))
+        # every node's output rows times its corrections at once: the outputs' Jacobians
+        # as one block-diagonal matrix (their nonzeros in the same order)
+        ny, nT = 1 + len(pb.tensions), len(pb.tensions)
+        blocks = cs.diagcat(*[cs.DM.ones(ny, nx)] * N).sparsity()
+        BD = cs.MX(blocks, cs.vec(cs.densify(CYT)))
+        M = cs.mtimes(BD, cs.horzcat(cs.vertcat(*cc[1:]), cs.vertcat(*PP[1:]), cs.vertcat(*GG[1:])))
+        YTv = cs.vec(cs.densify(YT))
+        ry = list(range(0, N * ny, ny))
+        rT = [k * ny + 1 + i for k in range(N) for i in range(nT)]
+        ey0, Ey, Jy = YTv[ry] + M[ry, 0], M[ry, 1 : 1 + nx], M[ry, 1 + nx :]
+        tb0, Et, TJ = YTv[rT] + M[rT, 0], M[rT, 1 : 1 + nx], M[rT, 1 + nx :]
         # the QP's variables are the moves' corrections dm = Dk du (du = C dm, C = Dk^-1):
         # the rate limits are then bounds, which keeps the active sets regular
         Dk, C = _moves(N, nu), _cumulative(N, nu)
@@ -568,19 +572,19 @@ class _RealTimeIteration:
         wy = np.full(N, s.weight_y)
         wy[-1] += s.terminal_weight
         W = cs.DM(np.diag(wy))
-        JyC, Ey = cs.mtimes(cs.vertcat(*Jy), C), cs.vertcat(*Ey)
+        JyC = cs.mtimes(Jy, C)
         WJ = cs.mtimes(W, JyC)
         wu2 = s.weight_du * pb.us[0] ** 2
         data = {
             "Xb0": Xb[:, 0],
             "H": 2 * (cs.mtimes(JyC.T, WJ) + wu2 * cs.DM.eye(nq)),
-            "AT": cs.mtimes(cs.vertcat(*TJ), C),
-            "g": 2 * (cs.mtimes(WJ.T, cs.vertcat(*ey0)) + wu2 * m0),
+            "AT": cs.mtimes(TJ, C),
+            "g": 2 * (cs.mtimes(WJ.T, ey0) + wu2 * m0),
             "Ga": 2 * cs.mtimes(WJ.T, Ey),
             "Gr": -2 * WJ.T,
             "m0": m0,
-            "tb0": cs.vertcat(*tb0),
-            "Et": cs.vertcat(*Et),
+            "tb0": tb0,
+            "Et": Et,
             "Ub": Ubv,
             "Xb": Xb,
             "Vb": Vb,
