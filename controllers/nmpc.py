@@ -443,7 +443,6 @@ class _RealTimeIteration:
             ["memory", "x", "u_prev", "ref", "p"],
             ["memory_next", "u", "violation", "fallback", "slack"],
         )
-        self.step = _Call(self.law)
         parts = [self.prepare, self.feedback, self.update]
         if pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
             built = compiled_functions([head, tail, self.feedback, self.update], "nmpc_rti")
