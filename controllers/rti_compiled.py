@@ -2,14 +2,15 @@
 
 :func:`compiled_functions` turns pure CasADi Functions (the RTI's linearisation
 ``nmpc_head``, condensing ``nmpc_tail``, ``nmpc_feedback`` and ``nmpc_update``; or a whole
-law built with the code-generable linear solver ``"qr"``) into one shared library: ``casadi.CodeGenerator`` writes the C, gcc compiles it with
-:data:`CFLAGS`, and the library lives in the disk cache of
-:mod:`sarcomere.dynamics.simulation.compiled` (keyed by the Functions' serialised form,
-CasADi's version and the flags: a rebuilt controller of the same problem loads the cached
-file without compiling). The QP solver DAQP's generated C calls the DAQP library; it is
-linked statically from the copy the casadi wheel ships (``libdaqpstat.a``, headers in
-``casadi/include``), so the library needs nothing beyond libc and libm. Each Function is
-loaded back with ``casadi.external`` and called like the original.
+law built with the code-generable linear solver ``"qr"``) into one shared library:
+``casadi.CodeGenerator`` writes the C, gcc compiles it with :data:`CFLAGS`, and the
+library lives in the disk cache of :mod:`sarcomere.dynamics.simulation.compiled` (keyed
+by the Functions' serialised form, CasADi's version and the flags: a rebuilt controller of
+the same problem loads the cached file without compiling). The QP solver DAQP's generated
+C calls the DAQP library; it is linked statically from the copy the casadi wheel ships
+(``libdaqpstat.a``, headers in ``casadi/include``), so the library needs nothing beyond
+libc and libm. Each Function is loaded back with ``casadi.external`` and called like the
+original.
 """
 
 from __future__ import annotations
