@@ -331,6 +331,7 @@ class _CollocationNLP:
             "ubg": np.array(ubg),
         }
         self.pb, self.warm = pb, {}
+        self.slack = 0.0  # the last solution's largest tension slack [N]
 
     def initial(self, xi: np.ndarray, v: np.ndarray) -> np.ndarray:
         """A guess holding the state ``xi`` and input ``v`` over the horizon."""
@@ -361,6 +362,10 @@ class _CollocationNLP:
         else:
             self.warm = {}
         nx, nu, N = pb.nx, pb.nu, pb.s.horizon
+        if self.ns:  # the slacks: each stage's last variable, and the very last
+            self.slack = float(
+                max(wopt[self.stage - 1 : N * self.stage : self.stage].max(), wopt[-1])
+            )
         idx = nx + nu + np.arange(N)[:, None] * self.stage + np.arange(nu)[None, :]
         return wopt[idx] * pb.us, ok
 
@@ -887,6 +892,7 @@ class NonlinearMPC(RecedingHorizon):
             u = self._rti(x, shifted)
         else:
             plan, ok = self.engine.solve(x, self._u, shifted, self._p)
+            self.slack = self.engine.slack
             u = self.apply(plan if ok else None)
         if np.all((self._u > self._u_lo) & (self._u < self._u_hi)):  # no windup at a bound
             error = ref - float(y[self.settings.output])

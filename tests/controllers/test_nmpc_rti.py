@@ -52,8 +52,7 @@ def test_an_infeasible_bound_softened_gives_a_finite_command_without_fallback():
         soft, s = venting(NMPCSettings(solver=solver, tension_min=5.0), 2)
         assert h.stats.fallbacks == 2 and hard == [1e5, 1e5]
         assert s.stats.fallbacks == 0 and np.all(np.isfinite(soft))
-    rti, mpc = venting(NMPCSettings(tension_min=5.0), 1)
-    assert mpc.slack > 4.0  # N: the plan's largest predicted shortfall
+        assert s.slack > 4.0  # N: the plan's largest predicted shortfall of the 5 N
 
 
 def terminal_error(weight: float) -> float:
