@@ -49,7 +49,7 @@ def test_a_parameter_set_at_run_time_is_the_one_predicted_with(prediction, solve
 def test_the_rti_functions_parameter_input_is_the_value_given(prediction):
     model, eq = prediction
     mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(solver="rti"))
-    F = mpc.engine.step
+    F = mpc.engine.calls["prepare"]  # the preparation takes the parameters
     i = F.function.name_in().index("p")
     # the model's parameters, then the input and output disturbances
     assert F.function.nnz_in(i) == len(model.param_names) + 2
