@@ -35,8 +35,11 @@ from pathlib import Path
 
 import casadi as cs
 
+from sarcomere.controllers.estimated import OnEstimate
 from sarcomere.controllers.lqi import LQI
+from sarcomere.controllers.nmpc import NonlinearMPC
 from sarcomere.controllers.pid import LAW_PARAMETERS, PID, STATE_NAMES, pid_law
+from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 
@@ -107,8 +110,9 @@ def pid_system(pid: PID, model: Model, bias: float, name: str = "pid") -> Sample
 
 def _bias(controller, model: Model, bias: float) -> tuple[str, float, float]:
     """The input's unit and bounds; ``bias`` checked inside them."""
-    uu = model.unit(controller.input)
-    lo, hi = controller.u_min[controller.input], controller.u_max[controller.input]
+    (name,) = controller.inputs
+    uu = model.unit(name)
+    lo, hi = controller.u_min[name], controller.u_max[name]
     if not lo <= bias <= hi:
         raise ParameterError("bias", bias, f"[{lo:g}, {hi:g}] {uu}")
     return uu, lo, hi
@@ -158,8 +162,96 @@ def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> Sample
     )
 
 
+def nmpc_system(
+    nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc"
+) -> SampledSystem:
+    """A full-state real-time-iteration ``nmpc`` (no estimator) as a sampled system.
+
+    The update is the NMPC's own law (:meth:`NonlinearMPC.law_function`: one RTI step
+    with its warm start as memory) with the Python controller's steps around it: the
+    reference clipped to the reachable range and held over the horizon (the FMU sees the
+    current reference only: the Python NMPC with ``preview = false``), the integral
+    reference shift (when ``integral_gain > 0``) and the held command. Inputs: the
+    reference, the measured output and the prediction's states by name; parameters: every
+    parameter of the prediction model (tunable: the run-time inputs of the law) and
+    ``bias`` (fixed). The bounds and the rate limit are constraints of the QP, fixed at
+    export. Units from the prediction model (``model``, the plant, must have its output and
+    input).
+    """
+    if not isinstance(nmpc, NonlinearMPC) or nmpc.settings.solver != "rti":
+        raise ParameterError(
+            "controller", _what(nmpc), "an NMPC with solver 'rti' (the exported law)"
+        )
+    s, pred = nmpc.settings, nmpc.model
+    (uname,) = nmpc.inputs
+    for n in (s.output, uname):
+        if n not in model.signal_names:
+            raise ParameterError("model", model.name, f"a plant with the NMPC's signal '{n}'")
+    yu, (uu, lo, hi) = pred.unit(s.output), _bias(nmpc, pred, bias)
+    law = nmpc.law_function()
+    nm = law.nnz_in(0)
+    states = [
+        Variable(f"memory[{i + 1}]", "1", f"entry {i + 1} of the RTI's warm start (law memory)")
+        for i in range(nm)
+    ]
+    integral = s.integral_gain > 0
+    if integral:
+        states.append(Variable("integral_offset", yu, "integral shift of the reference"))
+    states.append(Variable("held_command", uu, "command held since the last sample", low=lo, high=hi))
+    op = solve_equilibrium(pred, {uname: bias}, nmpc.parameters)  # the inputs' start
+    y_op = float(op[s.output])
+    inputs = [
+        Variable("reference", yu, f"reference of {s.output} (held over the horizon)", y_op),
+        Variable("measurement", yu, f"measured {s.output}", y_op),
+    ]
+    for n, x0 in zip(pred.state_names, op.x, strict=True):
+        inputs.append(Variable(n, pred.unit(n), f"plant state {n}", float(x0)))
+    params = []
+    for n, value in zip(pred.param_names, nmpc.parameters.values(), strict=True):
+        v = pred.variables[n]
+        text = f"prediction model: {v.description or n}"
+        params.append(Variable(n, v.unit, text, float(value), v.low, v.high))
+    params.append(Variable("bias", uu, "command before the first sample", bias, lo, hi))
+    x = cs.MX.sym("x", len(states))
+    u, p = cs.MX.sym("u", len(inputs)), cs.MX.sym("p", len(params))
+    memory, held = x[:nm], x[-1]
+    ref = cs.fmin(cs.fmax(u[0], nmpc.clip.low), nmpc.clip.high)
+    offset = x[nm] if integral else 0.0
+    nodes = cs.fmin(cs.fmax(ref + offset, nmpc.clip.low), nmpc.clip.high)
+    nxt, cmd, _ = law(memory, u[2:], held, cs.repmat(nodes, s.horizon, 1), p[:-1])
+    cmd = cs.fmin(cs.fmax(cmd, s.u_min), s.u_max)
+    after = [nxt]
+    if integral:  # no windup at a bound (NonlinearMPC.update)
+        inside = cs.logic_and(cmd > s.u_min, cmd < s.u_max)
+        step = s.integral_gain * nmpc.dt * (ref - u[1])
+        after.append(cs.if_else(inside, offset + step, offset))
+    return SampledSystem(
+        name,
+        f"NMPC (real-time iteration, horizon {s.horizon}) of {uname} on {s.output} "
+        f"(full state), sampled every {nmpc.dt:g} s (sarcomere)",
+        nmpc.dt,
+        tuple(states),
+        tuple(inputs),
+        (Variable("command", uu, f"{uname}, held between samples", low=lo, high=hi),),
+        tuple(params),
+        cs.Function("update", [x, u, p], [cs.vertcat(*after, cmd)]),
+        cs.Function("output", [x, p], [held]),
+        cs.Function("start", [u, p], [cs.vertcat(cs.DM.zeros(len(states) - 1), p[-1])]),
+    )
+
+
+def _what(controller) -> str:
+    """A controller's kind for messages: its slug and solver, or its estimator."""
+    if isinstance(controller, OnEstimate):
+        return f"{controller.slug} (on an EKF: the estimator is not exported)"
+    solver = getattr(getattr(controller, "settings", None), "solver", None)
+    return f"{getattr(controller, 'slug', type(controller).__name__)}" + (
+        f" (solver {solver!r})" if solver else ""
+    )
+
+
 def export_controller_fmu(
-    controller: PID | LQI,
+    controller: PID | LQI | NonlinearMPC,
     model: Model,
     path: str | Path,
     bias: float,
@@ -167,12 +259,12 @@ def export_controller_fmu(
     name: str | None = None,
     stop_time: float | None = None,
 ) -> Path:
-    """Write ``controller`` (a PID, or a full-state LQI) as a Co-Simulation FMU; see
-    :func:`pid_system` and :func:`lqi_system`.
+    """Write ``controller`` (a PID, a full-state LQI or a full-state RTI NMPC) as a
+    Co-Simulation FMU; see :func:`pid_system`, :func:`lqi_system` and :func:`nmpc_system`.
 
     Parameters
     ----------
-    controller : PID or LQI
+    controller : PID, LQI or NonlinearMPC
         The controller; its sample time is the FMU's period.
     model : Model
         The plant it controls: the units of its output and input.
@@ -195,14 +287,15 @@ def export_controller_fmu(
     Raises
     ------
     ParameterError
-        For a controller without an exported law (MPCs, an LQI on an EKF), a bias
+        For a controller without an exported law (the LMPC, a controller on an EKF, an
+        NMPC solved by ipopt or fatrop), a bias
         outside the bounds, a bad version or path.
     """
-    builders = {PID: pid_system, LQI: lqi_system}
+    builders = {PID: pid_system, LQI: lqi_system, NonlinearMPC: nmpc_system}
     build = builders.get(type(controller))
     if build is None:
         raise ParameterError(
-            "controller", type(controller).__name__, "a PID or an LQI (the exported laws)"
+            "controller", _what(controller), "a PID, an LQI or an NMPC (the exported laws)"
         )
     system = build(controller, model, bias, name or controller.slug)
     experiment = Experiment(stop_time=stop_time, step_size=controller.dt)
