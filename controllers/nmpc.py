@@ -63,6 +63,14 @@ from .registry import count, positive, register_controller
 SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
 
+QP_FEASIBLE = 1e-6
+"""Largest violation (rows scaled by ``1 + |A du|``, bounds in scaled input units) of a QP
+answer the real-time iteration accepts; above it the sample falls back."""
+
+SLACK_UNIT = 1e-3
+"""The unit [N] of the tension slacks inside the RTI's QP (mN: keeps the slack columns of
+the QP's matrices near the input moves' magnitude)."""
+
 MAX_ITER = 1000
 """Largest NLP iteration limit per sample (ipopt, fatrop): the warm-started solves here
 take 3-15 iterations; a sample that needs more than 1000 is a failed solve (a fallback),
@@ -96,7 +104,11 @@ class NMPCSettings:
     max_iter : int
         NLP iteration limit (ipopt, fatrop).
     qp_solver : str
-        QP solver of the real-time iteration: "daqp" or "qpoases".
+        QP solver of the real-time iteration: "daqp" (default: its generated C compiles
+        against the static DAQP library and headers the casadi wheel ships, so the law
+        exports with libc as its only dependency), "qrqp" (self-contained C, but it cycles
+        on the degenerate active sets of a start at an input bound: a fallback, hundreds
+        of iterations), "qpoases" or "hpipm" (not code-generable here).
     output : str
         The tracked signal.
     integral_gain : float
@@ -105,6 +117,17 @@ class NMPCSettings:
         a load or model error the prediction does not know leaves no steady offset; 0
         turns it off (:func:`make_nmpc` on an EKF that feeds the load estimate defaults to
         0: the prediction then knows the load).
+    soft_constraints : bool
+        Soften the thread-tension bounds (default true): every bound row of every node
+        gets a slack ``s >= 0`` [N] costing ``tension_l1 s + tension_l2 s^2``; false keeps
+        them hard (an infeasible QP is then a fallback).
+    tension_l1 : float
+        Exact (L1) penalty of a tension slack [1/N]. Above the bounds' multipliers (up to
+        about 2e3 1/N in the venting test at 0.2 N, ``tests/controllers/test_nmpc.py``),
+        so the soft solution is the hard one whenever the hard one is feasible.
+    tension_l2 : float
+        Quadratic penalty of a tension slack [1/N^2] (keeps the slack's QP block
+        positive definite).
     """
 
     horizon: int = 20
@@ -121,6 +144,9 @@ class NMPCSettings:
     qp_solver: str = "daqp"
     output: str = "myofibril.length"
     integral_gain: float = 5.0
+    soft_constraints: bool = True
+    tension_l1: float = 1.0e6
+    tension_l2: float = 1.0e6
 
     def __post_init__(self) -> None:
         check_horizon("nmpc.horizon", self.horizon)
@@ -129,6 +155,10 @@ class NMPCSettings:
         positive("nmpc", "weight_du", self.weight_du, allow_zero=True)
         positive("nmpc", "rate_max", self.rate_max)
         positive("nmpc", "tol", self.tol)
+        positive("nmpc", "tension_l1", self.tension_l1)
+        positive("nmpc", "tension_l2", self.tension_l2, allow_zero=True)
+        if not isinstance(self.soft_constraints, bool):
+            raise ParameterError("nmpc.soft_constraints", self.soft_constraints, "true or false")
         count("nmpc.max_iter", self.max_iter, 1, MAX_ITER, "a limit per sample, not a budget")
         if not self.u_min < self.u_max:
             raise ParameterError("nmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
@@ -289,7 +319,8 @@ def _shift(w: np.ndarray, stage: int, n: int) -> np.ndarray:
 
 
 class _RealTimeIteration:
-    """One Gauss-Newton SQP step per sample on the lifted collocation form, condensed.
+    """One Gauss-Newton SQP step per sample on the lifted collocation form, condensed, as
+    pure CasADi Functions of a flat ``memory`` vector (no Python state in the law).
 
     The guess holds the node states, the inputs and the collocation states of every
     interval. Per interval the Radau equations ``R(V, x, v) = 0`` are linearised once at
@@ -297,11 +328,71 @@ class _RealTimeIteration:
     ``dV0 = -R_V^{-1} R`` and ``S = -R_V^{-1} [R_x, R_v]`` from one factorisation, so
     the interval's end is ``x_end + dx_end`` linear in ``(dx, dv)``. The node gaps, the
     tracking and move residuals (Gauss-Newton) and the linearised tension constraints are
-    condensed onto the input moves.
+    condensed onto the input moves ``du``.
+
+    Preparation and feedback: everything condensed is affine in the measured state
+    ``x0``, the previous input and the reference, so :attr:`prepare` (memory, x, u_prev,
+    p -> data) does the lifting, the linearisation and the condensing, and
+    :attr:`feedback` (data, memory, x, u_prev, ref -> memory_next, u, violation,
+    fallback) only the affine update of the QP's gradient and bounds, the QP solve and
+    the next guess. The measurement enters the preparation only when memory holds no
+    guess (the first sample, or after a fallback): the guess is then the measured state
+    and the previous input held. :attr:`law` is the composition, one Function.
+
+    Memory layout (:meth:`memory_slices`): the guess ``Xb`` (nx x N+1), ``Ub`` (nu x N),
+    ``Vb`` (nx degree x N), all scaled and column-major, a 0/1 flag "holds a guess", the
+    last plan [SI] (nu x N) and a 0/1 flag "holds a plan".
+
+    Fallback (exactly :meth:`~.receding.RecedingHorizon.apply`'s logic, by ``if_else``):
+    the QP's answer counts as failed when its violation exceeds :data:`QP_FEASIBLE` or a
+    value is not finite; the guess is then dropped (the next sample restarts from the
+    measurement) and the command is the previous plan shifted by one sample (its last
+    input repeated), else, with no plan yet, the previous input held.
     """
 
     def __init__(self, pb: _Problem) -> None:
-        s, nx, nu, d, N = pb.s, pb.nx, pb.nu, pb.s.degree, pb.s.horizon
+        nx, nu, d, N = pb.nx, pb.nu, pb.s.degree, pb.s.horizon
+        self.pb, self.N = pb, N
+        sizes = {
+            "Xb": nx * (N + 1),
+            "Ub": nu * N,
+            "Vb": nx * d * N,
+            "has_guess": 1,
+            "plan": nu * N,
+            "has_plan": 1,
+        }
+        self.slices, start = {}, 0
+        for name, n in sizes.items():
+            self.slices[name] = slice(start, start + n)
+            start += n
+        self.n_memory = start
+        self._lifts(pb)
+        self.prepare = self._prepare_function()
+        self.feedback = self._feedback_function()
+        mem, x, u, ref = (cs.MX.sym(n, k) for n, k in self._io())
+        p = cs.MX.sym("p", pb.np)
+        out = self.feedback(self.prepare(mem, x, u, p), mem, x, u, ref)
+        self.law = cs.Function(
+            "nmpc_law",
+            [mem, x, u, ref, p],
+            out,
+            ["memory", "x", "u_prev", "ref", "p"],
+            ["memory_next", "u", "violation", "fallback", "slack"],
+        )
+        self.step = _Call(self.law)
+        self.memory = np.zeros(self.n_memory)
+
+    def _io(self) -> list[tuple[str, int]]:
+        return [("memory", self.n_memory), ("x", self.pb.nx), ("u_prev", self.pb.nu),
+                ("ref", self.N)]  # fmt: skip
+
+    def reset(self) -> None:
+        """Forget the guess and the plan."""
+        self.memory = np.zeros(self.n_memory)
+
+    def _lifts(self, pb: _Problem) -> None:
+        """The per-interval linearisation (mapped over the horizon) and the outputs'."""
+        nx, nu, d, N = pb.nx, pb.nu, pb.s.degree, pb.s.horizon
         V, xi, v = cs.SX.sym("V", nx * d), cs.SX.sym("xi", nx), cs.SX.sym("v", nu)
         ps = cs.SX.sym("p", pb.np)
         R = pb.res(xi, V, cs.vertcat(v, ps), pb.dt)
@@ -316,102 +407,193 @@ class _RealTimeIteration:
         # LAPACK QR: LU (dgetrf) of this size goes multi-threaded in the OpenBLAS CasADi ships
         # and ran 5-7x slower whenever the other core was busy (QR: 1.4 ms either way)
         sol = -cs.solve(RV, cs.horzcat(Rk, Rp), "lapackqr")  # [dV0, S]
-        lift = cs.Function("lift", [Vm, xm, vm, pm], [sol]).map(N)
+        self.lift = cs.Function("lift", [Vm, xm, vm, pm], [sol]).map(N)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
-        outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
-        nT = len(pb.tensions)
-        # the condensing, one MX Function of the guess, the measurement and the parameters
-        Xb, Ub = cs.MX.sym("Xb", nx, N + 1), cs.MX.sym("Ub", nu, N)
-        Vb = cs.MX.sym("Vb", nx * d, N)
-        x0, vp, ref = cs.MX.sym("x0", nx), cs.MX.sym("vp", nu), cs.MX.sym("ref", N)
+        self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
+
+    def _guess(self, mem: cs.MX, xi0: cs.MX, vp: cs.MX) -> tuple[cs.MX, cs.MX, cs.MX]:
+        """The guess in memory, or the measured state and previous input held."""
+        nx, nu, d, N = self.pb.nx, self.pb.nu, self.pb.s.degree, self.N
+        sl, has = self.slices, mem[self.slices["has_guess"]]
+        Xb = cs.if_else(has, cs.reshape(mem[sl["Xb"]], nx, N + 1), cs.repmat(xi0, 1, N + 1))
+        Ub = cs.if_else(has, cs.reshape(mem[sl["Ub"]], nu, N), cs.repmat(vp, 1, N))
+        Vb = cs.if_else(has, cs.reshape(mem[sl["Vb"]], nx * d, N), cs.repmat(xi0, d, N))
+        return Xb, Ub, Vb
+
+    def _prepare_function(self) -> cs.Function:
+        """(memory, x, u_prev, p) -> data: the condensed QP affine in the measurement."""
+        pb, N = self.pb, self.N
+        s, nx, nu = pb.s, pb.nx, pb.nu
+        nq, w = N * nu, 1 + nx + nu
+        mem, x, u = (cs.MX.sym(n, k) for n, k in self._io()[:3])
         p = cs.MX.sym("p", pb.np)
+        Xb, Ub, Vb = self._guess(mem, x / pb.xs, u / pb.us)
         P = cs.repmat(p, 1, N)
-        L = lift(Vb, Xb[:, :N], Ub, P)  # (nx d) x (N (1 + nx + nu))
-        YT, CYT = outs(Xb[:, 1:], P)
-        w = 1 + nx + nu
-        a = x0 - Xb[:, 0]  # dx_0 = a_0 + G_0 dv, G_0 = 0
-        Gk = cs.MX(nx, N * nu)
-        rows_a, rows_G = [a], [Gk]
+        L = self.lift(Vb, Xb[:, :N], Ub, P)  # (nx d) x (N (1 + nx + nu))
+        YT, CYT = self.outs(Xb[:, 1:], P)
+        # node k's state correction: dX_k = c_k + Phi_k a0 + G_k du, a0 = x0 - Xb_0
+        c, Phi, G = cs.MX(nx, 1), cs.MX.eye(nx), cs.MX(nx, nq)
+        cc, PP, GG, V0, VA, VU = [c], [Phi], [G], [], [], []
         for k in range(N):
-            Lk = L[-nx:, k * w : (k + 1) * w]  # the interval's end
-            Ak, Bk = Lk[:, 1 : 1 + nx], Lk[:, 1 + nx :]
-            a = Vb[-nx:, k] + Lk[:, 0] + cs.mtimes(Ak, a) - Xb[:, k + 1]
-            Gk = cs.mtimes(Ak, Gk) + cs.horzcat(cs.MX(nx, k * nu), Bk, cs.MX(nx, (N - k - 1) * nu))
-            rows_a.append(a)
-            rows_G.append(Gk)
-        ey, Jy, tb, TJ = [], [], [], []
+            Lk = L[:, k * w : (k + 1) * w]
+            Sx, Su = Lk[:, 1 : 1 + nx], Lk[:, 1 + nx :]
+            V0.append(Vb[:, k] + Lk[:, 0] + cs.mtimes(Sx, c))
+            VA.append(cs.mtimes(Sx, Phi))
+            VU.append(cs.mtimes(Sx, G) + _at(Su, k, N, nu))
+            Ak, Bk = Sx[-nx:, :], Su[-nx:, :]  # the interval's end
+            c = Vb[-nx:, k] + Lk[-nx:, 0] + cs.mtimes(Ak, c) - Xb[:, k + 1]
+            Phi, G = cs.mtimes(Ak, Phi), cs.mtimes(Ak, G) + _at(Bk, k, N, nu)
+            cc.append(c), PP.append(Phi), GG.append(G)
+        ey0, Ey, Jy, tb0, Et, TJ = [], [], [], [], [], []
         for k in range(N):
-            c = CYT[:, k * nx : (k + 1) * nx]
-            ey.append(YT[0, k] + cs.mtimes(c[0, :], rows_a[k + 1]) - ref[k])
-            Jy.append(cs.mtimes(c[0, :], rows_G[k + 1]))
-            tb.append(YT[1:, k] + cs.mtimes(c[1:, :], rows_a[k + 1]))
-            TJ.append(cs.mtimes(c[1:, :], rows_G[k + 1]))
-        Dk = np.kron(np.eye(N) - np.eye(N, k=-1), np.eye(nu))
+            cy, cT = CYT[0, k * nx : (k + 1) * nx], CYT[1:, k * nx : (k + 1) * nx]
+            ey0.append(YT[0, k] + cs.mtimes(cy, cc[k + 1]))
+            Ey.append(cs.mtimes(cy, PP[k + 1]))
+            Jy.append(cs.mtimes(cy, GG[k + 1]))
+            tb0.append(YT[1:, k] + cs.mtimes(cT, cc[k + 1]))
+            Et.append(cs.mtimes(cT, PP[k + 1]))
+            TJ.append(cs.mtimes(cT, GG[k + 1]))
+        Jy, Ey = cs.vertcat(*Jy), cs.vertcat(*Ey)
+        # the QP's variables are the moves' corrections dm = Dk du (du = C dm, C = Dk^-1):
+        # the rate limits become bounds, which keeps qrqp's active sets regular
+        Dk, C = _moves(N, nu), _cumulative(N, nu)
         Ubv = cs.vec(Ub)
-        du0 = cs.mtimes(Dk, Ubv) - cs.vertcat(vp, cs.MX(nu * (N - 1), 1))  # guess's moves
-        wy, wu = np.sqrt(s.weight_y), np.sqrt(s.weight_du) * pb.us[0]
-        Jres = cs.vertcat(wy * cs.vertcat(*Jy), wu * Dk)
-        r0 = cs.vertcat(wy * cs.vertcat(*ey), wu * du0)
+        m0 = cs.mtimes(Dk, Ubv)  # the guess's moves, but the first from 0
+        wy2, wu2 = s.weight_y, s.weight_du * pb.us[0] ** 2
+        JyC = cs.mtimes(Jy, C)
+        data = {
+            "Xb0": Xb[:, 0],
+            "H": 2 * (wy2 * cs.mtimes(JyC.T, JyC) + wu2 * cs.DM.eye(nq)),
+            "AT": cs.mtimes(cs.vertcat(*TJ), C),
+            "g": 2 * (wy2 * cs.mtimes(JyC.T, cs.vertcat(*ey0)) + wu2 * m0),
+            "Ga": 2 * wy2 * cs.mtimes(JyC.T, Ey),
+            "Gr": -2 * wy2 * JyC.T,
+            "m0": m0,
+            "tb0": cs.vertcat(*tb0),
+            "Et": cs.vertcat(*Et),
+            "Ub": Ubv,
+            "X0": cs.vec(Xb + cs.horzcat(*cc)),
+            "XA": cs.vertcat(*PP),
+            "XU": cs.mtimes(cs.vertcat(*GG), C),
+            "V0": cs.vertcat(*V0),
+            "VA": cs.vertcat(*VA),
+            "VU": cs.mtimes(cs.vertcat(*VU), C),
+        }
+        self.data_shapes = {k: v.shape for k, v in data.items()}
+        flat = cs.vertcat(*(cs.vec(v) for v in data.values()))
+        return cs.Function(
+            "nmpc_prepare", [mem, x, u, p], [flat], ["memory", "x", "u_prev", "p"], ["data"]
+        )
+
+    def _unpack(self, data: cs.MX) -> dict[str, cs.MX]:
+        out, start = {}, 0
+        for name, (r, c) in self.data_shapes.items():
+            out[name] = cs.reshape(data[start : start + r * c], r, c)
+            start += r * c
+        return out
+
+    def _feedback_function(self) -> cs.Function:
+        """(data, memory, x, u_prev, ref) -> (memory_next, u, violation, fallback)."""
+        pb, N = self.pb, self.N
+        s, nx, nu, d = pb.s, pb.nx, pb.nu, pb.s.degree
+        nq, nT = N * nu, len(pb.tensions)
+        n_data = sum(r * c for r, c in self.data_shapes.values())
+        data = cs.MX.sym("data", n_data)
+        mem, x, u_prev, ref = (cs.MX.sym(n, k) for n, k in self._io())
+        D = self._unpack(data)
+        a0, vp = x / pb.xs - D["Xb0"], u_prev / pb.us
+        E1vp = cs.vertcat(vp, cs.MX(nq - nu, 1))
+        rate = E1vp - D["m0"]  # the guess's moves from the previous input, negated
+        wu2 = s.weight_du * pb.us[0] ** 2
+        g = D["g"] + cs.mtimes(D["Ga"], a0) + cs.mtimes(D["Gr"], ref) - 2 * wu2 * E1vp
         dv = s.rate_max * pb.dt / pb.us[0]
-        nq, nA = N * nu, N * nu + nT * N
-        self.qp = qp_solver(s.qp_solver, cs.Sparsity.dense(nq, nq), cs.Sparsity.dense(nA, nq))
-        H, g = 2 * cs.mtimes(Jres.T, Jres), 2 * cs.mtimes(Jres.T, r0)
-        A = cs.vertcat(Dk, *TJ)
-        lba = cs.vertcat(-dv - du0, s.tension_min - cs.vertcat(*tb))
-        uba = cs.vertcat(dv - du0, cs.DM.inf(nT * N))
-        lbx, ubx = s.u_min / pb.us[0] - Ubv, s.u_max / pb.us[0] - Ubv
+        C = _cumulative(N, nu)
+        # rows: the input bounds (C dm), then the tensions; bounds: the rate limits
+        lba = cs.vertcat(
+            s.u_min / pb.us[0] - D["Ub"], s.tension_min - D["tb0"] - cs.mtimes(D["Et"], a0)
+        )
+        uba = cs.vertcat(s.u_max / pb.us[0] - D["Ub"], cs.DM.inf(nT * N))
+        lbx, ubx = rate - dv, rate + dv
+        if s.soft_constraints:  # QP variables [dm; slack / SLACK_UNIT], one slack per row
+            nS = nT * N
+            H = cs.diagcat(D["H"], 2 * s.tension_l2 * SLACK_UNIT**2 * cs.DM.eye(nS))
+            g = cs.vertcat(g, cs.DM.ones(nS) * s.tension_l1 * SLACK_UNIT)
+            A = cs.vertcat(
+                cs.horzcat(C, cs.DM(nq, nS)),
+                cs.horzcat(D["AT"], SLACK_UNIT * cs.DM.eye(nS)),
+            )
+            lbx, ubx = cs.vertcat(lbx, cs.DM.zeros(nS)), cs.vertcat(ubx, cs.DM.inf(nS))
+        else:
+            nS, H, A = 0, D["H"], cs.vertcat(C, D["AT"])
+        self.qp = qp_solver(
+            s.qp_solver,
+            cs.Sparsity.dense(nq + nS, nq + nS),
+            cs.Sparsity.dense(nq + nT * N, nq + nS),
+        )
         qp = self.qp(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
-        du = qp["x"]
+        z = qp["x"]
+        dm, du = z[:nq], cs.mtimes(C, z[:nq])
+        slack = cs.mmax(cs.vertcat(z[nq:] * SLACK_UNIT, cs.DM.zeros(1)))  # [N]
         # how far the QP's answer is from feasible (the solver's flag is not reachable
         # from inside a Function): constraint rows scaled by their size, and the bounds
-        Ad = cs.mtimes(A, du)
+        Ad = cs.mtimes(A, z)
         scale = 1 + cs.fabs(Ad)
         viol = cs.mmax(
-            cs.vertcat((lba - Ad) / scale, (Ad - uba) / scale, lbx - du, du - ubx, cs.DM.zeros(1))
+            cs.vertcat((lba - Ad) / scale, (Ad - uba) / scale, lbx - z, z - ubx, cs.DM.zeros(1))
         )
-        dX = cs.horzcat(*rows_a) + cs.reshape(cs.mtimes(cs.vertcat(*rows_G), du), nx, N + 1)
-        dV = cs.horzcat(
-            *[
-                L[:, k * w] + cs.mtimes(L[:, k * w + 1 : (k + 1) * w], cs.vertcat(dX[:, k], du[k]))
-                for k in range(N)
-            ]
+        X = cs.reshape(D["X0"] + cs.mtimes(D["XA"], a0) + cs.mtimes(D["XU"], dm), nx, N + 1)
+        V = cs.reshape(D["V0"] + cs.mtimes(D["VA"], a0) + cs.mtimes(D["VU"], dm), nx * d, N)
+        U = cs.reshape(D["Ub"] + du, nu, N)
+        Xn, Un, Vn = _ahead(X), _ahead(U), _ahead(V)
+        ok = (viol <= QP_FEASIBLE) * _finite(U) * _finite(Xn)
+        guess = cs.if_else(
+            ok,
+            cs.vertcat(cs.vec(Xn), cs.vec(Un), cs.vec(Vn)),
+            cs.MX(self.slices["has_guess"].start, 1),
         )
-        X, U, V = Xb + dX, Ub + cs.reshape(du, nu, N), Vb + dV
-
-        def shift(M):
-            return cs.horzcat(M[:, 1:], M[:, -1])
-
-        self.step = _Call(
-            cs.Function(
-                "rti",
-                [Xb, Ub, Vb, x0, vp, ref, p],
-                [shift(X), shift(U), shift(V), U, viol],
-                ["Xb", "Ub", "Vb", "x0", "vp", "ref", "p"],
-                ["Xn", "Un", "Vn", "U", "violation"],
-            )
+        # RecedingHorizon.apply: the new plan, else the last one shifted, else hold
+        sl = self.slices
+        last = cs.reshape(mem[sl["plan"]], nu, N)
+        if N > 1:
+            held = cs.if_else(mem[sl["has_plan"]], _ahead(last), cs.repmat(u_prev, 1, N))
+        else:
+            held = cs.repmat(u_prev, 1, N)
+        plan = cs.if_else(ok, U * pb.us, held)
+        u = cs.fmin(cs.fmax(plan[:, 0], s.u_min), s.u_max)
+        memory_next = cs.vertcat(guess, ok, cs.vec(plan), 1)
+        return cs.Function(
+            "nmpc_feedback",
+            [data, mem, x, u_prev, ref],
+            [memory_next, u, viol, 1 - ok, slack],
+            ["data", "memory", "x", "u_prev", "ref"],
+            ["memory_next", "u", "violation", "fallback", "slack"],
         )
-        self.pb = pb
-        self.guess: list[np.ndarray] | None = None
 
-    def solve(
-        self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray
-    ) -> tuple[np.ndarray, bool]:
-        """The input plan [SI] (horizon x nu) and whether the QP's answer is feasible, for
-        the reference at nodes 1..horizon and the model parameters ``p`` [SI]."""
-        pb, N, nx, nu = self.pb, self.pb.s.horizon, self.pb.nx, self.pb.nu
-        xi, vp = x / pb.xs, u_prev / pb.us
-        if self.guess is None:
-            self.guess = [
-                np.tile(xi[:, None], (1, N + 1)),
-                np.tile(vp[:, None], (1, N)),
-                np.tile(xi[:, None], (pb.s.degree, N)),
-            ]
-        Xn, Un, Vn, U, viol = self.step(*self.guess, xi, vp, ref, p)
-        if not (viol[0] <= 1e-6 and np.all(np.isfinite(U)) and np.all(np.isfinite(Xn))):
-            self.guess = None  # restart from the measurement next time
-            return np.zeros((N, nu)), False
-        self.guess = [Xn.reshape(N + 1, nx).T, Un.reshape(N, nu).T, Vn.reshape(N, -1).T]
-        return U.reshape(N, nu) * pb.us, True
+
+def _at(M: cs.MX, k: int, N: int, nu: int) -> cs.MX:
+    """``M`` placed at input block ``k`` of ``N`` blocks of ``nu`` columns, zeros elsewhere."""
+    r = M.shape[0]
+    return cs.horzcat(cs.MX(r, k * nu), M, cs.MX(r, (N - k - 1) * nu))
+
+
+def _moves(N: int, nu: int) -> cs.DM:
+    """The moves ``u_k - u_{k-1}`` of the stacked inputs (the first from zero)."""
+    return cs.DM(np.kron(np.eye(N) - np.eye(N, k=-1), np.eye(nu)))
+
+
+def _cumulative(N: int, nu: int) -> cs.DM:
+    """The inverse of :func:`_moves`: the inputs as sums of their moves."""
+    return cs.DM(np.kron(np.tril(np.ones((N, N))), np.eye(nu)))
+
+
+def _ahead(M: cs.MX) -> cs.MX:
+    """The columns moved one ahead, the last repeated."""
+    return cs.horzcat(M[:, 1:], M[:, -1])
+
+
+def _finite(M: cs.MX) -> cs.MX:
+    """1 if every entry of ``M`` is finite (neither inf nor NaN), else 0."""
+    return cs.mmin(cs.vec(cs.fabs(M) < np.inf))
 
 
 class _Call:
@@ -491,10 +673,51 @@ class NonlinearMPC(RecedingHorizon):
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
         self._offset = 0.0
+        self.violation = 0.0  # the last RTI QP answer's (scaled rows, see QP_FEASIBLE)
+        self.slack = 0.0  # the last RTI plan's largest tension slack [N]
         if isinstance(self.engine, _RealTimeIteration):
-            self.engine.guess = None
+            self.engine.reset()
         else:
             self.engine.warm = {}
+
+    def law_function(self) -> cs.Function:
+        """The RTI's whole per-sample law as one pure CasADi Function (solver "rti")::
+
+            nmpc_law(memory, x, u_prev, ref, p) -> (memory_next, u, violation, fallback)
+
+        ``memory`` (zeros at the start) carries the guess and the plan between samples
+        (:class:`_RealTimeIteration`), ``x`` the state [SI, ``model.state_names``],
+        ``u_prev`` the input held [SI], ``ref`` the reference at nodes 1..horizon [SI, as
+        the optimiser sees it: clipped, shifted by the integral action], ``p`` the
+        prediction's parameters [SI, ``model.param_names``]; ``u`` the command [SI],
+        ``violation`` the QP answer's, ``fallback`` 1 when the sample fell back. This
+        controller calls exactly this Function each sample; its QP solver (qrqp by
+        default) generates C that links statically (the DAQP library in the casadi wheel).
+
+        Raises
+        ------
+        ParameterError
+            For the NLP solvers (ipopt, fatrop), which are not one Function.
+        """
+        if not isinstance(self.engine, _RealTimeIteration):
+            raise ParameterError("nmpc.solver", self.settings.solver, "'rti' for a law Function")
+        return self.engine.law
+
+    @property
+    def memory(self) -> np.ndarray:
+        """The RTI's memory vector now (a copy; see :meth:`law_function`)."""
+        return self.engine.memory.copy()
+
+    def _rti(self, x: np.ndarray, ref: np.ndarray) -> dict:
+        """One sample of the RTI law; the command by name."""
+        eng = self.engine
+        mem, u, viol, fallback, slack = eng.step(eng.memory, x, self._u, ref, self._p)
+        eng.memory = mem
+        self.stats.fallbacks += int(fallback[0])
+        self.violation, self.slack = float(viol[0]), float(slack[0])
+        self._plan = mem[eng.slices["plan"]].reshape(-1, len(self._u))
+        self._u = u
+        return dict(zip(self.inputs, self._u.tolist(), strict=True))
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
@@ -503,8 +726,11 @@ class NonlinearMPC(RecedingHorizon):
         # integral action shifts it by the integrated error, kept inside the reachable range
         nodes = self.nodes(ref)
         shifted = np.clip(nodes + self._offset, self.clip.low, self.clip.high)
-        plan, ok = self.engine.solve(x, self._u, shifted, self._p)
-        u = self.apply(plan if ok else None)
+        if isinstance(self.engine, _RealTimeIteration):
+            u = self._rti(x, shifted)
+        else:
+            plan, ok = self.engine.solve(x, self._u, shifted, self._p)
+            u = self.apply(plan if ok else None)
         if np.all((self._u > self._u_lo) & (self._u < self._u_hi)):  # no windup at a bound
             error = ref - float(y[self.settings.output])
             self._offset += self.settings.integral_gain * self.dt * error
