@@ -162,9 +162,7 @@ def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> Sample
     )
 
 
-def nmpc_system(
-    nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc"
-) -> SampledSystem:
+def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc") -> SampledSystem:
     """A full-state real-time-iteration ``nmpc`` (no estimator) as a sampled system.
 
     The update is the NMPC's own law (:meth:`NonlinearMPC.law_function`: one RTI step
@@ -197,7 +195,9 @@ def nmpc_system(
     integral = s.integral_gain > 0
     if integral:
         states.append(Variable("integral_offset", yu, "integral shift of the reference"))
-    states.append(Variable("held_command", uu, "command held since the last sample", low=lo, high=hi))
+    states.append(
+        Variable("held_command", uu, "command held since the last sample", low=lo, high=hi)
+    )
     op = solve_equilibrium(pred, {uname: bias}, nmpc.parameters)  # the inputs' start
     y_op = float(op[s.output])
     inputs = [
@@ -218,8 +218,7 @@ def nmpc_system(
     ref = cs.fmin(cs.fmax(u[0], nmpc.clip.low), nmpc.clip.high)
     offset = x[nm] if integral else 0.0
     nodes = cs.fmin(cs.fmax(ref + offset, nmpc.clip.low), nmpc.clip.high)
-    nxt, cmd, _ = law(memory, u[2:], held, cs.repmat(nodes, s.horizon, 1), p[:-1])
-    cmd = cs.fmin(cs.fmax(cmd, s.u_min), s.u_max)
+    nxt, cmd = law(memory, u[2:], held, cs.repmat(nodes, s.horizon, 1), p[:-1])[:2]
     after = [nxt]
     if integral:  # no windup at a bound (NonlinearMPC.update)
         inside = cs.logic_and(cmd > s.u_min, cmd < s.u_max)

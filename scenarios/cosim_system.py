@@ -250,7 +250,9 @@ def _task(sc: Scenario, part: Part, parts: dict[str, Part]) -> tuple[Part, dict,
 def _table(sc: Scenario, part: Part, key: str) -> Mapping:
     value = part.spec.get(key, {})
     if not isinstance(value, Mapping):
-        raise sc.error(("cosim", "participants", part.name, key), f"expected a table, got {value!r}")
+        raise sc.error(
+            ("cosim", "participants", part.name, key), f"expected a table, got {value!r}"
+        )
     return value
 
 
@@ -298,8 +300,14 @@ def _nmpc(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
         if key not in allowed:
             raise sc.error((*path, "settings", key), unknown_key(key, allowed))
     n, fidelity = plant.spec.get("n", 3), plant.spec.get("fidelity", "full")
-    pred = sprung_load(n, fidelity=fidelity, flow_law="smooth", saturate=False, **_load_kw(load.spec))
-    bias = float({**dict(zip(plant.model.input_names, plant.model.u0(), strict=True)), **plant.start}[task["input"]])
+    pred = sprung_load(
+        n, fidelity=fidelity, flow_law="smooth", saturate=False, **_load_kw(load.spec)
+    )
+    bias = float(
+        {**dict(zip(plant.model.input_names, plant.model.u0(), strict=True)), **plant.start}[
+            task["input"]
+        ]
+    )
     try:
         settings = NMPCSettings(
             **own, output=task["output"], u_min=task["u_min"], u_max=task["u_max"]
