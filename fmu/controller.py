@@ -171,7 +171,8 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     current reference only: the Python NMPC with ``preview = false``), the integral
     reference shift (when ``integral_gain > 0``) and the held command. Inputs: the
     reference, the measured output and the prediction's states by name; parameters: every
-    parameter of the prediction model (tunable: the run-time inputs of the law) and
+    parameter of the prediction model (tunable: the run-time inputs of the law; their
+    start values those the prediction uses now, :attr:`NonlinearMPC.parameters`) and
     ``bias`` (fixed). The bounds and the rate limit are constraints of the QP, fixed at
     export. Units from the prediction model (``model``, the plant, must have its output and
     input).
