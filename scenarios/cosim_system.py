@@ -23,22 +23,30 @@ step (required). ``[solver]``: the native participants' integrator. ``[cosim]``:
     command is the bias), ``sample_time``, ``output`` ("myofibril.length"), ``input``
     ("regulator.p_cmd"), ``u_min`` (0 Pa), ``u_max`` (0.1 MPa), ``gains`` (a table of the
     PID's own settings, ``controllers/pid.py``), ``fmi``;
+  * ``"nmpc"``: the project's NMPC (real-time iteration) as a controller FMU; its
+    prediction is ``plant`` and ``load`` (a built load) in one model
+    (:func:`~sarcomere.dynamics.assemblies.sprung_load`, smooth flow law, no clamp), its
+    inputs ``reference``, ``measurement`` and every state of that model, each connected
+    from the participant that owns it (added to the connections; the owners expose them);
+    keys as ``"pid"`` but ``gains``, and ``load``, ``settings`` (a table of
+    :class:`~sarcomere.controllers.nmpc.NMPCSettings` fields: ``horizon``, weights,
+    ``rate_max``, ``integral_gain``, ...); the start command is the muscle's;
 
 - ``connections``: ``[["source.output", "target.input"], ...]``;
 - ``sources``: a table ``"participant.input" = {signal}`` (the ``[inputs]`` signal
   tables), sampled at each step's start;
 - ``ordering``, ``inputs``: as the single-FMU form; ``record``: the signals to record
   (default every participant's inputs and outputs);
-- ``compare = "monolithic-loop"``: also run the same PID on the monolithic model
+- ``compare = "monolithic-loop"``: also run the same controller on the monolithic model
   (:func:`~sarcomere.dynamics.assemblies.sprung_load`, the muscle and the load in one
   model) in the project's sampled loop (:func:`~sarcomere.controllers.loop.run_closed_loop`,
-  CVODES per ``[solver]``); needs one muscle, one load and one PID wired as
-  pid -> muscle -> load -> muscle, muscle -> pid.
+  CVODES per ``[solver]``); needs one muscle, one load and one controller (pid or nmpc)
+  wired as controller -> muscle -> load -> muscle, muscle -> controller.
 
-Metrics: ``<pid>_tracking_rmse_<unit>``, the RMS of measurement minus reference at the
-communication points; with ``compare``, ``max_error_vs_monolithic_loop_<unit>``, the
-largest difference of the PID's measured output between the co-simulation and the loop,
-at the PID's samples. Results: ``cosim`` (with the PID references as
+Metrics: ``<controller>_tracking_rmse_<unit>``, the RMS of measurement minus reference at
+the communication points; with ``compare``, ``max_error_vs_monolithic_loop_<unit>``, the
+largest difference of the controller's measured output between the co-simulation and the
+loop, at its samples. Results: ``cosim`` (with the controller's references as
 ``reference``) and ``monolithic`` (the same names).
 """
 
