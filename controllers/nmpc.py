@@ -55,9 +55,16 @@ from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
 from .base import Controller
-from .ekf import estimated_parameters
+from .ekf import OFFSETS, estimated_parameters
 from .qp import qp_solver
-from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
+from .receding import (
+    TENSION,
+    RecedingHorizon,
+    check_horizon,
+    ekf_disturbance,
+    mpc_settings,
+    with_estimator,
+)
 from .registry import count, positive, register_controller
 
 SOLVERS = ("ipopt", "fatrop", "rti")
@@ -113,7 +120,8 @@ class NMPCSettings:
         The tracked signal.
     integral_gain : float
         Integral action [1/s]: the reference given to the optimiser is moved by
-        ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound), so
+        ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound or
+        moves at the rate limit: anti-windup), so
         a load or model error the prediction does not know leaves no steady offset; 0
         turns it off (:func:`make_nmpc` on an EKF that feeds the load estimate defaults to
         0: the prediction then knows the load).
@@ -183,22 +191,27 @@ def radau_residual(f: cs.Function, nx: int, nu: int, degree: int) -> cs.Function
 
 
 class _Problem:
-    """The prediction model in scaled variables: ``x = xs * xi``, ``u = us * v``; the
-    model's parameter vector ``p`` [SI, in ``model.param_names`` order] is an argument of
-    every Function, so the parameters are run-time inputs, not constants."""
+    """The prediction model in scaled variables: ``x = xs * xi``, ``u = us * v``. The
+    vector ``p`` is the model's parameters [SI, in ``model.param_names`` order] followed by
+    the two disturbances of :data:`~.ekf.OFFSETS` (:attr:`NonlinearMPC.offsets`): a
+    constant added to every input in the prediction [SI of the input] and one added to the
+    tracked output [SI] (0: none); ``p`` is an argument of every Function, so all are
+    run-time inputs, not constants."""
 
     def __init__(self, model: Model, s: NMPCSettings, dt: float, xs: np.ndarray) -> None:
         m = model
-        self.nx, self.nu, self.np = m.nx, len(m.input_names), m.p.numel()
+        n_model = m.p.numel()
+        self.nx, self.nu, self.np = m.nx, len(m.input_names), n_model + len(OFFSETS)
         self.xs, self.us = xs, np.full(self.nu, s.u_max - s.u_min)
         xi, v, p = cs.SX.sym("xi", self.nx), cs.SX.sym("v", self.nu), cs.SX.sym("p", self.np)
-        x, u = xi * xs, v * self.us
-        ode = m.function("ode")(x, cs.SX(0, 1), u, p) / xs
+        pm, d_in, d_out = p[:n_model], p[n_model], p[n_model + 1]
+        x, u = xi * xs, v * self.us + d_in
+        ode = m.function("ode")(x, cs.SX(0, 1), u, pm) / xs
         # the parameters ride along with the input: constant over an interval, like it
         self.f = cs.Function("f", [xi, cs.vertcat(v, p)], [ode])
         self.tensions = [n for n in m.signal_names if TENSION.fullmatch(n)]
-        sig = m.signals_function([s.output, *self.tensions])(x, cs.SX(0, 1), u, p)
-        self.y = cs.Function("y", [xi, p], [sig[0]])
+        sig = m.signals_function([s.output, *self.tensions])(x, cs.SX(0, 1), u, pm)
+        self.y = cs.Function("y", [xi, p], [sig[0] + d_out])
         self.T = cs.Function("T", [xi, p], [sig[1:]])
         self.res = radau_residual(self.f, self.nx, self.nu + self.np, s.degree)
         self.dt, self.s = dt, s
@@ -649,6 +662,7 @@ class NonlinearMPC(RecedingHorizon):
     """
 
     slug = "nmpc"
+    offsets = OFFSETS  # the input and output disturbances, after the model parameters
 
     def __init__(
         self,
@@ -726,12 +740,17 @@ class NonlinearMPC(RecedingHorizon):
         # integral action shifts it by the integrated error, kept inside the reachable range
         nodes = self.nodes(ref)
         shifted = np.clip(nodes + self._offset, self.clip.low, self.clip.high)
+        u_prev = self._u.copy()
         if isinstance(self.engine, _RealTimeIteration):
             u = self._rti(x, shifted)
         else:
             plan, ok = self.engine.solve(x, self._u, shifted, self._p)
             u = self.apply(plan if ok else None)
-        if np.all((self._u > self._u_lo) & (self._u < self._u_hi)):  # no windup at a bound
+        # anti-windup: no integration while the command is held by a bound or moves at
+        # the rate limit (the optimiser could not follow a larger shift either)
+        at_rate = np.abs(self._u - u_prev) >= self.settings.rate_max * self.dt * (1 - 1e-6)
+        at_bound = (self._u <= self._u_lo) | (self._u >= self._u_hi)
+        if not np.any(at_rate | at_bound):
             error = ref - float(y[self.settings.output])
             self._offset += self.settings.integral_gain * self.dt * error
         return u
@@ -758,13 +777,16 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     overrides).
     Common keys: ``output``, ``input``, ``u_min``, ``u_max``, ``tension_min`` (the hard
     tension bound, default 0). Own keys: the other :class:`NMPCSettings` fields,
-    ``fidelity``, ``estimator`` ("none" or "ekf") and ``ekf``. On an EKF that estimates a
-    parameter of the prediction (by default the load mass), the estimate is fed to the
+    ``fidelity``, ``estimator`` ("none" or "ekf"), ``ekf`` and ``disturbance`` (the
+    disturbance model the EKF estimates, :func:`~.receding.ekf_disturbance`: "load",
+    "input", "output" or "none"; default "load" where the plant has one). On an EKF that
+    estimates a parameter of the prediction or an offset, the estimate is fed to the
     prediction every sample and ``integral_gain`` defaults to 0 (set it to keep the
     integral reference shift as well).
     """
-    extra = {"fidelity": DEFAULT_FIDELITY}
+    extra = {"fidelity": DEFAULT_FIDELITY, "disturbance": None}
     own, est, ekf_settings = mpc_settings("nmpc", model, settings, NMPCSettings, extra)
+    ekf_settings = ekf_disturbance("nmpc", model, est, own.pop("disturbance"), ekf_settings)
     given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
     fidelity = own.pop("fidelity")
     smooth = {"fidelity": fidelity, "flow_law": "smooth", "saturate": False}
@@ -781,7 +803,7 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
         )
     params = {n: given[n] for n in pred.param_names if n in given}
     fed = est == "ekf" and any(
-        n in pred.param_names for n in estimated_parameters(model, ekf_settings)
+        n in (*pred.param_names, *OFFSETS) for n in estimated_parameters(model, ekf_settings)
     )
     if fed and "integral_gain" not in settings:  # the load estimate removes the offset
         own["integral_gain"] = 0.0

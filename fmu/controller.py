@@ -208,10 +208,17 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     for n, x0 in zip(pred.state_names, op.x, strict=True):
         inputs.append(Variable(n, pred.unit(n), f"plant state {n}", float(x0)))
     params = []
-    for n, value in zip(pred.param_names, nmpc.parameters.values(), strict=True):
-        v = pred.variables[n]
-        text = f"prediction model: {v.description or n}"
-        params.append(Variable(n, v.unit, text, float(value), v.low, v.high))
+    offsets = {  # the run-time inputs of the prediction that are not model parameters
+        "disturbance.input": (uu, f"constant disturbance added to {uname} in the prediction"),
+        "disturbance.output": (yu, f"constant disturbance added to {s.output} as predicted"),
+    }
+    for n, value in nmpc.parameters.items():
+        if n in pred.variables:
+            v = pred.variables[n]
+            text = f"prediction model: {v.description or n}"
+            params.append(Variable(n, v.unit, text, float(value), v.low, v.high))
+        else:
+            params.append(Variable(n, *offsets[n], float(value)))
     params.append(Variable("bias", uu, "command before the first sample", bias, lo, hi))
     x = cs.MX.sym("x", len(states))
     u, p = cs.MX.sym("u", len(inputs)), cs.MX.sym("p", len(params))
@@ -221,10 +228,11 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     nodes = cs.fmin(cs.fmax(ref + offset, nmpc.clip.low), nmpc.clip.high)
     nxt, cmd = law(memory, u[2:], held, cs.repmat(nodes, s.horizon, 1), p[:-1])[:2]
     after = [nxt]
-    if integral:  # no windup at a bound (NonlinearMPC.update)
-        inside = cs.logic_and(cmd > s.u_min, cmd < s.u_max)
+    if integral:  # no windup at a bound or at the rate limit (NonlinearMPC.update)
+        at_rate = cs.fabs(cmd - held) >= s.rate_max * nmpc.dt * (1 - 1e-6)
+        free = cs.logic_and(cs.logic_and(cmd > s.u_min, cmd < s.u_max), cs.logic_not(at_rate))
         step = s.integral_gain * nmpc.dt * (ref - u[1])
-        after.append(cs.if_else(inside, offset + step, offset))
+        after.append(cs.if_else(free, offset + step, offset))
     return SampledSystem(
         name,
         f"NMPC (real-time iteration, horizon {s.horizon}) of {uname} on {s.output} "
