@@ -36,6 +36,7 @@ from pathlib import Path
 import casadi as cs
 
 from sarcomere.controllers.estimated import OnEstimate
+from sarcomere.controllers.lmpc import LinearMPC
 from sarcomere.controllers.lqi import LQI
 from sarcomere.controllers.nmpc import NonlinearMPC
 from sarcomere.controllers.pid import LAW_PARAMETERS, PID, STATE_NAMES, pid_law
@@ -199,7 +200,8 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     states.append(
         Variable("held_command", uu, "command held since the last sample", low=lo, high=hi)
     )
-    op = solve_equilibrium(pred, {uname: bias}, nmpc.parameters)  # the inputs' start
+    now = {k: v for k, v in nmpc.parameters.items() if k in pred.param_names}
+    op = solve_equilibrium(pred, {uname: bias}, now)  # the inputs' start values
     y_op = float(op[s.output])
     inputs = [
         Variable("reference", yu, f"reference of {s.output} (held over the horizon)", y_op),
@@ -248,6 +250,87 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     )
 
 
+def lmpc_system(lmpc: LinearMPC, model: Model, bias: float, name: str = "lmpc") -> SampledSystem:
+    """A full-state ``lmpc`` (no estimator, ``disturbance = "none"``) as a sampled system,
+    **at its present linearisation**: the update is :meth:`LinearMPC.law_function` (the
+    condensed velocity-form QP, solved by ``settings.qp_solver``) with its QP data fixed
+    at export (:meth:`LinearMPC.law_parameters`); the FMU does not re-linearise (the
+    Python LMPC's commands while it does not either). The reference is clipped to the
+    reachable range and held over the horizon (``preview = false``). Inputs: the reference,
+    the measured output, the model's states and the soft-bounded signals by name;
+    parameters ``u_min``, ``u_max``, ``du_max``, one ``<signal>.soft_min`` per soft bound
+    (tunable) and ``bias`` (fixed). Units from the prediction model."""
+    if lmpc.disturbance != "none":
+        raise ParameterError(
+            "controller",
+            f"lmpc (disturbance '{lmpc.disturbance}')",
+            "an LMPC with disturbance 'none' (its disturbance filter is not exported)",
+        )
+    s, pred = lmpc.settings, lmpc.model
+    (uname,) = lmpc.inputs
+    for n in (s.output, uname):
+        if n not in model.signal_names:
+            raise ParameterError("model", model.name, f"a plant with the LMPC's signal '{n}'")
+    yu, (uu, lo, hi) = pred.unit(s.output), _bias(lmpc, pred, bias)
+    law, soft = lmpc.law_function(), [n for n, _ in s.soft_min]
+    nm = law.nnz_in(0)
+    states = [
+        Variable(f"memory[{i + 1}]", "1", f"entry {i + 1} of the LMPC's memory") for i in range(nm)
+    ]
+    states.append(
+        Variable("held_command", uu, "command held since the last sample", low=lo, high=hi)
+    )
+    now = {k: v for k, v in lmpc.parameters.items() if k in pred.param_names}
+    op = solve_equilibrium(pred, {uname: bias}, now)  # the inputs' start values
+    x_op, y_op = op.x, float(op[s.output])
+    inputs = [
+        Variable("reference", yu, f"reference of {s.output} (held over the horizon)", y_op),
+        Variable("measurement", yu, f"measured {s.output}", y_op),
+    ]
+    for n, x0 in zip(pred.state_names, x_op, strict=True):
+        inputs.append(Variable(n, pred.unit(n), f"plant state {n}", float(x0)))
+    for n in soft:
+        inputs.append(Variable(n, pred.unit(n), f"measured {n} (soft lower bound)"))
+    p_law = lmpc.law_parameters()
+    nb = 3 * len(lmpc.inputs) + len(soft)  # u_lo, u_hi, du_max, soft_min at the end
+    params = [
+        Variable("u_min", uu, "lowest command", lo, lo, hi),
+        Variable("u_max", uu, "highest command", hi, lo, hi),
+        Variable(
+            "du_max",
+            uu,
+            "largest change of the command per sample",
+            p_law[-nb + 2 * len(lmpc.inputs)],
+            0.0,
+        ),
+    ]
+    for n, v in s.soft_min:
+        params.append(Variable(f"{n}.soft_min", pred.unit(n), f"soft lower bound of {n}", v))
+    params.append(Variable("bias", uu, "command before the first sample", bias, lo, hi))
+    x = cs.MX.sym("x", len(states))
+    u, p = cs.MX.sym("u", len(inputs)), cs.MX.sym("p", len(params))
+    nx = pred.nx
+    ref = cs.fmin(cs.fmax(u[0], lmpc.clip.low), lmpc.clip.high)
+    meas = cs.vertcat(u[2 : 2 + nx], u[1], u[2 + nx :])
+    data = cs.vertcat(cs.DM(p_law[:-nb]), p[:-1])
+    nxt, cmd = law(x[:nm], meas, x[-1], cs.repmat(ref, s.horizon + 1, 1), data)[:2]
+    N, nu = s.horizon, len(lmpc.inputs)
+    start = cs.vertcat(cs.DM.zeros(nx + 1), cs.repmat(p[-1], N * nu, 1), p[-1])
+    return SampledSystem(
+        name,
+        f"LMPC (velocity form, horizon {N}, fixed linearisation) of {uname} on {s.output} "
+        f"(full state), sampled every {lmpc.dt:g} s (sarcomere)",
+        lmpc.dt,
+        tuple(states),
+        tuple(inputs),
+        (Variable("command", uu, f"{uname}, held between samples", low=lo, high=hi),),
+        tuple(params),
+        cs.Function("update", [x, u, p], [cs.vertcat(nxt, cmd)]),
+        cs.Function("output", [x, p], [x[-1]]),
+        cs.Function("start", [u, p], [start]),
+    )
+
+
 def _what(controller) -> str:
     """A controller's kind for messages: its slug and solver, or its estimator."""
     if isinstance(controller, OnEstimate):
@@ -259,7 +342,7 @@ def _what(controller) -> str:
 
 
 def export_controller_fmu(
-    controller: PID | LQI | NonlinearMPC,
+    controller: PID | LQI | NonlinearMPC | LinearMPC,
     model: Model,
     path: str | Path,
     bias: float,
@@ -267,12 +350,13 @@ def export_controller_fmu(
     name: str | None = None,
     stop_time: float | None = None,
 ) -> Path:
-    """Write ``controller`` (a PID, a full-state LQI or a full-state RTI NMPC) as a
-    Co-Simulation FMU; see :func:`pid_system`, :func:`lqi_system` and :func:`nmpc_system`.
+    """Write ``controller`` (a PID, a full-state LQI, a full-state RTI NMPC or LMPC) as a
+    Co-Simulation FMU; see :func:`pid_system`, :func:`lqi_system`, :func:`nmpc_system`
+    and :func:`lmpc_system`.
 
     Parameters
     ----------
-    controller : PID, LQI or NonlinearMPC
+    controller : PID, LQI, NonlinearMPC or LinearMPC
         The controller; its sample time is the FMU's period.
     model : Model
         The plant it controls: the units of its output and input.
@@ -295,15 +379,15 @@ def export_controller_fmu(
     Raises
     ------
     ParameterError
-        For a controller without an exported law (the LMPC, a controller on an EKF, an
-        NMPC solved by ipopt or fatrop), a bias
+        For a controller without an exported law (a controller on an EKF, an NMPC solved
+        by ipopt or fatrop, an LMPC with a disturbance filter), a bias
         outside the bounds, a bad version or path.
     """
-    builders = {PID: pid_system, LQI: lqi_system, NonlinearMPC: nmpc_system}
+    builders = {PID: pid_system, LQI: lqi_system, NonlinearMPC: nmpc_system, LinearMPC: lmpc_system}
     build = builders.get(type(controller))
     if build is None:
         raise ParameterError(
-            "controller", _what(controller), "a PID, an LQI or an NMPC (the exported laws)"
+            "controller", _what(controller), "a PID, an LQI, an NMPC or an LMPC (the exported laws)"
         )
     system = build(controller, model, bias, name or controller.slug)
     experiment = Experiment(stop_time=stop_time, step_size=controller.dt)
