@@ -31,6 +31,11 @@ step (required). ``[solver]``: the native participants' integrator. ``[cosim]``:
     keys as ``"pid"`` but ``gains``, and ``load``, ``settings`` (a table of
     :class:`~sarcomere.controllers.nmpc.NMPCSettings` fields: ``horizon``, weights,
     ``rate_max``, ``integral_gain``, ...); the start command is the muscle's;
+  * ``"lmpc"``: the project's LMPC as a controller FMU, as ``"nmpc"``: its model
+    :func:`~sarcomere.dynamics.assemblies.sprung_load` as the plant (exact flow law),
+    linearised at the start and kept there (:data:`FIXED_LINEARISATION`: no
+    re-linearisation, no disturbance filter, no soft bounds), ``settings`` of
+    :class:`~sarcomere.controllers.lmpc.LMPCSettings` (``horizon``, weights, ``rate_max``);
 
 - ``connections``: ``[["source.output", "target.input"], ...]``;
 - ``sources``: a table ``"participant.input" = {signal}`` (the ``[inputs]`` signal
@@ -40,7 +45,7 @@ step (required). ``[solver]``: the native participants' integrator. ``[cosim]``:
 - ``compare = "monolithic-loop"``: also run the same controller on the monolithic model
   (:func:`~sarcomere.dynamics.assemblies.sprung_load`, the muscle and the load in one
   model) in the project's sampled loop (:func:`~sarcomere.controllers.loop.run_closed_loop`,
-  CVODES per ``[solver]``); needs one muscle, one load and one controller (pid or nmpc)
+  CVODES per ``[solver]``); needs one muscle, one load and one controller (pid, nmpc or lmpc)
   wired as controller -> muscle -> load -> muscle, muscle -> controller.
 
 Metrics: ``<controller>_tracking_rmse_<unit>``, the RMS of measurement minus reference at
@@ -62,6 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from sarcomere.controllers.base import Controller
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
 from sarcomere.controllers.loop import run_closed_loop
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.controllers.pid import make_pid
@@ -106,6 +112,17 @@ BUILDS = {
         "settings",
         "fmi",
     ),
+    "lmpc": (
+        "plant",
+        "load",
+        "sample_time",
+        "output",
+        "input",
+        "u_min",
+        "u_max",
+        "settings",
+        "fmi",
+    ),
 }
 """Project-built participants and their own keys (besides ``build``)."""
 SOURCES = {"fmu": (), "scene": ("fmi",)}
@@ -118,7 +135,7 @@ KEY_OF = {
     "source": "sources",
 }
 """The ``[cosim]`` key behind each name :func:`cosimulate` refuses."""
-CONTROLLERS = ("pid", "nmpc")
+CONTROLLERS = ("pid", "nmpc", "lmpc")
 """Builds that are controller FMUs."""
 PID_DEFAULTS = {"output": "myofibril.length", "input": "regulator.p_cmd"}
 PID_BOUNDS_PA = (0.0, 1e5)
@@ -291,10 +308,23 @@ def _load_kw(spec: Mapping) -> dict:
     }
 
 
-def _nmpc(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
-    """The NMPC (real-time iteration) predicting with the plant muscle and its load in one
-    model (:func:`sprung_load`, smooth flow law, no clamp), started at the command of the
-    muscle's start; its states are read from the participants that own them."""
+FIXED_LINEARISATION = {
+    "relinearize_m": 1.0,
+    "relinearize_x": 1e6,
+    "relinearize_u": 1e6,
+    "relinearize_rel": 1e6,
+    "disturbance": "none",
+}
+"""The settings of an ``lmpc`` participant that keep it at its start linearisation (the
+thresholds out of reach, no disturbance filter): what its FMU holds, so the monolithic
+loop runs the same controller."""
+
+
+def _mpc(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
+    """An NMPC (real-time iteration, predicting with the smooth flow law and no clamp) or
+    an LMPC (linearised at the start, :data:`FIXED_LINEARISATION`) on the plant muscle and
+    its load in one model (:func:`sprung_load`), started at the command of the muscle's
+    start; its states are read from the participants that own them."""
     path = ("cosim", "participants", part.name)
     plant, task, dt = _task(sc, part, parts)
     load = parts.get(part.spec.get("load"))
@@ -302,26 +332,25 @@ def _nmpc(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
         loads = [p.name for p in parts.values() if p.kind == "load"]
         raise sc.error((*path, "load"), f"{part.spec.get('load')!r}: one of {loads}")
     own = dict(_table(sc, part, "settings"))
-    fields = [f.name for f in dataclasses.fields(NMPCSettings)]
-    allowed = [f for f in fields if f not in ("output", "u_min", "u_max", "solver")]
+    cls = NMPCSettings if part.kind == "nmpc" else LMPCSettings
+    fixed = ("output", "u_min", "u_max", "solver", "soft_min", *FIXED_LINEARISATION)
+    allowed = [f.name for f in dataclasses.fields(cls) if f.name not in fixed]
     for key in own:
         if key not in allowed:
             raise sc.error((*path, "settings", key), unknown_key(key, allowed))
     n, fidelity = plant.spec.get("n", 3), plant.spec.get("fidelity", "full")
-    pred = sprung_load(
-        n, fidelity=fidelity, flow_law="smooth", saturate=False, **_load_kw(load.spec)
-    )
-    bias = float(
-        {**dict(zip(plant.model.input_names, plant.model.u0(), strict=True)), **plant.start}[
-            task["input"]
-        ]
-    )
+    smooth = {"flow_law": "smooth", "saturate": False} if part.kind == "nmpc" else {}
+    pred = sprung_load(n, fidelity=fidelity, **smooth, **_load_kw(load.spec))
+    start = {**dict(zip(plant.model.input_names, plant.model.u0(), strict=True)), **plant.start}
+    bias = float(start[task["input"]])
+    bounds = {"output": task["output"], "u_min": task["u_min"], "u_max": task["u_max"]}
     try:
-        settings = NMPCSettings(
-            **own, output=task["output"], u_min=task["u_min"], u_max=task["u_max"]
-        )
         op = solve_equilibrium(pred, {task["input"]: bias})
-        part.controller = NonlinearMPC(pred, op.u, dt, settings)
+        if part.kind == "nmpc":
+            part.controller = NonlinearMPC(pred, op.u, dt, NMPCSettings(**own, **bounds))
+        else:
+            settings = LMPCSettings(**own, **bounds, **FIXED_LINEARISATION)
+            part.controller = LinearMPC(pred, op.x, op.u, dt, settings)
     except ParameterError as exc:
         raise sc.error((*path, "settings"), describe(exc)) from None
     part.model = pred
@@ -405,7 +434,7 @@ def _wired(sc: Scenario, parts: list[Part], connections: list[Connection]) -> tu
     kinds["controller"] = [p for p in parts if p.kind in CONTROLLERS]
     path = ("cosim", "compare")
     if any(len(v) != 1 for v in kinds.values()):
-        raise sc.error(path, "needs exactly one built muscle, one load and one pid or nmpc")
+        raise sc.error(path, "needs exactly one built muscle, one load and one pid, nmpc or lmpc")
     (mu,), (lo,), (ctl,) = kinds["muscle"], kinds["load"], kinds["controller"]
     u_name, y_name = _io(ctl.controller)
     wiring = {
@@ -491,8 +520,8 @@ def run_system(sc: Scenario, out_dir: Path) -> RunOutput:
     for p in parts:
         if p.kind == "pid":
             _pid(sc, p, by_name)
-        elif p.kind == "nmpc":
-            _nmpc(sc, p, by_name)
+        elif p.kind in ("nmpc", "lmpc"):
+            _mpc(sc, p, by_name)
     connections = _connections(sc)
     states = _state_connections(parts)
     given = {c.target for c in connections}

@@ -112,33 +112,40 @@ def test_a_native_muscle_and_load_with_the_controller_fmu_follow_the_loop(tmp_pa
     assert out.results["cosim"]["pid.command"][-1] > 3e4  # shorter: more pressure
 
 
-NMPC = """[cosim.participants.pid]
-build = "nmpc"
+MPC = """[cosim.participants.pid]
+build = "{build}"
 plant = "muscle"
 load = "load"
 sample_time = "10 ms"
 u_max = "0.2 MPa"
-settings = {{ horizon = 10, integral_gain = 0.0 }}
+settings = {settings}
 fmi = 2
 """
-"""The NMPC (horizon 10) in place of the PID, named "pid" so the connections stay."""
+"""An MPC (horizon 10) in place of the PID, named "pid" so the connections stay."""
 
 
-def test_an_nmpc_fmu_reads_the_states_of_both_participants_and_follows_the_loop(tmp_path):
-    """``build = "nmpc"``: its prediction is the muscle and the load in one model, its state
-    inputs are connected from the native muscle and load (each the states it owns), and the
-    co-simulation follows the same NMPC in the monolithic loop (the coupling's error only)."""
+@pytest.mark.parametrize(
+    ("build", "settings"),
+    [("nmpc", "{ horizon = 10, integral_gain = 0.0 }"), ("lmpc", "{ horizon = 10 }")],
+)
+def test_an_mpc_fmu_reads_the_states_of_both_participants_and_follows_the_loop(
+    tmp_path, build, settings
+):
+    """``build = "nmpc"`` / ``"lmpc"``: its model is the muscle and the load in one, its
+    state inputs are connected from the native muscle and load (each the states it owns),
+    and the co-simulation follows the same controller in the monolithic loop (the
+    coupling's error only)."""
     scene = _scene()
     start = scene.index("[cosim.participants.pid]")
     end = scene.index("[cosim.participants.muscle]")
     path = tmp_path / "small.toml"
-    path.write_text(scene[:start] + NMPC.format() + "\n" + scene[end:])
+    mpc = MPC.format(build=build, settings=settings)
+    path.write_text(scene[:start] + mpc + "\n" + scene[end:])
     out = run(path, tmp_path / "out", quiet=True)
     err = out.metrics["max_error_vs_monolithic_loop_m"]
     assert 1e-9 < err < 5e-6, err
-    cosim = out.results["cosim"]
-    assert cosim["pid.command"][-1] > 3e4  # shorter: more pressure
-    assert "nmpc as FMU" in out.extra["participants"]["pid"]
+    assert out.results["cosim"]["pid.command"][-1] > 3e4  # shorter: more pressure
+    assert f"{build} as FMU" in out.extra["participants"]["pid"]
 
 
 def test_the_co_simulated_time_shows_on_the_progress_line(tmp_path):
