@@ -1,8 +1,11 @@
-"""Speed of the NMPC controller FMU against the Python NMPC it is generated from.
+"""Speed of the NMPC (or LMPC) controller FMU against the Python controller it is
+generated from.
 
 The set-up of the control scenes: the plant ``hanging_load(n, 20 g)`` (exact flow law), the
 NMPC's prediction the same set-up with the smooth flow law and no clamp, real-time
-iteration, horizon 20, 10 ms samples. The Python NMPC runs a closed loop on the plant
+iteration, horizon 20, 10 ms samples (``--controller lmpc``: the LMPC on the plant model,
+horizon 20, no disturbance filter, kept at its linearisation: what its FMU holds). The
+Python controller runs a closed loop on the plant
 (length steps of -2 and +3 mm, ``--samples`` samples) and records what it read; the
 exported FMU (FMI 2.0) is then stepped through the same measurements with fmpy
 (``doStep`` of one sample each). Reported, in one process: the median ``doStep`` time
@@ -12,6 +15,7 @@ ratio, the largest command difference [Pa], the export time.
 Usage::
 
     python benchmarks/controller_fmu.py --out out/bench/controller_fmu.json [--n 3]
+    python benchmarks/controller_fmu.py --controller lmpc
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.simulation.simulator import Simulator
@@ -58,11 +63,11 @@ def closed_loop(plant, nmpc, op, samples: int) -> tuple[list, list, list, list]:
     return read, refs, cmds, times
 
 
-def fmu_steps(path: Path, folder: str, nmpc, read, refs) -> tuple[list, list]:
+def fmu_steps(path: Path, folder: str, nmpc, read, refs, ident: str) -> tuple[list, list]:
     """The FMU stepped once per sample on the recorded signals: commands, doStep times."""
     md = read_model_description(str(path))
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    s = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="nmpc", instanceName="b")
+    s = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=ident, instanceName="b")
     s.instantiate()
     s.setupExperiment(startTime=0.0)
     s.enterInitializationMode()
@@ -86,23 +91,30 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=3, help="APS in the chain")
     ap.add_argument("--samples", type=int, default=200, help="samples of the scene")
+    ap.add_argument("--controller", choices=("nmpc", "lmpc"), default="nmpc")
     ap.add_argument("--out", type=Path, help="JSON file of the results")
     args = ap.parse_args()
     plant = hanging_load(args.n, load_kg=0.02)
     pred = hanging_load(args.n, load_kg=0.02, flow_law="smooth", saturate=False)
     op = solve_equilibrium(plant, {"regulator.p_cmd": U0})
-    nmpc = NonlinearMPC(pred, op.u, DT, NMPCSettings())
+    if args.controller == "nmpc":
+        nmpc = NonlinearMPC(pred, op.u, DT, NMPCSettings())
+    else:  # re-linearisation out of reach: the FMU keeps the linearisation
+        fixed = LMPCSettings(disturbance="none", relinearize_m=1.0, relinearize_x=1e6)
+        nmpc = LinearMPC(plant, op.x, op.u, DT, fixed)
     read, refs, want, py_times = closed_loop(plant, nmpc, op, args.samples)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        path = export_controller_fmu(nmpc, plant, Path(tmp) / "nmpc.fmu", U0, 2)
+        path = export_controller_fmu(nmpc, plant, Path(tmp) / f"{args.controller}.fmu", U0, 2)
         export_s = time.perf_counter() - start
-        got, fmu_times = fmu_steps(path, extract(str(path), unzipdir=f"{tmp}/x"), nmpc, read, refs)
+        folder = extract(str(path), unzipdir=f"{tmp}/x")
+        got, fmu_times = fmu_steps(path, folder, nmpc, read, refs, args.controller)
     res = {
+        "controller": args.controller,
         "n": args.n,
         "horizon": nmpc.settings.horizon,
         "samples": args.samples,
-        "states": pred.nx,
+        "states": plant.nx,
         "memory": nmpc.law_function().nnz_in(0),
         "export_s": export_s,
         "fmu_doStep_median_ms": 1e3 * statistics.median(fmu_times),
