@@ -47,6 +47,10 @@ from sarcomere.dynamics.modeling.model import Model
 from .export import Experiment
 from .sampled import SampledSystem, Variable, export_sampled_fmu
 
+GENERATED_QP = ("daqp", "qrqp")
+"""QP solvers of the MPCs whose CasADi-generated C the export compiles (qrqp's is
+self-contained; DAQP's links the casadi wheel's static library)."""
+
 TIME_PARAMETER_MIN_S = 1e-9
 """Smallest derivative-filter and tracking time constant the FMU accepts [s] (the law
 divides by ``tt``)."""
@@ -183,6 +187,7 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
             "controller", _what(nmpc), "an NMPC with solver 'rti' (the exported law)"
         )
     s, pred = nmpc.settings, nmpc.model
+    _generated("nmpc", s.qp_solver)
     (uname,) = nmpc.inputs
     for n in (s.output, uname):
         if n not in model.signal_names:
@@ -267,6 +272,7 @@ def lmpc_system(lmpc: LinearMPC, model: Model, bias: float, name: str = "lmpc") 
             "an LMPC with disturbance 'none' (its disturbance filter is not exported)",
         )
     s, pred = lmpc.settings, lmpc.model
+    _generated("lmpc", s.qp_solver)
     (uname,) = lmpc.inputs
     for n in (s.output, uname):
         if n not in model.signal_names:
@@ -329,6 +335,14 @@ def lmpc_system(lmpc: LinearMPC, model: Model, bias: float, name: str = "lmpc") 
         cs.Function("output", [x, p], [x[-1]]),
         cs.Function("start", [u, p], [start]),
     )
+
+
+def _generated(slug: str, solver: str) -> None:
+    """Refuse a QP solver whose generated C cannot be compiled into the FMU."""
+    if solver not in GENERATED_QP:
+        raise ParameterError(
+            f"{slug}.qp_solver", solver, f"one of {GENERATED_QP} (C code generation)"
+        )
 
 
 def _what(controller) -> str:

@@ -143,6 +143,9 @@ def test_controllers_without_an_exported_law_are_refused(plant, tmp_path):
         "disturbance 'load'": make_controller("lmpc", m, lin, DT, task),
         "ipopt": NonlinearMPC(pred, op.u, DT, NMPCSettings(horizon=10, solver="ipopt")),
     }
+    qpoases = NonlinearMPC(pred, op.u, DT, NMPCSettings(horizon=10, qp_solver="qpoases"))
+    with pytest.raises(ParameterError, match="nmpc.qp_solver.*C code generation"):
+        export_controller_fmu(qpoases, m, tmp_path / "x.fmu", U0)
     for what, ctl in cases.items():
         with pytest.raises(ParameterError, match="controller") as err:
             export_controller_fmu(ctl, m, tmp_path / "x.fmu", U0)
