@@ -385,12 +385,15 @@ def sprung_load(
     damping: float | str = SPRING_LOAD["damping"],
     hook_kg: float | str = HOOK_MASS_KG,
     rest_length: float | str = 0.0,
+    saturate: bool = True,
+    flow_law: str = "iso6358",
 ) -> Model:
     """:func:`force_driven` with :func:`spring_mass_load` hung from its hook, in one model
     (the monolithic reference of their co-simulation; the same names but ``pull.f`` and
-    ``drive.s``)."""
+    ``drive.s``); ``saturate`` and ``flow_law`` as :func:`hanging_load` (an NMPC's
+    prediction: ``flow_law="smooth", saturate=False``)."""
     sys, myo, mf = _frame_regulator_chain(
-        "sprung_load", n, params, fidelity, regulator_tau, g, True, "iso6358"
+        "sprung_load", n, params, fidelity, regulator_tau, g, saturate, flow_law
     )
     top = _spring_load(sys, mass_kg, stiffness, damping, g, myo.rest_length_expr, rest_length)
     _hook_pulled(sys, myo, mf, top, hook_kg)

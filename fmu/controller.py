@@ -35,13 +35,21 @@ from pathlib import Path
 
 import casadi as cs
 
+from sarcomere.controllers.estimated import OnEstimate
+from sarcomere.controllers.lmpc import LinearMPC
 from sarcomere.controllers.lqi import LQI
+from sarcomere.controllers.nmpc import NonlinearMPC
 from sarcomere.controllers.pid import LAW_PARAMETERS, PID, STATE_NAMES, pid_law
+from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 
 from .export import Experiment
 from .sampled import SampledSystem, Variable, export_sampled_fmu
+
+GENERATED_QP = ("daqp", "qrqp")
+"""QP solvers of the MPCs whose CasADi-generated C the export compiles (qrqp's is
+self-contained; DAQP's links the casadi wheel's static library)."""
 
 TIME_PARAMETER_MIN_S = 1e-9
 """Smallest derivative-filter and tracking time constant the FMU accepts [s] (the law
@@ -107,8 +115,9 @@ def pid_system(pid: PID, model: Model, bias: float, name: str = "pid") -> Sample
 
 def _bias(controller, model: Model, bias: float) -> tuple[str, float, float]:
     """The input's unit and bounds; ``bias`` checked inside them."""
-    uu = model.unit(controller.input)
-    lo, hi = controller.u_min[controller.input], controller.u_max[controller.input]
+    (name,) = controller.inputs
+    uu = model.unit(name)
+    lo, hi = controller.u_min[name], controller.u_max[name]
     if not lo <= bias <= hi:
         raise ParameterError("bias", bias, f"[{lo:g}, {hi:g}] {uu}")
     return uu, lo, hi
@@ -158,8 +167,200 @@ def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> Sample
     )
 
 
+def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc") -> SampledSystem:
+    """A full-state real-time-iteration ``nmpc`` (no estimator) as a sampled system.
+
+    The update is the NMPC's own law (:meth:`NonlinearMPC.law_function`: one RTI step
+    with its warm start as memory) with the Python controller's steps around it: the
+    reference clipped to the reachable range and held over the horizon (the FMU sees the
+    current reference only: the Python NMPC with ``preview = false``), the integral
+    reference shift (when ``integral_gain > 0``) and the held command. Inputs: the
+    reference, the measured output and the prediction's states by name; parameters: every
+    parameter of the prediction model (tunable: the run-time inputs of the law; their
+    start values those the prediction uses now, :attr:`NonlinearMPC.parameters`) and
+    ``bias`` (fixed). The bounds and the rate limit are constraints of the QP, fixed at
+    export. Units from the prediction model (``model``, the plant, must have its output and
+    input).
+    """
+    if not isinstance(nmpc, NonlinearMPC) or nmpc.settings.solver != "rti":
+        raise ParameterError(
+            "controller", _what(nmpc), "an NMPC with solver 'rti' (the exported law)"
+        )
+    s, pred = nmpc.settings, nmpc.model
+    _generated("nmpc", s.qp_solver)
+    if s.linear_solver != "qr":  # LAPACK's solvers are library calls CasADi cannot generate
+        raise ParameterError(
+            "nmpc.linear_solver", s.linear_solver, "'qr' (the lifted solves generated to C)"
+        )
+    (uname,) = nmpc.inputs
+    for n in (s.output, uname):
+        if n not in model.signal_names:
+            raise ParameterError("model", model.name, f"a plant with the NMPC's signal '{n}'")
+    yu, (uu, lo, hi) = pred.unit(s.output), _bias(nmpc, pred, bias)
+    law = nmpc.law_function()
+    nm = law.nnz_in(0)
+    states = [
+        Variable(f"memory[{i + 1}]", "1", f"entry {i + 1} of the RTI's warm start (law memory)")
+        for i in range(nm)
+    ]
+    integral = s.integral_gain > 0
+    if integral:
+        states.append(Variable("integral_offset", yu, "integral shift of the reference"))
+    states.append(
+        Variable("held_command", uu, "command held since the last sample", low=lo, high=hi)
+    )
+    now = {k: v for k, v in nmpc.parameters.items() if k in pred.param_names}
+    op = solve_equilibrium(pred, {uname: bias}, now)  # the inputs' start values
+    y_op = float(op[s.output])
+    inputs = [
+        Variable("reference", yu, f"reference of {s.output} (held over the horizon)", y_op),
+        Variable("measurement", yu, f"measured {s.output}", y_op),
+    ]
+    for n, x0 in zip(pred.state_names, op.x, strict=True):
+        inputs.append(Variable(n, pred.unit(n), f"plant state {n}", float(x0)))
+    params = []
+    offsets = {  # the run-time inputs of the prediction that are not model parameters
+        "disturbance.input": (uu, f"constant disturbance added to {uname} in the prediction"),
+        "disturbance.output": (yu, f"constant disturbance added to {s.output} as predicted"),
+    }
+    for n, value in nmpc.parameters.items():
+        if n in pred.variables:
+            v = pred.variables[n]
+            text = f"prediction model: {v.description or n}"
+            params.append(Variable(n, v.unit, text, float(value), v.low, v.high))
+        else:
+            params.append(Variable(n, *offsets[n], float(value)))
+    params.append(Variable("bias", uu, "command before the first sample", bias, lo, hi))
+    x = cs.MX.sym("x", len(states))
+    u, p = cs.MX.sym("u", len(inputs)), cs.MX.sym("p", len(params))
+    memory, held = x[:nm], x[-1]
+    ref = cs.fmin(cs.fmax(u[0], nmpc.clip.low), nmpc.clip.high)
+    offset = x[nm] if integral else 0.0
+    nodes = cs.fmin(cs.fmax(ref + offset, nmpc.clip.low), nmpc.clip.high)
+    nxt, cmd = law(memory, u[2:], held, cs.repmat(nodes, s.horizon, 1), p[:-1])[:2]
+    after = [nxt]
+    if integral:  # no windup at a bound or at the rate limit (NonlinearMPC.update)
+        at_rate = cs.fabs(cmd - held) >= s.rate_max * nmpc.dt * (1 - 1e-6)
+        free = cs.logic_and(cs.logic_and(cmd > s.u_min, cmd < s.u_max), cs.logic_not(at_rate))
+        step = s.integral_gain * nmpc.dt * (ref - u[1])
+        after.append(cs.if_else(free, offset + step, offset))
+    return SampledSystem(
+        name,
+        f"NMPC (real-time iteration, horizon {s.horizon}) of {uname} on {s.output} "
+        f"(full state), sampled every {nmpc.dt:g} s (sarcomere)",
+        nmpc.dt,
+        tuple(states),
+        tuple(inputs),
+        (Variable("command", uu, f"{uname}, held between samples", low=lo, high=hi),),
+        tuple(params),
+        cs.Function("update", [x, u, p], [cs.vertcat(*after, cmd)]),
+        cs.Function("output", [x, p], [held]),
+        cs.Function("start", [u, p], [cs.vertcat(cs.DM.zeros(len(states) - 1), p[-1])]),
+    )
+
+
+def lmpc_system(lmpc: LinearMPC, model: Model, bias: float, name: str = "lmpc") -> SampledSystem:
+    """A full-state ``lmpc`` (no estimator, ``disturbance = "none"``) as a sampled system,
+    **at its present linearisation**: the update is :meth:`LinearMPC.law_function` (the
+    condensed velocity-form QP, solved by ``settings.qp_solver``) with its QP data fixed
+    at export (:meth:`LinearMPC.law_parameters`); the FMU does not re-linearise (the
+    Python LMPC's commands while it does not either). The reference is clipped to the
+    reachable range and held over the horizon (``preview = false``). Inputs: the reference,
+    the measured output, the model's states and the soft-bounded signals by name;
+    parameters ``u_min``, ``u_max``, ``du_max``, one ``<signal>.soft_min`` per soft bound
+    (tunable) and ``bias`` (fixed). Units from the prediction model."""
+    if lmpc.disturbance != "none":
+        raise ParameterError(
+            "controller",
+            f"lmpc (disturbance '{lmpc.disturbance}')",
+            "an LMPC with disturbance 'none' (its disturbance filter is not exported)",
+        )
+    s, pred = lmpc.settings, lmpc.model
+    _generated("lmpc", s.qp_solver)
+    (uname,) = lmpc.inputs
+    for n in (s.output, uname):
+        if n not in model.signal_names:
+            raise ParameterError("model", model.name, f"a plant with the LMPC's signal '{n}'")
+    yu, (uu, lo, hi) = pred.unit(s.output), _bias(lmpc, pred, bias)
+    law, soft = lmpc.law_function(), [n for n, _ in s.soft_min]
+    nm = law.nnz_in(0)
+    states = [
+        Variable(f"memory[{i + 1}]", "1", f"entry {i + 1} of the LMPC's memory") for i in range(nm)
+    ]
+    states.append(
+        Variable("held_command", uu, "command held since the last sample", low=lo, high=hi)
+    )
+    now = {k: v for k, v in lmpc.parameters.items() if k in pred.param_names}
+    op = solve_equilibrium(pred, {uname: bias}, now)  # the inputs' start values
+    x_op, y_op = op.x, float(op[s.output])
+    inputs = [
+        Variable("reference", yu, f"reference of {s.output} (held over the horizon)", y_op),
+        Variable("measurement", yu, f"measured {s.output}", y_op),
+    ]
+    for n, x0 in zip(pred.state_names, x_op, strict=True):
+        inputs.append(Variable(n, pred.unit(n), f"plant state {n}", float(x0)))
+    for n in soft:
+        inputs.append(Variable(n, pred.unit(n), f"measured {n} (soft lower bound)"))
+    p_law = lmpc.law_parameters()
+    nb = 3 * len(lmpc.inputs) + len(soft)  # u_lo, u_hi, du_max, soft_min at the end
+    params = [
+        Variable("u_min", uu, "lowest command", lo, lo, hi),
+        Variable("u_max", uu, "highest command", hi, lo, hi),
+        Variable(
+            "du_max",
+            uu,
+            "largest change of the command per sample",
+            p_law[-nb + 2 * len(lmpc.inputs)],
+            0.0,
+        ),
+    ]
+    for n, v in s.soft_min:
+        params.append(Variable(f"{n}.soft_min", pred.unit(n), f"soft lower bound of {n}", v))
+    params.append(Variable("bias", uu, "command before the first sample", bias, lo, hi))
+    x = cs.MX.sym("x", len(states))
+    u, p = cs.MX.sym("u", len(inputs)), cs.MX.sym("p", len(params))
+    nx = pred.nx
+    ref = cs.fmin(cs.fmax(u[0], lmpc.clip.low), lmpc.clip.high)
+    meas = cs.vertcat(u[2 : 2 + nx], u[1], u[2 + nx :])
+    data = cs.vertcat(cs.DM(p_law[:-nb]), p[:-1])
+    nxt, cmd = law(x[:nm], meas, x[-1], cs.repmat(ref, s.horizon + 1, 1), data)[:2]
+    N, nu = s.horizon, len(lmpc.inputs)
+    start = cs.vertcat(cs.DM.zeros(nx + 1), cs.repmat(p[-1], N * nu, 1), p[-1])
+    return SampledSystem(
+        name,
+        f"LMPC (velocity form, horizon {N}, fixed linearisation) of {uname} on {s.output} "
+        f"(full state), sampled every {lmpc.dt:g} s (sarcomere)",
+        lmpc.dt,
+        tuple(states),
+        tuple(inputs),
+        (Variable("command", uu, f"{uname}, held between samples", low=lo, high=hi),),
+        tuple(params),
+        cs.Function("update", [x, u, p], [cs.vertcat(nxt, cmd)]),
+        cs.Function("output", [x, p], [x[-1]]),
+        cs.Function("start", [u, p], [start]),
+    )
+
+
+def _generated(slug: str, solver: str) -> None:
+    """Refuse a QP solver whose generated C cannot be compiled into the FMU."""
+    if solver not in GENERATED_QP:
+        raise ParameterError(
+            f"{slug}.qp_solver", solver, f"one of {GENERATED_QP} (C code generation)"
+        )
+
+
+def _what(controller) -> str:
+    """A controller's kind for messages: its slug and solver, or its estimator."""
+    if isinstance(controller, OnEstimate):
+        return f"{controller.slug} (on an EKF: the estimator is not exported)"
+    solver = getattr(getattr(controller, "settings", None), "solver", None)
+    return f"{getattr(controller, 'slug', type(controller).__name__)}" + (
+        f" (solver {solver!r})" if solver else ""
+    )
+
+
 def export_controller_fmu(
-    controller: PID | LQI,
+    controller: PID | LQI | NonlinearMPC | LinearMPC,
     model: Model,
     path: str | Path,
     bias: float,
@@ -167,12 +368,13 @@ def export_controller_fmu(
     name: str | None = None,
     stop_time: float | None = None,
 ) -> Path:
-    """Write ``controller`` (a PID, or a full-state LQI) as a Co-Simulation FMU; see
-    :func:`pid_system` and :func:`lqi_system`.
+    """Write ``controller`` (a PID, a full-state LQI, a full-state RTI NMPC or LMPC) as a
+    Co-Simulation FMU; see :func:`pid_system`, :func:`lqi_system`, :func:`nmpc_system`
+    and :func:`lmpc_system`.
 
     Parameters
     ----------
-    controller : PID or LQI
+    controller : PID, LQI, NonlinearMPC or LinearMPC
         The controller; its sample time is the FMU's period.
     model : Model
         The plant it controls: the units of its output and input.
@@ -195,14 +397,15 @@ def export_controller_fmu(
     Raises
     ------
     ParameterError
-        For a controller without an exported law (MPCs, an LQI on an EKF), a bias
+        For a controller without an exported law (a controller on an EKF, an NMPC solved
+        by ipopt or fatrop, an LMPC with a disturbance filter), a bias
         outside the bounds, a bad version or path.
     """
-    builders = {PID: pid_system, LQI: lqi_system}
+    builders = {PID: pid_system, LQI: lqi_system, NonlinearMPC: nmpc_system, LinearMPC: lmpc_system}
     build = builders.get(type(controller))
     if build is None:
         raise ParameterError(
-            "controller", type(controller).__name__, "a PID or an LQI (the exported laws)"
+            "controller", _what(controller), "a PID, an LQI, an NMPC or an LMPC (the exported laws)"
         )
     system = build(controller, model, bias, name or controller.slug)
     experiment = Experiment(stop_time=stop_time, step_size=controller.dt)

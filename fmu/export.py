@@ -275,10 +275,23 @@ def compile_binary(src: Path, out: Path, fmi_version: int) -> None:
         raise FmuError("no C compiler: install gcc or set CC")
     sources = [str(f) for f in sorted(src.glob("*.c"))]  # fmi<version>.c, the physics
     cmd = [cc, "-shared", "-fPIC", "-O2", *codegen.CFLAGS, "-fvisibility=hidden", "-std=c11"]
-    cmd += ["-I", str(src), "-I", str(fmi_headers()), *sources, "-o", str(out), "-lm"]
+    cmd += ["-I", str(src), "-I", str(fmi_headers()), *sources, "-o", str(out)]
+    cmd += [*qp_libraries(src), "-lm"]
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise FmuError(f"the C compiler failed ({' '.join(cmd[:6])} ...): {done.stderr[-2000:]}")
+
+
+def qp_libraries(src: Path) -> list[str]:
+    """The compiler arguments for a generated QP solver the sources call (a controller
+    FMU's law): DAQP's headers and static library as the casadi wheel ships them."""
+    if not any("<daqp/api.h>" in f.read_text() for f in src.glob("sm_*.c")):
+        return []
+    root = Path(cs.__file__).parent
+    lib = root / "libdaqpstat.a"
+    if not lib.is_file():
+        raise FmuError(f"the law calls DAQP, but its static library is not in {root}")
+    return ["-I", str(root / "include"), str(lib)]
 
 
 def check_target(path: str | Path, fmi_version: int) -> Path:

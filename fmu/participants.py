@@ -96,10 +96,18 @@ class FmuParticipant:
         The participant's name in connections (``"muscle"``).
     params : mapping of str to float, optional
         Parameter values [SI] set in initialisation mode.
+    expose : sequence of str, optional
+        Variables besides the outputs that connections may read, e.g. the states (local
+        variables, readable by ``getReal`` / ``getFloat64``) an exact-state controller
+        takes; listed after the outputs in ``outputs``.
     """
 
     def __init__(
-        self, fmu: OpenedFmu, name: str, params: Mapping[str, float] | None = None
+        self,
+        fmu: OpenedFmu,
+        name: str,
+        params: Mapping[str, float] | None = None,
+        expose: Sequence[str] = (),
     ) -> None:
         md = fmu.description
         self.name = name
@@ -108,7 +116,9 @@ class FmuParticipant:
         reals = [v for v in md.modelVariables if v.type in ("Real", "Float64")]
         self._vr = {v.name: v.valueReference for v in reals}
         self.inputs = tuple(v.name for v in reals if v.causality == "input")
-        self.outputs = tuple(v.name for v in reals if v.causality == "output")
+        outputs = [v.name for v in reals if v.causality == "output"]
+        _unknown(name, list(expose), list(self._vr), "variables")
+        self.outputs = tuple(dict.fromkeys([*outputs, *expose]))
         self.units = {
             v.name: (v.unit or (v.declaredType.unit if v.declaredType else None)) or "1"
             for v in reals
@@ -225,6 +235,9 @@ class NativeParticipant:
         Parameter overrides by name (units allowed).
     settings : SolverSettings, optional
         The simulator's method and tolerances.
+    expose : sequence of str, optional
+        Signals besides the outputs that connections may read (e.g. states), as
+        :class:`FmuParticipant`.
     """
 
     def __init__(
@@ -233,11 +246,14 @@ class NativeParticipant:
         name: str,
         params: Mapping[str, object] | None = None,
         settings: SolverSettings | None = None,
+        expose: Sequence[str] = (),
     ) -> None:
         self.name = name
         self.model = model
         self.inputs = tuple(model.input_names)
-        self.outputs = tuple(model.output_names)  # as its FMU; every signal can be read
+        _unknown(name, list(expose), model.signal_names, "signals")
+        # as its FMU (every signal can be read by get)
+        self.outputs = tuple(dict.fromkeys([*model.output_names, *expose]))
         self.units = {n: model.unit(n) for n in model.signal_names}
         self._params = dict(params or {})
         self._sim = Simulator(model, settings)

@@ -23,22 +23,35 @@ step (required). ``[solver]``: the native participants' integrator. ``[cosim]``:
     command is the bias), ``sample_time``, ``output`` ("myofibril.length"), ``input``
     ("regulator.p_cmd"), ``u_min`` (0 Pa), ``u_max`` (0.1 MPa), ``gains`` (a table of the
     PID's own settings, ``controllers/pid.py``), ``fmi``;
+  * ``"nmpc"``: the project's NMPC (real-time iteration) as a controller FMU; its
+    prediction is ``plant`` and ``load`` (a built load) in one model
+    (:func:`~sarcomere.dynamics.assemblies.sprung_load`, smooth flow law, no clamp), its
+    inputs ``reference``, ``measurement`` and every state of that model, each connected
+    from the participant that owns it (added to the connections; the owners expose them);
+    keys as ``"pid"`` but ``gains``, and ``load``, ``settings`` (a table of
+    :class:`~sarcomere.controllers.nmpc.NMPCSettings` fields: ``horizon``, weights,
+    ``rate_max``, ``integral_gain``, ...); the start command is the muscle's;
+  * ``"lmpc"``: the project's LMPC as a controller FMU, as ``"nmpc"``: its model
+    :func:`~sarcomere.dynamics.assemblies.sprung_load` as the plant (exact flow law),
+    linearised at the start and kept there (:data:`FIXED_LINEARISATION`: no
+    re-linearisation, no disturbance filter, no soft bounds), ``settings`` of
+    :class:`~sarcomere.controllers.lmpc.LMPCSettings` (``horizon``, weights, ``rate_max``);
 
 - ``connections``: ``[["source.output", "target.input"], ...]``;
 - ``sources``: a table ``"participant.input" = {signal}`` (the ``[inputs]`` signal
   tables), sampled at each step's start;
 - ``ordering``, ``inputs``: as the single-FMU form; ``record``: the signals to record
   (default every participant's inputs and outputs);
-- ``compare = "monolithic-loop"``: also run the same PID on the monolithic model
+- ``compare = "monolithic-loop"``: also run the same controller on the monolithic model
   (:func:`~sarcomere.dynamics.assemblies.sprung_load`, the muscle and the load in one
   model) in the project's sampled loop (:func:`~sarcomere.controllers.loop.run_closed_loop`,
-  CVODES per ``[solver]``); needs one muscle, one load and one PID wired as
-  pid -> muscle -> load -> muscle, muscle -> pid.
+  CVODES per ``[solver]``); needs one muscle, one load and one controller (pid, nmpc or lmpc)
+  wired as controller -> muscle -> load -> muscle, muscle -> controller.
 
-Metrics: ``<pid>_tracking_rmse_<unit>``, the RMS of measurement minus reference at the
-communication points; with ``compare``, ``max_error_vs_monolithic_loop_<unit>``, the
-largest difference of the PID's measured output between the co-simulation and the loop,
-at the PID's samples. Results: ``cosim`` (with the PID references as
+Metrics: ``<controller>_tracking_rmse_<unit>``, the RMS of measurement minus reference at
+the communication points; with ``compare``, ``max_error_vs_monolithic_loop_<unit>``, the
+largest difference of the controller's measured output between the co-simulation and the
+loop, at its samples. Results: ``cosim`` (with the controller's references as
 ``reference``) and ``monolithic`` (the same names).
 """
 
@@ -53,8 +66,11 @@ from pathlib import Path
 
 import numpy as np
 
+from sarcomere.controllers.base import Controller
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
 from sarcomere.controllers.loop import run_closed_loop
-from sarcomere.controllers.pid import PID, make_pid
+from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
+from sarcomere.controllers.pid import make_pid
 from sarcomere.dynamics.assemblies import (
     FIDELITIES,
     SPRING_LOAD,
@@ -85,6 +101,28 @@ BUILDS = {
     "muscle": ("n", "fidelity", "as", "fmi", "start"),
     "load": ("mass", "stiffness", "damping", "as", "fmi", "start"),
     "pid": ("plant", "sample_time", "output", "input", "u_min", "u_max", "gains", "fmi"),
+    "nmpc": (
+        "plant",
+        "load",
+        "sample_time",
+        "output",
+        "input",
+        "u_min",
+        "u_max",
+        "settings",
+        "fmi",
+    ),
+    "lmpc": (
+        "plant",
+        "load",
+        "sample_time",
+        "output",
+        "input",
+        "u_min",
+        "u_max",
+        "settings",
+        "fmi",
+    ),
 }
 """Project-built participants and their own keys (besides ``build``)."""
 SOURCES = {"fmu": (), "scene": ("fmi",)}
@@ -97,9 +135,12 @@ KEY_OF = {
     "source": "sources",
 }
 """The ``[cosim]`` key behind each name :func:`cosimulate` refuses."""
+CONTROLLERS = ("pid", "nmpc", "lmpc")
+"""Builds that are controller FMUs."""
 PID_DEFAULTS = {"output": "myofibril.length", "input": "regulator.p_cmd"}
 PID_BOUNDS_PA = (0.0, 1e5)
-"""Default command range of a PID participant [Pa]: 0 to 0.1 MPa, the control scenes'."""
+"""Default command range of a controller participant [Pa]: 0 to 0.1 MPa, the control
+scenes'."""
 
 
 @dataclasses.dataclass
@@ -113,15 +154,16 @@ class Part:
     start: dict = dataclasses.field(default_factory=dict)
     native: bool = False
     fmu: Path | None = None
-    pid: PID | None = None
+    controller: Controller | None = None
+    states: dict = dataclasses.field(default_factory=dict)  # NMPC: state -> its owner
 
 
 class _StartedNative(NativeParticipant):
     """A native participant whose start inputs, where the master gives none, are the
     scene's ``start`` values (as its exported FMU's start values would be)."""
 
-    def __init__(self, part: Part, settings) -> None:
-        super().__init__(part.model, part.name, None, settings)
+    def __init__(self, part: Part, settings, expose=()) -> None:
+        super().__init__(part.model, part.name, None, settings, expose)
         self._given = dict(part.start)
 
     def start(self, t0: float, inputs: Mapping[str, float]) -> None:
@@ -205,8 +247,9 @@ def _build(sc: Scenario, part: Part) -> None:
     part.start = _start(sc, part, path)
 
 
-def _pid(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
-    """The PID designed on its plant participant's start equilibrium."""
+def _task(sc: Scenario, part: Part, parts: dict[str, Part]) -> tuple[Part, dict, float]:
+    """A controller participant's plant participant, task (output, input and bounds, SI)
+    and sample time [s]."""
     path = ("cosim", "participants", part.name)
     spec = part.spec
     plant = parts.get(spec.get("plant"))
@@ -226,19 +269,104 @@ def _pid(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
     if "sample_time" not in spec:
         raise sc.error((*path, "sample_time"), "a sample time is required, e.g. '10 ms'")
     dt = _quantity(sc, spec["sample_time"], (*path, "sample_time"), "s", 0.0)
-    gains = spec.get("gains", {})
-    if not isinstance(gains, Mapping):
-        raise sc.error((*path, "gains"), f"expected a table, got {gains!r}")
+    return plant, task, dt
+
+
+def _table(sc: Scenario, part: Part, key: str) -> Mapping:
+    value = part.spec.get(key, {})
+    if not isinstance(value, Mapping):
+        raise sc.error(
+            ("cosim", "participants", part.name, key), f"expected a table, got {value!r}"
+        )
+    return value
+
+
+def _pid(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
+    """The PID designed on its plant participant's start equilibrium."""
+    path = ("cosim", "participants", part.name)
+    plant, task, dt = _task(sc, part, parts)
+    m = plant.model
+    gains = _table(sc, part, "gains")
     start = {**dict(zip(m.input_names, m.u0(), strict=True)), **plant.start}
     try:
         op = solve_equilibrium(m, start)
-        part.pid = make_pid(m, op, dt, {**task, **gains})
+        part.controller = make_pid(m, op, dt, {**task, **gains})
     except ParameterError as exc:  # the PID's own settings are its gains
         key = exc.name.removeprefix("pid.")
         where = (*path, "gains", key) if exc.name.startswith("pid.") else path
         raise sc.error(where, describe(exc)) from None
     part.model = m
     part.start = {"bias": float(op.u[m.input_names.index(task["input"])])}
+
+
+def _load_kw(spec: Mapping) -> dict:
+    """The keyword arguments of :func:`sprung_load` for a load participant's table."""
+    return {
+        "mass_kg": spec.get("mass", SPRING_LOAD["mass_kg"]),
+        "stiffness": spec.get("stiffness", SPRING_LOAD["stiffness"]),
+        "damping": spec.get("damping", SPRING_LOAD["damping"]),
+    }
+
+
+FIXED_LINEARISATION = {
+    "relinearize_m": 1.0,
+    "relinearize_x": 1e6,
+    "relinearize_u": 1e6,
+    "relinearize_rel": 1e6,
+    "disturbance": "none",
+}
+"""The settings of an ``lmpc`` participant that keep it at its start linearisation (the
+thresholds out of reach, no disturbance filter): what its FMU holds, so the monolithic
+loop runs the same controller."""
+
+
+def _mpc(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
+    """An NMPC (real-time iteration, predicting with the smooth flow law and no clamp) or
+    an LMPC (linearised at the start, :data:`FIXED_LINEARISATION`) on the plant muscle and
+    its load in one model (:func:`sprung_load`), started at the command of the muscle's
+    start; its states are read from the participants that own them."""
+    path = ("cosim", "participants", part.name)
+    plant, task, dt = _task(sc, part, parts)
+    load = parts.get(part.spec.get("load"))
+    if load is None or load.kind != "load":
+        loads = [p.name for p in parts.values() if p.kind == "load"]
+        raise sc.error((*path, "load"), f"{part.spec.get('load')!r}: one of {loads}")
+    own = dict(_table(sc, part, "settings"))
+    cls = NMPCSettings if part.kind == "nmpc" else LMPCSettings
+    fixed = ("output", "u_min", "u_max", "solver", "soft_min", *FIXED_LINEARISATION)
+    allowed = [f.name for f in dataclasses.fields(cls) if f.name not in fixed]
+    for key in own:
+        if key not in allowed:
+            raise sc.error((*path, "settings", key), unknown_key(key, allowed))
+    n, fidelity = plant.spec.get("n", 3), plant.spec.get("fidelity", "full")
+    smooth = {"flow_law": "smooth", "saturate": False} if part.kind == "nmpc" else {}
+    pred = sprung_load(n, fidelity=fidelity, **smooth, **_load_kw(load.spec))
+    start = {**dict(zip(plant.model.input_names, plant.model.u0(), strict=True)), **plant.start}
+    bias = float(start[task["input"]])
+    bounds = {"output": task["output"], "u_min": task["u_min"], "u_max": task["u_max"]}
+    try:
+        op = solve_equilibrium(pred, {task["input"]: bias})
+        if part.kind == "nmpc":
+            own = {"linear_solver": "qr", **own}  # the solver the exported law generates
+            part.controller = NonlinearMPC(pred, op.u, dt, NMPCSettings(**own, **bounds))
+        else:
+            settings = LMPCSettings(**own, **bounds, **FIXED_LINEARISATION)
+            part.controller = LinearMPC(pred, op.x, op.u, dt, settings)
+    except ParameterError as exc:
+        raise sc.error((*path, "settings"), describe(exc)) from None
+    part.model = pred
+    part.start = {"bias": bias}
+    owners = {n: p for p in (plant, load) for n in p.model.state_names}
+    part.states = {n: owners[n].name for n in pred.state_names}
+
+
+def _state_connections(parts: list[Part]) -> list[Connection]:
+    """The exact-state controllers' state inputs, each from the participant that owns it."""
+    return [
+        Connection(f"{owner}.{state}", f"{p.name}.{state}")
+        for p in parts
+        for state, owner in p.states.items()
+    ]
 
 
 def _export(sc: Scenario, part: Part, folder: Path, stop_time: float) -> None:
@@ -254,9 +382,9 @@ def _export(sc: Scenario, part: Part, folder: Path, stop_time: float) -> None:
         beside = sc.base_dir / scene
         model, params, inputs, experiment = scenario_setup(beside if beside.is_file() else scene)
         part.fmu = export_fmu(model, out, fmi, params, inputs, experiment)
-    elif part.kind == "pid":
+    elif part.kind in CONTROLLERS:
         part.fmu = export_controller_fmu(
-            part.pid, part.model, out, part.start["bias"], fmi, part.name, stop_time
+            part.controller, part.model, out, part.start["bias"], fmi, part.name, stop_time
         )
     elif not part.native:
         experiment = Experiment(stop_time=stop_time)
@@ -295,19 +423,27 @@ def _sources(sc: Scenario, participants: dict) -> dict:
     return out
 
 
+def _io(controller: Controller) -> tuple[str, str]:
+    """A controller's ``(input, output)``: the command and the tracked signal."""
+    return controller.inputs[0], controller.outputs[-1]
+
+
 def _wired(sc: Scenario, parts: list[Part], connections: list[Connection]) -> tuple:
-    """``(muscle, load, pid)`` of a ``compare`` scene, checked before anything is built."""
-    kinds = {k: [p for p in parts if p.kind == k] for k in ("muscle", "load", "pid")}
+    """``(muscle, load, controller)`` of a ``compare`` scene, checked before anything is
+    built."""
+    kinds = {k: [p for p in parts if p.kind == k] for k in ("muscle", "load")}
+    kinds["controller"] = [p for p in parts if p.kind in CONTROLLERS]
     path = ("cosim", "compare")
     if any(len(v) != 1 for v in kinds.values()):
-        raise sc.error(path, "needs exactly one built muscle, one load and one pid")
-    (mu,), (lo,), (ctl,) = kinds["muscle"], kinds["load"], kinds["pid"]
-    pid = ctl.pid
+        raise sc.error(path, "needs exactly one built muscle, one load and one pid, nmpc or lmpc")
+    (mu,), (lo,), (ctl,) = kinds["muscle"], kinds["load"], kinds["controller"]
+    u_name, y_name = _io(ctl.controller)
     wiring = {
-        (f"{ctl.name}.command", f"{mu.name}.{pid.input}"),
-        (f"{mu.name}.{pid.output}", f"{ctl.name}.measurement"),
+        (f"{ctl.name}.command", f"{mu.name}.{u_name}"),
+        (f"{mu.name}.{y_name}", f"{ctl.name}.measurement"),
         (f"{lo.name}.sensor.f", f"{mu.name}.pull.f"),
         (f"{mu.name}.end.s", f"{lo.name}.drive.s"),
+        *((c.source, c.target) for c in _state_connections([ctl])),
     }
     given = {(c.source, c.target) for c in connections}
     if not wiring <= given:
@@ -319,7 +455,7 @@ def _wired(sc: Scenario, parts: list[Part], connections: list[Connection]) -> tu
                 f'{stray}: not a connection compare = "monolithic-loop" knows; it needs {missing}',
             )
         raise sc.error(path, f"needs the connections {sorted(wiring)}")
-    ratio = pid.dt / sc.simulation.output_interval
+    ratio = ctl.controller.dt / sc.simulation.output_interval
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         raise sc.error(path, "needs a sample time that is a whole number of steps")
     if f"{ctl.name}.reference" not in sc.cosim.get("sources", {}):
@@ -329,33 +465,29 @@ def _wired(sc: Scenario, parts: list[Part], connections: list[Connection]) -> tu
 
 def _compared(mu: Part, ctl: Part) -> dict[str, str]:
     """The monolithic loop's signal -> the co-simulation's name for it."""
-    pid = ctl.pid
+    u_name, y_name = _io(ctl.controller)
     return {
-        pid.output: f"{mu.name}.{pid.output}",
-        pid.input: f"{ctl.name}.command",
+        y_name: f"{mu.name}.{y_name}",
+        u_name: f"{ctl.name}.command",
         "reference": "reference",
         "regulator.p_out": f"{mu.name}.regulator.p_out",
     }
 
 
 def _monolithic_loop(sc: Scenario, mu: Part, lo: Part, ctl: Part, reference) -> Result:
-    """The same PID on :func:`sprung_load` (the scene's muscle and load in one model) in the
-    project's sampled loop, its signals named as in the co-simulation."""
-    pid, load = ctl.pid, lo.spec
-    kw = {
-        "mass_kg": load.get("mass", SPRING_LOAD["mass_kg"]),
-        "stiffness": load.get("stiffness", SPRING_LOAD["stiffness"]),
-        "damping": load.get("damping", SPRING_LOAD["damping"]),
-    }
+    """The same controller on :func:`sprung_load` (the scene's muscle and load in one model)
+    in the project's sampled loop, its signals named as in the co-simulation."""
+    u_name, y_name = _io(ctl.controller)
+    kw = _load_kw(lo.spec)
     mono = sprung_load(mu.spec.get("n", 3), fidelity=mu.spec.get("fidelity", "full"), **kw)
-    op = solve_equilibrium(mono, {pid.input: ctl.start["bias"]})
+    op = solve_equilibrium(mono, {u_name: ctl.start["bias"]})
     loop = run_closed_loop(
         mono,
-        pid,
+        ctl.controller,
         op,
         reference,
         sc.simulation.stop_time,
-        output=pid.output,
+        output=y_name,
         settings=_settings(sc, mono),
     ).result
     names = _compared(mu, ctl)
@@ -389,17 +521,28 @@ def run_system(sc: Scenario, out_dir: Path) -> RunOutput:
     for p in parts:
         if p.kind == "pid":
             _pid(sc, p, by_name)
+        elif p.kind in ("nmpc", "lmpc"):
+            _mpc(sc, p, by_name)
     connections = _connections(sc)
+    states = _state_connections(parts)
+    given = {c.target for c in connections}
+    connections += [c for c in states if c.target not in given]
+    exposed = {p.name: [] for p in parts}
+    for c in states:
+        owner, _, var = c.source.partition(".")
+        exposed[owner].append(var)
     wired = _wired(sc, parts, connections) if compare else None
     total = sim.stop_time - sim.start_time
     with tempfile.TemporaryDirectory(prefix="sarcomere-cosim-") as tmp, contextlib.ExitStack() as s:
         participants = {}
         for p in parts:
             _export(sc, p, Path(tmp), sim.stop_time)
+            show = exposed[p.name]
             if p.fmu is None:
-                participants[p.name] = _StartedNative(p, _settings(sc, p.model))
+                participants[p.name] = _StartedNative(p, _settings(sc, p.model), show)
             else:
-                participants[p.name] = FmuParticipant(s.enter_context(open_fmu(p.fmu)), p.name)
+                opened = s.enter_context(open_fmu(p.fmu))
+                participants[p.name] = FmuParticipant(opened, p.name, expose=show)
         sources = _sources(sc, participants)
         record = sc.cosim.get("record", [])
         if not (isinstance(record, list) and all(isinstance(n, str) for n in record)):
@@ -443,7 +586,7 @@ def _output(sc, parts, connections, sources, result, step, ordering, law, wired,
     """Metrics and results of a system run (``mono``: the monolithic loop's result)."""
     metrics, extra = {}, {"participants": {p.name: _label(p) for p in parts}}
     signals, units = dict(result.signals), dict(result.units)
-    for p in (p for p in parts if p.kind == "pid"):
+    for p in (p for p in parts if p.kind in CONTROLLERS):
         target = f"{p.name}.measurement"
         measured = next((c.source for c in connections if c.target == target), None)
         ref = sources.get(f"{p.name}.reference")
@@ -457,8 +600,8 @@ def _output(sc, parts, connections, sources, result, step, ordering, law, wired,
     results = {"cosim": dataclasses.replace(result, signals=signals, units=units)}
     if wired:
         mu, _, ctl = wired
-        pid, names = ctl.pid, _compared(mu, ctl)
-        y, u = names[pid.output], names[pid.input]
+        (u_name, y_name), names = _io(ctl.controller), _compared(mu, ctl)
+        y, u = names[y_name], names[u_name]
         rows = np.rint((mono.index - result.index[0]) / step).astype(int)
         unit = mono.units[y]
         co = signals[y][rows]
@@ -472,8 +615,8 @@ def _output(sc, parts, connections, sources, result, step, ordering, law, wired,
         }
         extra["compared"] = (
             f"{y} of the co-simulation against the monolithic model (muscle and load in one "
-            f"model) in controllers.loop.run_closed_loop with the same PID, at its "
-            f"{pid.dt:g} s samples"
+            f"model) in controllers.loop.run_closed_loop with the same {ctl.kind.upper()}, at "
+            f"its {ctl.controller.dt:g} s samples"
         )
         results = {"monolithic": mono, **results}  # first: its signals are the plots'
     return RunOutput(

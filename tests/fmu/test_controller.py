@@ -229,7 +229,7 @@ def test_bad_controller_exports_are_refused(plant, pid, tmp_path):
     with pytest.raises(ParameterError, match="bias"):
         export_controller_fmu(pid, m, tmp_path / "c.fmu", 2e5)
     hold = Hold(DT, [TASK["input"]], [TASK["output"]], {TASK["input"]: 0}, {TASK["input"]: 1e5})
-    with pytest.raises(ParameterError, match="a PID or an LQI"):
+    with pytest.raises(ParameterError, match="a PID, an LQI, an NMPC or an LMPC"):
         export_controller_fmu(hold, m, tmp_path / "c.fmu", U0)
     on_ekf = make_lqi(m, op, DT, {**TASK, "feedforward": "linear", "estimator": "ekf"})
     with pytest.raises(ParameterError, match="full-state LQI"):

@@ -81,11 +81,11 @@ def _scene(stop: str = "0.3 s", compare: str = 'compare = "monolithic-loop"') ->
 @pytest.fixture(scope="module")
 def packaged(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("run") / "ctl-load"
-    assert main(["run", "cosim-controller-load", "--out", str(out), "--quiet"]) == 0
+    assert main(["run", "cosim-controller-pid", "--out", str(out), "--quiet"]) == 0
     return out
 
 
-def test_the_controller_load_scene_runs_from_the_cli_and_follows_the_monolithic_loop(packaged):
+def test_the_pid_load_scene_runs_from_the_cli_and_follows_the_monolithic_loop(packaged):
     summary = json.loads((packaged / "summary.json").read_text())
     m = summary["metrics"]
     # co-simulation error of a 2 mm step at a 1 ms communication step (1.1e-5 measured):
@@ -110,6 +110,42 @@ def test_a_native_muscle_and_load_with_the_controller_fmu_follow_the_loop(tmp_pa
     out = run(path, tmp_path / "out", quiet=True)
     assert 1e-8 < out.metrics["max_error_vs_monolithic_loop_m"] < 5e-6  # 1.1e-6 of 0.5 mm
     assert out.results["cosim"]["pid.command"][-1] > 3e4  # shorter: more pressure
+
+
+MPC = """[cosim.participants.pid]
+build = "{build}"
+plant = "muscle"
+load = "load"
+sample_time = "10 ms"
+u_max = "0.2 MPa"
+settings = {settings}
+fmi = 2
+"""
+"""An MPC (horizon 10) in place of the PID, named "pid" so the connections stay."""
+
+
+@pytest.mark.parametrize(
+    ("build", "settings"),
+    [("nmpc", "{ horizon = 10, integral_gain = 0.0 }"), ("lmpc", "{ horizon = 10 }")],
+)
+def test_an_mpc_fmu_reads_the_states_of_both_participants_and_follows_the_loop(
+    tmp_path, build, settings
+):
+    """``build = "nmpc"`` / ``"lmpc"``: its model is the muscle and the load in one, its
+    state inputs are connected from the native muscle and load (each the states it owns),
+    and the co-simulation follows the same controller in the monolithic loop (the
+    coupling's error only)."""
+    scene = _scene()
+    start = scene.index("[cosim.participants.pid]")
+    end = scene.index("[cosim.participants.muscle]")
+    path = tmp_path / "small.toml"
+    mpc = MPC.format(build=build, settings=settings)
+    path.write_text(scene[:start] + mpc + "\n" + scene[end:])
+    out = run(path, tmp_path / "out", quiet=True)
+    err = out.metrics["max_error_vs_monolithic_loop_m"]
+    assert 1e-9 < err < 5e-6, err
+    assert out.results["cosim"]["pid.command"][-1] > 3e4  # shorter: more pressure
+    assert f"{build} as FMU" in out.extra["participants"]["pid"]
 
 
 def test_the_co_simulated_time_shows_on_the_progress_line(tmp_path):
