@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
@@ -204,3 +205,35 @@ def test_merged_parts_keep_sample_order_and_nan_for_lost_samples():
     np.testing.assert_array_equal(merged.indices, [1, 2, 3])
     np.testing.assert_array_equal(merged.metrics["x"], [np.nan, 1.0, 2.0])
     assert merged.error == ["lost", "", ""] and list(merged.status) == [2, 0, 0]
+
+
+_STUDY_HEAVY = ("dask", "distributed", "xarray", "zarr", "SALib", "casadi", "pandas")
+_PROBE = f"""
+import json, sys
+from sarcomere.scenarios.cli import main
+try:
+    status = main(sys.argv[1:])
+except SystemExit as exc:
+    status = exc.code
+print(json.dumps([status, sorted(m for m in {_STUDY_HEAVY!r} if m in sys.modules)]))
+"""
+
+
+@pytest.mark.parametrize(
+    ("argv", "status"),
+    [
+        (["--help"], 0),
+        (["list"], 0),
+        (["study", "--help"], 0),
+        (["study", "design-map"], 2),  # no --out
+        (["study", "design-map", "--out", "x", "--workers", "0"], 2),
+        (["study", "design-map", "--out", "x", "--workers", "2", "--scheduler", "h:1"], 2),
+        (["run", "step-50g", "--bogus"], 2),
+    ],
+)
+def test_the_cli_starts_without_the_study_libraries(argv, status):
+    """Dask, xarray, Zarr and SALib load only when a study runs."""
+    done = subprocess.run(
+        [sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, check=True
+    )
+    assert json.loads(done.stdout.splitlines()[-1]) == [status, []], done.stderr
