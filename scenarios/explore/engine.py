@@ -246,15 +246,15 @@ def run_chunks(
     store: StudyStore,
     chunks: Sequence[tuple[int, int]],
     *,
-    on_result: Callable[[np.ndarray], None] | None = None,
+    on_result: Callable[[object], None] | None = None,
     max_in_flight: int | None = None,
 ) -> None:
     """Evaluate the ``chunks`` ((start, stop) sample ranges) of ``store`` on ``client``'s
     cluster and write each as it finishes.
 
-    ``on_result(status)`` is called after each chunk is written. At most ``max_in_flight``
-    tasks are queued at once (default: four per worker thread, at least 8) so memory stays
-    flat over any study length.
+    ``on_result(result)`` is called with each chunk's result once it is written. At most
+    ``max_in_flight`` tasks are queued at once (default: four per worker thread, at least
+    8) so memory stays flat over any study length.
     """
     from distributed import KilledWorker, as_completed
 
@@ -285,7 +285,7 @@ def run_chunks(
             result = job.parts[0] if len(job.parts) == 1 else merge_results(job.parts)
             store.write(job.start, result)
             if on_result is not None:
-                on_result(np.asarray(result.status))
+                on_result(result)
 
     try:
         refill()
@@ -337,8 +337,8 @@ def run_study(
     )
     label = f"study {getattr(study, 'name', '')}".rstrip()
 
-    def on_result(chunk_status: np.ndarray) -> None:
-        counter.add(chunk_status)
+    def on_result(result) -> None:
+        counter.add(np.asarray(result.status))
         report(counter.text())
 
     with cluster_client(workers, scheduler, stream=out if progress else None) as client:

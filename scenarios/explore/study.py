@@ -99,7 +99,7 @@ class Study:
         series = self.definition.series
         if series is None:
             return (), None
-        return tuple(series.signals), np.asarray(series.time(), dtype=np.float64)
+        return tuple(series.signals), np.asarray(series.time, dtype=np.float64)
 
     def _check_size(self, n: int, max_samples: int | None, max_store_bytes: int) -> None:
         study = self.definition
@@ -127,9 +127,9 @@ class Study:
 
         study = self.definition
         signals, time = self._series()
-        units = {f.name: f.unit for f in study.factors}
+        known = {f.name: f for f in study.factors}
         factors = [
-            (Column(name, units.get(name, "1"), name), design.points[:, i])
+            (_factor_column(known.get(name), name), design.points[:, i])
             for i, name in enumerate(design.factor_names)
         ]
         attrs = {
@@ -152,6 +152,12 @@ class Study:
             chunk=batch or default_batch(n),
             attrs=attrs,
         )
+
+
+def _factor_column(factor, name: str) -> Column:
+    if factor is None:
+        return Column(name, "1", name)
+    return Column(name, factor.unit, getattr(factor, "long_name", "") or name)
 
 
 def _version() -> str:
