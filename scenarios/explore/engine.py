@@ -15,12 +15,15 @@ records) stops the study: what was written stays and a re-run resumes.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 import os
+import socket
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import TextIO
@@ -83,6 +86,33 @@ def _scheduler_address(address: str) -> str:
     return full
 
 
+def _probe(address: str) -> None:
+    """Check that a Dask scheduler answers at ``address`` (raises otherwise): a refused
+    TCP port fails at once, a silent one after :data:`CONNECT_TIMEOUT_S`, a server that is
+    not a Dask scheduler on its first answer."""
+    scheme, _, rest = address.partition("://")
+    if scheme == "tcp":
+        host, _, port = rest.rpartition(":")
+        with socket.create_connection((host.strip("[]"), int(port)), CONNECT_TIMEOUT_S):
+            pass
+    from distributed.core import rpc
+
+    async def identity() -> dict:
+        remote = rpc(address, timeout=CONNECT_TIMEOUT_S)
+        try:
+            return await remote.identity()
+        finally:
+            await remote.close_rpc()
+
+    def ask() -> dict:
+        return asyncio.run(asyncio.wait_for(identity(), CONNECT_TIMEOUT_S))
+
+    with ThreadPoolExecutor(1) as pool:  # its own event loop, also under a running one
+        kind = pool.submit(ask).result().get("type")
+    if kind != "Scheduler":
+        raise OSError(f"the server there is a {kind}, not a Dask scheduler")
+
+
 @contextmanager
 def cluster_client(
     workers: int | None = None, scheduler: str | None = None, *, stream: TextIO | None = None
@@ -97,32 +127,18 @@ def cluster_client(
             "--workers", workers, "not with --scheduler (the cluster has its workers)"
         )
     address = None if scheduler is None else _scheduler_address(scheduler)
-    import dask
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     cluster = None
     if address is None:
-        # A worker that dies fails its task at once (run_chunks does the one retry), and
-        # only that task: a worker holds one task at a time (no queue on a dying worker).
-        config = {
-            "distributed.scheduler.allowed-failures": 0,
-            "distributed.scheduler.worker-saturation": 1.0,
-        }
-        with dask.config.set(config):
-            cluster = LocalCluster(
-                n_workers=workers or default_workers(),
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=":0",
-                silence_logs=logging.ERROR,
-                env=WORKER_ENV,
-            )
+        cluster = local_cluster(workers or default_workers())
         client = Client(cluster, set_as_default=False)
     else:
         try:
+            _probe(address)  # a refused port fails at once, not after the timeout
             client = Client(address, timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False)
-        except (OSError, TimeoutError) as exc:
-            reason = " ".join(str(exc).split())[:160]
+        except Exception as exc:  # refused, timed out, or not speaking Dask's protocol
+            reason = " ".join(f"{type(exc).__name__}: {exc}".split())[:160]
             raise ClusterError(
                 f"--scheduler: no Dask scheduler reachable at {address} within "
                 f"{CONNECT_TIMEOUT_S:.0f} s ({reason})"
@@ -136,6 +152,31 @@ def cluster_client(
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def local_cluster(workers: int):
+    """An embedded ``distributed.LocalCluster``: ``workers`` processes of one thread and
+    one BLAS thread each, no dashboard port fixed (one is chosen when bokeh is there).
+
+    A worker that dies fails its task at once (:func:`run_chunks` does the one retry),
+    and only that task: a worker is given one task at a time, so none waits on it.
+    """
+    import dask
+    from distributed import LocalCluster
+
+    config = {
+        "distributed.scheduler.allowed-failures": 0,
+        "distributed.scheduler.worker-saturation": 1.0,
+    }
+    with dask.config.set(config):
+        return LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            silence_logs=logging.ERROR,
+            env=WORKER_ENV,
+        )
 
 
 def _wait_for_a_worker(client, address: str) -> None:

@@ -36,8 +36,17 @@ def loopback_cluster(tmp_path_factory):
     common = dict(cwd=tmp, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     procs = [
         subprocess.Popen(
-            [DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-             "--scheduler-file", file],
+            [
+                DASK,
+                "scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                "0",
+                "--no-dashboard",
+                "--scheduler-file",
+                file,
+            ],
             start_new_session=True,
             **common,
         )
@@ -47,8 +56,20 @@ def loopback_cluster(tmp_path_factory):
         for name in ("w1", "w2"):
             procs.append(
                 subprocess.Popen(
-                    [DASK, "worker", address, "--nthreads", "1", "--name", name,
-                     "--host", "127.0.0.1", "--no-dashboard", "--local-directory", tmp / name],
+                    [
+                        DASK,
+                        "worker",
+                        address,
+                        "--nthreads",
+                        "1",
+                        "--name",
+                        name,
+                        "--host",
+                        "127.0.0.1",
+                        "--no-dashboard",
+                        "--local-directory",
+                        tmp / name,
+                    ],
                     start_new_session=True,
                     **common,
                 )

@@ -22,7 +22,12 @@ import numpy as np
 import pytest
 
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.scenarios.explore.engine import ClusterError, cluster_client, merge_results
+from sarcomere.scenarios.explore.engine import (
+    ClusterError,
+    cluster_client,
+    local_cluster,
+    merge_results,
+)
 from sarcomere.scenarios.explore.store import StoreError
 from sarcomere.scenarios.explore.study import Study
 
@@ -117,13 +122,21 @@ def evaluate(study: StandIn, indices: np.ndarray) -> Result:
     )
 
 
-def run(study: StandIn, out, **kw):
-    kw.setdefault("workers", 2)
+@pytest.fixture(scope="module")
+def cluster():
+    """The engine's embedded cluster (2 workers), shared by this module's studies."""
+    with local_cluster(2) as cluster:
+        yield cluster.scheduler_address
+
+
+def run(study: StandIn, out, scheduler=None, **kw):
+    if "workers" not in kw:
+        kw["scheduler"] = scheduler
     return Study(study).run(out, progress=False, evaluate=evaluate, **kw)
 
 
-def test_a_grid_study_runs_into_the_store_and_comes_back_on_the_grid(tmp_path):
-    ds = run(StandIn(), tmp_path / "out")
+def test_a_grid_study_runs_into_the_store_and_comes_back_on_the_grid(tmp_path, cluster):
+    ds = run(StandIn(), tmp_path / "out", cluster)
     assert ds.stroke.dims == ("load", "pressure")
     np.testing.assert_array_equal(ds.pressure.values, [0.0, 1e5, 2e5, 3e5])
     load, pressure = np.meshgrid(ds["load"].values, ds.pressure.values, indexing="ij")
@@ -140,22 +153,22 @@ def test_a_grid_study_runs_into_the_store_and_comes_back_on_the_grid(tmp_path):
     assert json.loads(ds.attrs["grid_factors"]) == ["load", "pressure"]
 
 
-def test_a_rerun_computes_only_the_missing_chunks(tmp_path):
+def test_a_rerun_computes_only_the_missing_chunks(tmp_path, cluster):
     from sarcomere.scenarios.explore.store import StudyStore
 
     out = tmp_path / "out"
-    full = run(StandIn(), out)
+    full = run(StandIn(), out, cluster)
     store = StudyStore.open(out / "study.zarr")
     assert store.missing_chunks() == []
     store._group["status"][4:8] = -1  # as if the run had stopped before this chunk
     assert store.missing_chunks() == [(4, 8)]
     # a re-run whose evaluator would kill any worker outside the missing chunk
-    again = run(StandIn(kill=(0, 1, 2, 3, 8, 9, 10, 11)), out)
+    again = run(StandIn(kill=(0, 1, 2, 3, 8, 9, 10, 11)), out, cluster)
     assert again.identical(full)
 
 
-def test_a_sample_that_kills_its_worker_is_retried_once_then_recorded(tmp_path):
-    ds = run(StandIn(kill=(5,)), tmp_path / "out").stack(sample=("load", "pressure"))
+def test_a_sample_that_kills_its_worker_is_retried_once_then_recorded(tmp_path, cluster):
+    ds = run(StandIn(kill=(5,)), tmp_path / "out", cluster).stack(sample=("load", "pressure"))
     status = ds.status.values
     assert status[5] == 2 and "worker lost twice" in str(ds.error.values[5])
     assert np.isnan(ds.stroke.values[5])
@@ -165,9 +178,9 @@ def test_a_sample_that_kills_its_worker_is_retried_once_then_recorded(tmp_path):
 
 
 def test_a_different_definition_is_refused_naming_what_differs(tmp_path):
-    run(StandIn(), tmp_path / "out", workers=1)
+    run(StandIn(), tmp_path / "out", workers=1)  # the embedded cluster of Study.run
     with pytest.raises(StoreError, match=r"pressures\.3: 300000\.0 -> 400000\.0"):
-        run(StandIn(pressures=(0.0, 1e5, 2e5, 4e5)), tmp_path / "out")
+        run(StandIn(pressures=(0.0, 1e5, 2e5, 4e5)), tmp_path / "out", workers=1)
 
 
 def test_caps_are_checked_before_any_work(tmp_path):
