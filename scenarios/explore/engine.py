@@ -280,6 +280,18 @@ class Progress:
         return f"{self.done}/{self.total} samples, {self.failed} failed, {rate:.3g} /s{left}"
 
 
+def _result_or_none(future) -> object | None:
+    """The finished ``future``'s result, or None when it is gone (its worker died after
+    computing it and before the result was fetched: the scheduler forgot or recomputes
+    it)."""
+    if future.status != "finished":
+        return None
+    try:
+        return future.result(timeout=WORKER_WAIT_S)
+    except Exception:  # CancelledError, lost data, timeout: computed again by the caller
+        return None
+
+
 def run_chunks(
     client,
     evaluate: Evaluate,
@@ -332,9 +344,7 @@ def run_chunks(
         refill()
         for future in futures:
             job, indices, attempt = owner.pop(future)
-            if future.status == "finished":
-                finish(job, future.result())
-            else:
+            if future.status == "error":
                 exc = future.exception()
                 if not isinstance(exc, KilledWorker):
                     raise exc
@@ -344,6 +354,12 @@ def run_chunks(
                         submit(job, np.array([i]), 1)
                 else:
                     finish(job, _lost(indices, type(exc).__name__))
+            else:
+                part = _result_or_none(future)
+                if part is None:  # computed, then lost with its worker before we fetched it
+                    submit(job, indices, attempt)
+                else:
+                    finish(job, part)
             future.release()
             refill()
     finally:
