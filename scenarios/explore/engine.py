@@ -16,6 +16,7 @@ records) stops the study: what was written stays and a re-run resumes.
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import logging
 import math
 import os
@@ -146,7 +147,7 @@ def cluster_client(
     try:
         if address is not None:
             _wait_for_a_worker(client, address)
-        _print_dashboard(client, stream)
+        _print_dashboard(client, stream, local=cluster is not None)
         yield client
     finally:
         client.close()
@@ -188,9 +189,10 @@ def _wait_for_a_worker(client, address: str) -> None:
         ) from None
 
 
-def _print_dashboard(client, stream: TextIO | None) -> None:
-    """Print the dashboard's address when the scheduler serves one (needs bokeh)."""
-    if stream is None:
+def _print_dashboard(client, stream: TextIO | None, local: bool) -> None:
+    """Print the dashboard's address when the scheduler serves one (an embedded cluster
+    serves its pages only with bokeh installed)."""
+    if stream is None or (local and importlib.util.find_spec("bokeh") is None):
         return
     if "dashboard" in client.scheduler_info().get("services", {}):
         print(f"Dask dashboard: {client.dashboard_link}", file=stream, flush=True)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import warnings
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -237,6 +238,9 @@ class StudyStore:
                 "created": datetime.now(UTC).isoformat(timespec="seconds"),
             }
         )
+        with warnings.catch_warnings():  # "not part of the Zarr 3 specification (yet)"
+            warnings.simplefilter("ignore")
+            zarr.consolidate_metadata(str(tmp))  # readers open it without listing it
         try:
             os.rename(tmp, path)
         except OSError:  # another run made it first: use theirs (compared on opening)
@@ -306,7 +310,7 @@ class StudyStore:
         """The whole store as an in-memory xarray Dataset (dims ``sample`` [, ``time``])."""
         import xarray as xr
 
-        ds = xr.open_zarr(str(self.path), consolidated=False).load()
+        ds = xr.open_zarr(str(self.path)).load()
         error = ds["error"]  # numpy StringDType -> Python str objects (the usual text dtype)
         ds["error"] = error.copy(data=np.array([str(e) for e in error.values], dtype=object))
         return ds
