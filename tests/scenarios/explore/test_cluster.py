@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 DASK = Path(sys.executable).parent / "dask"
@@ -88,3 +89,49 @@ def loopback_cluster(tmp_path_factory):
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
+
+
+STUDY = """
+[study]
+kind = "grid"
+base = "step-50g"
+batch = 2
+[study.grid]
+load = ["20 g", "50 g", "80 g"]
+pressure = ["0.05 MPa", "0.1 MPa"]
+[study.metrics]
+names = ["stroke", "rise_time", "peak_tension", "air_mass"]
+[model]
+n = 2
+[simulation]
+stop_time = "0.3 s"
+"""
+
+
+def study_cli(*args) -> list[str]:
+    return [sys.executable, "-m", "sarcomere.scenarios.cli", "study", *map(str, args)]
+
+
+@pytest.mark.slow  # a scheduler, two workers and two studies
+def test_a_study_through_scheduler_equals_the_local_run(loopback_cluster, tmp_path):
+    import xarray as xr
+
+    study = tmp_path / "cluster.toml"
+    study.write_text(STUDY)
+    remote = subprocess.run(
+        study_cli(study, "--out", tmp_path / "remote", "--scheduler", loopback_cluster),
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert remote.returncode == 0, remote.stderr
+    assert "6 samples, 0 failed" in remote.stdout
+    local = tmp_path / "local"
+    subprocess.run(study_cli(study, "--out", local, "--quiet"), env=ENV, check=True, timeout=300)
+    got = xr.open_zarr(tmp_path / "remote" / "study.zarr").load()
+    ref = xr.open_zarr(local / "study.zarr").load()
+    assert (ref.status.values == 0).all() and np.isfinite(ref.stroke.values).all()
+    for ds in (got, ref):
+        ds.attrs.pop("created")
+    xr.testing.assert_identical(got, ref)
