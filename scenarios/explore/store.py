@@ -296,14 +296,32 @@ class StudyStore:
                 f"internal: a result for samples {indices[:3]}... is not the chunk "
                 f"[{start}, {stop}) of {self.path}"
             )
+        values = {name: np.asarray(v, np.float64) for name, v in result.metrics.items()}
+        for signal, v in (result.series or {}).items():
+            values[series_name(signal)] = np.asarray(v, np.float64)
+        values["error"] = np.array([str(e) for e in result.error], dtype=object)
         status = np.asarray(result.status, dtype=np.int8)
-        for name, values in result.metrics.items():
-            self._group[name][start:stop] = np.asarray(values, dtype=np.float64)
-        for signal, values in (result.series or {}).items():
-            self._group[series_name(signal)][start:stop, :] = np.asarray(values, np.float64)
-        errors = np.array([str(e) for e in result.error], dtype=object)
-        self._group["error"][start:stop] = errors
-        self._group["status"][start:stop] = status
+        self._set(start, stop, values)  # all at once (each chunk file atomic), then:
+        self._set(start, stop, {"status": status})
+
+    def _set(self, start: int, stop: int, values: dict[str, np.ndarray]) -> None:
+        """Write ``values[name]`` to rows ``start:stop`` of each variable, concurrently
+        (Zarr's own event loop; a write is ~2 ms of waiting per variable otherwise)."""
+        import asyncio
+
+        from zarr.core.sync import sync
+
+        arrays = [self._group[name]._async_array for name in values]
+
+        async def write() -> None:
+            await asyncio.gather(
+                *(
+                    a.setitem(slice(start, stop), v)
+                    for a, v in zip(arrays, values.values(), strict=True)
+                )
+            )
+
+        sync(write())
 
     # -- reading --------------------------------------------------------------------------
     def read(self):
