@@ -250,3 +250,9 @@ def test_the_cli_starts_without_the_study_libraries(argv, status):
         [sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, check=True
     )
     assert json.loads(done.stdout.splitlines()[-1]) == [status, []], done.stderr
+
+
+def test_default_batches_keep_tasks_few_but_enough():
+    from sarcomere.scenarios.explore.engine import default_batch
+
+    assert [default_batch(n) for n in (1, 6, 48, 100, 1000, 100_000)] == [1, 1, 6, 8, 16, 64]
