@@ -1,8 +1,8 @@
 """Design studies at scale (BENCHMARKS.md, "Design studies"): throughput against workers,
 study overhead per sample, scheduler overhead per task, memory over a long study.
 
-    OPENBLAS_NUM_THREADS=1 nice python benchmarks/study_scaling.py [--samples 48]
-        [--batch 4] [--tasks 1000] [--long 10000] [--workers 1 2]
+    OPENBLAS_NUM_THREADS=1 nice python benchmarks/study_scaling.py [--samples 192]
+        [--batch 16] [--tasks 500] [--long 10000] [--workers 1 2]
 
 1. Throughput: the n = 3 step-50g scene with ``radau`` over ``--samples`` loads (30-70 g),
    on an embedded LocalCluster of 1 and 2 workers, after a warm-up sample on every worker
@@ -222,9 +222,9 @@ def memory(args, tmp: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--samples", type=int, default=48)
-    ap.add_argument("--batch", type=int, default=4)
-    ap.add_argument("--tasks", type=int, default=1000)
+    ap.add_argument("--samples", type=int, default=192)
+    ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--tasks", type=int, default=500)
     ap.add_argument("--long", type=int, default=10_000)
     ap.add_argument("--long-batch", type=int, default=50)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
@@ -237,18 +237,20 @@ def main() -> None:
         task = math.nan if "tasks" in args.skip else scheduler_overhead(args, tmp)
         store_writes(tmp)
         if rows.get(1) and not math.isnan(task):
-            per_sample = rows[1]["solve"] / args.samples
-            batch = math.ceil(task / (0.05 * per_sample))
-            print(f"batch keeping the per-task overhead under 5 %: >= {batch} samples")
+            sim = rows[1]["solve"] / args.samples
+            batch = math.ceil(task / (0.05 * sim))
+            print(f"batch keeping the per-task overhead under 5 % of the integration: >= {batch}")
+            per_sample = rows[1]["wall"] / args.samples
             eff = rows[2]["rate"] / (2 * rows[1]["rate"]) if 2 in rows else 1.0
-            per_hour = 64 * 3600 / per_sample * eff
-            tasks_s = 64 / (args.batch * per_sample)
-            print(
-                f"projected at 64 workers: {per_hour:,.0f} samples/hour (1-worker rate x 64 x "
-                f"the 2-worker efficiency {eff * 100:.0f} %; one core per worker, the model "
-                f"cached per worker, the scheduler at {tasks_s:.0f} tasks/s with batch "
-                f"{args.batch} against the {1 / task:.0f} tasks/s it handles here)"
-            )
+            workers_bound = 64 * eff / per_sample
+            for b in (args.batch, 64):
+                client_bound = b / task
+                rate = min(workers_bound, client_bound)
+                print(
+                    f"projected at 64 workers, batch {b}: {rate * 3600:,.0f} samples/hour = min("
+                    f"64 x {1 / per_sample:.1f} samples/s per worker x {eff * 100:.0f} % "
+                    f"efficiency, {1 / task:.0f} tasks/s the client + scheduler handle x {b})"
+                )
         if "memory" not in args.skip:
             memory(args, tmp)
 

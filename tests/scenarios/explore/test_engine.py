@@ -255,4 +255,4 @@ def test_the_cli_starts_without_the_study_libraries(argv, status):
 def test_default_batches_keep_tasks_few_but_enough():
     from sarcomere.scenarios.explore.engine import default_batch
 
-    assert [default_batch(n) for n in (1, 6, 48, 100, 1000, 100_000)] == [1, 1, 6, 8, 16, 64]
+    assert [default_batch(n) for n in (1, 6, 48, 100, 1000, 100_000)] == [1, 1, 6, 13, 16, 64]
