@@ -114,6 +114,20 @@ def _probe(address: str) -> None:
         raise OSError(f"the server there is a {kind}, not a Dask scheduler")
 
 
+def check_cluster_arguments(workers: int | None, scheduler: str | None) -> str | None:
+    """Refuse bad ``workers``/``scheduler`` values (before any work); the scheduler's
+    full address, or None for an embedded cluster."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)):
+        raise ParameterError("--workers", workers, "a whole number >= 1")
+    if workers is not None and workers < 1:
+        raise ParameterError("--workers", workers, "a whole number >= 1")
+    if scheduler is not None and workers is not None:
+        raise ParameterError(
+            "--workers", workers, "not with --scheduler (the cluster has its workers)"
+        )
+    return None if scheduler is None else _scheduler_address(scheduler)
+
+
 @contextmanager
 def cluster_client(
     workers: int | None = None, scheduler: str | None = None, *, stream: TextIO | None = None
@@ -121,13 +135,7 @@ def cluster_client(
     """A ``distributed.Client``: of an embedded ``LocalCluster`` with ``workers`` processes
     (default :func:`default_workers`), or of the running cluster at ``scheduler``. The
     dashboard's address is printed on ``stream`` when there is one."""
-    if workers is not None and (not isinstance(workers, int) or workers < 1):
-        raise ParameterError("--workers", workers, "a whole number >= 1")
-    if scheduler is not None and workers is not None:
-        raise ParameterError(
-            "--workers", workers, "not with --scheduler (the cluster has its workers)"
-        )
-    address = None if scheduler is None else _scheduler_address(scheduler)
+    address = check_cluster_arguments(workers, scheduler)
     from distributed import Client
 
     cluster = None
