@@ -149,9 +149,12 @@ def throughput(args, tmp: Path) -> dict:
             f"{(r['inside'] - r['solve']) / n * 1e3:.2f} ms, engine + store "
             f"{(r['wall'] * w - r['inside']) / n * 1e3:.2f} ms)"
         )
+    for w, got in runs.items():
+        busy = statistics.median(inside / (w * wall) for wall, _, inside in got)
+        print(f"workers {w}: busy inside evaluate_batch {busy * 100:.0f} % of the wall time")
     if 1 in rows and 2 in rows:
         eff = rows[2]["rate"] / (2 * rows[1]["rate"])
-        print(f"parallel efficiency at 2 workers: {eff * 100:.0f} %")
+        print(f"parallel efficiency at 2 workers (samples/s): {eff * 100:.0f} %")
     return rows
 
 
