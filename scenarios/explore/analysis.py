@@ -13,8 +13,9 @@ not finite) removes its whole block, and the indices are estimated from the comp
 blocks only (SALib's estimators are means over blocks, so they stay consistent; if failures
 depend on the factors the indices describe the region where the model ran). The number of
 blocks used is returned per metric (``blocks_used``), the failed samples are listed in the
-attributes, and fewer than :data:`MIN_BLOCKS` complete blocks refuse the analysis with an
-:class:`AnalysisError` naming the failed samples. A metric that is constant over the design
+attributes; a metric with fewer than :data:`MIN_BLOCKS` complete blocks is refused (NaN
+indices, its ``note`` names the failed samples), and if every metric is refused the
+analysis raises :class:`AnalysisError` with that message. A metric that is constant over the design
 has no variance to apportion: its indices are NaN and its ``note`` says so.
 """
 
@@ -67,15 +68,13 @@ def _problem(study: Any) -> tuple[Any, dict]:
 
 
 def _option(study: Any, design: Any, names: tuple[str, ...]) -> Any:
-    """A sensitivity setting from the design, its SALib problem or the study definition."""
-    for name in names:
-        for holder in (design, getattr(study, "sensitivity", None)):
-            if holder is not None and getattr(holder, name, None) is not None:
-                return getattr(holder, name)
-        if name in (design.salib_problem or {}):
-            return design.salib_problem[name]
-    section = study.definition().get("sensitivity", {})
-    return next((section[n] for n in names if n in section), None)
+    """A sensitivity setting: the design's ``salib_options`` (what the sampler used), else
+    the study's ``options``; None if neither has any of ``names``."""
+    for source in (getattr(design, "salib_options", None), dict(getattr(study, "options", ()))):
+        for name in names:
+            if source and source.get(name) is not None:
+                return source[name]
+    return None
 
 
 def sensitivity_metrics(ds: xr.Dataset, study: Any) -> list[str]:
@@ -104,6 +103,25 @@ def _complete_blocks(ds: xr.Dataset, metric: str, size: int) -> tuple[np.ndarray
     return blocks, keep
 
 
+def _each_metric(ds: xr.Dataset, metrics: list[str], size: int, compute) -> tuple:
+    """``compute(values of the complete blocks, their mask)`` per metric -> (blocks used,
+    notes, results: None where refused or undefined). A metric with too few complete blocks
+    is refused alone (its note says why); all of them refused raises."""
+    used, notes, rows = np.zeros(len(metrics), dtype=int), [""] * len(metrics), []
+    for i, metric in enumerate(metrics):
+        try:
+            blocks, keep = _complete_blocks(ds, metric, size)
+        except AnalysisError as err:
+            notes[i], row = f"refused: {err}", None
+        else:
+            used[i] = keep.sum()
+            row, notes[i] = compute(blocks[keep].ravel(), keep)
+        rows.append(row)
+    if all(r is None for r in rows) and any(n.startswith("refused") for n in notes):
+        raise AnalysisError("; ".join(n.removeprefix("refused: ") for n in notes))
+    return used, notes, rows
+
+
 def _block_size(n: int, size: int, what: str) -> None:
     if n % size:
         raise AnalysisError(
@@ -127,6 +145,11 @@ def _result(
     failed = failed_samples(ds)
     attrs = {**attrs, "failed_samples": json.dumps([int(i) for i in failed])}
     return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def _stack(rows: list, key: str, shape: tuple[int, ...]) -> np.ndarray:
+    """``rows[i][key]`` stacked over the metrics, NaN for a metric without results."""
+    return np.stack([np.full(shape, np.nan) if r is None else r[key] for r in rows])
 
 
 def _rng(study: Any) -> np.random.Generator:
@@ -174,17 +197,11 @@ def sobol(
     size = 2 * d + 2 if second else d + 2
     _block_size(ds.sizes["sample"], size, "Saltelli blocks")
     metrics = sensitivity_metrics(ds, study)
-    keys = ("S1", "S1_conf", "ST", "ST_conf")
-    out = {k: np.full((len(metrics), d), np.nan) for k in keys}
-    s2 = {k: np.full((len(metrics), d, d), np.nan) for k in ("S2", "S2_conf")}
-    used, notes = np.zeros(len(metrics), dtype=int), [""] * len(metrics)
-    for i, metric in enumerate(metrics):
-        blocks, keep = _complete_blocks(ds, metric, size)
-        used[i] = keep.sum()
-        y = blocks[keep].ravel()
+    keys = ("S1", "S1_conf", "ST", "ST_conf", *(("S2", "S2_conf") if second else ()))
+
+    def compute(y: np.ndarray, keep: np.ndarray):
         if np.ptp(y) <= 1e-12 * max(1.0, float(np.max(np.abs(y)))):
-            notes[i] = f"constant ({y[0]:.6g}) over the design: no variance to apportion"
-            continue
+            return None, f"constant ({y[0]:.6g}) over the design: no variance to apportion"
         res = salib_sobol.analyze(
             problem,
             y,
@@ -193,13 +210,14 @@ def sobol(
             conf_level=conf_level,
             seed=_rng(study),
         )
-        for k in keys:
-            out[k][i] = res[k]
-        if second:
-            s2["S2"][i], s2["S2_conf"][i] = res["S2"], res["S2_conf"]
-    data = {k: (("metric", "factor"), v, {"unit": "1"}) for k, v in out.items()}
-    if second:
-        data |= {k: (("metric", "factor", "factor_b"), v, {"unit": "1"}) for k, v in s2.items()}
+        return {k: np.asarray(res[k], dtype=float) for k in keys}, ""
+
+    used, notes, rows = _each_metric(ds, metrics, size, compute)
+    out = {k: _stack(rows, k, (d, d) if k.startswith("S2") else (d,)) for k in keys}
+    data = {
+        k: (("metric", "factor", "factor_b") if k.startswith("S2") else ("metric", "factor"), v)
+        for k, v in out.items()
+    }
     data |= {"blocks_used": ("metric", used), "note": ("metric", np.array(notes, dtype=str))}
     attrs = {
         "method": "sobol",
@@ -239,6 +257,8 @@ def _levels(study: Any, design: Any, x: np.ndarray, problem: dict) -> int:
     bounds = np.asarray(problem["bounds"], dtype=float)
     size = len(bounds) + 1
     steps = np.abs(np.diff(x.reshape(-1, size, len(bounds)), axis=1)) / np.ptp(bounds, axis=1)
+    uniform = np.array([d == "unif" for d in problem.get("dists", ["unif"] * len(bounds))])
+    steps = steps[..., uniform]  # other distributions step by delta in probability only
     observed = np.unique(np.round(steps[steps > 0], 9))
     delta = levels / (2.0 * (levels - 1))
     if not np.allclose(observed, delta, rtol=1e-6):
@@ -288,26 +308,21 @@ def morris(
     levels = _levels(study, design, x, problem)
     metrics = sensitivity_metrics(ds, study)
     keys = ("mu_star", "mu_star_conf", "sigma", "mu")
-    out = {k: np.full((len(metrics), d), np.nan) for k in keys}
-    used, notes = np.zeros(len(metrics), dtype=int), [""] * len(metrics)
-    for i, metric in enumerate(metrics):
-        blocks, keep = _complete_blocks(ds, metric, size)
-        used[i] = keep.sum()
-        rows = np.repeat(keep, size)
+
+    def compute(y: np.ndarray, keep: np.ndarray):
         res = salib_morris.analyze(
             problem,
-            x[rows],
-            blocks[keep].ravel(),
+            x[np.repeat(keep, size)],
+            y,
             num_resamples=num_resamples,
             conf_level=conf_level,
             num_levels=levels,
             seed=_rng(study),
         )
-        for k in keys:
-            out[k][i] = np.asarray(res[k], dtype=float)
-    data = {
-        k: (("metric", "factor"), v, {"long_name": k.replace("_", " ")}) for k, v in out.items()
-    }
+        return {k: np.asarray(res[k], dtype=float) for k in keys}, ""
+
+    used, notes, rows = _each_metric(ds, metrics, size, compute)
+    data = {k: (("metric", "factor"), _stack(rows, k, (d,))) for k in keys}
     data |= {"blocks_used": ("metric", used), "note": ("metric", np.array(notes, dtype=str))}
     attrs = {
         "method": "morris",

@@ -332,6 +332,7 @@ def _failed_text(result: xr.Dataset) -> str:
 def _blocks_text(result: xr.Dataset, metric: str) -> str:
     used, total = int(result["blocks_used"].sel(metric=metric)), result.attrs["blocks_total"]
     note = str(result["note"].sel(metric=metric).values)
+    note = note if len(note) <= 90 else note[:87] + "..."
     text = f"{used} of {total} blocks" + (
         f" ({total - used} with failed samples left out)" if used < total else ""
     )

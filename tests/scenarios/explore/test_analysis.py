@@ -45,7 +45,7 @@ def study_stub(problem, method, points, metrics=("y",), **options):
         grid_shape=None,
         salib_problem=problem,
         method=method,
-        **options,
+        salib_options=options,
     )
     return SimpleNamespace(
         name="stub",
@@ -113,6 +113,17 @@ def test_too_few_complete_blocks_refuse_naming_the_failed_samples(saltelli):
     ds["status"] = ("sample", np.where(np.arange(len(x)) % 8 == 1, 1, 0).astype(np.int8))
     with pytest.raises(analysis.AnalysisError, match=r"0 of 6 blocks.*6 samples failed.*1, 9"):
         analysis.sobol(ds, study)
+
+
+def test_a_metric_without_enough_values_is_refused_alone(saltelli):
+    problem, x = saltelli
+    study = study_stub(problem, "sobol-saltelli", x, ("y", "z"), calc_second_order=True)
+    z = np.where(np.arange(len(x)) % 8 == 4, np.nan, x[:, 0])  # undefined in every block
+    res = analysis.sobol(dataset(problem, x, y=ishigami(x), z=z), study)
+    assert str(res.note.sel(metric="z").values).startswith("refused: metric 'z': 0 of 1024")
+    assert np.isnan(res.ST.sel(metric="z").values).all()
+    assert np.isfinite(res.ST.sel(metric="y").values).all()
+    assert str(res.note.sel(metric="y").values) == ""
 
 
 def test_incomplete_design_is_refused(saltelli):

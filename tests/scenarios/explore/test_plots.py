@@ -22,7 +22,7 @@ NS = np.array([1.0, 2.0, 3.0])
 
 def stub(kind, factors, metrics, method, problem=None, **options):
     """The StudyDef attributes the outputs read (interface file), nothing else."""
-    design = SimpleNamespace(method=method, salib_problem=problem, **options)
+    design = SimpleNamespace(method=method, salib_problem=problem, salib_options=options)
     return SimpleNamespace(
         name=f"synthetic-{kind}",
         base="step-50g",
