@@ -77,10 +77,23 @@ def _option(study: Any, design: Any, names: tuple[str, ...]) -> Any:
     return None
 
 
+def _declared_metrics(study: Any) -> list[str] | None:
+    """``[study.sensitivity] metrics`` as the study's TOML text gives them, None if absent."""
+    import tomllib
+
+    text = getattr(study, "source_text", "")
+    section = tomllib.loads(text).get("study", {}).get("sensitivity", {}) if text else {}
+    return section.get("metrics")
+
+
 def sensitivity_metrics(ds: xr.Dataset, study: Any) -> list[str]:
     """The metrics to analyse: ``[study.sensitivity] metrics``, else every study metric."""
     design = study.design()
-    names = _option(study, design, ("metrics",)) or [m.name for m in study.metrics]
+    names = (
+        _option(study, design, ("metrics",))
+        or _declared_metrics(study)
+        or [m.name for m in study.metrics]
+    )
     missing = [n for n in names if n not in ds]
     if missing:
         raise AnalysisError(f"metrics {missing} are not in the dataset ({sorted(ds.data_vars)})")

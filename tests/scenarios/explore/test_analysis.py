@@ -126,6 +126,15 @@ def test_a_metric_without_enough_values_is_refused_alone(saltelli):
     assert str(res.note.sel(metric="y").values) == ""
 
 
+def test_only_the_declared_sensitivity_metrics_are_analysed(saltelli):
+    problem, x = saltelli
+    study = study_stub(problem, "sobol-saltelli", x, ("y", "z"), calc_second_order=True)
+    study.source_text = '[study]\nkind = "sensitivity"\n[study.sensitivity]\nmetrics = ["z"]\n'
+    res = analysis.sobol(dataset(problem, x, y=ishigami(x), z=x[:, 1]), study)
+    assert list(res.metric.values) == ["z"]
+    np.testing.assert_allclose(res.S1.sel(metric="z").values, [0, 1, 0], atol=0.03)
+
+
 def test_incomplete_design_is_refused(saltelli):
     problem, x = saltelli
     study = study_stub(problem, "sobol-saltelli", x, calc_second_order=True)
