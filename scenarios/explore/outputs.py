@@ -4,10 +4,13 @@
 
 * ``study``, ``kind``, ``base``, ``method``, ``seed``, ``fingerprint``, ``version``;
 * ``samples``: ``total``, ``ok``, ``failed`` (status 1), ``worker_lost`` (status 2),
-  ``not_computed`` (status -1), ``errors`` (each distinct message with its count) and
-  ``failures`` (the first :data:`LISTED_FAILURES` failed samples with their factor values);
-* ``metrics``: per metric ``unit``, ``count`` (ok samples), ``median``, ``p05``, ``p95`` and
-  ``min``/``max`` each with the factor values (``at``) where they occur;
+  ``not_computed`` (status -1), ``errors`` (each distinct message of the samples that are
+  not ok, with its count), ``failures`` (the first :data:`LISTED_FAILURES` of them with
+  their factor values) and ``notes`` (the commonest notes of ok samples: why a metric is
+  undefined there);
+* ``metrics``: per metric ``unit``, ``count`` (ok samples with a value), ``undefined`` (ok
+  samples without one), ``median``, ``p05``, ``p95`` and ``min``/``max`` each with the
+  factor values (``at``) where they occur;
 * ``series``: per time series the median and 5-95 % band of its final value;
 * ``sensitivity`` (sensitivity studies): the method, blocks used and the factors of each
   metric ranked by total index (Sobol') or mu* (Morris), or ``refused`` with the reason;
@@ -31,6 +34,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Failed samples listed with their factor values in ``summary.json``.
 LISTED_FAILURES = 20
+#: Most common notes of ok samples (why a metric is undefined) listed in ``summary.json``.
+LISTED_NOTES = 10
 #: Status codes of the store (interface file) and their names in ``summary.json``.
 STATUS_NAMES = {0: "ok", 1: "failed", 2: "worker_lost", -1: "not_computed"}
 
@@ -73,6 +78,9 @@ def sample_counts(ds: xr.Dataset, study: Any) -> dict[str, Any]:
     bad = np.flatnonzero(status != 0)
     messages = Counter(str(errors[i]) if errors is not None else "" for i in bad)
     counts["errors"] = [{"message": m, "count": c} for m, c in messages.most_common()]
+    noted = [str(errors[i]) for i in np.flatnonzero(status == 0)] if errors is not None else []
+    notes = Counter(m for m in noted if m)
+    counts["notes"] = [{"message": m, "count": c} for m, c in notes.most_common(LISTED_NOTES)]
     factors = _flat_factors(ds, study, ds["status"])
     counts["failures"] = [
         {
@@ -91,7 +99,11 @@ def metric_summary(ds: xr.Dataset, study: Any, metric: str) -> dict[str, Any]:
     da = ds[metric]
     values = np.asarray(da.where(ds["status"] == 0).values, dtype=float).ravel()
     finite = np.flatnonzero(np.isfinite(values))
-    out: dict[str, Any] = {"unit": plots.unit_of(ds, study, metric), "count": int(finite.size)}
+    out: dict[str, Any] = {
+        "unit": plots.unit_of(ds, study, metric),
+        "count": int(finite.size),
+        "undefined": plots.undefined(ds, metric),
+    }
     if finite.size == 0:
         return out | {k: None for k in ("median", "p05", "p95", "min", "max")}
     p05, median, p95 = np.percentile(values[finite], plots.BAND)

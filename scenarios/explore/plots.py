@@ -60,12 +60,25 @@ def label(ds: xr.Dataset, study: Any, name: str) -> str:
     return f"{name} [{display(unit_of(ds, study, name))[0]}]"
 
 
-def status_note(ds: xr.Dataset) -> str:
-    """``"k of N samples ok, m failed (left out)"`` from the ``status`` variable."""
+def undefined(ds: xr.Dataset, name: str) -> int:
+    """Samples that ran (status 0) where ``name`` has no value (a rise time of a run that
+    does not move: the sample's ``error`` says why)."""
+    values = np.asarray(ds[name].values, dtype=float)
+    ok = np.broadcast_to(np.asarray(ds["status"].values) == 0, ds["status"].shape)
+    axes = tuple(range(ok.ndim, values.ndim))  # a series: undefined anywhere in time
+    return int(np.sum(ok & np.isnan(values).any(axis=axes)))
+
+
+def status_note(ds: xr.Dataset, *names: str) -> str:
+    """``"k of N samples ok, m failed or missing (left out)"`` from the ``status``
+    variable, and for each of ``names`` the ok samples where it is undefined."""
     status = np.asarray(ds["status"].values).ravel()
     ok, total = int(np.sum(status == 0)), status.size
     note = f"{ok} of {total} samples ok"
-    return note if ok == total else f"{note}, {total - ok} failed or missing (left out)"
+    if ok < total:
+        note += f", {total - ok} failed or missing (left out)"
+    gaps = [f"{name} undefined in {k}" for name in names if (k := undefined(ds, name))]
+    return note + "".join(f"; {g}" for g in gaps)
 
 
 def _figure(panels: int, width: float = 4.6, height: float = 3.6, cols: int = 3):
@@ -152,8 +165,9 @@ def _marks(ax, ds, study, x: str, y: str, where: Mapping[str, float], xs, ys) ->
             ax.plot(px * sx, py * sy, marker, mfc="none", mec="black", ms=7, ls="", label=text)
 
 
-def _contour_panel(ax, ds, study, da, x, y, levels, where):
-    """Filled contours of ``da`` (2-D over x, y; NaN where failed) on ``ax``."""
+def _contour_panel(ax, ds, study, da, failed, x, y, levels, where):
+    """Filled contours of ``da`` (2-D over x, y; NaN where failed or undefined) on ``ax``;
+    the failed samples (``failed``: a mask like ``da``) and undefined values marked."""
     (_, sx), (_, sy) = display(unit_of(ds, study, x)), display(unit_of(ds, study, y))
     scale = display(unit_of(ds, study, da.name))[1]
     z = da.transpose(y, x).values * scale
@@ -162,9 +176,30 @@ def _contour_panel(ax, ds, study, da, x, y, levels, where):
     filled = ax.contourf(gx, gy, np.ma.masked_invalid(z), levels=levels, cmap="viridis")
     ax.contour(gx, gy, np.ma.masked_invalid(z), levels=levels, colors="white", linewidths=0.4)
     ax.plot(gx.ravel(), gy.ravel(), ".", color="0.3", ms=2)
-    bad = ~np.isfinite(z)
-    if bad.any():
-        ax.plot(gx[bad], gy[bad], "x", color="red", ms=7, mew=1.5, label="failed sample")
+    lost = failed.transpose(y, x).values
+    gap = ~np.isfinite(z) & ~lost
+    if lost.any():
+        ax.plot(
+            gx[lost],
+            gy[lost],
+            "x",
+            color="red",
+            ms=7,
+            mew=1.5,
+            label="failed sample",
+            clip_on=False,
+        )
+    if gap.any():
+        ax.plot(
+            gx[gap],
+            gy[gap],
+            "+",
+            color="0.2",
+            ms=7,
+            mew=1.2,
+            label="undefined value",
+            clip_on=False,
+        )
     _marks(ax, ds, study, x, y, where, xs, ys)
     ax.set_xlabel(label(ds, study, x))
     ax.set_ylabel(label(ds, study, y))
@@ -200,7 +235,7 @@ def design_map(ds: xr.Dataset, study: Any, metric: str, folder: Path) -> Path | 
     if sum(da.sizes[d] > 1 for d in da.dims) < 2:
         return None
     x, y, facet, fixed = _map_axes(da)
-    da = da.sel(fixed)
+    da, failed = da.sel(fixed), (ds["status"] != 0).broadcast_like(da).sel(fixed)
     facets = thin(list(da[facet].values), MAX_FACETS) if facet else [None]
     finite = da.values[np.isfinite(da.values)]
     unit, scale = display(unit_of(ds, study, metric))
@@ -211,13 +246,13 @@ def design_map(ds: xr.Dataset, study: Any, metric: str, folder: Path) -> Path | 
     fig, axes = _figure(len(facets))
     for ax, value in zip(axes, facets, strict=True):
         where = {d: float(v) for d, v in fixed.items()}
-        panel = da
+        panel, lost = da, failed
         if facet is not None:
-            panel = da.sel({facet: value})
+            panel, lost = da.sel({facet: value}), failed.sel({facet: value})
             where[facet] = float(value)
             ax.set_title(_value_text(ds, study, facet, value), fontsize="medium")
-        filled = _contour_panel(ax, ds, study, panel, x, y, levels, where)
-    fig.colorbar(filled, ax=list(axes), label=f"{metric} [{unit}]")
+        filled = _contour_panel(ax, ds, study, panel, lost, x, y, levels, where)
+    fig.colorbar(filled, ax=list(axes), label=f"{metric} [{unit}]", format="%.4g")
     _figure_legend(fig, axes)
     shown = (
         f" ({len(facets)} of {da.sizes[facet]} {facet} levels)"
@@ -225,7 +260,9 @@ def design_map(ds: xr.Dataset, study: Any, metric: str, folder: Path) -> Path | 
         else ""
     )
     fixed_text = "".join(f"; {_value_text(ds, study, d, v)}" for d, v in fixed.items())
-    fig.suptitle(f"{study.name}: {metric}{shown}{fixed_text}\n{status_note(ds)}", fontsize="medium")
+    fig.suptitle(
+        f"{study.name}: {metric}{shown}{fixed_text}\n{status_note(ds, metric)}", fontsize="medium"
+    )
     return _save(fig, folder / f"map_{metric}.png")
 
 
@@ -244,7 +281,7 @@ def design_line(ds: xr.Dataset, study: Any, metric: str, folder: Path) -> Path |
     ax.set_xlabel(label(ds, study, x))
     ax.set_ylabel(label(ds, study, metric))
     ax.grid(True, alpha=0.3)
-    fig.suptitle(f"{study.name}: {metric}\n{status_note(ds)}", fontsize="medium")
+    fig.suptitle(f"{study.name}: {metric}\n{status_note(ds, metric)}", fontsize="medium")
     return _save(fig, folder / f"map_{metric}.png")
 
 
@@ -289,7 +326,7 @@ def envelope(ds: xr.Dataset, study: Any, variable: str, folder: Path) -> Path | 
     ax.set_ylabel(f"{signal} [{unit}]")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small")
-    fig.suptitle(f"{study.name}: {signal}\n{status_note(ds)}", fontsize="medium")
+    fig.suptitle(f"{study.name}: {signal}\n{status_note(ds, variable)}", fontsize="medium")
     return _save(fig, folder / f"envelope_{signal}.png")
 
 
@@ -310,6 +347,8 @@ def histograms(ds: xr.Dataset, study: Any, metrics: Sequence[str], folder: Path)
                 ax.axvline(q, color="black", ls=ls, lw=1)
         ax.set_xlabel(label(ds, study, metric))
         ax.set_ylabel("samples [count]")
+        if gaps := undefined(ds, metric):
+            ax.set_title(f"undefined in {gaps} ok samples", fontsize="small")
     fig.suptitle(
         f"{study.name}: metrics (lines: median, {BAND[0]:g} and {BAND[2]:g} %)\n{status_note(ds)}",
         fontsize="medium",

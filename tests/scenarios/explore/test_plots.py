@@ -48,11 +48,14 @@ def grid():
     status[1, 3, 2] = 1  # one solver failure
     error = np.where(status == 1, "SolverError: step size too small at t = 0.31 s", "")
     s = np.where(status == 0, stroke(load, p, n), np.nan)
+    rise = np.where(p > 0, 0.05 + 0.1 * load, np.nan)  # no rise time without a stroke
+    error[(p == 0) & (status == 0)] = "rise_time: the stroke is below the noise level"
+    rise[status != 0] = np.nan
     dims = ("load", "pressure", "n")
     ds = xr.Dataset(
         {
             "stroke": (dims, s, {"unit": "m", "long_name": "stroke"}),
-            "rise_time": (dims, 0.05 + 0.1 * load + 0 * p, {"unit": "s"}),
+            "rise_time": (dims, rise, {"unit": "s"}),
             "status": (dims, status),
             "error": (dims, error.astype(object)),
         },
@@ -126,6 +129,13 @@ def test_grid_outputs_draw_maps_and_summarise_with_factor_values(grid, tmp_path,
     assert s["min"]["value"] == 0.0 and s["min"]["at"]["pressure"] == 0.0
     assert summary["fingerprint"] == "a" * 64 and summary["version"] == "0.1.0"
     assert "1 of 84 samples are not ok" in summary["warnings"][0]
+    rise = summary["metrics"]["rise_time"]
+    assert (rise["count"], rise["undefined"], s["undefined"]) == (71, 12, 0)
+    assert samples["notes"] == [
+        {"message": "rise_time: the stroke is below the noise level", "count": 12}
+    ]
+    note = plots.status_note(ds, "rise_time")
+    assert note == "83 of 84 samples ok, 1 failed or missing (left out); rise_time undefined in 12"
 
 
 def test_design_map_axes_facets_and_paper_points(grid):
