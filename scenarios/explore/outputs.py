@@ -177,6 +177,22 @@ def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Pa
     return [p for p in drawn if p is not None]
 
 
+def _remove_previous(folder: Path) -> None:
+    """Delete the figures an earlier ``summary.json`` in ``folder`` lists (a resumed study
+    may draw other ones), nothing else."""
+    old = folder / "summary.json"
+    if not old.is_file():
+        return
+    try:
+        names = json.loads(old.read_text(encoding="utf-8")).get("plots", [])
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        return
+    for name in names:
+        path = folder / str(name)
+        if path.suffix == ".png" and path.parent == folder and path.is_file():
+            path.unlink()
+
+
 def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
     """Write the study's figures and ``summary.json`` into ``folder``; return the summary.
 
@@ -197,6 +213,7 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    _remove_previous(folder)
     design = study.design()
     summary: dict[str, Any] = {
         "study": study.name,

@@ -138,6 +138,19 @@ def test_grid_outputs_draw_maps_and_summarise_with_factor_values(grid, tmp_path,
     assert note == "83 of 84 samples ok, 1 failed or missing (left out); rise_time undefined in 12"
 
 
+def test_rewriting_replaces_the_figures_of_the_previous_summary(grid, tmp_path):
+    ds, study = grid
+    outputs.write_outputs(ds, study, tmp_path)
+    (tmp_path / "mine.png").write_bytes(b"not ours")
+    summary = outputs.write_outputs(ds.drop_vars("rise_time"), study, tmp_path)
+    assert summary["plots"] == ["map_stroke.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "map_stroke.png",
+        "mine.png",
+        "summary.json",
+    ]
+
+
 def test_design_map_axes_facets_and_paper_points(grid):
     ds, _ = grid
     x, y, facet, fixed = plots._map_axes(ds.stroke)
