@@ -118,13 +118,13 @@ def metric_summary(ds: xr.Dataset, study: Any, metric: str) -> dict[str, Any]:
     }
 
 
-def series_summary(ds: xr.Dataset, variable: str) -> dict[str, Any]:
+def series_summary(ds: xr.Dataset, study: Any, variable: str) -> dict[str, Any]:
     """Median and 5-95 % band of a time series' final value over the ok samples."""
     final = ds[variable].where(ds["status"] == 0).isel(time=-1).values.ravel()
     final = final[np.isfinite(final)]
     band = np.percentile(final, plots.BAND) if final.size else [math.nan] * 3
     return {
-        "unit": ds[variable].attrs.get("unit", ""),
+        "unit": plots.unit_of(ds, study, variable),
         "time": _num(ds["time"].values[-1]),
         "final": {"p05": _num(band[0]), "median": _num(band[1]), "p95": _num(band[2])},
     }
@@ -172,8 +172,9 @@ def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Pa
             summary["sensitivity"] = sensitivity_summary(result)
             draw = plots.sobol_bars if result.attrs["method"] == "sobol" else plots.morris_plane
             drawn.append(draw(result, study.name, folder))
+    curves = plots.grid_curves if study.kind == "grid" else plots.envelope
     for variable in (v for v in ds.data_vars if str(v).startswith("series_")):
-        drawn.append(plots.envelope(ds, study, str(variable), folder))
+        drawn.append(curves(ds, study, str(variable), folder))
     return [p for p in drawn if p is not None]
 
 
@@ -228,7 +229,7 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
             m.name: metric_summary(ds, study, m.name) for m in study.metrics if m.name in ds
         },
         "series": {
-            str(v).removeprefix("series_"): series_summary(ds, str(v))
+            str(v).removeprefix("series_"): series_summary(ds, study, str(v))
             for v in ds.data_vars
             if str(v).startswith("series_")
         },

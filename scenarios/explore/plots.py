@@ -46,13 +46,29 @@ def display(unit: str) -> tuple[str, float]:
 
 
 def unit_of(ds: xr.Dataset, study: Any, name: str) -> str:
-    """SI unit of a factor or metric: the variable's ``unit`` attribute, else the study's."""
+    """SI unit of a factor, metric or series: the variable's ``unit`` attribute, else the
+    study's factor or metric of that name, else (a series) the model signal's unit."""
     if name in ds.variables and ds[name].attrs.get("unit"):
         return str(ds[name].attrs["unit"])
     for item in (*study.factors, *study.metrics):
         if item.name == name:
             return str(item.unit)
+    if name.startswith("series_"):
+        return signal_unit(study, name.removeprefix("series_"))
     return "1"
+
+
+def signal_unit(study: Any, signal: str) -> str:
+    """The SI unit of a model signal of the study's scene (the scene's model is bound once
+    per process by the study's loader), ``"?"`` when it cannot be told."""
+    from sarcomere.dynamics.errors import SarcomereError
+
+    from .spec import scene_context
+
+    try:
+        return str(scene_context(study.scene()).model.unit(signal))
+    except (SarcomereError, KeyError, AttributeError):
+        return "?"
 
 
 def label(ds: xr.Dataset, study: Any, name: str) -> str:
@@ -133,7 +149,9 @@ def _map_axes(da: xr.DataArray) -> tuple[str, str, str | None, dict[str, Any]]:
     the most levels (``n`` and ``family`` last), facets on the next, the rest fixed at
     their middle level."""
     varying = [d for d in da.dims if da.sizes[d] > 1]
-    order = sorted(varying, key=lambda d: (d in FACET_FIRST, -da.sizes[d], varying.index(d)))
+    order = sorted(
+        varying, key=lambda d: (d in FACET_FIRST, -da.sizes[d], d != "pressure", varying.index(d))
+    )
     x, y = order[0], order[1]
     facet = order[2] if len(order) > 2 else None
     rest = [d for d in da.dims if d not in (x, y, facet)]
@@ -227,6 +245,15 @@ def _value_text(ds, study, name: str, value) -> str:
     return f"{name} = {float(value) * scale:.4g} {unit}".replace(" -", "")
 
 
+def _levels(lo: float, hi: float) -> np.ndarray:
+    """About 12 contour levels at round values covering [lo, hi]."""
+    from matplotlib.ticker import MaxNLocator
+
+    if not hi > lo:
+        hi = lo + max(abs(lo), 1.0) * 1e-6
+    return MaxNLocator(12).tick_values(lo, hi)
+
+
 def design_map(ds: xr.Dataset, study: Any, metric: str, folder: Path) -> Path | None:
     """Contours of ``metric`` over the two grid axes with the most levels, faceted over a
     third, further axes at their middle level; the paper's operating points marked.
@@ -242,7 +269,7 @@ def design_map(ds: xr.Dataset, study: Any, metric: str, folder: Path) -> Path | 
     if finite.size == 0:
         return None
     lo, hi = float(finite.min()) * scale, float(finite.max()) * scale
-    levels = np.linspace(lo, hi if hi > lo else lo + 1e-12, 13)
+    levels = _levels(lo, hi)
     fig, axes = _figure(len(facets))
     for ax, value in zip(axes, facets, strict=True):
         where = {d: float(v) for d, v in fixed.items()}
@@ -283,6 +310,67 @@ def design_line(ds: xr.Dataset, study: Any, metric: str, folder: Path) -> Path |
     ax.grid(True, alpha=0.3)
     fig.suptitle(f"{study.name}: {metric}\n{status_note(ds, metric)}", fontsize="medium")
     return _save(fig, folder / f"map_{metric}.png")
+
+
+def _curve_axes(dims: Sequence[str], sizes: Mapping[str, int]):
+    """(colour, style or None, facet or None) axes of a grid's curves: the axis with the
+    most levels as colour (``n``, ``family`` last, ``pressure`` first among equals)."""
+    varying = [d for d in dims if sizes[d] > 1]
+    order = sorted(
+        varying, key=lambda d: (d in FACET_FIRST, -sizes[d], d != "pressure", varying.index(d))
+    )
+    order += [None] * (3 - len(order))
+    return order[0], order[1], order[2]
+
+
+def grid_curves(ds: xr.Dataset, study: Any, variable: str, folder: Path) -> Path | None:
+    """The time series ``variable`` of every grid point: colour = the axis with the most
+    levels, line style = the next (at most 4 levels), panels = a third (at most 6), further
+    axes at their middle level: ``folder/curves_<signal>.png``."""
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    da = _ok(ds, variable)
+    dims = [d for d in da.dims if d != "time"]
+    colour, style, facet = _curve_axes(dims, da.sizes)
+    if colour is None:
+        return None
+    fixed = {d: da[d].values[da.sizes[d] // 2] for d in dims if d not in (colour, style, facet)}
+    da = da.sel(fixed)
+    signal = variable.removeprefix("series_")
+    unit, scale = display(unit_of(ds, study, variable))
+    t_unit, t_scale = display(ds["time"].attrs.get("unit", "s"))
+    c_scale = display(unit_of(ds, study, colour))[1]
+    c_values = da[colour].values.astype(float) * c_scale
+    norm, cmap = Normalize(c_values.min(), c_values.max()), colormaps["viridis"]
+    styles = thin(list(da[style].values), len(STYLES)) if style else [None]
+    facets = thin(list(da[facet].values), MAX_FACETS) if facet else [None]
+    fig, axes = _figure(len(facets), 4.8, 3.8)
+    t = ds["time"].values * t_scale
+    for ax, f_value in zip(axes, facets, strict=True):
+        panel = da.sel({facet: f_value}) if facet else da
+        for k, s_value in enumerate(styles):
+            lines = panel.sel({style: s_value}) if style else panel
+            for c_value, c_shown in zip(da[colour].values, c_values, strict=True):
+                y = lines.sel({colour: c_value}).values * scale
+                ax.plot(t, y, color=cmap(norm(c_shown)), ls=STYLES[k], lw=1.2)
+            if style:
+                ax.plot(
+                    [], [], color="0.3", ls=STYLES[k], label=_value_text(ds, study, style, s_value)
+                )
+        if facet:
+            ax.set_title(_value_text(ds, study, facet, f_value), fontsize="medium")
+        ax.set_xlabel(f"time [{t_unit}]")
+        ax.set_ylabel(f"{signal} [{unit}]")
+        ax.grid(True, alpha=0.3)
+    fig.colorbar(ScalarMappable(norm, cmap), ax=list(axes), label=label(ds, study, colour))
+    _figure_legend(fig, axes)
+    fixed_text = "".join(f"; {_value_text(ds, study, d, v)}" for d, v in fixed.items())
+    fig.suptitle(
+        f"{study.name}: {signal}{fixed_text}\n{status_note(ds, variable)}", fontsize="medium"
+    )
+    return _save(fig, folder / f"curves_{signal}.png")
 
 
 # --------------------------------------------------------------------------------------

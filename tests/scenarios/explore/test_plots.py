@@ -52,10 +52,13 @@ def grid():
     error[(p == 0) & (status == 0)] = "rise_time: the stroke is below the noise level"
     rise[status != 0] = np.nan
     dims = ("load", "pressure", "n")
+    t = np.linspace(0.0, 2.0, 51)
+    length = 0.165 - s[..., None] * (1 - np.exp(-t / (0.05 + 0.1 * load[..., None])))
     ds = xr.Dataset(
         {
             "stroke": (dims, s, {"unit": "m", "long_name": "stroke"}),
             "rise_time": (dims, rise, {"unit": "s"}),
+            "series_myofibril.length": ((*dims, "time"), length, {"unit": "m"}),
             "status": (dims, status),
             "error": (dims, error.astype(object)),
         },
@@ -63,6 +66,7 @@ def grid():
             "load": ("load", LOADS, {"unit": "kg"}),
             "pressure": ("pressure", PRESSURES, {"unit": "Pa"}),
             "n": ("n", NS, {"unit": "1"}),
+            "time": ("time", t, {"unit": "s"}),
         },
         attrs={"fingerprint": "a" * 64, "version": "0.1.0", "method": "grid"},
     )
@@ -110,7 +114,11 @@ def test_grid_outputs_draw_maps_and_summarise_with_factor_values(grid, tmp_path,
     ds, study = grid
     summary = outputs.write_outputs(ds, study, tmp_path)
     assert summary == json.loads((tmp_path / "summary.json").read_text())
-    assert sorted(summary["plots"]) == ["map_rise_time.png", "map_stroke.png"]
+    assert sorted(summary["plots"]) == [
+        "curves_myofibril.length.png",
+        "map_rise_time.png",
+        "map_stroke.png",
+    ]
     for name in summary["plots"]:
         drawn_png(tmp_path / name)
     samples = summary["samples"]
@@ -143,8 +151,9 @@ def test_rewriting_replaces_the_figures_of_the_previous_summary(grid, tmp_path):
     outputs.write_outputs(ds, study, tmp_path)
     (tmp_path / "mine.png").write_bytes(b"not ours")
     summary = outputs.write_outputs(ds.drop_vars("rise_time"), study, tmp_path)
-    assert summary["plots"] == ["map_stroke.png"]
+    assert summary["plots"] == ["map_stroke.png", "curves_myofibril.length.png"]
     assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "curves_myofibril.length.png",
         "map_stroke.png",
         "mine.png",
         "summary.json",
