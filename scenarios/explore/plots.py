@@ -35,6 +35,11 @@ MAX_FACETS = 6
 BAND = (5.0, 50.0, 95.0)
 #: Sample curves drawn thinly behind an envelope.
 SAMPLE_CURVES = 8
+#: Bins of a metric histogram; most levels of a discrete factor stacked in one.
+HIST_BINS = 30
+MAX_GROUPS = 8
+#: A metric whose spread is below this fraction of its median is drawn as a constant.
+CONSTANT_RTOL = 1e-6
 #: Factor names preferred as a design map's facet rather than an axis (few levels).
 FACET_FIRST = ("n", "family")
 DPI = 110
@@ -418,27 +423,74 @@ def envelope(ds: xr.Dataset, study: Any, variable: str, folder: Path) -> Path | 
     return _save(fig, folder / f"envelope_{signal}.png")
 
 
+def _grouping(ds: xr.Dataset, study: Any) -> str | None:
+    """The discrete factor to stack histograms by (the calibration family, a ``levels``
+    factor) when there is exactly one with at most :data:`MAX_GROUPS` levels."""
+    found = [
+        f.name
+        for f in study.factors
+        if f.kind == "discrete" and 1 < len(f.values) <= MAX_GROUPS and f.name in ds
+    ]
+    return found[0] if len(found) == 1 else None
+
+
+def _histogram(ax, ds, study, metric: str, group: str | None) -> None:
+    unit, scale = display(unit_of(ds, study, metric))
+    values = _ok(ds, metric).values.ravel() * scale
+    keep = np.isfinite(values)
+    if not keep.any():
+        ax.text(0.5, 0.5, "no values", transform=ax.transAxes, ha="center")
+        return
+    lo, mid, hi = np.percentile(values[keep], BAND)
+    spread = float(np.ptp(values[keep]))
+    if spread <= CONSTANT_RTOL * max(abs(mid), 1e-300):
+        text = f"constant: {mid:.6g} {unit}\n(spread {spread:.2g} {unit})"
+        ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        return
+    bins = np.linspace(values[keep].min(), values[keep].max(), HIST_BINS + 1)
+    if group is None:
+        ax.hist(values[keep], bins=bins, color="tab:blue", alpha=0.75)
+    else:
+        levels = np.unique(ds[group].values[np.isfinite(ds[group].values)])
+        factor = np.asarray(ds[group].broadcast_like(ds[metric]).values).ravel()
+        stacks = [values[keep & (factor == v)] for v in levels]
+        names = [_value_text(ds, study, group, v) for v in levels]
+        ax.hist(stacks, bins=bins, stacked=True, label=names, alpha=0.85)
+    for q, ls in zip((lo, mid, hi), (":", "-", ":"), strict=True):
+        ax.axvline(q, color="black", ls=ls, lw=1)
+    _plain_ticks(ax.xaxis)
+
+
+def _plain_ticks(axis) -> None:
+    """At most 5 ticks, full values (no offset such as ``1e-5 + 1.425e-2``)."""
+    from matplotlib.ticker import MaxNLocator, ScalarFormatter
+
+    axis.set_major_locator(MaxNLocator(5))
+    axis.set_major_formatter(ScalarFormatter(useOffset=False))
+
+
 def histograms(ds: xr.Dataset, study: Any, metrics: Sequence[str], folder: Path) -> Path | None:
-    """One histogram per metric over the ok samples, median and 5/95 % marked:
+    """One histogram per metric over the ok samples, median and 5/95 % marked, stacked by
+    the study's discrete factor if it has one (:func:`_grouping`):
     ``folder/histograms.png``."""
     metrics = [m for m in metrics if m in ds]
     if not metrics:
         return None
+    group = _grouping(ds, study)
     fig, axes = _figure(len(metrics), 4.2, 3.2)
     for ax, metric in zip(axes, metrics, strict=True):
-        values = _flat(ds, metric) * display(unit_of(ds, study, metric))[1]
-        if values.size:
-            ax.hist(
-                values, bins=min(30, max(5, int(np.sqrt(values.size)))), color="tab:blue", alpha=0.7
-            )
-            for q, ls in zip(np.percentile(values, BAND), (":", "-", ":"), strict=True):
-                ax.axvline(q, color="black", ls=ls, lw=1)
+        _histogram(ax, ds, study, metric, group)
         ax.set_xlabel(label(ds, study, metric))
         ax.set_ylabel("samples [count]")
         if gaps := undefined(ds, metric):
             ax.set_title(f"undefined in {gaps} ok samples", fontsize="small")
+    _figure_legend(fig, axes[:1])
+    stacked = f", stacked by {group}" if group else ""
     fig.suptitle(
-        f"{study.name}: metrics (lines: median, {BAND[0]:g} and {BAND[2]:g} %)\n{status_note(ds)}",
+        f"{study.name}: metrics (lines: median, {BAND[0]:g} and {BAND[2]:g} %{stacked})\n"
+        f"{status_note(ds)}",
         fontsize="medium",
     )
     return _save(fig, folder / "histograms.png")

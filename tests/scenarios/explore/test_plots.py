@@ -28,7 +28,11 @@ def stub(kind, factors, metrics, method, problem=None, **options):
         base="step-50g",
         kind=kind,
         seed=19,
-        factors=tuple(SimpleNamespace(name=n, unit=u, kind="continuous") for n, u in factors),
+        factors=tuple(
+            SimpleNamespace(name=n, unit=u, kind="discrete" if v else "continuous", values=v)
+            for n, u, *rest in factors
+            for v in [tuple(rest[0]) if rest else ()]
+        ),
         metrics=tuple(SimpleNamespace(name=n, unit=u, long_name=n) for n, u in metrics),
         design=lambda: design,
         definition=lambda: {"kind": kind},
@@ -85,7 +89,8 @@ def montecarlo():
     count, t = 40, np.linspace(0.0, 2.0, 101)
     area = rng.uniform(0.9, 1.1, count) * 2e-4  # m^2
     k = rng.normal(1.0, 0.05, count) * 300.0  # N/m
-    gain = area / 2e-4 * k / 300.0
+    family = np.array([4e-3, 8e-3, 16e-3])[np.arange(count) % 3]  # m, a discrete factor
+    gain = area / 2e-4 * k / 300.0 * (1 + family)
     length = 0.165 - 0.02 * gain[:, None] * (1 - np.exp(-t[None, :] / 0.1))
     status = np.zeros(count, dtype=np.int8)
     status[[3, 17]] = 1
@@ -96,6 +101,7 @@ def montecarlo():
         {
             "aps.A_p": ("sample", area, {"unit": "m^2"}),
             "thread.k": ("sample", k, {"unit": "N/m"}),
+            "family": ("sample", family, {"unit": "m"}),
             "stroke": ("sample", s, {"unit": "m"}),
             "series_myofibril.length": (("sample", "time"), length, {"unit": "m"}),
             "status": ("sample", status),
@@ -105,7 +111,10 @@ def montecarlo():
         attrs={"fingerprint": "b" * 64, "version": "0.1.0", "method": "montecarlo"},
     )
     study = stub(
-        "sample", [("aps.A_p", "m^2"), ("thread.k", "N/m")], [("stroke", "m")], "montecarlo"
+        "sample",
+        [("aps.A_p", "m^2"), ("thread.k", "N/m"), ("family", "m", (4e-3, 8e-3, 16e-3))],
+        [("stroke", "m")],
+        "montecarlo",
     )
     return ds, study
 
@@ -197,7 +206,9 @@ def test_montecarlo_envelope_and_histograms(montecarlo, tmp_path, drawn_png):
     assert s["max"]["at"] == {
         "aps.A_p": ds["aps.A_p"].values[i],
         "thread.k": ds["thread.k"].values[i],
+        "family": ds["family"].values[i],
     }
+    assert plots._grouping(ds, study) == "family"
 
 
 def _sensitivity(method, tmp_path):
