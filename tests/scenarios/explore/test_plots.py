@@ -102,6 +102,7 @@ def montecarlo():
             "aps.A_p": ("sample", area, {"unit": "m^2"}),
             "thread.k": ("sample", k, {"unit": "N/m"}),
             "family": ("sample", family, {"unit": "m"}),
+            "peak_pressure": ("sample", np.full(count, 1e5), {"unit": "Pa"}),  # constant
             "stroke": ("sample", s, {"unit": "m"}),
             "series_myofibril.length": (("sample", "time"), length, {"unit": "m"}),
             "status": ("sample", status),
@@ -113,7 +114,7 @@ def montecarlo():
     study = stub(
         "sample",
         [("aps.A_p", "m^2"), ("thread.k", "N/m"), ("family", "m", (4e-3, 8e-3, 16e-3))],
-        [("stroke", "m")],
+        [("stroke", "m"), ("peak_pressure", "Pa")],
         "montecarlo",
     )
     return ds, study
@@ -209,6 +210,8 @@ def test_montecarlo_envelope_and_histograms(montecarlo, tmp_path, drawn_png):
         "family": ds["family"].values[i],
     }
     assert plots._grouping(ds, study) == "family"
+    p = summary["metrics"]["peak_pressure"]
+    assert p["median"] == p["min"]["value"] == p["max"]["value"] == 1e5 and p["count"] == 37
 
 
 def _sensitivity(method, tmp_path):
