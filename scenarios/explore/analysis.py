@@ -251,8 +251,17 @@ def _morris_inputs(ds: xr.Dataset, names: list[str], size: int) -> np.ndarray:
     if missing:
         raise AnalysisError(f"factor variables {missing} are not in the dataset")
     x = np.column_stack([np.asarray(ds[n].values, dtype=float).ravel() for n in names])
-    steps = np.diff(x.reshape(-1, size, len(names)), axis=1)
-    changed = np.count_nonzero(steps, axis=2)
+    ran = np.asarray(ds["status"].values).ravel() == 0
+    if not np.isfinite(x[ran]).all():
+        j = int(np.flatnonzero(~np.isfinite(x[ran]).all(axis=0))[0])
+        raise AnalysisError(
+            f"factor '{names[j]}' is not finite in samples that ran: Morris needs finite "
+            "factor values (a normal or lognormal factor maps Morris' end levels to +-inf)"
+        )
+    trajectories = x.reshape(-1, size, len(names))
+    whole = np.isfinite(trajectories).all(axis=(1, 2))  # others hold failed samples only
+    changed = np.count_nonzero(np.diff(trajectories, axis=1), axis=2)
+    changed[~whole] = 1
     if np.any(changed != 1):
         t, s = np.argwhere(changed != 1)[0]
         raise AnalysisError(
@@ -270,6 +279,7 @@ def _levels(study: Any, design: Any, x: np.ndarray, problem: dict) -> int:
     bounds = np.asarray(problem["bounds"], dtype=float)
     size = len(bounds) + 1
     steps = np.abs(np.diff(x.reshape(-1, size, len(bounds)), axis=1)) / np.ptp(bounds, axis=1)
+    steps = steps[np.isfinite(steps).all(axis=(1, 2))]
     uniform = np.array([d == "unif" for d in problem.get("dists", ["unif"] * len(bounds))])
     steps = steps[..., uniform]  # other distributions step by delta in probability only
     observed = np.unique(np.round(steps[steps > 0], 9))

@@ -168,3 +168,22 @@ def test_morris_refuses_factor_values_that_are_not_trajectories():
     ds = dataset(problem, shuffled, y=shuffled.sum(axis=1))
     with pytest.raises(analysis.AnalysisError, match="factors change at once"):
         analysis.morris(ds, study)
+
+
+def test_morris_leaves_out_failed_samples_with_infinite_factor_values():
+    from SALib.sample import morris as sample
+
+    bounds = [[0.0, 2.0], [10.0, 10.5]]
+    problem = {"num_vars": 2, "names": ["a", "b"], "bounds": bounds}
+    x = sample.sample(problem, 8, num_levels=4, seed=5)
+    y = x @ np.array([3.0, -40.0])
+    x[4, 1] = np.inf  # trajectory 1 (samples 3-5): a factor mapped to +-inf, the run failed
+    study = study_stub(problem, "morris", x, num_levels=4)
+    ds = dataset(problem, x, y=y)
+    ds["status"] = ("sample", (np.arange(len(x)) == 4).astype(np.int8))
+    res = analysis.morris(ds, study).sel(metric="y")
+    assert int(res.blocks_used) == 7
+    np.testing.assert_allclose(res.mu_star.values, [6.0, 20.0], rtol=1e-9)
+    ds["status"] = ("sample", np.zeros(len(x), dtype=np.int8))
+    with pytest.raises(analysis.AnalysisError, match="factor 'b' is not finite"):
+        analysis.morris(ds, study)
