@@ -179,6 +179,20 @@ def test_design_map_axes_facets_and_paper_points(grid):
     assert plots.status_note(ds) == "83 of 84 samples ok, 1 failed or missing (left out)"
 
 
+def test_a_fourth_grid_axis_is_fixed_at_its_middle_level():
+    da = xr.DataArray(
+        np.zeros((5, 3, 4, 2)),
+        dims=("n", "aps.k_s", "pressure", "load"),
+        coords={
+            "n": [1, 2, 3, 4, 5],
+            "aps.k_s": [0.9, 1.0, 1.1],
+            "pressure": [1, 2, 3, 4],
+            "load": [0.0, 0.05],
+        },
+    )
+    assert plots._map_axes(da) == ("pressure", "aps.k_s", "load", {"n": 3})
+
+
 def test_single_axis_grid_draws_a_line(grid, tmp_path, drawn_png):
     ds, study = grid
     one = ds.isel(load=[0], n=[0])
