@@ -198,7 +198,17 @@ def _contour_panel(ax, ds, study, da, failed, x, y, levels, where):
     gx, gy = np.meshgrid(xs * sx, ys * sy)
     filled = ax.contourf(gx, gy, np.ma.masked_invalid(z), levels=levels, cmap="viridis")
     ax.contour(gx, gy, np.ma.masked_invalid(z), levels=levels, colors="white", linewidths=0.4)
-    ax.plot(gx.ravel(), gy.ravel(), ".", color="0.3", ms=2)
+    ax.plot(
+        gx.ravel(),
+        gy.ravel(),
+        "o",
+        ms=2.5,
+        mfc="white",
+        mec="0.2",
+        mew=0.4,
+        ls="",
+        label="grid point",
+    )
     lost = failed.transpose(y, x).values
     gap = ~np.isfinite(z) & ~lost
     if lost.any():
