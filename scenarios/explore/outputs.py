@@ -156,10 +156,14 @@ def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Pa
     drawn: list[Path | None] = []
     if study.kind == "grid":
         for metric in metrics:
-            drawn.append(
-                plots.design_map(ds, study, metric, folder)
-                or plots.design_line(ds, study, metric, folder)
+            path = plots.design_map(ds, study, metric, folder) or plots.design_line(
+                ds, study, metric, folder
             )
+            if path is None:
+                summary["warnings"].append(
+                    f"no map of {metric}: no grid axis varies or no ok sample has a value"
+                )
+            drawn.append(path)
     elif study.kind == "sample":
         drawn.append(plots.histograms(ds, study, metrics, folder))
     else:

@@ -170,6 +170,15 @@ def test_rewriting_replaces_the_figures_of_the_previous_summary(grid, tmp_path):
     ]
 
 
+def test_a_metric_without_values_is_named_not_drawn(grid, tmp_path):
+    ds, study = grid
+    ds["stroke"] = ds.stroke * np.nan
+    summary = outputs.write_outputs(ds.drop_vars("series_myofibril.length"), study, tmp_path)
+    assert summary["plots"] == ["map_rise_time.png"]
+    assert "no map of stroke" in summary["warnings"][-1]
+    assert summary["metrics"]["stroke"]["median"] is None
+
+
 def test_design_map_axes_facets_and_paper_points(grid):
     ds, _ = grid
     x, y, facet, fixed = plots._map_axes(ds.stroke)
