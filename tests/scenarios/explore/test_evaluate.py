@@ -201,3 +201,12 @@ def test_a_structural_aps_field_builds_one_model_per_level(fresh_caches):
     L = dynamic._simulate(sc, dynamic.bind(sc), "full")[1]["myofibril.length"]
     assert got.metrics["length_final"][1] == pytest.approx(L[-1], abs=1e-8)
     assert abs(got.metrics["length_final"][1] - got.metrics["length_final"][0]) > 1e-6
+
+
+def test_a_sample_does_not_depend_on_the_samples_run_before_it():
+    s = study(
+        '[study.grid]\nload = ["20 g", "50 g", "80 g"]\n[study.metrics]\nnames = ["stroke"]\n'
+    )
+    alone = evaluate_batch(s, [1]).metrics["stroke"][0]
+    batch = evaluate_batch(s, [2, 0, 1]).metrics["stroke"]
+    assert batch[2] == alone  # bitwise: a resumed study equals an uninterrupted one
