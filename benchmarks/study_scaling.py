@@ -1,8 +1,8 @@
 """Design studies at scale (BENCHMARKS.md, "Design studies"): throughput against workers,
 study overhead per sample, scheduler overhead per task, memory over a long study.
 
-    OPENBLAS_NUM_THREADS=1 nice python benchmarks/study_scaling.py [--samples 48]
-        [--batch 4] [--tasks 1000] [--long 10000] [--workers 1 2]
+    OPENBLAS_NUM_THREADS=1 nice python benchmarks/study_scaling.py [--samples 192]
+        [--batch 16] [--tasks 500] [--long 10000] [--workers 1 2]
 
 1. Throughput: the n = 3 step-50g scene with ``radau`` over ``--samples`` loads (30-70 g),
    on an embedded LocalCluster of 1 and 2 workers, after a warm-up sample on every worker
@@ -118,33 +118,59 @@ def timed_run(study, tmp: Path, workers: int, evaluate=evaluate_batch, on_result
 
 
 def throughput(args, tmp: Path) -> dict:
+    """Median wall time, samples/s and integration time per worker count, the counts
+    interleaved over ``--repeats`` (the machine's load drifts)."""
     study = parse_study(STEP.format(samples=args.samples, batch=args.batch), "bench.toml")
+    runs: dict[int, list] = {w: [] for w in args.workers}
+    for _ in range(args.repeats):
+        for w in args.workers:
+            wall, results = timed_run(study, tmp, w)
+            solve = sum(r.timing.get("solve_s", math.nan) for r in results)
+            inside = sum(r.timing.get("total_s", math.nan) for r in results)
+            assert not any(np.count_nonzero(r.status) for r in results), "failed samples"
+            runs[w].append((wall, solve, inside))
     rows = {}
-    for w in args.workers:
-        wall, results = timed_run(study, tmp, w)
-        solve = sum(r.timing.get("solve_s", math.nan) for r in results)
-        inside = sum(r.timing.get("total_s", math.nan) for r in results)
-        failed = sum(int(np.count_nonzero(r.status)) for r in results)
-        rows[w] = dict(wall=wall, rate=args.samples / wall, solve=solve, inside=inside)
+    n = args.samples
+    for w, got in runs.items():
+        wall, solve, inside = (statistics.median(x) for x in zip(*got, strict=True))
+        rows[w] = dict(wall=wall, rate=n / wall, solve=solve, inside=inside)
         print(
-            f"workers {w}: {args.samples} samples in {wall:.2f} s = {args.samples / wall:.2f} "
-            f"samples/s ({failed} failed); integrating {solve / args.samples * 1e3:.1f} ms/sample,"
-            f" evaluate_batch {inside / args.samples * 1e3:.1f} ms/sample"
+            f"workers {w}: {n} samples in {wall:.2f} s = {n / wall:.2f} samples/s (median of "
+            f"{len(got)}: " + ", ".join(f"{g[0]:.2f}" for g in got) + " s); integrating "
+            f"{solve / n * 1e3:.1f} ms/sample, evaluate_batch {inside / n * 1e3:.1f} ms/sample"
         )
-    if 1 in rows:
-        r = rows[1]
-        per = r["wall"] / args.samples
-        sim = r["solve"] / args.samples
+    for w, r in rows.items():
+        per = r["wall"] * w / n  # worker-seconds per sample
+        sim = r["solve"] / n
         print(
-            f"study overhead per sample (1 worker): {(per - sim) * 1e3:.2f} ms = "
-            f"{(per - sim) / sim * 100:.1f} % of the {sim * 1e3:.1f} ms integration "
-            f"(of which inside evaluate_batch {(r['inside'] - r['solve']) / args.samples * 1e3:.2f}"
-            f" ms, engine + store {(r['wall'] - r['inside']) / args.samples * 1e3:.2f} ms)"
+            f"study overhead per sample ({w} worker{'s' if w > 1 else ''}): "
+            f"{(per - sim) * 1e3:.2f} ms = {(per - sim) / sim * 100:.1f} % of the "
+            f"{sim * 1e3:.1f} ms integration (inside evaluate_batch "
+            f"{(r['inside'] - r['solve']) / n * 1e3:.2f} ms, engine + store "
+            f"{(r['wall'] * w - r['inside']) / n * 1e3:.2f} ms)"
         )
     if 1 in rows and 2 in rows:
         eff = rows[2]["rate"] / (2 * rows[1]["rate"])
         print(f"parallel efficiency at 2 workers: {eff * 100:.0f} %")
     return rows
+
+
+def store_writes(tmp: Path, n: int = 300) -> float:
+    """Seconds per chunk written to a store (3 metrics, 1 sample per chunk)."""
+    study = parse_study(CHEAP.format(samples=n, batch=1), "writes.toml")
+    store = _store(study, tmp / "writes")
+    parts = [nothing(study, np.array([i])) for i in range(n)]
+    tic = time.perf_counter()
+    for i, part in enumerate(parts):
+        store.write(i, part)
+    one = (time.perf_counter() - tic) / n
+    store = _store(study, tmp / "writes8")
+    tic = time.perf_counter()
+    for i in range(0, n, 8):
+        store.write_many([(j, parts[j]) for j in range(i, min(i + 8, n))])
+    many = (time.perf_counter() - tic) / n
+    print(f"store: {one * 1e3:.2f} ms per chunk written alone, {many * 1e3:.2f} ms in eights")
+    return one
 
 
 def scheduler_overhead(args, tmp: Path) -> float:
@@ -196,31 +222,35 @@ def memory(args, tmp: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--samples", type=int, default=48)
-    ap.add_argument("--batch", type=int, default=4)
-    ap.add_argument("--tasks", type=int, default=1000)
+    ap.add_argument("--samples", type=int, default=192)
+    ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--tasks", type=int, default=500)
     ap.add_argument("--long", type=int, default=10_000)
     ap.add_argument("--long-batch", type=int, default=50)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--skip", nargs="*", default=[], choices=["throughput", "tasks", "memory"])
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         rows = {} if "throughput" in args.skip else throughput(args, tmp)
         task = math.nan if "tasks" in args.skip else scheduler_overhead(args, tmp)
+        store_writes(tmp)
         if rows.get(1) and not math.isnan(task):
+            sim = rows[1]["solve"] / args.samples
+            batch = math.ceil(task / (0.05 * sim))
+            print(f"batch keeping the per-task overhead under 5 % of the integration: >= {batch}")
             per_sample = rows[1]["wall"] / args.samples
-            batch = math.ceil(task / (0.05 * per_sample))
-            print(f"batch keeping the per-task overhead under 5 %: >= {batch} samples")
             eff = rows[2]["rate"] / (2 * rows[1]["rate"]) if 2 in rows else 1.0
-            per_hour = 64 * 3600 / per_sample * eff
-            tasks_s = 64 / (args.batch * per_sample)
-            print(
-                f"projected at 64 workers: {per_hour:,.0f} samples/hour (1-worker rate x 64 x "
-                f"the 2-worker efficiency {eff * 100:.0f} %; one core per worker, the model "
-                f"cached per worker, the scheduler at {tasks_s:.0f} tasks/s with batch "
-                f"{args.batch} against the {1 / task:.0f} tasks/s it handles here)"
-            )
+            workers_bound = 64 * eff / per_sample
+            for b in (args.batch, 64):
+                client_bound = b / task
+                rate = min(workers_bound, client_bound)
+                print(
+                    f"projected at 64 workers, batch {b}: {rate * 3600:,.0f} samples/hour = min("
+                    f"64 x {1 / per_sample:.1f} samples/s per worker x {eff * 100:.0f} % "
+                    f"efficiency, {1 / task:.0f} tasks/s the client + scheduler handle x {b})"
+                )
         if "memory" not in args.skip:
             memory(args, tmp)
 

@@ -41,9 +41,10 @@ CONNECT_TIMEOUT_S = 5.0
 #: Seconds to wait for the first worker of an existing cluster.
 WORKER_WAIT_S = 30.0
 
-#: Largest default batch [samples per task] and the task count a default batch aims at.
-MAX_DEFAULT_BATCH = 64
-TARGET_TASKS = 32
+#: Default batch [samples per task]: about TARGET_TASKS tasks, at least MIN_BATCH samples
+#: each while the study has 8 tasks or more, at most MAX_BATCH (BENCHMARKS.md, design
+#: studies: the scheduler's cost per task against a sample's).
+TARGET_TASKS, MIN_BATCH, MAX_BATCH = 64, 16, 64
 
 #: Environment of the embedded cluster's worker processes: one BLAS/OpenMP thread.
 WORKER_ENV = {
@@ -63,10 +64,9 @@ class ClusterError(SarcomereError):
 
 
 def default_batch(n_samples: int) -> int:
-    """Samples per task when the study sets none: about :data:`TARGET_TASKS` tasks, at most
-    :data:`MAX_DEFAULT_BATCH` samples each (BENCHMARKS.md, design studies: scheduling
-    overhead per task against sample time)."""
-    return max(1, min(MAX_DEFAULT_BATCH, math.ceil(n_samples / TARGET_TASKS)))
+    """Samples per task when the study sets none (see :data:`TARGET_TASKS`)."""
+    low = min(MIN_BATCH, math.ceil(n_samples / 8))
+    return max(1, low, min(MAX_BATCH, math.ceil(n_samples / TARGET_TASKS)))
 
 
 def default_workers() -> int:
@@ -114,6 +114,20 @@ def _probe(address: str) -> None:
         raise OSError(f"the server there is a {kind}, not a Dask scheduler")
 
 
+def check_cluster_arguments(workers: int | None, scheduler: str | None) -> str | None:
+    """Refuse bad ``workers``/``scheduler`` values (before any work); the scheduler's
+    full address, or None for an embedded cluster."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)):
+        raise ParameterError("--workers", workers, "a whole number >= 1")
+    if workers is not None and workers < 1:
+        raise ParameterError("--workers", workers, "a whole number >= 1")
+    if scheduler is not None and workers is not None:
+        raise ParameterError(
+            "--workers", workers, "not with --scheduler (the cluster has its workers)"
+        )
+    return None if scheduler is None else _scheduler_address(scheduler)
+
+
 @contextmanager
 def cluster_client(
     workers: int | None = None, scheduler: str | None = None, *, stream: TextIO | None = None
@@ -121,13 +135,7 @@ def cluster_client(
     """A ``distributed.Client``: of an embedded ``LocalCluster`` with ``workers`` processes
     (default :func:`default_workers`), or of the running cluster at ``scheduler``. The
     dashboard's address is printed on ``stream`` when there is one."""
-    if workers is not None and (not isinstance(workers, int) or workers < 1):
-        raise ParameterError("--workers", workers, "a whole number >= 1")
-    if scheduler is not None and workers is not None:
-        raise ParameterError(
-            "--workers", workers, "not with --scheduler (the cluster has its workers)"
-        )
-    address = None if scheduler is None else _scheduler_address(scheduler)
+    address = check_cluster_arguments(workers, scheduler)
     from distributed import Client
 
     cluster = None
@@ -282,18 +290,6 @@ class Progress:
         return f"{self.done}/{self.total} samples, {self.failed} failed, {rate:.3g} /s{left}"
 
 
-def _result_or_none(future) -> object | None:
-    """The finished ``future``'s result, or None when it is gone (its worker died after
-    computing it and before the result was fetched: the scheduler forgot or recomputes
-    it)."""
-    if future.status != "finished":
-        return None
-    try:
-        return future.result(timeout=WORKER_WAIT_S)
-    except Exception:  # CancelledError, lost data, timeout: computed again by the caller
-        return None
-
-
 def run_chunks(
     client,
     evaluate: Evaluate,
@@ -307,9 +303,10 @@ def run_chunks(
     """Evaluate the ``chunks`` ((start, stop) sample ranges) of ``store`` on ``client``'s
     cluster and write each as it finishes.
 
-    ``on_result(result)`` is called with each chunk's result once it is written. At most
-    ``max_in_flight`` tasks are queued at once (default: four per worker thread, at least
-    8) so memory stays flat over any study length.
+    Results are fetched in the background as tasks complete; all those that completed
+    together are written in one go. ``on_result(result)`` is called with each chunk's
+    result once it is written. At most ``max_in_flight`` tasks are queued at once
+    (default: four per worker thread, at least 8) so memory stays flat over any study.
     """
     from distributed import KilledWorker, as_completed
 
@@ -317,7 +314,7 @@ def run_chunks(
         threads = sum(client.nthreads().values()) or 1
         max_in_flight = max(8, 4 * threads)
     todo = iter(chunks)
-    futures = as_completed(loop=client.loop)
+    futures = as_completed(loop=client.loop, with_results=True, raise_errors=False)
     owner: dict = {}
 
     def submit(job: _Job, indices: np.ndarray, attempt: int) -> None:
@@ -333,37 +330,40 @@ def run_chunks(
             job = _Job(*chunk)
             submit(job, np.arange(job.start, job.stop), 0)
 
-    def finish(job: _Job, part: object) -> None:
+    def complete(job: _Job, part: object, done: list) -> None:
         job.parts.append(part)
         job.waiting -= 1
         if job.waiting == 0:
-            result = job.parts[0] if len(job.parts) == 1 else merge_results(job.parts)
-            store.write(job.start, result)
-            if on_result is not None:
-                on_result(result)
+            done.append(
+                (job.start, job.parts[0] if len(job.parts) == 1 else merge_results(job.parts))
+            )
 
     try:
         refill()
-        for future in futures:
-            job, indices, attempt = owner.pop(future)
-            if future.status == "error":
-                exc = future.exception()
-                if not isinstance(exc, KilledWorker):
-                    raise exc
-                if attempt == 0:  # retry once, one task per sample
+        for batch in futures.batches():
+            done: list = []
+            for future, value in batch:
+                job, indices, attempt = owner.pop(future)
+                if future.status == "error":  # value = (type, exception, traceback)
+                    value = value[1]
+                future.release()
+                if not isinstance(value, BaseException):
+                    complete(job, value, done)
+                elif "Cancelled" in type(value).__name__:  # its data lost: compute again
+                    submit(job, indices, attempt)
+                elif not isinstance(value, KilledWorker):
+                    raise value
+                elif attempt == 0:  # retry once, one task per sample
                     job.waiting += len(indices) - 1
                     for i in indices:
                         submit(job, np.array([i]), 1)
                 else:
-                    finish(job, _lost(indices, type(exc).__name__))
-            else:
-                part = _result_or_none(future)
-                if part is None:  # computed, then lost with its worker before we fetched it
-                    submit(job, indices, attempt)
-                else:
-                    finish(job, part)
-            future.release()
-            refill()
+                    complete(job, _lost(indices, type(value).__name__), done)
+            refill()  # the workers get going while the results are written
+            store.write_many(done)
+            for _, result in done:
+                if on_result is not None:
+                    on_result(result)
     finally:
         for future in list(owner):
             future.cancel()

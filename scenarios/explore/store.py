@@ -25,6 +25,7 @@ import json
 import os
 import shutil
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -283,12 +284,33 @@ class StudyStore:
 
     # -- writing --------------------------------------------------------------------------
     def write(self, start: int, result) -> None:
-        """Write a finished task's result for the chunk starting at ``start``.
+        """Write a finished task's result for the chunk starting at ``start`` (see
+        :meth:`write_many`)."""
+        self.write_many([(start, result)])
 
-        ``result`` has ``indices`` (exactly the chunk's samples, in order), ``metrics``
+    def write_many(self, chunks: Sequence[tuple[int, object]]) -> None:
+        """Write finished tasks' results, each ``(start, result)`` for the chunk starting
+        at ``start``: all values of all chunks concurrently, then their statuses (see the
+        module's guarantees).
+
+        A result has ``indices`` (exactly the chunk's samples, in order), ``metrics``
         {name: float64}, ``series`` {signal: float64[len, T]}, ``status`` and ``error``.
-        Status is written last (see the module's guarantees).
         """
+        values, statuses = [], []
+        for start, result in chunks:
+            rows = self._rows(start, result)
+            for name, v in result.metrics.items():
+                values.append((name, rows, np.asarray(v, np.float64)))
+            for signal, v in (result.series or {}).items():
+                values.append((series_name(signal), rows, np.asarray(v, np.float64)))
+            errors = np.array([str(e) for e in result.error], dtype=object)
+            values.append(("error", rows, errors))
+            statuses.append(("status", rows, np.asarray(result.status, dtype=np.int8)))
+        self._set(values)  # each chunk file is written atomically; then:
+        self._set(statuses)
+
+    def _rows(self, start: int, result) -> slice:
+        """The chunk's rows, checked against the result's sample indices."""
         stop = min(start + self.chunk, self.n_samples)
         indices = np.asarray(result.indices)
         if start % self.chunk or not np.array_equal(indices, np.arange(start, stop)):
@@ -296,14 +318,23 @@ class StudyStore:
                 f"internal: a result for samples {indices[:3]}... is not the chunk "
                 f"[{start}, {stop}) of {self.path}"
             )
-        status = np.asarray(result.status, dtype=np.int8)
-        for name, values in result.metrics.items():
-            self._group[name][start:stop] = np.asarray(values, dtype=np.float64)
-        for signal, values in (result.series or {}).items():
-            self._group[series_name(signal)][start:stop, :] = np.asarray(values, np.float64)
-        errors = np.array([str(e) for e in result.error], dtype=object)
-        self._group["error"][start:stop] = errors
-        self._group["status"][start:stop] = status
+        return slice(start, stop)
+
+    def _set(self, writes: list[tuple[str, slice, np.ndarray]]) -> None:
+        """Write each ``(variable, rows, values)`` concurrently on Zarr's event loop (one
+        at a time, each waits ~2 ms for the loop)."""
+        if not writes:
+            return
+        import asyncio
+
+        from zarr.core.sync import sync
+
+        arrays = {name: self._group[name]._async_array for name, _, _ in writes}
+
+        async def write() -> None:
+            await asyncio.gather(*(arrays[n].setitem(rows, v) for n, rows, v in writes))
+
+        sync(write())
 
     # -- reading --------------------------------------------------------------------------
     def read(self):

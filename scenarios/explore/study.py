@@ -73,6 +73,9 @@ class Study:
         xarray.Dataset
             Per sample (dims ``sample``) or, for grids, on the grid's axes.
         """
+        from .engine import check_cluster_arguments
+
+        check_cluster_arguments(workers, scheduler)
         study = self.definition
         design = study.design()
         n = len(design.points)

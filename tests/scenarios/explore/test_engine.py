@@ -188,7 +188,11 @@ def test_caps_are_checked_before_any_work(tmp_path):
         run(StandIn(), tmp_path / "a", max_samples=10)
     with pytest.raises(ParameterError, match=r"max_store_bytes' = 100 .*12 samples"):
         run(StandIn(), tmp_path / "b", max_store_bytes=100)
-    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    with pytest.raises(ParameterError, match=r"'--workers' = 0"):
+        run(StandIn(), tmp_path / "c", workers=0)
+    with pytest.raises(ParameterError, match=r"'--scheduler' = 'nohostport'"):
+        run(StandIn(), tmp_path / "d", scheduler="nohostport")
+    assert not any((tmp_path / x).exists() for x in "abcd")
 
 
 def test_an_unreachable_scheduler_is_one_error_within_ten_seconds():
@@ -250,3 +254,9 @@ def test_the_cli_starts_without_the_study_libraries(argv, status):
         [sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, check=True
     )
     assert json.loads(done.stdout.splitlines()[-1]) == [status, []], done.stderr
+
+
+def test_default_batches_keep_tasks_few_but_enough():
+    from sarcomere.scenarios.explore.engine import default_batch
+
+    assert [default_batch(n) for n in (1, 6, 48, 100, 1000, 100_000)] == [1, 1, 6, 13, 16, 64]
