@@ -42,27 +42,40 @@ class BatchResult:
     timing: dict[str, float] = field(default_factory=dict)
 
 
-@dataclass
 class _Context:
-    scene: object
-    design: object
+    """A study bound in this process: its scene, and its design when first needed."""
+
+    def __init__(self, study: StudyDef) -> None:
+        from .spec import scene_context
+
+        self.study = study
+        self.scene = scene_context(study.scene())
+        self._design = None
+
+    @property
+    def design(self):
+        if self._design is None:
+            self._design = self.study.design()
+        return self._design
 
 
 _CONTEXTS: dict[str, _Context] = {}
 
 
 def context(study: StudyDef) -> _Context:
-    """The bound scene and the design of ``study``, once per process."""
+    """The bound scene (and design) of ``study``, once per process."""
     key = study.fingerprint()
     if key not in _CONTEXTS:
-        from .spec import scene_context
-
-        _CONTEXTS[key] = _Context(scene_context(study.scene()), study.design())
+        _CONTEXTS[key] = _Context(study)
     return _CONTEXTS[key]
 
 
-def evaluate_batch(study: StudyDef, indices) -> BatchResult:
-    """Simulate the samples ``indices`` of ``study``'s design (see the module docstring)."""
+def evaluate_batch(study: StudyDef, indices, points: np.ndarray | None = None) -> BatchResult:
+    """Simulate the samples ``indices`` of ``study``'s design (see the module docstring).
+
+    ``points``: the batch's rows of ``study.design().points`` (n_indices x n_factors, SI),
+    if the caller has them: the design (and SALib, scipy.stats) is then not made here.
+    """
     tic = time.perf_counter()
     ctx = context(study)
     idx = np.asarray(indices, dtype=np.int64).reshape(-1)
@@ -75,9 +88,13 @@ def evaluate_batch(study: StudyDef, indices) -> BatchResult:
     status = np.zeros(k, dtype=np.int8)
     errors = [""] * k
     solving = 0.0
-    for j, i in enumerate(idx):
+    if points is None:
+        rows = ctx.design.points[idx]
+    else:
+        rows = np.asarray(points, dtype=float).reshape(k, len(study.factors))
+    for j, row in enumerate(rows):
         try:
-            res, dt = _run(study, ctx, ctx.design.points[i])
+            res, dt = _run(study, ctx, row)
             solving += dt
             values, notes = mx.compute(res, study.metrics)
             for name, v in values.items():

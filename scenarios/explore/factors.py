@@ -250,7 +250,7 @@ class SceneContext:
     def pressure_signal(self):
         """The scene's step or ramp on the regulator command (the ``pressure`` factor
         replaces its final level)."""
-        sig = self.inputs_by_target().get(dynamic.P_CMD)
+        sig = self.inputs.get(dynamic.P_CMD)
         if not isinstance(sig, Step | Ramp):
             what = "no input" if sig is None else f"a {type(sig).__name__.lower()}"
             raise ParameterError(
@@ -267,9 +267,6 @@ class SceneContext:
         var = self.model_at(n).variables[name]
         raw = self.binding.overrides.get(name)
         return var.value if raw is None else to_si(raw, var.unit, name)
-
-    def inputs_by_target(self) -> dict:
-        return dynamic._inputs(self.scene, self.model)
 
     # --- samples -----------------------------------------------------------------
     def apply(self, factors, values) -> tuple[Model, dict, dict]:

@@ -48,17 +48,23 @@ def chambers(names) -> list[str]:
     return [n for n in names if n.endswith(".chamber.m_air")]
 
 
+def metric_signals(name: str, signal_names) -> list[str]:
+    """The signals standard metric ``name`` reads, among ``signal_names`` (empty: the
+    model cannot give it)."""
+    if name in ("peak_tension", "min_tension"):
+        return tensions(signal_names)
+    if name == "peak_pressure":
+        return pressures(signal_names)
+    if name == "air_mass":
+        return chambers(signal_names)
+    return [LENGTH] if LENGTH in signal_names else []
+
+
 def needed_signals(signal_names, metrics, series) -> list[str]:
     """The model signals the metrics and series read (a subset of ``signal_names``)."""
-    want = [LENGTH]
-    names = {m.name for m in metrics}
-    if names & {"peak_tension", "min_tension"}:
-        want += tensions(signal_names)
-    if "peak_pressure" in names:
-        want += pressures(signal_names)
-    if "air_mass" in names:
-        want += chambers(signal_names)
-    want += [m.signal for m in metrics if m.signal]
+    want = []
+    for m in metrics:
+        want += [m.signal] if m.signal else metric_signals(m.name, signal_names)
     if series is not None:
         want += list(series.signals)
     return list(dict.fromkeys(w for w in want if w in signal_names))
@@ -68,7 +74,7 @@ def compute(res, metrics) -> tuple[dict[str, float], list[str]]:
     """Each metric of ``res`` (a Result) by name, and notes on those left NaN (why)."""
     out, notes = {}, []
     t = np.asarray(res.index, float)
-    L = np.asarray(res[LENGTH], float)
+    L = np.asarray(res[LENGTH], float) if LENGTH in res else np.full(2, np.nan)
     dy = L[-1] - L[0]
     for m in metrics:
         if m.signal:

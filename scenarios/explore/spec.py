@@ -239,14 +239,16 @@ def _check_draws(study: StudyDef, design) -> None:
 
 def _resolve(source: str | Path, anchor: Path | None = None) -> tuple[str, str]:
     """(text, path label) of a study or scene: a file path (relative to ``anchor``'s
-    folder if given), a packaged study or a packaged scene by name."""
+    folder if given: a base scene), a packaged study (not for a base) or a packaged scene
+    by name."""
     from ..catalog import packaged_scenarios
 
     text = str(source)
     path = Path(source) if anchor is None or Path(source).is_absolute() else anchor.parent / source
     bare = not ("/" in text or "\\" in text or text.endswith(".toml"))
+    tables = (packaged_scenarios(),) if anchor else (packaged_studies(), packaged_scenarios())
     if bare:
-        for table in (packaged_studies(), packaged_scenarios()):
+        for table in tables:
             if text in table:
                 with resources.as_file(table[text]) as p:
                     return read_text(p), str(p)
@@ -256,10 +258,13 @@ def _resolve(source: str | Path, anchor: Path | None = None) -> tuple[str, str]:
             return read_text(path), str(path)
         except ValueError as exc:
             raise StudyError(str(path), "study", str(exc)) from None
-    names = [*packaged_studies(), *packaged_scenarios()]
+    names = [name for table in tables for name in table]
     hint = did_you_mean(text, names) if bare else ""
-    what = "no such file or packaged study or scene" if bare else f"{kind}"
-    raise StudyError(text, "study" if anchor is None else "study.base", f"{what}{hint}")
+    packaged = "packaged scene" if anchor else "packaged study or scene"
+    what = f"no such file or {packaged}" if bare else f"{kind}"
+    if anchor is None:
+        raise StudyError(text, "study", f"{what}{hint}")
+    raise StudyError(str(anchor), "study.base", f"'{text}': {what}{hint}")
 
 
 def load_study(source: str | Path) -> StudyDef:
@@ -292,7 +297,10 @@ def parse_study(text: str, file: str = "<string>") -> StudyDef:
     if "base" in study:
         base = r.text(study, ("study",), "base")
         base_text, scene_file = _resolve(base, Path(file))
-        base_data = tomllib.loads(base_text)
+        try:
+            base_data = tomllib.loads(base_text)
+        except tomllib.TOMLDecodeError as exc:
+            raise StudyError(scene_file, "(toml syntax)", f"TOML syntax error: {exc}") from None
         base_data.pop("study", None)  # the base's own study is not this one
         base_lines = key_lines(base_text)
         scene_data = _merge(base_data, data)
@@ -300,8 +308,8 @@ def parse_study(text: str, file: str = "<string>") -> StudyDef:
         raise r.error(("study", "base"), "a study TOML without [scenario] needs base = SCENE")
     scene_text = dump_toml(scene_data)
     sc, ctx = _parse_scene(scene_text, scene_file, file, lines, base_lines)
-    name = study.get("name", Path(file).stem if file != "<string>" else sc.name)
-    return _check_study(r, study, ctx, str(name), base or sc.name, text, scene_text, scene_file)
+    name = r.text(study, ("study",), "name", Path(file).stem if file != "<string>" else sc.name)
+    return _check_study(r, study, ctx, name, base or sc.name, text, scene_text, scene_file)
 
 
 def _parse_scene(text: str, scene_file: str, file: str, lines: dict, base_lines: dict):
@@ -482,6 +490,8 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
             "points or raise [study] max_samples",
         )
     metrics, series = _metrics(r, study, ctx, kind, options)
+    _check_every_n(r, factors, metrics, series, ctx, kind)
+    _check_family(r, factors, kind)
     return StudyDef(
         name=name,
         base=base,
@@ -503,6 +513,46 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
         file=r.file,
         description=r.text(study, ("study",), "description", ""),
     )
+
+
+def _check_family(r: _Reader, factors, kind: str) -> None:
+    """Refuse an absolute APS factor the family member also sets (which would win?)."""
+    from .designs import family_member
+
+    if "family" not in {f.name for f in factors}:
+        return
+    fields = family_member(FAMILY_DEFAULT_L_R)
+    for f in factors:
+        if f.name.startswith("aps.") and f.name[4:] in fields and not f.relative:
+            raise r.error(
+                ("study", "grid" if kind == "grid" else "factors", f.name),
+                f"the family member sets {f.name}; scale it with relative = true or remove "
+                f"family ({', '.join(fields)} come with each member)",
+            )
+
+
+#: Any member's L_r (only its field names are used).
+FAMILY_DEFAULT_L_R = 20e-3
+
+
+def _check_every_n(r: _Reader, factors, metrics, series, ctx, kind: str) -> None:
+    """With ``n`` a factor: every model parameter factor and named signal exists at every
+    n (``myofibril.aps3...`` does not at n = 2)."""
+    n_factor = next((f for f in factors if f.name == "n"), None)
+    params = [f.name for f in factors if f.name not in OPTION_FACTORS and "." in f.name]
+    params = [p for p in params if not p.startswith("aps.")]
+    signals = [m.signal for m in metrics if m.signal] + list(series.signals if series else ())
+    if n_factor is None or not (params or signals):
+        return
+    section = "grid" if kind == "grid" else "factors"
+    for n in n_factor.values:
+        model = ctx.model_at(int(n))
+        for name in params:
+            if name not in model.param_names:
+                raise r.error(("study", section, name), f"no parameter '{name}' at n = {n:g}")
+        for name in signals:
+            if name not in model.signal_names:
+                raise r.error(("study", section, "n"), f"n = {n:g} has no signal '{name}'")
 
 
 def _target(r: _Reader, path: tuple, name: str, ctx):
@@ -541,9 +591,31 @@ def _grid(r: _Reader, tbl, ctx) -> tuple[Factor, ...]:
     out = []
     for name, raw in tbl.items():
         target = _target(r, (*path, name), name, ctx)
+        _check_aps(r, (*path, name), target, ctx, discrete=True)
         values = _values(r, raw, (*path, name), target)
         out.append(Factor(name, target.unit, "discrete", values, long_name=target.long_name))
     return tuple(out)
+
+
+def _check_aps(r: _Reader, path: tuple, target, ctx, discrete: bool) -> None:
+    """Refuse an APS field that sets no parameter of the model (it would change nothing),
+    or one that is not a run-time parameter (one model per value) drawn continuously."""
+    if target.category != "aps":
+        return
+    from .factors import aps_map
+
+    b, field = ctx.binding, target.name.removeprefix("aps.")
+    mapped = aps_map(b, ctx.key, ctx.fidelity, b.n, field)
+    where = f"fidelity '{ctx.fidelity}', thermal '{b.aps.thermal}'"
+    if mapped == ():
+        raise r.error(path, f"'{target.name}' sets no parameter of this model ({where})")
+    if mapped is None and not discrete:
+        raise r.error(
+            path,
+            f"'{target.name}' is not a run-time parameter of this model ({where}; its base "
+            f"value {getattr(b.aps, field):g} {target.unit}): each value builds a model; "
+            "give levels = [...]",
+        )
 
 
 def _factors(r: _Reader, tbl, ctx, kind: str) -> tuple[Factor, ...]:
@@ -563,6 +635,7 @@ def _factor(r: _Reader, name: str, item, path: tuple, ctx, kind: str) -> Factor:
             path, f"give exactly one of {', '.join(DISTRIBUTIONS)} (got {given or 'none'})"
         )
     dist = given[0]
+    _check_aps(r, path, target, ctx, dist == "levels")
     relative = item.get("relative", False)
     if not isinstance(relative, bool):
         raise r.error((*path, "relative"), f"{relative!r}: expected true or false")
@@ -676,7 +749,7 @@ def _sensitivity(r: _Reader, tbl, factors) -> tuple[str, dict]:
 
 
 def _metrics(r: _Reader, study, ctx, kind, options):
-    from .metrics import STANDARD, chambers, value_at_metric
+    from .metrics import STANDARD, chambers, metric_signals, value_at_metric
 
     path = ("study", "metrics")
     tbl = r.table(study.get("metrics", {}), path, ("names", "value_at"))
@@ -696,6 +769,9 @@ def _metrics(r: _Reader, study, ctx, kind, options):
             f"'air_mass' sums every unit's chamber; fidelity '{ctx.fidelity}' does not name "
             "each (use 'full')",
         )
+    for n in out:
+        if not metric_signals(n, ctx.model.signal_names):
+            raise r.error((*path, "names"), f"'{n}': the model has no signal it reads")
     sim = ctx.scene.simulation
     for label, spec in r.table(tbl.get("value_at", {}), (*path, "value_at")).items():
         where = (*path, "value_at", label)

@@ -21,10 +21,10 @@ def study(kind: str, body: str, seed: int | None = 7):
 FACTORS = """
 [study.factors.load]
 uniform = ["40 g", "60 g"]
-[study.factors."aps.k_s"]
-normal = {mean = "700 N/m", std = "35 N/m"}
-[study.factors."aps.A_p"]
-lognormal = {median = "2.6 mm^2", sigma = 0.05}
+[study.factors."aps.c_s"]
+normal = {mean = "0.5 N*s/m", std = "0.02 N*s/m"}
+[study.factors."aps.V0"]
+lognormal = {median = "4 cm^3", sigma = 0.05}
 [study.factors.family]
 levels = ["8 mm", "20 mm", "34 mm"]
 """

@@ -177,3 +177,36 @@ def _units(values: dict):
     from sarcomere.dynamics.components.aps import APSParams
 
     return [(k, v, APSParams.unit(k)) for k, v in values.items()]
+
+
+def test_points_given_by_the_caller_skip_the_design(fresh_caches):
+    s = study(
+        '[study.grid]\npressure = ["0.09 MPa", "0.1 MPa"]\n[study.metrics]\nnames = ["stroke"]\n'
+    )
+    rows = np.array([[1e5]])
+    given = evaluate_batch(s, [1], points=rows)
+    assert evaluate._CONTEXTS[s.fingerprint()]._design is None  # never made here
+    assert given.metrics["stroke"].tolist() == evaluate_batch(s, [1]).metrics["stroke"].tolist()
+
+
+def test_a_structural_aps_field_builds_one_model_per_level(fresh_caches):
+    s = study(
+        '[study.grid]\n"aps.C3" = ["0 Pa", "2 kPa"]\n[study.metrics]\nnames = ["length_final"]\n'
+    )
+    before = factors.BUILDS["models"]
+    got = evaluate_batch(s, [0, 1])
+    assert factors.BUILDS["models"] - before == 1  # C3 = 0 is the base model
+    text = packaged_scenarios()["step-50g"].read_text(encoding="utf-8")
+    sc = parse_scenario(text + '\n[parameters]\n"aps.C3" = "2 kPa"\n', "scene.toml")
+    L = dynamic._simulate(sc, dynamic.bind(sc), "full")[1]["myofibril.length"]
+    assert got.metrics["length_final"][1] == pytest.approx(L[-1], abs=1e-8)
+    assert abs(got.metrics["length_final"][1] - got.metrics["length_final"][0]) > 1e-6
+
+
+def test_a_sample_does_not_depend_on_the_samples_run_before_it():
+    s = study(
+        '[study.grid]\nload = ["20 g", "50 g", "80 g"]\n[study.metrics]\nnames = ["stroke"]\n'
+    )
+    alone = evaluate_batch(s, [1]).metrics["stroke"][0]
+    batch = evaluate_batch(s, [2, 0, 1]).metrics["stroke"]
+    assert batch[2] == alone  # bitwise: a resumed study equals an uninterrupted one

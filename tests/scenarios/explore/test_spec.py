@@ -160,8 +160,26 @@ def test_bad_grid_is_one_line_naming_key_value_and_what_is_allowed(change, fragm
         (("seed = 3\n", ""), ["study.seed", "missing"]),
         (('method = "lhs"', 'method = "halton"'), ["'halton'", "lhs, sobol, montecarlo"]),
         (('"aps.k_s"', "family"), ["levels"]),
+        (
+            ("[study.factors", '[study.factors.family]\nlevels = "all"\n[study.factors'),
+            ["the family member sets aps.k_s", "relative = true"],
+        ),
         (('"aps.k_s"', '"aps.thermal"'), ["aps.thermal", "nearest"]),
         (('"aps.k_s"', '"regulator.p_max"'), ["regulator.p_max", "built into the model"]),
+        (
+            (
+                '"aps.k_s"]\nuniform = ["600 N/m", "800 N/m"]',
+                '"aps.h_jz"]\nuniform = ["1 mm", "3 mm"]',
+            ),
+            ["'aps.h_jz' sets no parameter of this model", "thermal 'isothermal'"],
+        ),
+        (
+            (
+                '"aps.k_s"]\nuniform = ["600 N/m", "800 N/m"]',
+                '"aps.C3"]\nuniform = ["0 Pa", "1 kPa"]',
+            ),
+            ["'aps.C3' is not a run-time parameter", "base value 0 Pa", "levels"],
+        ),
     ],
 )
 def test_bad_sample_study_is_one_line(change, fragments):
@@ -241,3 +259,51 @@ def test_missing_file_is_a_study_error(tmp_path):
         load_study("no-such-study")
     with pytest.raises(StudyError, match="missing"):
         load_study(str(tmp_path / "x.toml"))
+
+
+def test_parameters_and_signals_must_exist_at_every_n():
+    n = "[study.grid]\nn = [2, 3]\n"
+    refused(
+        GRID.replace("[study.grid]", n.strip()) + "[study.metrics]\nvalue_at = {p3 = "
+        '{signal = "myofibril.aps3.chamber.p_gauge", time = "1 s"}}\n',
+        "study.grid.n",
+        "n = 2 has no signal 'myofibril.aps3.chamber.p_gauge'",
+    )
+    refused(
+        GRID.replace("[study.grid]", n.strip() + '\n"myofibril.tube3.C" = ["2e-9 m^3/(s*Pa)"]'),
+        "no parameter 'myofibril.tube3.C' at n = 2",
+    )
+
+
+def test_base_is_a_scene_relative_to_the_study_file(tmp_path):
+    scene = tmp_path / "scenes" / "mine.toml"
+    scene.parent.mkdir()
+    from sarcomere.scenarios.catalog import packaged_scenarios
+
+    scene.write_text(packaged_scenarios()["step-50g"].read_text(encoding="utf-8"))
+    study = tmp_path / "s.toml"
+    study.write_text(GRID.replace('"step-50g"', '"scenes/mine.toml"'))
+    assert load_study(study).scene_file == str(scene)
+    study.write_text(GRID.replace('"step-50g"', '"design-map"'))  # a study is not a scene
+    with pytest.raises(
+        StudyError, match="s.toml: key 'study.base': 'design-map': no such file or packaged scene"
+    ):
+        load_study(study)
+    scene.write_text("[scenario\n")
+    study.write_text(GRID.replace('"step-50g"', '"scenes/mine.toml"'))
+    with pytest.raises(StudyError, match="mine.toml: key '\\(toml syntax\\)': TOML syntax"):
+        load_study(study)
+
+
+def test_a_study_section_in_a_scene_file(tmp_path):
+    from sarcomere.scenarios.catalog import packaged_scenarios
+
+    scene = packaged_scenarios()["step-50g"].read_text(encoding="utf-8")
+    path = tmp_path / "scene-study.toml"
+    path.write_text(scene + '\n[study]\nkind = "grid"\n[study.grid]\nload = ["10 g", "30 g"]\n')
+    s = load_study(path)
+    assert s.base == "step-50g" and s.scene_file == str(path) and s.count == 2
+    assert s.scene().name == "step-50g" and "study" not in s.definition()["scene"]
+    path.write_text(scene.replace('kind = "transient"', 'kind = "transient"\nbogus = 1'))
+    with pytest.raises(StudyError, match="missing the \\[study\\] table"):
+        load_study(path)
