@@ -1,8 +1,8 @@
 """Design studies at scale (BENCHMARKS.md, "Design studies"): throughput against workers,
 study overhead per sample, scheduler overhead per task, memory over a long study.
 
-    OPENBLAS_NUM_THREADS=1 nice python benchmarks/study_scaling.py [--samples 192]
-        [--batch 16] [--tasks 500] [--long 10000] [--workers 1 2]
+    OPENBLAS_NUM_THREADS=1 nice python benchmarks/study_scaling.py [--samples 384]
+        [--batch 32] [--tasks 500] [--long 10000] [--workers 1 2]
 
 1. Throughput: the n = 3 step-50g scene with ``radau`` over ``--samples`` loads (30-70 g),
    on an embedded LocalCluster of 1 and 2 workers, after a warm-up sample on every worker
@@ -225,13 +225,13 @@ def memory(args, tmp: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--samples", type=int, default=192)
-    ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--samples", type=int, default=384)
+    ap.add_argument("--batch", type=int, default=32)
     ap.add_argument("--tasks", type=int, default=500)
     ap.add_argument("--long", type=int, default=10_000)
     ap.add_argument("--long-batch", type=int, default=50)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--skip", nargs="*", default=[], choices=["throughput", "tasks", "memory"])
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:

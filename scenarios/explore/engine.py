@@ -44,7 +44,7 @@ WORKER_WAIT_S = 30.0
 #: Default batch [samples per task]: about TARGET_TASKS tasks, at least MIN_BATCH samples
 #: each while the study has 8 tasks or more, at most MAX_BATCH (BENCHMARKS.md, design
 #: studies: the scheduler's cost per task against a sample's).
-TARGET_TASKS, MIN_BATCH, MAX_BATCH = 64, 16, 64
+TARGET_TASKS, MIN_BATCH, MAX_BATCH = 64, 32, 64
 
 #: Environment of the embedded cluster's worker processes: one BLAS/OpenMP thread.
 WORKER_ENV = {

@@ -3,13 +3,12 @@
 :meth:`Study.run` checks the sample count and the store's size against their caps and the
 ``out`` folder before any work, opens (or makes) the study's Zarr store, computes what it
 does not hold yet on Dask (:mod:`.engine`) and returns the results as an xarray Dataset,
-reshaped to the grid's axes for grid studies. Plots and ``summary.json`` are written
-beside the store by ``outputs.write_outputs`` when that module is present.
+reshaped to the grid's axes for grid studies, after writing the figures and
+``summary.json`` beside the store (:func:`.outputs.write_outputs`).
 """
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -47,6 +46,7 @@ class Study:
         max_samples: int | None = None,
         max_store_bytes: int = MAX_STORE_BYTES,
         evaluate=None,
+        outputs: bool = True,
     ):
         """Compute the study's missing samples into ``out/study.zarr`` and return them.
 
@@ -67,6 +67,8 @@ class Study:
         evaluate : callable, optional
             ``evaluate(study, indices) -> BatchResult``, picklable (default
             ``evaluate.evaluate_batch``).
+        outputs : bool
+            Write the figures and ``summary.json`` beside the store (``outputs.py``).
 
         Returns
         -------
@@ -91,7 +93,7 @@ class Study:
         ds = store.read()
         if design.grid_shape is not None:
             ds = to_grid(ds, design.factor_names, design.grid_shape)
-        if importlib.util.find_spec(f"{__package__}.outputs") is not None:
+        if outputs:
             from .outputs import write_outputs
 
             write_outputs(ds, study, Path(out))

@@ -132,7 +132,7 @@ def cluster():
 def run(study: StandIn, out, scheduler=None, **kw):
     if "workers" not in kw:
         kw["scheduler"] = scheduler
-    return Study(study).run(out, progress=False, evaluate=evaluate, **kw)
+    return Study(study).run(out, progress=False, evaluate=evaluate, outputs=False, **kw)
 
 
 def test_a_grid_study_runs_into_the_store_and_comes_back_on_the_grid(tmp_path, cluster):
@@ -259,4 +259,4 @@ def test_the_cli_starts_without_the_study_libraries(argv, status):
 def test_default_batches_keep_tasks_few_but_enough():
     from sarcomere.scenarios.explore.engine import default_batch
 
-    assert [default_batch(n) for n in (1, 6, 48, 100, 1000, 100_000)] == [1, 1, 6, 13, 16, 64]
+    assert [default_batch(n) for n in (1, 6, 48, 100, 1000, 100_000)] == [1, 1, 6, 13, 32, 64]
