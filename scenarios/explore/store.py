@@ -75,17 +75,34 @@ def estimated_bytes(n_samples: int, n_factors: int, n_metrics: int, series_point
     return n_samples * per_sample
 
 
+def _short(value: object, width: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
+def _by_name(value: object) -> object:
+    """A list of dicts that all have a ``name`` as a dict by name (compared by name)."""
+    if (
+        isinstance(value, list)
+        and value
+        and all(isinstance(v, dict) and "name" in v for v in value)
+    ):
+        return {str(v["name"]): v for v in value}
+    return value
+
+
 def definition_diff(stored: object, given: object, path: str = "", limit: int = 6) -> list[str]:
     """Human-readable differences between two JSON-like definitions, as
-    ``"key.path: stored -> given"`` lines (at most ``limit``)."""
+    ``"key.path: stored -> given"`` lines (at most ``limit``, long values shortened)."""
+    stored, given = _by_name(stored), _by_name(given)
     out: list[str] = []
     if isinstance(stored, dict) and isinstance(given, dict):
         for key in sorted(set(stored) | set(given), key=str):
             where = f"{path}.{key}" if path else str(key)
             if key not in given:
-                out.append(f"{where}: {stored[key]!r} -> (absent)")
+                out.append(f"{where}: {_short(stored[key])} -> (absent)")
             elif key not in stored:
-                out.append(f"{where}: (absent) -> {given[key]!r}")
+                out.append(f"{where}: (absent) -> {_short(given[key])}")
             else:
                 out += definition_diff(stored[key], given[key], where, limit)
             if len(out) >= limit:
@@ -94,7 +111,7 @@ def definition_diff(stored: object, given: object, path: str = "", limit: int = 
         for i, (a, b) in enumerate(zip(stored, given, strict=True)):
             out += definition_diff(a, b, f"{path}.{i}" if path else str(i), limit)
     elif stored != given:
-        out.append(f"{path or '(definition)'}: {stored!r} -> {given!r}")
+        out.append(f"{path or '(definition)'}: {_short(stored)} -> {_short(given)}")
     return out[:limit]
 
 

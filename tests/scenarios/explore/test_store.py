@@ -139,3 +139,12 @@ def test_size_estimate_and_diff_helpers():
     assert estimated_bytes(1000, 3, 2, 100) == 1000 * (8 * 105 + 9)
     assert definition_diff({"a": 1}, {"a": 1}) == []
     assert definition_diff({"a": [1, 2]}, {"a": [1]}) == ["a: [1, 2] -> [1]"]
+
+
+def test_named_lists_are_compared_by_name_and_long_values_shortened():
+    stored = {"factors": [{"name": "a", "v": 1}, {"name": "b", "v": 0}], "x": list(range(50))}
+    given = {"factors": [{"name": "a", "v": 2}], "x": [0]}
+    diff = definition_diff(stored, given)
+    assert diff[:2] == ["factors.a.v: 1 -> 2", "factors.b: {'name': 'b', 'v': 0} -> (absent)"]
+    assert diff[2].startswith("x: [0, 1, 2,") and diff[2].endswith("... -> [0]")
+    assert len(diff[2]) < 80
