@@ -80,7 +80,7 @@ class Nothing:
     error: list
 
 
-def nothing(study, indices) -> Nothing:
+def nothing(study, indices, points=None) -> Nothing:
     """Evaluate nothing: NaN metrics, status 0."""
     k = len(indices)
     metrics = {m.name: np.full(k, np.nan) for m in study.metrics}
@@ -102,6 +102,7 @@ def timed_run(study, tmp: Path, workers: int, evaluate=evaluate_batch, on_result
     """(wall s, results) of a whole study on a fresh cluster after a warm-up sample on
     each worker."""
     store = _store(study, tmp / f"w{workers}-{time.monotonic_ns()}")
+    points = study.design().points  # as Study.run hands them to the tasks
     results = []
 
     def keep(result) -> None:
@@ -112,7 +113,8 @@ def timed_run(study, tmp: Path, workers: int, evaluate=evaluate_batch, on_result
     with cluster_client(workers) as client:
         client.run(evaluate, study, np.array([0]))  # every worker: model built, compiled
         tic = time.perf_counter()
-        run_chunks(client, evaluate, study, store, store.missing_chunks(), on_result=keep)
+        chunks = store.missing_chunks()
+        run_chunks(client, evaluate, study, store, chunks, on_result=keep, points=points)
         wall = time.perf_counter() - tic
     return wall, results
 
@@ -211,7 +213,13 @@ def memory(args, tmp: Path) -> None:
 
         tic = time.perf_counter()
         run_chunks(
-            client, evaluate_batch, study, store, store.missing_chunks(), on_result=sample_memory
+            client,
+            evaluate_batch,
+            study,
+            store,
+            store.missing_chunks(),
+            on_result=sample_memory,
+            points=study.design().points,
         )
         wall = time.perf_counter() - tic
     status = store.status()

@@ -55,8 +55,9 @@ WORKER_ENV = {
     "SARCOMERE_BLAS_THREADS": "1",
 }
 
-Evaluate = Callable[[object, np.ndarray], object]
-"""``evaluate(study, indices) -> BatchResult`` (see ``evaluate.evaluate_batch``)."""
+Evaluate = Callable[..., object]
+"""``evaluate(study, indices[, points]) -> BatchResult`` (see ``evaluate.evaluate_batch``;
+``points`` are the batch's rows of the design, passed when the engine has them)."""
 
 
 class ClusterError(SarcomereError):
@@ -299,9 +300,11 @@ def run_chunks(
     *,
     on_result: Callable[[object], None] | None = None,
     max_in_flight: int | None = None,
+    points: np.ndarray | None = None,
 ) -> None:
     """Evaluate the ``chunks`` ((start, stop) sample ranges) of ``store`` on ``client``'s
-    cluster and write each as it finishes.
+    cluster and write each as it finishes. With the design's ``points`` (samples x
+    factors), each task gets its rows and the workers need not make the design.
 
     Results are fetched in the background as tasks complete; all those that completed
     together are written in one go. ``on_result(result)`` is called with each chunk's
@@ -318,7 +321,10 @@ def run_chunks(
     owner: dict = {}
 
     def submit(job: _Job, indices: np.ndarray, attempt: int) -> None:
-        future = client.submit(evaluate, study, indices, pure=False)
+        if points is None:
+            future = client.submit(evaluate, study, indices, pure=False)
+        else:
+            future = client.submit(evaluate, study, indices, points[indices], pure=False)
         owner[future] = (job, indices, attempt)
         futures.add(future)
 
@@ -378,6 +384,7 @@ def run_study(
     scheduler: str | None = None,
     progress: bool = True,
     stream: TextIO | None = None,
+    points: np.ndarray | None = None,
 ) -> None:
     """Compute every chunk of ``store`` not yet computed, on a cluster made or reached
     by :func:`cluster_client`, with a progress line on terminals."""
@@ -403,4 +410,4 @@ def run_study(
     with cluster_client(workers, scheduler, stream=out if progress else None) as client:
         with progress_line(label, enabled=progress, stream=out, delay=0.5):
             report(counter.text())
-            run_chunks(client, evaluate, study, store, chunks, on_result=on_result)
+            run_chunks(client, evaluate, study, store, chunks, on_result=on_result, points=points)

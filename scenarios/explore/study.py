@@ -65,8 +65,8 @@ class Study:
         max_store_bytes : int
             Cap on the store's estimated uncompressed size [bytes].
         evaluate : callable, optional
-            ``evaluate(study, indices) -> BatchResult``, picklable (default
-            ``evaluate.evaluate_batch``).
+            ``evaluate(study, indices, points) -> BatchResult``, picklable (default
+            ``evaluate.evaluate_batch``); ``points`` are the batch's design rows.
         outputs : bool
             Write the figures and ``summary.json`` beside the store (``outputs.py``).
 
@@ -89,7 +89,15 @@ class Study:
             from .evaluate import evaluate_batch as evaluate
         from .engine import run_study
 
-        run_study(evaluate, study, store, workers=workers, scheduler=scheduler, progress=progress)
+        run_study(
+            evaluate,
+            study,
+            store,
+            workers=workers,
+            scheduler=scheduler,
+            progress=progress,
+            points=design.points,
+        )
         ds = store.read()
         if design.grid_shape is not None:
             ds = to_grid(ds, design.factor_names, design.grid_shape)

@@ -103,11 +103,11 @@ def closed_form(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return 1e-9 * pressure - 0.01 * load, 0.1 + load
 
 
-def evaluate(study: StandIn, indices: np.ndarray) -> Result:
-    """Stand-in of evaluate.evaluate_batch: sample 0 of each pressure = 0 'fails'."""
+def evaluate(study: StandIn, indices: np.ndarray, points: np.ndarray) -> Result:
+    """Stand-in of evaluate.evaluate_batch: samples at pressure 0 'fail'."""
     if any(i in study.kill for i in indices):
         os._exit(3)
-    points = study.design().points[indices]
+    np.testing.assert_array_equal(points, study.design().points[indices])
     stroke, rise = closed_form(points)
     failed = points[:, 1] == 0.0
     stroke[failed] = np.nan
