@@ -20,8 +20,10 @@ import importlib.util
 import logging
 import math
 import os
+import signal
 import socket
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -164,6 +166,21 @@ def cluster_client(
             cluster.close()
 
 
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while worker processes start, so they inherit that: Ctrl-C at a
+    terminal (sent to the whole process group) then stops the study in this process
+    alone, which closes the cluster, instead of a traceback from every worker."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def local_cluster(workers: int):
     """An embedded ``distributed.LocalCluster``: ``workers`` processes of one thread and
     one BLAS thread each, no dashboard port fixed (one is chosen when bokeh is there).
@@ -178,7 +195,7 @@ def local_cluster(workers: int):
         "distributed.scheduler.allowed-failures": 0,
         "distributed.scheduler.worker-saturation": 1.0,
     }
-    with dask.config.set(config):
+    with dask.config.set(config), _sigint_ignored():
         return LocalCluster(
             n_workers=workers,
             threads_per_worker=1,
