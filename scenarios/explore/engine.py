@@ -308,6 +308,21 @@ class Progress:
         return f"{self.done}/{self.total} samples, {self.failed} failed, {rate:.3g} /s{left}"
 
 
+def _task_error(exc: BaseException, indices: np.ndarray) -> BaseException:
+    """What a task's own exception (not one sample's failure, which the evaluator
+    records) becomes: a SarcomereError as it was, a missing module on the workers a
+    ClusterError saying so, anything else unchanged (a bug: its traceback is wanted)."""
+    if isinstance(exc, SarcomereError):
+        return exc
+    if isinstance(exc, ImportError):
+        return ClusterError(
+            f"a task (samples {indices[0]}-{indices[-1]}) failed on a worker: "
+            f"{type(exc).__name__}: {exc}; the workers need the same Python environment "
+            "(sarcomere and its dependencies installed) as this process"
+        )
+    return exc
+
+
 def run_chunks(
     client,
     evaluate: Evaluate,
@@ -375,7 +390,7 @@ def run_chunks(
                 elif "Cancelled" in type(value).__name__:  # its data lost: compute again
                     submit(job, indices, attempt)
                 elif not isinstance(value, KilledWorker):
-                    raise value
+                    raise _task_error(value, indices) from value
                 elif attempt == 0:  # retry once, one task per sample
                     job.waiting += len(indices) - 1
                     for i in indices:

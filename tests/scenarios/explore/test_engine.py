@@ -260,3 +260,15 @@ def test_default_batches_keep_tasks_few_but_enough():
     from sarcomere.scenarios.explore.engine import default_batch
 
     assert [default_batch(n) for n in (1, 6, 48, 100, 1000, 100_000)] == [1, 1, 6, 13, 32, 64]
+
+
+def test_a_task_that_cannot_import_on_the_worker_is_a_cluster_error(tmp_path, cluster):
+    with pytest.raises(ClusterError, match="workers need the same Python environment"):
+        Study(StandIn()).run(
+            tmp_path / "out", scheduler=cluster, progress=False, evaluate=missing, outputs=False
+        )
+
+
+def missing(study, indices, points):
+    """An evaluator whose module is not installed on the workers."""
+    import sarcomere_not_installed  # noqa: F401
