@@ -9,8 +9,12 @@ number in flight and writes each result to the store as it finishes (``as_comple
 A task whose worker dies (crash, ``os._exit``, the nanny killing it past its memory limit)
 is retried once, split into one task per sample so that the other samples of its batch are
 saved; a sample whose retry kills its worker again is recorded with status 2 and a
-message. An exception raised by the evaluator itself (not a sample's failure, which it
-records) stops the study: what was written stays and a re-run resumes.
+message. The embedded cluster fails a task at its first worker death and gives each
+worker one task at a time (so a dying worker takes no other task with it); an existing
+cluster keeps its own policy (``distributed.scheduler.allowed-failures``, default 3
+deaths before a task fails), before this retry. An exception raised by the evaluator
+itself (not a sample's failure, which it records) stops the study: what was written
+stays and a re-run resumes.
 """
 
 from __future__ import annotations
