@@ -34,6 +34,7 @@ _HOMES = {
         "signals",
     ),
     "Scenario": "spec",
+    "Study": "explore.study",
 }
 
 
@@ -47,6 +48,7 @@ __all__ = [
     "Sine",
     "Staircase",
     "Step",
+    "Study",
     "Table",
     "load_scenario",
     "packaged_scenarios",

@@ -1,5 +1,5 @@
-"""The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``calibrate``, ``bench``,
-``export-fmu``, ``linearize SCENARIO``.
+"""The ``sarcomere`` command line: ``list``, ``run SCENARIO``, ``study STUDY``,
+``calibrate``, ``bench``, ``export-fmu``, ``linearize SCENARIO``.
 
 Subcommands are rows of :data:`COMMANDS` (name, help, handler, add_arguments); add one by
 appending a :class:`Command`. A command's module is imported only when the command line
@@ -91,9 +91,45 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _count(text: str) -> int:
+    """A whole number >= 1 (argparse type: a bad one is an argument error, at once)."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number >= 1")
+    return int(text)
+
+
+def _study_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("study", help="study TOML, scene TOML with [study], or packaged name")
+    parser.add_argument("--out", metavar="DIR", required=True, help="results folder (resumed)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", metavar="N", type=_count, help="local worker processes")
+    where.add_argument("--scheduler", metavar="ADDRESS", help="tcp://HOST:PORT of a Dask cluster")
+    parser.add_argument("--max-samples", metavar="N", type=_count, help="cap on the samples")
+    parser.add_argument("--quiet", action="store_true", help="no progress line, no summary")
+
+
+def _study(args: argparse.Namespace) -> int:
+    from .explore.study import Study
+
+    study = Study.from_file(args.study)
+    ds = study.run(
+        args.out, args.workers, args.scheduler, not args.quiet, max_samples=args.max_samples
+    )
+    if not args.quiet:
+        failed = int((ds["status"] != 0).sum())
+        print(f"study {study.definition.name}: {ds['status'].size} samples, {failed} failed")
+    return 0
+
+
 COMMANDS: list[Command] = [
     Command("list", "list the packaged scenarios", _list),
     Command("run", "run a scenario and write summary.json, CSV and plots", _run, _run_arguments),
+    Command(
+        "study",
+        "design study (grid, samples, sensitivity) on Dask into a resumable Zarr store",
+        _study,
+        _study_arguments,
+    ),
     Command(
         "calibrate",
         "fit A_p, A_r, k_s to the paper's three measured targets (Newton continuation)",

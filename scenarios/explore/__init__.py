@@ -2,8 +2,10 @@
 
 A study (``[study]`` in a scene TOML, or a study TOML naming a ``base`` scene) is read and
 checked by :mod:`.spec`, its sample points made by :mod:`.designs`, each sample simulated
-and reduced to named metrics by :mod:`.evaluate` (with :mod:`.metrics`). Heavy libraries
-(dask, xarray, zarr, SALib) are imported only inside the functions that need them.
+and reduced to named metrics by :mod:`.evaluate` (with :mod:`.metrics`); batches run on
+Dask by :mod:`.engine` into a resumable Zarr store (:mod:`.store`), driven by
+:class:`.study.Study`. Heavy libraries (dask, xarray, zarr, SALib) are imported only
+inside the functions that need them.
 """
 
 from importlib import resources

@@ -1,0 +1,252 @@
+"""What a study leaves beside its store: the figures of :mod:`.plots` and ``summary.json``.
+
+``summary.json`` (SI units, each number with its unit; ``null`` where a value is undefined):
+
+* ``study``, ``kind``, ``base``, ``method``, ``seed``, ``fingerprint``, ``version``;
+* ``samples``: ``total``, ``ok``, ``failed`` (status 1), ``worker_lost`` (status 2),
+  ``not_computed`` (status -1), ``errors`` (each distinct message of the samples that are
+  not ok, with its count), ``failures`` (the first :data:`LISTED_FAILURES` of them with
+  their factor values) and ``notes`` (the commonest notes of ok samples: why a metric is
+  undefined there);
+* ``metrics``: per metric ``unit``, ``count`` (ok samples with a value), ``undefined`` (ok
+  samples without one), ``median``, ``p05``, ``p95`` and ``min``/``max`` each with the
+  factor values (``at``) where they occur;
+* ``series``: per time series the median and 5-95 % band of its final value;
+* ``sensitivity`` (sensitivity studies): the method, blocks used and the factors of each
+  metric ranked by total index (Sobol') or mu* (Morris), or ``refused`` with the reason;
+* ``plots``: the figure files written; ``warnings``: anything the reader must know.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from . import analysis, plots
+
+if TYPE_CHECKING:  # pragma: no cover
+    import xarray as xr
+
+#: Failed samples listed with their factor values in ``summary.json``.
+LISTED_FAILURES = 20
+#: Most common notes of ok samples (why a metric is undefined) listed in ``summary.json``.
+LISTED_NOTES = 10
+#: Status codes of the store (interface file) and their names in ``summary.json``.
+STATUS_NAMES = {0: "ok", 1: "failed", 2: "worker_lost", -1: "not_computed"}
+
+
+def _num(value: Any) -> float | None:
+    """A JSON number, None for NaN or infinity."""
+    v = float(value)
+    return v if math.isfinite(v) else None
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("sarcomere")
+    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+        return "unknown"
+
+
+def _flat_factors(ds: xr.Dataset, study: Any, like: xr.DataArray) -> dict[str, np.ndarray]:
+    """Each factor's value per element of ``like`` (grid coordinates broadcast), flat."""
+    out = {}
+    for factor in study.factors:
+        if factor.name in ds.variables:
+            values = ds[factor.name].broadcast_like(like).transpose(*like.dims).values
+            out[factor.name] = np.asarray(values, dtype=float).ravel()
+    return out
+
+
+def _at(factors: dict[str, np.ndarray], i: int) -> dict[str, float | None]:
+    return {name: _num(values[i]) for name, values in factors.items()}
+
+
+def sample_counts(ds: xr.Dataset, study: Any) -> dict[str, Any]:
+    """Counts of the samples by status, the distinct errors and the first failures."""
+    status = np.asarray(ds["status"].values).ravel()
+    counts: dict[str, Any] = {"total": int(status.size)}
+    counts |= {name: int(np.sum(status == code)) for code, name in STATUS_NAMES.items()}
+    errors = np.asarray(ds["error"].values, dtype=object).ravel() if "error" in ds else None
+    bad = np.flatnonzero(status != 0)
+    messages = Counter(str(errors[i]) if errors is not None else "" for i in bad)
+    counts["errors"] = [{"message": m, "count": c} for m, c in messages.most_common()]
+    noted = [str(errors[i]) for i in np.flatnonzero(status == 0)] if errors is not None else []
+    notes = Counter(m for m in noted if m)
+    counts["notes"] = [{"message": m, "count": c} for m, c in notes.most_common(LISTED_NOTES)]
+    factors = _flat_factors(ds, study, ds["status"])
+    counts["failures"] = [
+        {
+            "sample": int(i),
+            "status": STATUS_NAMES.get(int(status[i]), str(int(status[i]))),
+            "error": str(errors[i]) if errors is not None else "",
+            "at": _at(factors, i),
+        }
+        for i in bad[:LISTED_FAILURES]
+    ]
+    return counts
+
+
+def metric_summary(ds: xr.Dataset, study: Any, metric: str) -> dict[str, Any]:
+    """Median, 5/95 % and the extremes (with their factor values) over the ok samples."""
+    da = ds[metric]
+    values = np.asarray(da.where(ds["status"] == 0).values, dtype=float).ravel()
+    finite = np.flatnonzero(np.isfinite(values))
+    out: dict[str, Any] = {
+        "unit": plots.unit_of(ds, study, metric),
+        "count": int(finite.size),
+        "undefined": plots.undefined(ds, metric),
+    }
+    if finite.size == 0:
+        return out | {k: None for k in ("median", "p05", "p95", "min", "max")}
+    p05, median, p95 = np.percentile(values[finite], plots.BAND)
+    factors = _flat_factors(ds, study, da)
+    lo, hi = finite[np.argmin(values[finite])], finite[np.argmax(values[finite])]
+    return out | {
+        "median": _num(median),
+        "p05": _num(p05),
+        "p95": _num(p95),
+        "min": {"value": _num(values[lo]), "sample": int(lo), "at": _at(factors, lo)},
+        "max": {"value": _num(values[hi]), "sample": int(hi), "at": _at(factors, hi)},
+    }
+
+
+def series_summary(ds: xr.Dataset, study: Any, variable: str) -> dict[str, Any]:
+    """Median and 5-95 % band of a time series' final value over the ok samples."""
+    final = ds[variable].where(ds["status"] == 0).isel(time=-1).values.ravel()
+    final = final[np.isfinite(final)]
+    band = np.percentile(final, plots.BAND) if final.size else [math.nan] * 3
+    return {
+        "unit": plots.unit_of(ds, study, variable),
+        "time": _num(ds["time"].values[-1]),
+        "final": {"p05": _num(band[0]), "median": _num(band[1]), "p95": _num(band[2])},
+    }
+
+
+def sensitivity_summary(result: xr.Dataset) -> dict[str, Any]:
+    """The analysis' method, blocks and ranked factors per metric (JSON-ready)."""
+    out: dict[str, Any] = {
+        "method": result.attrs["method"],
+        "conf_level": result.attrs["conf_level"],
+        "blocks_total": int(result.attrs["blocks_total"]),
+        "failed_samples": json.loads(result.attrs["failed_samples"]),
+        "metrics": {},
+    }
+    for metric in result["metric"].values:
+        out["metrics"][str(metric)] = {
+            "blocks_used": int(result["blocks_used"].sel(metric=metric)),
+            "note": str(result["note"].sel(metric=metric).values),
+            "unit": "1"
+            if out["method"] == "sobol"
+            else str(result["metric_unit"].sel(metric=metric).values),
+            "ranked": analysis.ranked(result, str(metric)),
+        }
+    return out
+
+
+def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Path]:
+    metrics = [m.name for m in study.metrics if m.name in ds]
+    drawn: list[Path | None] = []
+    if study.kind == "grid":
+        for metric in metrics:
+            path = plots.design_map(ds, study, metric, folder) or plots.design_line(
+                ds, study, metric, folder
+            )
+            if path is None:
+                summary["warnings"].append(
+                    f"no map of {metric}: no grid axis varies or no ok sample has a value"
+                )
+            drawn.append(path)
+    elif study.kind == "sample":
+        drawn.append(plots.histograms(ds, study, metrics, folder))
+    else:
+        try:
+            result = analysis.analyse(ds, study)
+        except analysis.AnalysisError as err:
+            summary["sensitivity"] = {"refused": str(err)}
+            summary["warnings"].append(f"sensitivity analysis refused: {err}")
+        else:
+            summary["sensitivity"] = sensitivity_summary(result)
+            draw = plots.sobol_bars if result.attrs["method"] == "sobol" else plots.morris_plane
+            drawn.append(draw(result, study.name, folder))
+    curves = plots.grid_curves if study.kind == "grid" else plots.envelope
+    for variable in (v for v in ds.data_vars if str(v).startswith("series_")):
+        drawn.append(curves(ds, study, str(variable), folder))
+    return [p for p in drawn if p is not None]
+
+
+def _remove_previous(folder: Path) -> None:
+    """Delete the figures an earlier ``summary.json`` in ``folder`` lists (a resumed study
+    may draw other ones), nothing else."""
+    old = folder / "summary.json"
+    if not old.is_file():
+        return
+    try:
+        names = json.loads(old.read_text(encoding="utf-8")).get("plots", [])
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        return
+    for name in names:
+        path = folder / str(name)
+        if path.suffix == ".png" and path.parent == folder and path.is_file():
+            path.unlink()
+
+
+def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
+    """Write the study's figures and ``summary.json`` into ``folder``; return the summary.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        The study's results (interface file: grid axes or a ``sample`` dimension, metric
+        variables, ``status``, ``error``, attributes ``fingerprint``, ``version``, ...).
+    study : StudyDef
+        The study definition the results belong to.
+    folder : pathlib.Path
+        Where to write (created if missing), beside the store.
+
+    Returns
+    -------
+    dict
+        The content of ``summary.json`` (module docstring).
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    _remove_previous(folder)
+    design = study.design()
+    summary: dict[str, Any] = {
+        "study": study.name,
+        "kind": study.kind,
+        "base": study.base,
+        "method": ds.attrs.get("method", design.method),
+        "seed": study.seed,
+        "fingerprint": ds.attrs.get("fingerprint") or study.fingerprint(),
+        "version": ds.attrs.get("version") or _version(),
+        "samples": sample_counts(ds, study),
+        "metrics": {
+            m.name: metric_summary(ds, study, m.name) for m in study.metrics if m.name in ds
+        },
+        "series": {
+            str(v).removeprefix("series_"): series_summary(ds, study, str(v))
+            for v in ds.data_vars
+            if str(v).startswith("series_")
+        },
+        "warnings": [],
+    }
+    samples = summary["samples"]
+    if samples["ok"] < samples["total"]:
+        summary["warnings"].append(
+            f"{samples['total'] - samples['ok']} of {samples['total']} samples are not ok "
+            f"({samples['failed']} failed, {samples['worker_lost']} worker lost, "
+            f"{samples['not_computed']} not computed): left out of every statistic and figure"
+        )
+    summary["plots"] = [p.name for p in _figures(ds, study, folder, summary)]
+    text = json.dumps(summary, indent=2, allow_nan=False)
+    (folder / "summary.json").write_text(text + "\n", encoding="utf-8")
+    return summary

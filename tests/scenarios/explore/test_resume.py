@@ -1,0 +1,96 @@
+"""Resuming a study killed mid-way (the ``sarcomere study`` CLI in a subprocess): after
+SIGINT and after SIGKILL, a re-run computes what is missing and the final dataset equals an
+uninterrupted run's, value for value."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+STUDY = """
+[study]
+kind = "grid"
+base = "step-50g"
+batch = 2
+[study.grid]
+load = {from = "20 g", to = "80 g", num = 10}
+pressure = ["0.05 MPa", "0.1 MPa"]
+[study.metrics]
+names = ["stroke", "rise_time", "peak_tension"]
+[model]
+n = 1
+[simulation]
+stop_time = "0.3 s"
+"""
+ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+
+
+def study_cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "sarcomere.scenarios.cli", "study", *map(str, args)]
+
+
+def computed(store: Path) -> int:
+    """Samples with a status in ``store`` (0 while it is not made yet)."""
+    import zarr
+
+    try:
+        return int(np.count_nonzero(zarr.open_group(str(store), mode="r")["status"][:] >= 0))
+    except Exception:  # not made yet, or made between two looks
+        return 0
+
+
+def interrupt(study: Path, out: Path, sig: int, after: int) -> int:
+    """Run the study and send ``sig`` once ``after`` more samples are computed; the
+    number computed when it stopped."""
+    start = computed(out / "study.zarr")
+    proc = subprocess.Popen(
+        study_cli(study, "--out", out, "--workers", 1, "--quiet"),
+        env=ENV,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    t0 = time.perf_counter()
+    while computed(out / "study.zarr") < start + after:
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.perf_counter() - t0 < 120, "the study did not progress"
+        time.sleep(0.05)
+    os.killpg(proc.pid, sig)  # to the command and its workers, as Ctrl-C at a terminal
+    try:
+        proc.wait(timeout=60)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL) if proc.poll() is None else None
+    if sig == signal.SIGINT:  # one line from the command, no traceback from the workers
+        assert proc.returncode == 130
+        assert proc.stderr.read().strip() == "sarcomere: interrupted by SIGINT (Ctrl-C)"
+    subprocess.run(["pkill", "-KILL", "-s", str(proc.pid)], check=False)  # orphans, if any
+    return computed(out / "study.zarr")
+
+
+@pytest.mark.slow  # four CLI studies of 20 samples
+def test_a_study_killed_by_sigint_then_sigkill_resumes_to_the_uninterrupted_result(tmp_path):
+    import xarray as xr
+
+    study = tmp_path / "resume.toml"
+    study.write_text(STUDY)
+    ref = tmp_path / "ref"
+    subprocess.run(study_cli(study, "--out", ref, "--workers", 1, "--quiet"), env=ENV, check=True)
+    out = tmp_path / "out"
+    first = interrupt(study, out, signal.SIGINT, after=4)
+    second = interrupt(study, out, signal.SIGKILL, after=4)
+    assert 4 <= first < second < 20, (first, second)  # both stopped mid-way
+    subprocess.run(study_cli(study, "--out", out, "--workers", 1, "--quiet"), env=ENV, check=True)
+    ref = xr.open_zarr(ref / "study.zarr").load()
+    got = xr.open_zarr(out / "study.zarr").load()
+    assert (got.status.values == 0).all()
+    for ds in (ref, got):
+        ds.attrs.pop("created")
+    xr.testing.assert_identical(got, ref)
