@@ -16,7 +16,10 @@ if a longer one is admissible and scores lower).
 ``control-tension`` the plant's threads break the bound by at most
 :data:`VIOLATION_MAX_MN`, and no sample of either fell back. Its *score* is the mean over
 the two scenes of its RMSE divided by LQI's in the same run. The admissible point with the
-lowest score wins (ties to the heavier move weight); if none is admissible, the point with
+lowest score wins (scores equal to :data:`SCORE_DIGITS` decimals tie; a tie goes to the point
+nearest the current defaults, in decades of both weights: only the ratio
+``weight_y / weight_du`` matters where no other cost term does); if none is admissible,
+the point with
 the smallest excess over the two bounds (each divided by its bound), then the lowest score.
 Stage 2 keeps the default horizon unless an admissible other horizon scores lower by more
 than :data:`HORIZON_GAIN` (5 %: a step's cost grows with the horizon).
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import time
 from collections.abc import Mapping, Sequence
@@ -49,6 +53,8 @@ WEIGHTS_DU = (1e-10, 3e-10, 1e-9, 3e-9, 1e-8, 3e-8, 1e-7, 3e-7)
 """Move weights [1/Pa^2] of the grid."""
 HORIZONS = (10, 20, 40)
 """Horizons [samples] of stage 2 (20 is the default)."""
+SCORE_DIGITS = 3
+"""Decimals to which two scores are compared: closer is run-to-run noise."""
 HORIZON_GAIN = 0.05
 """Stage 2 moves the horizon from the default only for a score lower by more than this
 fraction: the cost of a step grows about in proportion to the horizon."""
@@ -125,15 +131,30 @@ def score(rows: Mapping[str, Mapping[str, float]], lqi: Mapping[str, Mapping[str
 def choose(
     candidates: Mapping[str, Mapping[str, Mapping[str, float]]],
     lqi: Mapping[str, Mapping[str, float]],
-    move_weight: Mapping[str, float],
+    distance: Mapping[str, float],
 ) -> str:
     """The key of the winning point (see the module docstring): ``candidates`` maps a key
-    to its rows (scene -> metrics), ``lqi`` holds LQI's rows, ``move_weight`` each key's
-    ``weight_du`` (ties go to the heavier)."""
+    to its rows (scene -> metrics), ``lqi`` holds LQI's rows, ``distance`` each key's
+    distance from the current defaults (ties go to the nearest)."""
     return min(
         candidates,
-        key=lambda k: (excess(candidates[k]), score(candidates[k], lqi), -move_weight[k]),
+        key=lambda k: (
+            excess(candidates[k]),
+            round(score(candidates[k], lqi), SCORE_DIGITS),
+            distance[k],
+        ),
     )
+
+
+def distance_from_defaults(settings: Mapping[str, object]) -> float:
+    """Decades between a point's weights and its controller's current defaults
+    (:class:`~sarcomere.controllers.nmpc.NMPCSettings`,
+    :class:`~sarcomere.controllers.lmpc.LMPCSettings`), summed over both weights."""
+    from sarcomere.controllers.lmpc import LMPCSettings
+    from sarcomere.controllers.nmpc import NMPCSettings
+
+    d = {"nmpc": NMPCSettings(), "lmpc": LMPCSettings()}[settings["type"]]
+    return sum(abs(math.log10(settings[w] / getattr(d, w))) for w in ("weight_y", "weight_du"))
 
 
 def study(horizon_default: int = 20) -> dict:
@@ -157,9 +178,8 @@ def study(horizon_default: int = 20) -> dict:
     best = {}
     for slug in CONTROLLERS:
         keys = [k for k in grid if grid[k]["type"] == slug]
-        best[slug] = choose(
-            {k: rows[k] for k in keys}, lqi, {k: grid[k]["weight_du"] for k in keys}
-        )
+        near = {k: distance_from_defaults(grid[k]) for k in keys}
+        best[slug] = choose({k: rows[k] for k in keys}, lqi, near)
     others = {
         point_key(slug, h, grid[k]["weight_y"], grid[k]["weight_du"]): {**grid[k], "horizon": h}
         for slug, k in best.items()

@@ -4,10 +4,12 @@ replaced."""
 
 import pytest
 
+from sarcomere.controllers.nmpc import NMPCSettings
 from sarcomere.scenarios.loader import parse_scenario
 from sarcomere.scenarios.studies.mpc_tuning import (
     OVERSHOOT_MAX_PCT,
     choose,
+    distance_from_defaults,
     excess,
     point_key,
     scene_text,
@@ -45,13 +47,20 @@ def test_the_lowest_admissible_score_wins():
         "good": rows(0.8, 9.0, 1.0, 0.9),  # score (0.8 + 0.5) / 2 = 0.65
         "better": rows(0.7, 10.0, 1.0, 1.0),  # on both bounds: admissible, 0.6
     }
-    weights = dict.fromkeys(candidates, 1e-9)
+    weights = dict.fromkeys(candidates, 0.0)
     assert score(candidates["good"], LQI) == pytest.approx(0.65)
     assert [k for k in candidates if excess(candidates[k]) == 0] == ["good", "better"]
     assert choose(candidates, LQI, weights) == "better"
-    # ties go to the heavier move weight
-    tie = {"light": rows(0.7, 5, 1.0, 0), "heavy": rows(0.7, 5, 1.0, 0)}
-    assert choose(tie, LQI, {"light": 1e-10, "heavy": 1e-8}) == "heavy"
+    # scores equal to three decimals tie; a tie goes to the point nearest the defaults
+    tie = {"far": rows(0.7, 5, 1.0, 0), "near": rows(0.7002, 5, 1.0, 0)}
+    assert choose(tie, LQI, {"far": 2.0, "near": 0.5}) == "near"
+    assert distance_from_defaults(
+        {
+            "type": "nmpc",
+            "weight_y": 10 * NMPCSettings().weight_y,
+            "weight_du": NMPCSettings().weight_du / 100,
+        }
+    ) == pytest.approx(3.0)
 
 
 def test_without_an_admissible_point_the_least_excess_wins():
