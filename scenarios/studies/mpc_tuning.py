@@ -26,7 +26,10 @@ than :data:`HORIZON_GAIN` (5 %: a step's cost grows with the horizon).
 
 Usage::
 
-    python -m sarcomere.scenarios.studies.mpc_tuning --out out/bench/mpc_tuning
+    python -m sarcomere.scenarios.studies.mpc_tuning --out out/bench/mpc_tuning \
+        [--weights-y 1e6 ...] [--weights-du 1e-9 ...] [--horizons 10 20 40]
+
+(a smaller grid for a cheaper run; the grid run is recorded in the JSON)
 
 writes ``mpc_tuning.json`` (every point's metrics, the LQI rows, the choice) and prints
 the tables.
@@ -157,8 +160,14 @@ def distance_from_defaults(settings: Mapping[str, object]) -> float:
     return sum(abs(math.log10(settings[w] / getattr(d, w))) for w in ("weight_y", "weight_du"))
 
 
-def study(horizon_default: int = 20) -> dict:
-    """Both stages for both MPCs; returns what ``mpc_tuning.json`` holds."""
+def study(
+    weights_y: Sequence[float] = WEIGHTS_Y,
+    weights_du: Sequence[float] = WEIGHTS_DU,
+    horizons: Sequence[int] = HORIZONS,
+    horizon_default: int = 20,
+) -> dict:
+    """Both stages for both MPCs on the grid ``weights_y`` x ``weights_du`` and the
+    ``horizons``; returns what ``mpc_tuning.json`` holds (the grid included)."""
     grid = {
         point_key(slug, horizon_default, wy, wdu): {
             "type": slug,
@@ -167,8 +176,8 @@ def study(horizon_default: int = 20) -> dict:
             "weight_du": wdu,
         }
         for slug in CONTROLLERS
-        for wy in WEIGHTS_Y
-        for wdu in WEIGHTS_DU
+        for wy in weights_y
+        for wdu in weights_du
     }
     tic = time.perf_counter()
     stage1 = run_points(grid)
@@ -183,7 +192,7 @@ def study(horizon_default: int = 20) -> dict:
     others = {
         point_key(slug, h, grid[k]["weight_y"], grid[k]["weight_du"]): {**grid[k], "horizon": h}
         for slug, k in best.items()
-        for h in HORIZONS
+        for h in horizons
         if h != horizon_default
     }
     tic = time.perf_counter()
@@ -205,6 +214,11 @@ def study(horizon_default: int = 20) -> dict:
         }
     return {
         "scenes": list(SCENES),
+        "grid": {
+            "weights_y": list(weights_y),
+            "weights_du": list(weights_du),
+            "horizons": list(horizons),
+        },
         "criterion": {
             "overshoot_max_pct": OVERSHOOT_MAX_PCT,
             "violation_max_mN": VIOLATION_MAX_MN,
@@ -250,8 +264,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``--out DIR``: run :func:`study`, write ``mpc_tuning.json``, print the table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench/mpc_tuning"))
+    parser.add_argument("--weights-y", type=float, nargs="+", default=WEIGHTS_Y)
+    parser.add_argument("--weights-du", type=float, nargs="+", default=WEIGHTS_DU)
+    parser.add_argument("--horizons", type=int, nargs="+", default=HORIZONS)
     args = parser.parse_args(argv)
-    record = study()
+    record = study(args.weights_y, args.weights_du, args.horizons)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "mpc_tuning.json").write_text(json.dumps(record, indent=2))
     print(table(record))
