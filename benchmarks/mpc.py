@@ -5,9 +5,9 @@ the CLI runs it too). Usage::
 
     python benchmarks/mpc.py --out out/bench/mpc [--quick]
 
-writes ``mpc.json`` (every variant: time per step, tracking, fallbacks; the RTI's split
-into its CasADi call and the Python around it; the prediction fidelity comparison) and
-``summary.json``.
+writes ``mpc.json`` (every variant: time per step, tracking, fallbacks; the RTI's feedback
+latency and preparation, wall and CPU, in Python and compiled, also interleaved sample by
+sample; the prediction fidelity comparison) and ``summary.json``.
 """
 
 from __future__ import annotations

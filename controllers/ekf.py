@@ -10,8 +10,15 @@ pressure error: ``dt std^2 B B^T`` with ``B`` the exact ``df/du`` at the operati
 and the parameters of ``disturbance_std`` (by default the load mass, for an added weight),
 which are appended to the state as random walks: the filter estimates them
 (:attr:`EKF.parameters`, kept inside the parameters' ranges), so a persistent unknown
-load does not bias the state. The covariance update is the Joseph form (stays symmetric
-positive definite).
+load does not bias the state. Two disturbances that are not parameters of the model can
+be estimated the same way (:data:`OFFSETS`): ``"disturbance.input"``, a constant added to
+the input [SI of the input], and ``"disturbance.output"``, a constant added to the tracked
+output as measured [SI of the output] (the MPCs' input and output disturbance models,
+:mod:`.disturbance`). The covariance update is the Joseph form (stays symmetric positive
+definite).
+
+The prediction is an ODE step: a model with algebraic unknowns (the "static_chain" level,
+:data:`DAE_LEVELS`) is refused, naming the level and the levels allowed.
 """
 
 from __future__ import annotations
@@ -21,6 +28,8 @@ from collections.abc import Mapping, Sequence
 import casadi as cs
 import numpy as np
 
+from sarcomere.dynamics.assemblies import FIDELITIES
+from sarcomere.dynamics.components.aps import CHAIN_LEVELS
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
@@ -32,6 +41,14 @@ from .registry import count, own_settings, positive
 DEFAULT_STD = {"m": 2e-5, "Pa": 200.0, "N": 2e-3}
 """Measurement noise standard deviation by unit when the loop gives none [SI]."""
 
+
+OFFSETS = ("disturbance.input", "disturbance.output")
+"""Disturbances the EKF estimates that are not model parameters: a constant added to the
+(one) input, and one added to the tracked output as measured."""
+
+DAE_LEVELS = tuple(level for level, (_, massless) in CHAIN_LEVELS.items() if massless)
+"""Fidelity levels whose models have algebraic unknowns (massless bodies: their positions
+are algebraic), which the EKF refuses."""
 
 MAX_SUBSTEPS = 50
 """Most Radau IIA steps per sample: each is unrolled into the prediction's CasADi graph
@@ -58,10 +75,13 @@ class EKF:
     input_std : float
         Process noise on the input [SI of the input], >= 0.
     disturbance_std : mapping of str to float
-        Random-walk intensity of the parameters estimated with the state [SI/sqrt(s)],
-        e.g. ``{"load.m": 0.002}``.
+        Random-walk intensity of the parameters (or :data:`OFFSETS`) estimated with the
+        state [SI/sqrt(s)], e.g. ``{"load.m": 0.002}``.
     substeps : int
         Radau IIA steps per sample, in ``[1, MAX_SUBSTEPS]``.
+    output : str, optional
+        The tracked output, a measured signal (``"disturbance.output"`` is added to it;
+        default: the first measured signal).
     """
 
     def __init__(
@@ -74,9 +94,10 @@ class EKF:
         input_std: float = 2e3,
         disturbance_std: Mapping[str, float] | None = None,
         substeps: int = 2,
+        output: str | None = None,
     ) -> None:
         if model.nz:
-            raise ParameterError("ekf.model", model.name, "an explicit model (no algebraic)")
+            refuse_dae(model)
         count("ekf.substeps", substeps, 1, MAX_SUBSTEPS, "each substep is unrolled in the graph")
         self.model, self.dt, self.p = model, float(dt), op.p.copy()
         self.measured = list(measured)
@@ -86,28 +107,39 @@ class EKF:
         std = np.array([positive("ekf", f"noise_std.{n}", noise_std[n]) for n in self.measured])
         self.R = np.diag(std**2)
         dist = dict(disturbance_std or {})
-        bad = [n for n in dist if n not in model.param_names]
+        bad = [n for n in dist if n not in (*model.param_names, *OFFSETS)]
         if bad:
-            raise ParameterError("ekf.disturbance_std", bad, "parameters of the model")
+            raise ParameterError(
+                "ekf.disturbance_std", bad, f"parameters of the model or {OFFSETS}"
+            )
+        if OFFSETS[0] in dist and model.u.numel() != 1:
+            raise ParameterError("ekf.disturbance_std", OFFSETS[0], "a model with one input")
+        self.output = self.measured[0] if output is None else output
+        if self.output not in self.measured:
+            raise ParameterError("ekf.output", self.output, f"one of {self.measured}")
         self.disturbances = list(dist)
-        idx = [model.param_names.index(n) for n in dist]
-        nx, nd = model.nx, len(idx)
-        # augmented state [x; d]: d, the disturbance parameters, walk at random
+        nx, nd = model.nx, len(dist)
+        # augmented state [x; d]: d, the disturbance parameters and offsets, walk at random
         x, d = cs.MX.sym("x", nx), cs.MX.sym("d", nd)
         u, p = cs.MX.sym("u", model.u.numel()), cs.MX.sym("p", model.p.numel())
         parts = cs.vertsplit(p)
-        for k, i in enumerate(idx):
-            parts[i] = d[k]
-        pd = cs.vertcat(*parts)
+        offset = dict.fromkeys(OFFSETS, cs.MX(0))
+        for k, name in enumerate(dist):
+            if name in OFFSETS:
+                offset[name] = d[k]
+            else:
+                parts[model.param_names.index(name)] = d[k]
+        pd, ud = cs.vertcat(*parts), u + offset[OFFSETS[0]]
         settings = SolverSettings(method="radau_fixed", step=dt / substeps)
         step = Simulator(model, settings).step_function()
         xf = x
         for _ in range(substeps):
-            xf = step(xf, cs.MX(0, 1), u, dt / substeps, pd)[0]
+            xf = step(xf, cs.MX(0, 1), ud, dt / substeps, pd)[0]
         xa, xaf = cs.vertcat(x, d), cs.vertcat(xf, d)
         self._predict = cs.Function("ekf_predict", [xa, u, p], [xaf, cs.jacobian(xaf, xa)])
         sig = model.signals_function(self.measured)
-        ys = sig(x, cs.MX(0, 1), u, pd)
+        at = np.array([n == self.output for n in self.measured], dtype=float)
+        ys = sig(x, cs.MX(0, 1), ud, pd) + cs.DM(at) * offset[OFFSETS[1]]
         self._measure = cs.Function("ekf_measure", [xa, u, p], [ys, cs.jacobian(ys, xa)])
         # process noise: dt Gu std_u^2 Gu^T on x (Gu = df/du at the operating point) and
         # a random walk dt std_j^2 on each disturbance parameter
@@ -121,9 +153,10 @@ class EKF:
         self.Q = np.zeros((nx + nd, nx + nd))
         self.Q[:nx, :nx] = self.dt * su**2 * Gu @ Gu.T + np.diag(np.full(nx, 1e-30))
         self.Q[nx:, nx:] = self.dt * np.diag(sd**2)
-        self.d0 = op.p[idx].copy()
-        self.d_low = np.array([model.variables[n].low for n in dist])
-        self.d_high = np.array([model.variables[n].high for n in dist])
+        var = {n: model.variables[n] for n in dist if n not in OFFSETS}
+        self.d0 = np.array([op.p[model.param_names.index(n)] if n in var else 0.0 for n in dist])
+        self.d_low = np.array([var[n].low if n in var else -np.inf for n in dist])
+        self.d_high = np.array([var[n].high if n in var else np.inf for n in dist])
         self.reset(op.x)
 
     def reset(self, x0: np.ndarray) -> None:
@@ -165,13 +198,15 @@ def make_ekf(
     measured: Sequence[str],
     noise_std: Mapping[str, float] | None,
     settings: Mapping[str, object],
+    output: str | None = None,
 ) -> EKF:
     """An EKF from the loop's ``measured`` and ``noise_std`` (default :data:`DEFAULT_STD`
     by unit) and its own ``settings``:
-    ``input_std`` [SI], ``disturbance_std`` (parameter -> random-walk intensity
-    [SI/sqrt(s)]; default 2 g/sqrt(s) on ``load.m`` where the model has one: a 30 g step
-    is found within 6 samples and the length is filtered to half the noise; 20 g/sqrt(s)
-    finds it in 3 but hardly filters) and ``substeps``."""
+    ``input_std`` [SI], ``disturbance_std`` (parameter or :data:`OFFSETS` name ->
+    random-walk intensity [SI/sqrt(s)]; default 2 g/sqrt(s) on ``load.m`` where the model
+    has one: a 30 g step is found within 6 samples and the length is filtered to half the
+    noise; 20 g/sqrt(s) finds it in 3 but hardly filters) and ``substeps``. ``output``:
+    the tracked output (default the first measured signal)."""
     if not isinstance(settings, Mapping):
         raise ParameterError("ekf", settings, "a table of EKF settings")
     dist = default_disturbances(model)
@@ -179,7 +214,8 @@ def make_ekf(
     meas = list(measured)
     given = dict(noise_std or {})
     std = {n: given.get(n) or DEFAULT_STD.get(model.unit(n), 1e-6) for n in meas}
-    return EKF(model, op, dt, meas, std, own["input_std"], own["disturbance_std"], own["substeps"])
+    dist_std, substeps = own["disturbance_std"], own["substeps"]
+    return EKF(model, op, dt, meas, std, own["input_std"], dist_std, substeps, output)
 
 
 def default_disturbances(model: Model) -> dict[str, float]:
@@ -192,3 +228,18 @@ def estimated_parameters(model: Model, settings: Mapping[str, object]) -> list[s
     """Names of the parameters :func:`make_ekf` estimates with these ``settings``."""
     dist = settings.get("disturbance_std") if isinstance(settings, Mapping) else None
     return list(dist) if isinstance(dist, Mapping) else list(default_disturbances(model))
+
+
+def refuse_dae(model: Model) -> None:
+    """Raise the EKF's refusal of a model with algebraic unknowns, naming its fidelity
+    level (where an assembly recorded it) and the levels allowed."""
+    setup = getattr(model, "setup", None)
+    level = setup.arguments.get("fidelity") if setup is not None else None
+    allowed = [f for f in FIDELITIES if f not in DAE_LEVELS]
+    raise ParameterError(
+        "ekf.fidelity" if level else "ekf.model",
+        level or model.name,
+        f"a level without algebraic unknowns: one of {allowed}",
+        f"the EKF predicts with an ODE step; {model.name} has {model.nz} algebraic "
+        "unknowns (massless bodies)",
+    )

@@ -6,9 +6,11 @@ reads what is measured, updates the :class:`~.ekf.EKF` (on the plant model) with
 it applied last, and hands the inner controller the estimated states, and its other
 signals evaluated on the estimate, by name. The prediction models' state names are a
 subset of the full plant's, so this works for every prediction fidelity. Parameters the EKF
-estimates (by default the load mass) that the inner controller accepts
-(:attr:`~.base.Controller.runtime_parameters`, e.g. the NMPC's) are passed to it every
-sample through :meth:`~.base.Controller.set_parameters`, before it computes its input.
+estimates (by default the load mass), and its input and output offsets
+(:data:`~.ekf.OFFSETS`), that the inner controller accepts
+(:attr:`~.base.Controller.runtime_parameters`: the NMPC takes all, the LMPC its model's
+parameters) are passed to it every sample through
+:meth:`~.base.Controller.set_parameters`, before it computes its input.
 """
 
 from __future__ import annotations

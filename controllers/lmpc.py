@@ -15,34 +15,49 @@ is known ahead, else ``r(t)`` held; ``e_k - (r_k - r(t))`` in the increments); i
 bounds and rate limits are hard (``du = 0`` always satisfies them, so the QP is always
 feasible); lower bounds on other signals (e.g. thread tension) are soft, with one slack
 per signal (linear and quadratic penalty). The QP is condensed (only the moves and slacks
-are unknowns) and solved by ``casadi.conic`` (qpOASES or DAQP), built once; each sample
-passes flat numeric vectors.
+are unknowns). One sample at a fixed linearisation is one CasADi Function,
+:func:`velocity_law` (``(memory, x, u_prev, ref, p) -> (memory_next, u, ok)``, the QP
+inside, its matrices in ``p``): :meth:`LinearMPC.update` evaluates it every sample (DAQP),
+and the controller FMU generates its C code (DAQP linked statically from the CasADi
+wheel, :func:`law_c_build`; or qrqp, no library at all).
 
-The model is re-linearised at the measured point ``(x, u)`` when the tracked output has
-moved more than ``relinearize_m`` (default 2 mm, about a quarter of the 8.8 mm 3-APS stroke at
-20 g) from where it was last linearised, or when a parameter set at run time
-(:meth:`~.receding.RecedingHorizon.set_parameters`, e.g. the EKF's load estimate) moved more
-than ``relinearize_rel`` (default 5 %) of its value there.
+Outside the law, between samples: a Kalman filter of one constant disturbance on the
+states read (:mod:`.disturbance`; ``disturbance = "load"`` by default: the load mass), and
+re-linearisation. The model is re-linearised when the tracked output moved more than
+``relinearize_m`` (2 mm), a state more than ``relinearize_x`` of its span over the input
+range, or the input more than ``relinearize_u`` of its range from the point of the last
+linearisation, or when a parameter (the filter's load, or one set at run time by
+:meth:`~.receding.RecedingHorizon.set_parameters`, e.g. an EKF's) moved more than
+``relinearize_rel`` (5 %) of its value there, or a disturbance past the input or output
+threshold. The new point is the target (:class:`~.target.SteadyTarget`): the steady state
+with the output on the reference at the present load and disturbances, so after +50 g
+the model is the 70 g plant's where it is going (the 20 g model on the 70 g plant rang at
+3 Hz in the control-length scene); where only the measurement left the point and the
+target did not move, the measured point.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import casadi as cs
 import control as ct
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import Equilibrium
-from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .qp import qp_solver, zoh
+from .disturbance import DISTURBANCES, RANDOM_WALK, DisturbanceFilter, check_disturbance
+from .ekf import DEFAULT_STD, estimated_parameters
+from .qp import zoh
 from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
 from .registry import positive, register_controller
+from .target import SteadyTarget
 
 
 @dataclass(frozen=True)
@@ -74,10 +89,26 @@ class LMPCSettings:
     relinearize_rel : float
         Re-linearise when a parameter (one set at run time, e.g. an estimated load) moved
         this fraction of its value at the last point [-] (default 5 %: 3.5 g of 70 g).
+    relinearize_x : float
+        Re-linearise when a state moved this fraction of its span over the input range
+        (the difference of its values at the two ends, at the nominal parameters) from the
+        last point [-] (default a quarter; states equal at both ends, the velocities, do
+        not count: they are zero at every steady state).
+    relinearize_u : float
+        Re-linearise when an input moved this fraction of its range ``u_max - u_min``
+        from the last point [-] (default a quarter).
+    disturbance : str or None
+        The disturbance model of the LMPC's own Kalman filter (:mod:`.disturbance`):
+        "load", "input", "output" or "none"; None (default): "load" where the model has a
+        ``load.m``, else "input".
+    input_std, output_std : float or None
+        The filter's noise: of the input [Pa] (default 2 kPa, the EKF's) and of the
+        tracked output as read [SI] (None: :data:`~.ekf.DEFAULT_STD` of its unit).
     output : str
         The tracked signal.
     qp_solver : str
-        "daqp" (default) or "qpoases".
+        The QP solver :meth:`LinearMPC.update` evaluates the law with: "daqp" (default),
+        "qpoases" or "qrqp" (see :data:`LAW_QP`: DAQP and qrqp generate C code).
     """
 
     horizon: int = 20
@@ -90,6 +121,11 @@ class LMPCSettings:
     weight_slack: float = 1.0e4
     relinearize_m: float = 2.0e-3
     relinearize_rel: float = 0.05
+    relinearize_x: float = 0.25
+    relinearize_u: float = 0.25
+    disturbance: str | None = None
+    input_std: float = 2.0e3
+    output_std: float | None = None
     output: str = "myofibril.length"
     qp_solver: str = "daqp"
 
@@ -101,6 +137,13 @@ class LMPCSettings:
         positive("lmpc", "weight_slack", self.weight_slack)
         positive("lmpc", "relinearize_m", self.relinearize_m)
         positive("lmpc", "relinearize_rel", self.relinearize_rel)
+        positive("lmpc", "relinearize_x", self.relinearize_x)
+        positive("lmpc", "relinearize_u", self.relinearize_u)
+        positive("lmpc", "input_std", self.input_std, allow_zero=True)
+        if self.output_std is not None:
+            positive("lmpc", "output_std", self.output_std)
+        if self.disturbance is not None and self.disturbance not in DISTURBANCES:
+            raise ParameterError("lmpc.disturbance", self.disturbance, f"one of {DISTURBANCES}")
         if not self.u_min < self.u_max:
             raise ParameterError("lmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
 
@@ -121,8 +164,9 @@ class VelocityQP:
     weight_y, weight_du, weight_slack : float
     u_scale : numpy.ndarray
         Scale of each input [SI]: the QP's unknowns are ``du / u_scale``.
-    solver : casadi.Function
-        A conic solver for the sparsities :meth:`sparsities` gives.
+    solver : casadi.Function or None
+        A conic solver for the sparsities :meth:`sparsities` gives, for :meth:`solve`
+        (None in :class:`LinearMPC`: its law, :func:`velocity_law`, solves the QP).
     """
 
     Ad: np.ndarray
@@ -134,7 +178,7 @@ class VelocityQP:
     weight_du: float
     weight_slack: float
     u_scale: np.ndarray
-    solver: cs.Function
+    solver: cs.Function | None
     H: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
@@ -181,6 +225,12 @@ class VelocityQP:
         A[N * nu :, N * nu :] = np.kron(np.ones((N, 1)), np.eye(ns))
         self.A = A
 
+    def data(self) -> np.ndarray:
+        """The condensed QP as one flat vector (the ``p`` part :func:`law_function` reads):
+        ``H, G, Gr, A, Ssx`` column-major, then ``u_scale`` and ``weight_slack``."""
+        parts = (self.H, self._G, self._Gr, self.A, self._Ssx, self.u_scale, [self.weight_slack])
+        return np.concatenate([np.ravel(np.asarray(a, float), order="F") for a in parts])
+
     def sparsities(self) -> tuple[cs.Sparsity, cs.Sparsity]:
         """Dense sparsities of the Hessian and the constraint matrix."""
         return cs.Sparsity.dense(*self.H.shape), cs.Sparsity.dense(*self.A.shape)
@@ -216,6 +266,130 @@ class VelocityQP:
         return (v[: N * nu].reshape(N, nu) * self.u_scale if ok else None), ok
 
 
+LAW_QP = {
+    "qrqp": {
+        "print_iter": False,
+        "print_header": False,
+        "print_info": False,
+        "error_on_fail": False,
+        "max_iter": 200,
+    },
+    "daqp": {"error_on_fail": False},
+    "qpoases": {"printLevel": "none", "error_on_fail": False},
+}
+"""QP solvers of :func:`velocity_law`, all with CasADi C code generation. ``daqp``
+(default; DAQP, a dual active-set solver for dense QPs) generates code that includes
+``daqp/api.h`` and links DAQP, whose headers and static library CasADi's wheel ships
+(:func:`law_c_build`: the library is linked into the binary, nothing else to install).
+``qrqp`` (CasADi's own active-set solver) needs nothing at all, but factorises the
+whole KKT system sparsely: on the control-length QP (24 unknowns, 100 rows with four
+soft tension bounds) 8-13 ms interpreted and about 20 ms compiled, against 0.04 ms for the
+compiled DAQP law (without soft bounds qrqp takes 0.05 ms too). The compiled DAQP law
+gives the Python law's commands exactly (same solver, same arithmetic)."""
+
+
+def law_c_build(solver: str) -> tuple[list[str], list[str]]:
+    """What compiling :func:`velocity_law`'s generated C with ``solver`` needs: compiler
+    flags and link inputs. DAQP: the include folder and the static library ``libdaqpstat.a``
+    of the installed CasADi wheel; qrqp: nothing."""
+    if solver not in LAW_QP:
+        raise ParameterError("lmpc.qp_solver", solver, f"one of {sorted(LAW_QP)}")
+    if solver == "qrqp":
+        return [], []
+    if solver == "qpoases":
+        raise ParameterError("lmpc.qp_solver", solver, "'daqp' or 'qrqp' for C code")
+    root = Path(cs.__file__).parent
+    lib = root / "libdaqpstat.a"
+    if not (lib.is_file() and (root / "include" / "daqp").is_dir()):
+        raise SolverError(f"the DAQP headers or static library are not in {root}")
+    return [f"-I{root / 'include'}"], [str(lib)]
+
+
+LAW_TOL = 1e-6
+"""Largest scaled constraint violation of the QP's answer still accepted [-] (the solver's
+own flag is not reachable from inside a Function)."""
+
+
+def velocity_law(nx: int, nu: int, ns: int, horizon: int, solver: str = "daqp") -> cs.Function:
+    """One sample of the LMPC at a fixed linearisation as one CasADi Function::
+
+        lmpc(memory, x, u_prev, ref, p) -> (memory_next, u, ok)
+
+    ``memory = [x_prev (nx); started (1); plan (horizon nu, column-major nu x horizon)]``:
+    the states at the last sample, whether there was one, and the last plan of inputs [SI];
+    ``x = [states (nx); tracked output (1); soft signals (ns)]`` [SI] as measured now;
+    ``u_prev`` the input held since the last sample [SI]; ``ref`` the reference now
+    (clipped) and at nodes ``1..horizon`` [SI]; ``p = [VelocityQP.data(); u_lo; u_hi;
+    du_max; soft_min]`` (:meth:`LinearMPC.law_parameters`). The QP (``solver``, one of
+    :data:`LAW_QP`) is solved for the moves; ``u`` is the first input of the new plan
+    clipped into the bounds, or, when the answer is not feasible to :data:`LAW_TOL`
+    (``ok = 0``), of the last plan shifted by one sample. Re-linearisation is outside: it
+    changes ``p``.
+    """
+    N, n = horizon, nx + 1
+    nq, nv, na = N * nu, N * nu + ns, N * (nu + ns)
+    mem = cs.MX.sym("memory", nx + 1 + nq)
+    x, u_prev = cs.MX.sym("x", nx + 1 + ns), cs.MX.sym("u_prev", nu)
+    ref = cs.MX.sym("ref", N + 1)
+    sizes = [nv * nv, nq * n, nq * N, na * nv, N * ns * n, nu, 1, nu, nu, nu, ns]
+    p = cs.MX.sym("p", sum(sizes))
+    H, G, Gr, A, Ssx, us, ws, lo, hi, dmax, smin = cs.vertsplit(p, np.cumsum([0, *sizes]).tolist())
+    H, G, Gr = cs.reshape(H, nv, nv), cs.reshape(G, nq, n), cs.reshape(Gr, nq, N)
+    A, Ssx = cs.reshape(A, na, nv), cs.reshape(Ssx, N * ns, n)
+    x_prev, started, plan = mem[:nx], mem[nx], cs.reshape(mem[nx + 1 :], nu, N)
+    dx = cs.if_else(started > 0, x[:nx] - x_prev, cs.MX.zeros(nx))
+    xi0 = cs.vertcat(dx, x[nx] - ref[0])
+    gap = smin - x[nx + 1 :]
+    g = cs.vertcat(cs.mtimes(G, xi0) - cs.mtimes(Gr, ref[1:] - ref[0]), cs.repmat(ws, ns, 1))
+    lba = cs.vertcat(cs.repmat(lo - u_prev, N, 1), cs.repmat(gap, N, 1) - cs.mtimes(Ssx, xi0))
+    uba = cs.vertcat(cs.repmat(hi - u_prev, N, 1), cs.DM.inf(N * ns))
+    lbx = cs.vertcat(cs.repmat(-dmax / us, N, 1), cs.DM.zeros(ns))
+    ubx = cs.vertcat(cs.repmat(dmax / us, N, 1), cs.DM.inf(ns))
+    if solver not in LAW_QP:
+        raise ParameterError("lmpc.qp_solver", solver, f"one of {sorted(LAW_QP)}")
+    qp = cs.conic("lmpc_qp", solver, {"h": H.sparsity(), "a": A.sparsity()}, LAW_QP[solver])
+    v = qp(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)["x"]
+    Av = cs.mtimes(A, v)
+    scale = 1 + cs.fabs(Av)
+    viol = cs.mmax(cs.vertcat((lba - Av) / scale, (Av - uba) / scale, lbx - v, v - ubx, 0))
+    finite = cs.sum1(cs.fabs(v) < cs.inf) == nv  # false for a NaN
+    ok = cs.logic_and(viol <= LAW_TOL, finite)
+    moves = cs.reshape(v[:nq], nu, N) * cs.repmat(us, 1, N)
+    solved = cs.repmat(u_prev, 1, N) + cs.cumsum(moves, 1)
+    shifted = cs.horzcat(plan[:, 1:], plan[:, -1])
+    new = cs.if_else(ok, solved, shifted)
+    u = cs.fmin(cs.fmax(new[:, 0], lo), hi)
+    return cs.Function(
+        "lmpc",
+        [mem, x, u_prev, ref, p],
+        [cs.vertcat(x[:nx], 1, cs.vec(new)), u, ok],
+        ["memory", "x", "u_prev", "ref", "p"],
+        ["memory_next", "u", "ok"],
+    )
+
+
+class _Buffered:
+    """Repeated calls of a CasADi Function on bound numpy arrays (``Function.buffer``:
+    about 1 us per call instead of some 30 us of conversions per argument)."""
+
+    def __init__(self, F: cs.Function) -> None:
+        self.function = F
+        self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
+        self.res = [np.zeros(F.nnz_out(i)) for i in range(F.n_out())]
+        self.buf, self.trigger = F.buffer()
+        for i, arr in enumerate(self.args):
+            self.buf.set_arg(i, memoryview(arr))
+        for i, arr in enumerate(self.res):
+            self.buf.set_res(i, memoryview(arr))
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        """Arguments as flat arrays; copies of the outputs."""
+        for arr, value in zip(self.args, args, strict=True):
+            arr[:] = value
+        self.trigger()
+        return [r.copy() for r in self.res]
+
+
 class LinearMPC(RecedingHorizon):
     """Linear MPC of the tracked output (see the module docstring) by the regulator command.
 
@@ -234,6 +408,15 @@ class LinearMPC(RecedingHorizon):
     settings : LMPCSettings, optional
     params : mapping of str to float, optional
         Parameter overrides of ``model`` by name (SI), e.g. the plant's load.
+
+    Attributes
+    ----------
+    disturbance : str
+        The model of its own disturbance filter ("load", "input", "output", "none").
+    relinearizations : int
+        Linearisations since the last reset (the first at ``(x_op, u_op)``).
+    targets_missed : int
+        Re-linearisations where the target had no solution (at the measured point).
 
     Examples
     --------
@@ -267,32 +450,186 @@ class LinearMPC(RecedingHorizon):
         self._lin = model.linearization([s.output, *self._soft])
         self._du_max = np.full(len(names), s.rate_max * self.dt)
         self._u_scale = self._u_hi - self._u_lo
-        n_v = s.horizon * len(names) + len(self._soft)
-        n_a = s.horizon * (len(names) + len(self._soft))
-        self._solver = qp_solver(
-            s.qp_solver, cs.Sparsity.dense(n_v, n_v), cs.Sparsity.dense(n_a, n_v)
+        self._law = _Buffered(self.law_function())
+        if model.nz:
+            raise ParameterError("lmpc.model", model.name, "an explicit model (no algebraic)")
+        kind = s.disturbance or ("load" if "load.m" in model.param_names else "input")
+        self.disturbance = check_disturbance("lmpc", kind, model.param_names)
+        ends = np.vstack([e.x for e in self.clip.ends])
+        big = np.abs(ends).max(axis=0)
+        big = np.where(big > 1e-12, big, 1e-2)  # velocities (zero at rest): 1 cm/s
+        self._x_span = np.abs(ends[1] - ends[0])
+        self._x_moves = self._x_span > 1e-6 * big  # not the velocities
+        scale = np.concatenate([big, self._u_scale])
+        self._target = SteadyTarget(model, s.output, scale)
+        self._x_floor = 1e-6 * scale[: model.nx]
+        self._y_std = s.output_std or DEFAULT_STD.get(model.unit(s.output), 1e-6)
+        z = cs.SX(0, 1)
+        fy = cs.vertcat(
+            model.function("ode")(model.x, z, model.u, model.p),
+            model.signals_function([s.output])(model.x, z, model.u, model.p),
         )
-        self.relinearizations = 0
-        self._qp = self._linearize(np.asarray(x_op, float), np.asarray(u_op, float))
+        k_m = model.param_names.index("load.m") if "load.m" in model.param_names else 0
+        self._k_m = k_m
+        # the range of the estimate: the load's, +-the input range, +-the reachable span
+        if self.disturbance == "load":
+            var = model.variables["load.m"]
+            self._d_range = (var.low, var.high)
+        elif self.disturbance == "input":
+            self._d_range = (-self._u_scale[0], self._u_scale[0])
+        else:
+            span = self.clip.high - self.clip.low
+            self._d_range = (-span, span)
+        self._fy = cs.Function(
+            "fy", [model.x, model.u, model.p], [fy, cs.jacobian(fy, model.p)[:, k_m]]
+        )
+        self._op = (np.asarray(x_op, float).copy(), np.asarray(u_op, float).copy())
         self.reset(u_op)
 
-    def _linearize(self, x: np.ndarray, u: np.ndarray) -> VelocityQP:
-        A, B, C, _ = (np.array(M) for M in self._lin(x, np.zeros(0), u, self._p))
-        Ad, Bd = zoh(A, B, self.dt)
+    def law_function(self, solver: str | None = None) -> cs.Function:
+        """The law of one sample at a fixed linearisation, :func:`velocity_law` for this
+        controller's sizes: :meth:`update` evaluates it every sample with
+        ``settings.qp_solver`` (after re-linearising when due, which only changes
+        :meth:`law_parameters`); the controller FMU generates C code from it (DAQP:
+        compile with :func:`law_c_build`; qrqp: no library, slower with soft bounds)."""
         s = self.settings
+        return velocity_law(
+            self.model.nx, len(self.inputs), len(self._soft), s.horizon, solver or s.qp_solver
+        )
+
+    def law_parameters(self) -> np.ndarray:
+        """The ``p`` of :meth:`law_function` at the present linearisation: the condensed
+        QP (:meth:`VelocityQP.data`), the input bounds, the largest move per sample and the
+        soft lower bounds [SI]."""
+        return np.concatenate(
+            [self._qp.data(), self._u_lo, self._u_hi, self._du_max, self._soft_min]
+        )
+
+    @property
+    def memory(self) -> np.ndarray:
+        """The ``memory`` of :meth:`law_function` now (see :func:`velocity_law`)."""
+        return self._memory.copy()
+
+    def _linearize(self, x: np.ndarray, u: np.ndarray) -> VelocityQP:
+        """The QP of the model linearised at ``(x, u)`` with the present parameters and
+        disturbances; the disturbance filter restarts there (its variance kept)."""
+        s, nx = self.settings, self.model.nx
+        d_in, d_out = self._d
+        ue = u + d_in
+        A, B, C, D = (np.array(M) for M in self._lin(x, np.zeros(0), ue, self._p))
+        Ad, Bd = zoh(A, B, self.dt)
+        fy, fy_m = (np.array(v, dtype=float).ravel() for v in self._fy(x, ue, self._p))
+        _, drift = zoh(A, fy[:nx, None], self.dt)  # one sample's motion of the point itself
         qp = VelocityQP(
             Ad, Bd, C[:1], C[1:], s.horizon, s.weight_y, s.weight_du, s.weight_slack,
-            self._u_scale, self._solver,
+            self._u_scale, None,
         )  # fmt: skip
-        out = self.model.signals_function([s.output])(x, np.zeros(0), u, self._p)
-        self._y_lin, self._p_lin = float(out), self._p.copy()
+        self._y_lin, self._p_lin, self._d_lin = (
+            float(fy[nx]) + d_out,
+            self._p.copy(),
+            self._d.copy(),
+        )
         self._lin_point = (x.copy(), u.copy(), self._y_lin)
+        self._drift, self._D = drift[:, 0], D[0]
         self.relinearizations += 1
+        self._p_law = None  # rebuilt by law_parameters() on the next update
+        if self.disturbance == "none":
+            return qp
+        if self.disturbance == "load":
+            _, Ed = zoh(A, fy_m[:nx, None], self.dt)
+            E = np.concatenate([Ed[:, 0], fy_m[nx:]])
+        elif self.disturbance == "input":
+            E = np.concatenate([Bd[:, 0], D[0]])
+        else:
+            E = np.concatenate([np.zeros(nx), [1.0]])
+        S = np.zeros((nx + 1, nx + 1))
+        S[:nx, :nx] = s.input_std**2 * Bd @ Bd.T + np.diag(self._x_floor**2)
+        S[nx, nx] = self._y_std**2
+        q = self.dt * RANDOM_WALK[self.disturbance] ** 2
+        variance = 10 * q if self._filter is None else self._filter.variance
+        self._filter = DisturbanceFilter(E, S, q, variance)
         return qp
+
+    @property
+    def disturbance_estimate(self) -> float:
+        """The estimated disturbance now [SI]: the load mass [kg], the input offset [Pa],
+        the output offset [SI], or 0 for ``"none"``."""
+        if self.disturbance == "load":
+            return float(self._p[self._k_m])
+        return float(self._d[0] if self.disturbance == "input" else self._d[1])
+
+    def _estimate(self, x: np.ndarray, out: float) -> None:
+        """Correct the disturbance filter with this sample's residual (module docstring of
+        :mod:`.disturbance`) and move the disturbance the prediction uses."""
+        nx, qp = self.model.nx, self._qp
+        x_l, u_l, y_l = self._lin_point
+        du = self._u - u_l
+        e_x = x - x_l - qp.Ad @ (self._memory[:nx] - x_l) - qp.Bd @ du - self._drift
+        e_y = out - y_l - qp.C[0] @ (x - x_l) - self._D @ du
+        d = self._filter.update(np.concatenate([e_x, [e_y]]))
+        if self.disturbance == "load":
+            base = self._p_lin[self._k_m]
+        else:
+            k = 0 if self.disturbance == "input" else 1
+            base = self._d_lin[k]
+        value = float(np.clip(base + d, *self._d_range))
+        self._filter.value = value - base  # kept inside its range, like the EKF's
+        if self.disturbance == "load":
+            self._p[self._k_m] = value
+        else:
+            self._d[k] = value
+
+    def _far(self, x: np.ndarray, u: np.ndarray, y: float) -> bool:
+        """Whether ``(x, u, y)`` is past a threshold from the linearisation point: the
+        output, a state (of its span) or the input (of its range); see
+        :class:`LMPCSettings`."""
+        s = self.settings
+        x_l, u_l, y_l = self._lin_point
+        moved = np.abs(x - x_l)[self._x_moves] > s.relinearize_x * self._x_span[self._x_moves]
+        return bool(
+            abs(y - y_l) > s.relinearize_m
+            or np.any(moved)
+            or np.any(np.abs(u - u_l) > s.relinearize_u * self._u_scale)
+        )
+
+    def _moved(self) -> bool:
+        """Whether a parameter or a disturbance moved past its threshold from the values
+        at the linearisation (:class:`LMPCSettings`)."""
+        s = self.settings
+        dd = np.abs(self._d - self._d_lin)
+        return bool(
+            np.any(np.abs(self._p - self._p_lin) > s.relinearize_rel * np.abs(self._p_lin))
+            or dd[0] > s.relinearize_u * self._u_scale[0]
+            or dd[1] > s.relinearize_m
+        )
+
+    def _relinearize(self, x: np.ndarray, ref: float, moved: bool) -> None:
+        """Linearise at the target: the steady state with the output on ``ref`` at the
+        present parameters and disturbances (:class:`~.target.SteadyTarget`). Where these
+        did not move (``moved`` false: the measurement left the point) and the target is
+        still near the present point (the loop is on its way there), or where there is no
+        target (counted in :attr:`targets_missed`), at the measured point ``(x, u)``. Newton
+        starts from the last target found (a steady state)."""
+        try:
+            xs, us = self._target(self._steady, ref, self._p, *self._d)
+        except SolverError:
+            self.targets_missed += 1
+            xs, us = x, self._u
+        else:
+            self._steady = np.concatenate([xs, us])
+            if not (moved or self._far(xs, us, ref - self._d[1])):
+                xs, us = x, self._u
+        self._qp = self._linearize(xs, us)
 
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
-        self._x_prev: np.ndarray | None = None
+        nx, N = self.model.nx, self.settings.horizon
+        self._memory = np.concatenate([np.zeros(nx + 1), np.tile(self._u, N)])
+        # the operating point's model again, with the nominal parameters, no disturbance
+        self._d, self._filter = np.zeros(2), None
+        self.relinearizations, self.targets_missed = 0, 0
+        self._steady = np.concatenate(self._op)
+        self._qp = self._linearize(*self._op)
 
     def as_iosystem(self) -> ct.NonlinearIOSystem:
         """The law as a discrete python-control I/O system, in deviations from the point of
@@ -301,15 +638,18 @@ class LinearMPC(RecedingHorizon):
         ``state_names + [output]``), output the input; states the last states and input.
         A linear plant needs no re-linearisation, reference clip or soft bound: none here.
         """
-        m, n = self.model, self.model.nx
+        m, n, N, ns = self.model, self.model.nx, self.settings.horizon, len(self._soft)
         x_op, u_op, _ = self._lin_point
-        off = np.full(len(self._soft), -np.inf)  # soft bounds inactive
+        p = self.law_parameters()
+        p[len(p) - ns :] = -np.inf  # soft bounds inactive
+        f = self.law_function()
 
         def law(xs, inp):
             x_prev, u_prev, x = x_op + xs[:n], u_op + xs[n:], x_op + inp[1 : 1 + n]
-            xi0 = np.concatenate([x - x_prev, [inp[1 + n] - inp[0]]])
-            du, ok = self._qp.solve(xi0, u_prev, self._u_lo, self._u_hi, self._du_max, off)
-            return np.clip(u_prev + du[0] if ok else u_prev, self._u_lo, self._u_hi)
+            memory = np.concatenate([x_prev, [1.0], np.tile(u_prev, N)])
+            meas = np.concatenate([x, [inp[1 + n]], np.zeros(ns)])
+            _, u, _ = f(memory, meas, u_prev, np.full(N + 1, inp[0]), p)
+            return np.array(u).ravel()
 
         return ct.nlsys(
             lambda t, xs, inp, params: np.concatenate([inp[1 : 1 + n], law(xs, inp) - u_op]),
@@ -330,17 +670,21 @@ class LinearMPC(RecedingHorizon):
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
         out = float(y[s.output])
         ref = self.clip(r)
-        moved = np.abs(self._p - self._p_lin) > s.relinearize_rel * np.abs(self._p_lin)
-        if abs(out - self._y_lin) > s.relinearize_m or np.any(moved):
-            self._qp = self._linearize(x, self._u)
-        dx = np.zeros_like(x) if self._x_prev is None else x - self._x_prev
-        self._x_prev = x
-        soft_now = np.array([y[n] for n in self._soft], dtype=float) if self._soft else None
-        gap = self._soft_min - soft_now if self._soft else np.zeros(0)
-        xi0 = np.concatenate([dx, [out - ref]])
-        ahead = self.nodes(ref) - ref  # the reference ahead, relative to r(t)
-        du, ok = self._qp.solve(xi0, self._u, self._u_lo, self._u_hi, self._du_max, gap, ahead)
-        return self.apply(self._u + np.cumsum(du, axis=0) if ok else None)
+        if self._filter is not None and self._memory[self.model.nx] > 0:
+            self._estimate(x, out)
+        moved = self._moved()
+        if moved or self._far(x, self._u, out):
+            self._relinearize(x, ref, moved)
+        if self._p_law is None:
+            self._p_law = self.law_parameters()
+        meas = np.concatenate([x, [out], [y[n] for n in self._soft]])
+        refs = np.concatenate([[ref], self.nodes(ref)])
+        self._memory, u, ok = self._law(self._memory, meas, self._u, refs, self._p_law)
+        if not ok[0]:
+            self.stats.fallbacks += 1
+        self._plan = self._memory[self.model.nx + 1 :].reshape(s.horizon, -1)
+        self._u = u
+        return dict(zip(self.inputs, u.tolist(), strict=True))
 
 
 def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Controller:
@@ -350,8 +694,17 @@ def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     ``tension_min`` (if set) becomes a soft lower bound on every thread tension. Own keys:
     the other :class:`LMPCSettings` fields, ``estimator`` ("none", or "ekf": run on an
     EKF fed the ``measured`` signals, see :mod:`.estimated`) and ``ekf`` (its settings).
+    The output's noise (``noise_std``) sets ``output_std`` unless given. On an EKF that
+    estimates a parameter of the model (by default the load), the estimate is fed to the
+    LMPC and ``disturbance`` defaults to "none" (the EKF's estimate, not a second one).
     """
     own, est, ekf_settings = mpc_settings("lmpc", model, settings, LMPCSettings, {})
+    noise = (settings.get("noise_std") or {}).get(settings["output"])
+    if own["output_std"] is None and noise:
+        own["output_std"] = float(noise)
+    if est == "ekf" and "disturbance" not in settings:
+        fed = set(estimated_parameters(model, ekf_settings)) & set(model.param_names)
+        own["disturbance"] = "none" if fed else own["disturbance"]
     tmin = settings.get("tension_min")
     soft = own.pop("soft_min")
     if tmin is not None:

@@ -13,8 +13,10 @@ and the collocation states. Cost ``sum_k weight_y (y_k - r_k)^2 + weight_du (u_k
 with ``r_k`` the reference at node ``k`` (``t + k dt``): the values handed over by
 :meth:`~.receding.RecedingHorizon.set_preview` when the reference is known ahead, else
 ``r(t)`` at every node;
-constraints: the input within ``[u_min, u_max]``, its rate within ``rate_max``, and every
-thread tension ``>= tension_min`` at every node from ``k = 1`` on (hard: no slack).
+plus ``terminal_weight (y_N - r_N)^2``; constraints: the input within ``[u_min, u_max]``,
+its rate within ``rate_max``, and every thread tension ``>= tension_min`` at every node
+from ``k = 1`` on: soft by default (one slack per node, exact L1 plus quadratic penalty:
+the hard solution wherever that is feasible), hard with ``soft_constraints = False``.
 
 Solvers (``NMPCSettings.solver``):
 
@@ -24,7 +26,9 @@ Solvers (``NMPCSettings.solver``):
 * ``"rti"``: real-time iteration (one Gauss-Newton SQP step per sample) on the multiple-
   shooting form: each interval is integrated by the same Radau IIA equations solved by
   Newton, its sensitivities come from the implicit function theorem, the QP is condensed onto
-  the input moves in one CasADi Function and solved by ``casadi.conic`` (DAQP or qpOASES).
+  the input moves and solved by ``casadi.conic`` (DAQP by default), all in pure CasADi
+  Functions (preparation, feedback, update; :meth:`NonlinearMPC.law_function` composes
+  them into one law), optionally generated to C and compiled (``compiled``).
 
 Parameters of the prediction (the load, the geometry, the regulator) are run-time inputs of
 the solver's Function, not constants: :meth:`NonlinearMPC.set_parameters` changes them
@@ -43,8 +47,10 @@ by one sample and is counted in ``stats.fallbacks``.
 
 from __future__ import annotations
 
+import ctypes
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as cs
 import numpy as np
@@ -55,13 +61,34 @@ from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
 from .base import Controller
-from .ekf import estimated_parameters
+from .ekf import OFFSETS, estimated_parameters
 from .qp import qp_solver
-from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
+from .receding import (
+    TENSION,
+    RecedingHorizon,
+    check_horizon,
+    ekf_disturbance,
+    mpc_settings,
+    with_estimator,
+)
 from .registry import count, positive, register_controller
+from .rti_compiled import compiled_functions
 
 SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
+
+LINEAR_SOLVERS = ("auto", "lapacklu", "lapackqr", "qr")
+"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense LU (the fastest:
+"auto") or QR, or CasADi's own sparse QR (the one that generates C, 1.3 against 0.97 ms
+for the 20 intervals compiled)."""
+
+QP_FEASIBLE = 1e-6
+"""Largest violation (rows scaled by ``1 + |A du|``, bounds in scaled input units) of a QP
+answer the real-time iteration accepts; above it the sample falls back."""
+
+SLACK_UNIT = 1e-3
+"""The unit [N] of the tension slacks inside the RTI's QP (mN: keeps the slack columns of
+the QP's matrices near the input moves' magnitude)."""
 
 MAX_ITER = 1000
 """Largest NLP iteration limit per sample (ipopt, fatrop): the warm-started solves here
@@ -96,15 +123,44 @@ class NMPCSettings:
     max_iter : int
         NLP iteration limit (ipopt, fatrop).
     qp_solver : str
-        QP solver of the real-time iteration: "daqp" or "qpoases".
+        QP solver of the real-time iteration: "daqp" (default: its generated C compiles
+        against the static DAQP library and headers the casadi wheel ships, so the law
+        exports with libc as its only dependency), "qrqp" (self-contained C, but it cycles
+        on the degenerate active sets of a start at an input bound: a fallback, hundreds
+        of iterations), "qpoases" or "hpipm" (not code-generable here).
     output : str
         The tracked signal.
     integral_gain : float
         Integral action [1/s]: the reference given to the optimiser is moved by
-        ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound), so
+        ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound or
+        moves at the rate limit: anti-windup), so
         a load or model error the prediction does not know leaves no steady offset; 0
         turns it off (:func:`make_nmpc` on an EKF that feeds the load estimate defaults to
         0: the prediction then knows the load).
+    terminal_weight : float
+        Extra weight of the squared tracking error at the last node [1/m^2], added to
+        ``weight_y`` there (default 0: the 0.2 s horizon outlasts the regulator lag and
+        the chain's settling, so the last node needs no extra pull; raise it for short
+        horizons).
+    compiled : bool
+        Run the RTI as generated C, compiled with gcc and cached on disk
+        (:mod:`.rti_compiled`): the linearisation, the condensing, the feedback and the
+        update; the lifted linear solves stay LAPACK calls (``linear_solver``). Default
+        false (BENCHMARKS.md, section 5: measured compile time against the time saved).
+    linear_solver : str
+        Linear solver of the lifted Radau equations: "lapacklu", "lapackqr", "qr" (the
+        one that generates C: use it for a law to export) or "auto" (default: LAPACK LU).
+    soft_constraints : bool
+        Soften the thread-tension bounds (default true): every bound row of every node
+        gets a slack ``s >= 0`` [N] costing ``tension_l1 s + tension_l2 s^2``; false keeps
+        them hard (an infeasible QP is then a fallback).
+    tension_l1 : float
+        Exact (L1) penalty of a tension slack [1/N]. Above the bounds' multipliers (up to
+        about 2e3 1/N in the venting test at 0.2 N, ``tests/controllers/test_nmpc.py``),
+        so the soft solution is the hard one whenever the hard one is feasible.
+    tension_l2 : float
+        Quadratic penalty of a tension slack [1/N^2] (keeps the slack's QP block
+        positive definite).
     """
 
     horizon: int = 20
@@ -121,6 +177,12 @@ class NMPCSettings:
     qp_solver: str = "daqp"
     output: str = "myofibril.length"
     integral_gain: float = 5.0
+    terminal_weight: float = 0.0
+    compiled: bool = False
+    linear_solver: str = "auto"
+    soft_constraints: bool = True
+    tension_l1: float = 1.0e6
+    tension_l2: float = 1.0e6
 
     def __post_init__(self) -> None:
         check_horizon("nmpc.horizon", self.horizon)
@@ -129,6 +191,20 @@ class NMPCSettings:
         positive("nmpc", "weight_du", self.weight_du, allow_zero=True)
         positive("nmpc", "rate_max", self.rate_max)
         positive("nmpc", "tol", self.tol)
+        positive("nmpc", "terminal_weight", self.terminal_weight, allow_zero=True)
+        positive("nmpc", "tension_l1", self.tension_l1)
+        positive("nmpc", "tension_l2", self.tension_l2, allow_zero=True)
+        for name in ("soft_constraints", "compiled"):
+            if not isinstance(getattr(self, name), bool):
+                raise ParameterError(f"nmpc.{name}", getattr(self, name), "true or false")
+        if self.linear_solver not in LINEAR_SOLVERS:
+            raise ParameterError(
+                "nmpc.linear_solver", self.linear_solver, f"one of {LINEAR_SOLVERS}"
+            )
+        if self.compiled and self.solver != "rti":
+            raise ParameterError(
+                "nmpc.compiled", True, "false with solver ipopt or fatrop", "only the RTI compiles"
+            )
         count("nmpc.max_iter", self.max_iter, 1, MAX_ITER, "a limit per sample, not a budget")
         if not self.u_min < self.u_max:
             raise ParameterError("nmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
@@ -153,22 +229,27 @@ def radau_residual(f: cs.Function, nx: int, nu: int, degree: int) -> cs.Function
 
 
 class _Problem:
-    """The prediction model in scaled variables: ``x = xs * xi``, ``u = us * v``; the
-    model's parameter vector ``p`` [SI, in ``model.param_names`` order] is an argument of
-    every Function, so the parameters are run-time inputs, not constants."""
+    """The prediction model in scaled variables: ``x = xs * xi``, ``u = us * v``. The
+    vector ``p`` is the model's parameters [SI, in ``model.param_names`` order] followed by
+    the two disturbances of :data:`~.ekf.OFFSETS` (:attr:`NonlinearMPC.offsets`): a
+    constant added to every input in the prediction [SI of the input] and one added to the
+    tracked output [SI] (0: none); ``p`` is an argument of every Function, so all are
+    run-time inputs, not constants."""
 
     def __init__(self, model: Model, s: NMPCSettings, dt: float, xs: np.ndarray) -> None:
         m = model
-        self.nx, self.nu, self.np = m.nx, len(m.input_names), m.p.numel()
+        n_model = m.p.numel()
+        self.nx, self.nu, self.np = m.nx, len(m.input_names), n_model + len(OFFSETS)
         self.xs, self.us = xs, np.full(self.nu, s.u_max - s.u_min)
         xi, v, p = cs.SX.sym("xi", self.nx), cs.SX.sym("v", self.nu), cs.SX.sym("p", self.np)
-        x, u = xi * xs, v * self.us
-        ode = m.function("ode")(x, cs.SX(0, 1), u, p) / xs
+        pm, d_in, d_out = p[:n_model], p[n_model], p[n_model + 1]
+        x, u = xi * xs, v * self.us + d_in
+        ode = m.function("ode")(x, cs.SX(0, 1), u, pm) / xs
         # the parameters ride along with the input: constant over an interval, like it
         self.f = cs.Function("f", [xi, cs.vertcat(v, p)], [ode])
         self.tensions = [n for n in m.signal_names if TENSION.fullmatch(n)]
-        sig = m.signals_function([s.output, *self.tensions])(x, cs.SX(0, 1), u, p)
-        self.y = cs.Function("y", [xi, p], [sig[0]])
+        sig = m.signals_function([s.output, *self.tensions])(x, cs.SX(0, 1), u, pm)
+        self.y = cs.Function("y", [xi, p], [sig[0] + d_out])
         self.T = cs.Function("T", [xi, p], [sig[1:]])
         self.res = radau_residual(self.f, self.nx, self.nu + self.np, s.degree)
         self.dt, self.s = dt, s
@@ -195,29 +276,45 @@ class _CollocationNLP:
 
         inf, dv = np.inf, s.rate_max * pb.dt / pb.us
         vlo, vhi = s.u_min / pb.us, s.u_max / pb.us
-        # stage k: variables [s_k, u_k, V_k]; constraints: the gap to s_{k+1} first, then
+        # stage k: variables [s_k, u_k, V_k, sigma_k]; constraints: the gap to s_{k+1} first, then
         # the stage's own (the order fatrop's structure detection reads)
         S = cs.SX.sym("S0", nx + nu)
         w.append(S), lbw.extend([-inf] * (nx + nu)), ubw.extend([inf] * (nx + nu))
+        ns = 1 if s.soft_constraints else 0  # one tension slack [N] per node
+
+        def tension(X, sigma):
+            """The node's tension bounds, softened by its slack ``sigma`` (cost added)."""
+            if not ns:
+                con(pb.T(X, p), s.tension_min, inf, False)
+                return 0
+            con(pb.T(X, p) + sigma, s.tension_min, inf, False)
+            return s.tension_l1 * sigma + s.tension_l2 * sigma**2
+
+        wy = [s.weight_y] * (N - 1) + [s.weight_y + s.terminal_weight]
         for k in range(N):
             V, Xc = cs.SX.sym(f"U{k}", nu), cs.SX.sym(f"Xc{k}", nx * d)
-            w += [V, Xc]
-            lbw.extend([*vlo, *[-inf] * (nx * d)]), ubw.extend([*vhi, *[inf] * (nx * d)])
+            sig = cs.SX.sym(f"sigma{k}", ns)
+            w += [V, Xc, sig]
+            lbw.extend([*vlo, *[-inf] * (nx * d), *[0.0] * ns])
+            ubw.extend([*vhi, *[inf] * (nx * d), *[inf] * ns])
             X, Vp = S[:nx], S[nx:]
             S_next = cs.SX.sym(f"S{k + 1}", nx + nu)
             w.append(S_next), lbw.extend([-inf] * (nx + nu)), ubw.extend([inf] * (nx + nu))
             con(S_next - cs.vertcat(Xc[-nx:], V), 0, 0, True)
             if k == 0:
                 con(S - cs.vertcat(xi0, vprev), 0, 0, True)
+                J += s.tension_l1 * cs.sum1(sig)  # node 0 is measured: no bound, slack 0
             else:
-                con(pb.T(X, p), s.tension_min, inf, False)
+                J += tension(X, sig)
             con(pb.res(X, Xc, cs.vertcat(V, p), pb.dt), 0, 0, True)
             con(V - Vp, -dv, dv, False)
             J += s.weight_du * cs.sumsqr((V - Vp) * pb.us)
-            J += s.weight_y * (pb.y(S_next[:nx], p) - ref[k]) ** 2
+            J += wy[k] * (pb.y(S_next[:nx], p) - ref[k]) ** 2
             S = S_next
-        con(pb.T(S[:nx], p), s.tension_min, inf, False)
-        self.stage = nx + nu + nu + nx * d
+        sig = cs.SX.sym("sigmaN", ns)
+        w.append(sig), lbw.extend([0.0] * ns), ubw.extend([inf] * ns)
+        J += tension(S[:nx], sig)
+        self.stage, self.ns = nx + nu + nu + nx * d + ns, ns
         nlp = {"x": cs.vertcat(*w), "p": P, "f": J, "g": cs.vertcat(*g)}
         if solver == "ipopt":
             opts = {
@@ -247,12 +344,13 @@ class _CollocationNLP:
             "ubg": np.array(ubg),
         }
         self.pb, self.warm = pb, {}
+        self.slack = 0.0  # the last solution's largest tension slack [N]
 
     def initial(self, xi: np.ndarray, v: np.ndarray) -> np.ndarray:
         """A guess holding the state ``xi`` and input ``v`` over the horizon."""
-        d = self.pb.s.degree
-        stage = np.concatenate([xi, v, v, np.tile(xi, d)])
-        return np.concatenate([np.tile(stage, self.pb.s.horizon), xi, v])
+        d, zero = self.pb.s.degree, np.zeros(self.ns)
+        stage = np.concatenate([xi, v, v, np.tile(xi, d), zero])
+        return np.concatenate([np.tile(stage, self.pb.s.horizon), xi, v, zero])
 
     def solve(
         self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray
@@ -277,6 +375,10 @@ class _CollocationNLP:
         else:
             self.warm = {}
         nx, nu, N = pb.nx, pb.nu, pb.s.horizon
+        if self.ns:  # the slacks: each stage's last variable, and the very last
+            self.slack = float(
+                max(wopt[self.stage - 1 : N * self.stage : self.stage].max(), wopt[-1])
+            )
         idx = nx + nu + np.arange(N)[:, None] * self.stage + np.arange(nu)[None, :]
         return wopt[idx] * pb.us, ok
 
@@ -289,7 +391,8 @@ def _shift(w: np.ndarray, stage: int, n: int) -> np.ndarray:
 
 
 class _RealTimeIteration:
-    """One Gauss-Newton SQP step per sample on the lifted collocation form, condensed.
+    """One Gauss-Newton SQP step per sample on the lifted collocation form, condensed, as
+    pure CasADi Functions of a flat ``memory`` vector (no Python state in the law).
 
     The guess holds the node states, the inputs and the collocation states of every
     interval. Per interval the Radau equations ``R(V, x, v) = 0`` are linearised once at
@@ -297,121 +400,369 @@ class _RealTimeIteration:
     ``dV0 = -R_V^{-1} R`` and ``S = -R_V^{-1} [R_x, R_v]`` from one factorisation, so
     the interval's end is ``x_end + dx_end`` linear in ``(dx, dv)``. The node gaps, the
     tracking and move residuals (Gauss-Newton) and the linearised tension constraints are
-    condensed onto the input moves.
+    condensed onto the corrections of the input moves ``dm`` (the QP's variables: the
+    rate limits are then bounds), with one tension slack per node when the bounds are
+    soft.
+
+    Three Functions, composed into one :attr:`law`:
+
+    * :attr:`prepare` ``(memory, x, u_prev, p) -> data``: the lifting, the linearisation
+      and the condensing. Everything condensed is affine in the measured state, the
+      previous input and the reference, so none of them enters here, except when memory
+      holds no guess (the first sample, or after a fallback): the guess is then the
+      measured state and the previous input held.
+    * :attr:`feedback` ``(data, memory, x, u_prev, ref) -> (u, violation, fallback,
+      slack, step)``: the affine update of the QP's gradient and bounds, the QP and the
+      command: the measurement-to-command latency.
+    * :attr:`update` ``(data, memory, x, u_prev, step) -> memory_next``: the next guess
+      (the corrected trajectory shifted by one sample) and the plan, after the command.
+
+    Memory layout (:attr:`slices`): the guess ``Xb`` (nx x N+1), ``Ub`` (nu x N),
+    ``Vb`` (nx degree x N), all scaled and column-major, a 0/1 flag "holds a guess", the
+    last plan [SI] (nu x N) and a 0/1 flag "holds a plan".
+
+    Fallback (:meth:`~.receding.RecedingHorizon.apply`'s logic, by ``if_else``): the QP's
+    answer counts as failed when its violation exceeds :data:`QP_FEASIBLE` or the answer
+    or the linearisation is not finite; the guess is then dropped (the next sample
+    restarts from the measurement) and the command is the previous plan shifted by one
+    sample (its last input repeated), else, with no plan yet, the previous input held.
     """
 
     def __init__(self, pb: _Problem) -> None:
-        s, nx, nu, d, N = pb.s, pb.nx, pb.nu, pb.s.degree, pb.s.horizon
+        nx, nu, d, N = pb.nx, pb.nu, pb.s.degree, pb.s.horizon
+        self.pb, self.N = pb, N
+        sizes = {
+            "Xb": nx * (N + 1),
+            "Ub": nu * N,
+            "Vb": nx * d * N,
+            "has_guess": 1,
+            "plan": nu * N,
+            "has_plan": 1,
+        }
+        self.slices, start = {}, 0
+        for name, n in sizes.items():
+            self.slices[name] = slice(start, start + n)
+            start += n
+        self.n_memory = start
+        self._lifts(pb)
+        head = self._head_function()
+        tail = self._tail_function(head)
+        self.prepare = self._prepare_function(head, tail)
+        self.feedback = self._feedback_function()
+        self.update = self._update_function()
+        mem, x, u, ref = (cs.MX.sym(n, k) for n, k in self._io())
+        p = cs.MX.sym("p", pb.np)
+        data = self.prepare(mem, x, u, p)
+        u_now, viol, fallback, slack, step = self.feedback(data, mem, x, u, ref)
+        self.law = cs.Function(
+            "nmpc_law",
+            [mem, x, u, ref, p],
+            [self.update(data, mem, x, u, step), u_now, viol, fallback, slack],
+            ["memory", "x", "u_prev", "ref", "p"],
+            ["memory_next", "u", "violation", "fallback", "slack"],
+        )
+        parts = [self.prepare, self.feedback, self.update]
+        if pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
+            built = compiled_functions([head, tail, self.feedback, self.update], "nmpc_rti")
+            parts = [self._prepare_function(built["nmpc_head"], built["nmpc_tail"])]
+            parts += [built["nmpc_feedback"], built["nmpc_update"]]
+        self.calls = dict(zip(("prepare", "feedback", "update"), map(_Call, parts), strict=True))
+        self.reset()
+
+    def _io(self) -> list[tuple[str, int]]:
+        return [("memory", self.n_memory), ("x", self.pb.nx), ("u_prev", self.pb.nu),
+                ("ref", self.N)]  # fmt: skip
+
+    def reset(self) -> None:
+        """Forget the guess, the plan and the prepared data."""
+        self.memory = np.zeros(self.n_memory)
+        self.data: np.ndarray | None = None
+        self.data_p: np.ndarray | None = None
+
+    def sample(self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray):
+        """One sample split as in real time: the preparation made after the previous one
+        (redone now if memory holds no guess or the parameters changed), the feedback,
+        then the update and the next preparation. Equal to :attr:`law` (the same
+        Functions); returns ``(u, violation, fallback, slack)`` as arrays."""
+        c = self.calls
+        if self.data is None or not np.array_equal(p, self.data_p):
+            self.data = c["prepare"](self.memory, x, u_prev, p)[0]
+        u, viol, fallback, slack, step = c["feedback"](self.data, self.memory, x, u_prev, ref)
+        self.memory = c["update"](self.data, self.memory, x, u_prev, step)[0]
+        self.data = None
+        if self.memory[self.slices["has_guess"]][0]:  # between samples: x, u unused
+            self.data = c["prepare"](self.memory, x, u, p)[0]
+            self.data_p = p.copy()
+        return u, viol, fallback, slack
+
+    def _lifts(self, pb: _Problem) -> None:
+        """The per-interval linearisation, its linear solves (both mapped over the horizon)
+        and the outputs' linearisation."""
+        nx, nu, d, N = pb.nx, pb.nu, pb.s.degree, pb.s.horizon
         V, xi, v = cs.SX.sym("V", nx * d), cs.SX.sym("xi", nx), cs.SX.sym("v", nu)
         ps = cs.SX.sym("p", pb.np)
         R = pb.res(xi, V, cs.vertcat(v, ps), pb.dt)
-        lin = cs.Function(
-            "radau_lin",
-            [V, xi, v, ps],
-            [R, cs.jacobian(R, V), cs.jacobian(R, cs.vertcat(xi, v))],
-        )
-        Vm, xm, vm = cs.MX.sym("V", nx * d), cs.MX.sym("xi", nx), cs.MX.sym("v", nu)
-        pm = cs.MX.sym("p", pb.np)
-        Rk, RV, Rp = lin(Vm, xm, vm, pm)
-        # LAPACK QR: LU (dgetrf) of this size goes multi-threaded in the OpenBLAS CasADi ships
-        # and ran 5-7x slower whenever the other core was busy (QR: 1.4 ms either way)
-        sol = -cs.solve(RV, cs.horzcat(Rk, Rp), "lapackqr")  # [dV0, S]
-        lift = cs.Function("lift", [Vm, xm, vm, pm], [sol]).map(N)
+        RV, RB = cs.jacobian(R, V), cs.horzcat(R, cs.jacobian(R, cs.vertcat(xi, v)))
+        # common subexpressions of both Jacobians merged: 5114 instead of 6077 instructions
+        self.lin = cs.Function("radau_lin", [V, xi, v, ps], cs.cse([RV, RB])).map(N)
+        linsol = "lapacklu" if pb.s.linear_solver == "auto" else pb.s.linear_solver
+        if linsol.startswith("lapack"):
+            _one_blas_thread()
+        A, B = cs.MX.sym("RV", RV.sparsity()), cs.MX.sym("RB", RB.sparsity())
+        self.solve = cs.Function("lift_solve", [A, B], [-cs.solve(A, B, linsol)]).map(N)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
-        outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
-        nT = len(pb.tensions)
-        # the condensing, one MX Function of the guess, the measurement and the parameters
-        Xb, Ub = cs.MX.sym("Xb", nx, N + 1), cs.MX.sym("Ub", nu, N)
-        Vb = cs.MX.sym("Vb", nx * d, N)
-        x0, vp, ref = cs.MX.sym("x0", nx), cs.MX.sym("vp", nu), cs.MX.sym("ref", N)
+        self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
+
+    def _guess(self, mem: cs.MX, xi0: cs.MX, vp: cs.MX) -> tuple[cs.MX, cs.MX, cs.MX]:
+        """The guess in memory, or the measured state and previous input held."""
+        nx, nu, d, N = self.pb.nx, self.pb.nu, self.pb.s.degree, self.N
+        sl, has = self.slices, mem[self.slices["has_guess"]]
+        Xb = cs.if_else(has, cs.reshape(mem[sl["Xb"]], nx, N + 1), cs.repmat(xi0, 1, N + 1))
+        Ub = cs.if_else(has, cs.reshape(mem[sl["Ub"]], nu, N), cs.repmat(vp, 1, N))
+        Vb = cs.if_else(has, cs.reshape(mem[sl["Vb"]], nx * d, N), cs.repmat(xi0, d, N))
+        return Xb, Ub, Vb
+
+    def _head_function(self) -> cs.Function:
+        """(memory, x, u_prev, p) -> the guess, the Radau equations' residuals and
+        Jacobians per interval, and the outputs' linearisation (all but the solves)."""
+        pb, N = self.pb, self.N
+        mem, x, u = (cs.MX.sym(n, k) for n, k in self._io()[:3])
         p = cs.MX.sym("p", pb.np)
+        Xb, Ub, Vb = self._guess(mem, x / pb.xs, u / pb.us)
         P = cs.repmat(p, 1, N)
-        L = lift(Vb, Xb[:, :N], Ub, P)  # (nx d) x (N (1 + nx + nu))
-        YT, CYT = outs(Xb[:, 1:], P)
-        w = 1 + nx + nu
-        a = x0 - Xb[:, 0]  # dx_0 = a_0 + G_0 dv, G_0 = 0
-        Gk = cs.MX(nx, N * nu)
-        rows_a, rows_G = [a], [Gk]
+        RV, RB = self.lin(Vb, Xb[:, :N], Ub, P)
+        YT, CYT = self.outs(Xb[:, 1:], P)
+        names = ["Xb", "Ub", "Vb", "RV", "RB", "YT", "CYT"]
+        return cs.Function(
+            "nmpc_head",
+            [mem, x, u, p],
+            [Xb, Ub, Vb, RV, RB, YT, CYT],
+            ["memory", "x", "u_prev", "p"],
+            names,
+        )
+
+    def _prepare_function(self, head: cs.Function, tail: cs.Function) -> cs.Function:
+        """(memory, x, u_prev, p) -> data: ``head``, the lifted solves, ``tail``."""
+        mem, x, u = (cs.MX.sym(n, k) for n, k in self._io()[:3])
+        p = cs.MX.sym("p", self.pb.np)
+        inline = not head.is_a("External")  # CasADi's own: one graph, no calls between
+        Xb, Ub, Vb, RV, RB, YT, CYT = head.call([mem, x, u, p], inline, False)
+        (data,) = tail.call([Xb, Ub, Vb, self.solve(RV, RB), YT, CYT], inline, False)
+        return cs.Function(
+            "nmpc_prepare", [mem, x, u, p], [data], ["memory", "x", "u_prev", "p"], ["data"]
+        )
+
+    def _tail_function(self, head: cs.Function) -> cs.Function:
+        """(Xb, Ub, Vb, L, YT, CYT) -> data: the condensed QP, affine in the measurement;
+        ``L = [dV0, S]`` per interval (the lifted solves)."""
+        pb, N = self.pb, self.N
+        s, nx, nu = pb.s, pb.nx, pb.nu
+        nq, w = N * nu, 1 + nx + nu
+        Xb, Ub, Vb = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("Xb", "Ub", "Vb"))
+        YT, CYT = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("YT", "CYT"))
+        L = cs.MX.sym("L", nx * pb.s.degree, N * w)
+        # node k's state correction: dX_k = c_k + Phi_k a0 + G_k du, a0 = x0 - Xb_0
+        c, Phi, G = cs.MX(nx, 1), cs.MX.eye(nx), cs.MX(nx, nq)
+        cc, PP, GG = [c], [Phi], [G]
         for k in range(N):
             Lk = L[-nx:, k * w : (k + 1) * w]  # the interval's end
             Ak, Bk = Lk[:, 1 : 1 + nx], Lk[:, 1 + nx :]
-            a = Vb[-nx:, k] + Lk[:, 0] + cs.mtimes(Ak, a) - Xb[:, k + 1]
-            Gk = cs.mtimes(Ak, Gk) + cs.horzcat(cs.MX(nx, k * nu), Bk, cs.MX(nx, (N - k - 1) * nu))
-            rows_a.append(a)
-            rows_G.append(Gk)
-        ey, Jy, tb, TJ = [], [], [], []
-        for k in range(N):
-            c = CYT[:, k * nx : (k + 1) * nx]
-            ey.append(YT[0, k] + cs.mtimes(c[0, :], rows_a[k + 1]) - ref[k])
-            Jy.append(cs.mtimes(c[0, :], rows_G[k + 1]))
-            tb.append(YT[1:, k] + cs.mtimes(c[1:, :], rows_a[k + 1]))
-            TJ.append(cs.mtimes(c[1:, :], rows_G[k + 1]))
-        Dk = np.kron(np.eye(N) - np.eye(N, k=-1), np.eye(nu))
+            c = Vb[-nx:, k] + Lk[:, 0] + cs.mtimes(Ak, c) - Xb[:, k + 1]
+            Phi, G = cs.mtimes(Ak, Phi), cs.mtimes(Ak, G) + _at(Bk, k, N, nu)
+            cc.append(c), PP.append(Phi), GG.append(G)
+        # every node's output rows times its corrections at once: the outputs' Jacobians
+        # as one block-diagonal matrix (their nonzeros in the same order)
+        ny, nT = 1 + len(pb.tensions), len(pb.tensions)
+        blocks = cs.diagcat(*[cs.DM.ones(ny, nx)] * N).sparsity()
+        BD = cs.MX(blocks, cs.vec(cs.densify(CYT)))
+        M = cs.mtimes(BD, cs.horzcat(cs.vertcat(*cc[1:]), cs.vertcat(*PP[1:]), cs.vertcat(*GG[1:])))
+        YTv = cs.vec(cs.densify(YT))
+        ry = list(range(0, N * ny, ny))
+        rT = [k * ny + 1 + i for k in range(N) for i in range(nT)]
+        ey0, Ey, Jy = YTv[ry] + M[ry, 0], M[ry, 1 : 1 + nx], M[ry, 1 + nx :]
+        tb0, Et, TJ = YTv[rT] + M[rT, 0], M[rT, 1 : 1 + nx], M[rT, 1 + nx :]
+        # the QP's variables are the moves' corrections dm = Dk du (du = C dm, C = Dk^-1):
+        # the rate limits are then bounds, which keeps the active sets regular
+        Dk, C = _moves(N, nu), _cumulative(N, nu)
         Ubv = cs.vec(Ub)
-        du0 = cs.mtimes(Dk, Ubv) - cs.vertcat(vp, cs.MX(nu * (N - 1), 1))  # guess's moves
-        wy, wu = np.sqrt(s.weight_y), np.sqrt(s.weight_du) * pb.us[0]
-        Jres = cs.vertcat(wy * cs.vertcat(*Jy), wu * Dk)
-        r0 = cs.vertcat(wy * cs.vertcat(*ey), wu * du0)
+        m0 = cs.mtimes(Dk, Ubv)  # the guess's moves, the first from 0
+        wy = np.full(N, s.weight_y)
+        wy[-1] += s.terminal_weight
+        W = cs.DM(np.diag(wy))
+        JyC = cs.mtimes(Jy, C)
+        WJ = cs.mtimes(W, JyC)
+        wu2 = s.weight_du * pb.us[0] ** 2
+        data = {
+            "Xb0": Xb[:, 0],
+            "H": 2 * (cs.mtimes(JyC.T, WJ) + wu2 * cs.DM.eye(nq)),
+            "AT": cs.mtimes(TJ, C),
+            "g": 2 * (cs.mtimes(WJ.T, ey0) + wu2 * m0),
+            "Ga": 2 * cs.mtimes(WJ.T, Ey),
+            "Gr": -2 * WJ.T,
+            "m0": m0,
+            "tb0": tb0,
+            "Et": Et,
+            "Ub": Ubv,
+            "Xb": Xb,
+            "Vb": Vb,
+            "L": L,
+        }
+        self.data_shapes = {k: v.shape for k, v in data.items()}
+        flat = cs.densify(cs.vertcat(*(cs.vec(v) for v in data.values())))
+        ok = _finite(flat)  # a linearisation that is not finite is a failed sample
+        return cs.Function(
+            "nmpc_tail",
+            [Xb, Ub, Vb, L, YT, CYT],
+            [cs.vertcat(flat, ok)],
+            ["Xb", "Ub", "Vb", "L", "YT", "CYT"],
+            ["data"],
+        )
+
+    def _unpack(self, data: cs.MX) -> dict[str, cs.MX]:
+        out, start = {}, 0
+        for name, (r, c) in self.data_shapes.items():
+            out[name] = cs.reshape(data[start : start + r * c], r, c)
+            start += r * c
+        out["ok"] = data[start]
+        return out
+
+    def _data_symbol(self) -> cs.MX:
+        return cs.MX.sym("data", sum(r * c for r, c in self.data_shapes.values()) + 1)
+
+    def _held(self, mem: cs.MX, u_prev: cs.MX) -> cs.MX:
+        """The plan of a failed sample (SI, nu x N): the last plan one sample on, else the
+        previous input held."""
+        nu, N, sl = self.pb.nu, self.N, self.slices
+        last = cs.reshape(mem[sl["plan"]], nu, N)
+        if N == 1:
+            return cs.repmat(u_prev, 1, N)
+        return cs.if_else(mem[sl["has_plan"]], _ahead(last), cs.repmat(u_prev, 1, N))
+
+    def _feedback_function(self) -> cs.Function:
+        """(data, memory, x, u_prev, ref) -> (u, violation, fallback, slack, step)."""
+        pb, N = self.pb, self.N
+        s, nu = pb.s, pb.nu
+        nq, nT = N * nu, len(pb.tensions)
+        data = self._data_symbol()
+        mem, x, u_prev, ref = (cs.MX.sym(n, k) for n, k in self._io())
+        D = self._unpack(data)
+        a0, vp = x / pb.xs - D["Xb0"], u_prev / pb.us
+        E1vp = cs.vertcat(vp, cs.MX(nq - nu, 1))
+        rate = E1vp - D["m0"]  # minus the guess's moves from the previous input
+        wu2 = s.weight_du * pb.us[0] ** 2
+        g = D["g"] + cs.mtimes(D["Ga"], a0) + cs.mtimes(D["Gr"], ref) - 2 * wu2 * E1vp
         dv = s.rate_max * pb.dt / pb.us[0]
-        nq, nA = N * nu, N * nu + nT * N
-        self.qp = qp_solver(s.qp_solver, cs.Sparsity.dense(nq, nq), cs.Sparsity.dense(nA, nq))
-        H, g = 2 * cs.mtimes(Jres.T, Jres), 2 * cs.mtimes(Jres.T, r0)
-        A = cs.vertcat(Dk, *TJ)
-        lba = cs.vertcat(-dv - du0, s.tension_min - cs.vertcat(*tb))
-        uba = cs.vertcat(dv - du0, cs.DM.inf(nT * N))
-        lbx, ubx = s.u_min / pb.us[0] - Ubv, s.u_max / pb.us[0] - Ubv
-        qp = self.qp(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
-        du = qp["x"]
+        C = _cumulative(N, nu)
+        # rows: the input bounds (C dm), then the tensions; variable bounds: the rates
+        T_low = s.tension_min - D["tb0"] - cs.mtimes(D["Et"], a0)
+        lba = cs.vertcat(s.u_min / pb.us[0] - D["Ub"], T_low)
+        uba = cs.vertcat(s.u_max / pb.us[0] - D["Ub"], cs.DM.inf(nT * N))
+        lbx, ubx = rate - dv, rate + dv
+        if s.soft_constraints:  # variables [dm; slack / SLACK_UNIT], one slack per node
+            nS = N
+            H = cs.diagcat(D["H"], 2 * s.tension_l2 * SLACK_UNIT**2 * cs.DM.eye(nS))
+            g = cs.vertcat(g, cs.DM.ones(nS) * s.tension_l1 * SLACK_UNIT)
+            E = cs.DM(np.kron(np.eye(N), np.ones((nT, 1)))) * SLACK_UNIT
+            A = cs.vertcat(cs.horzcat(C, cs.DM(nq, nS)), cs.horzcat(D["AT"], E))
+            lbx, ubx = cs.vertcat(lbx, cs.DM.zeros(nS)), cs.vertcat(ubx, cs.DM.inf(nS))
+        else:
+            nS, H, A = 0, D["H"], cs.vertcat(C, D["AT"])
+        self.qp = qp_solver(
+            s.qp_solver,
+            cs.Sparsity.dense(nq + nS, nq + nS),
+            cs.Sparsity.dense(nq + nT * N, nq + nS),
+        )
+        z = self.qp(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)["x"]
+        dm = z[:nq]
+        slack = cs.mmax(cs.vertcat(z[nq:] * SLACK_UNIT, cs.DM.zeros(1)))  # [N]
         # how far the QP's answer is from feasible (the solver's flag is not reachable
         # from inside a Function): constraint rows scaled by their size, and the bounds
-        Ad = cs.mtimes(A, du)
-        scale = 1 + cs.fabs(Ad)
+        Az = cs.mtimes(A, z)
+        scale = 1 + cs.fabs(Az)
         viol = cs.mmax(
-            cs.vertcat((lba - Ad) / scale, (Ad - uba) / scale, lbx - du, du - ubx, cs.DM.zeros(1))
+            cs.vertcat((lba - Az) / scale, (Az - uba) / scale, lbx - z, z - ubx, cs.DM.zeros(1))
         )
-        dX = cs.horzcat(*rows_a) + cs.reshape(cs.mtimes(cs.vertcat(*rows_G), du), nx, N + 1)
-        dV = cs.horzcat(
-            *[
-                L[:, k * w] + cs.mtimes(L[:, k * w + 1 : (k + 1) * w], cs.vertcat(dX[:, k], du[k]))
-                for k in range(N)
-            ]
+        U = D["Ub"] + cs.mtimes(C, dm)
+        ok = (viol <= QP_FEASIBLE) * _finite(z) * D["ok"]
+        first = cs.if_else(ok, U[:nu] * pb.us, self._held(mem, u_prev)[:, 0])
+        u = cs.fmin(cs.fmax(first, s.u_min), s.u_max)
+        return cs.Function(
+            "nmpc_feedback",
+            [data, mem, x, u_prev, ref],
+            [u, viol, 1 - ok, slack, cs.vertcat(dm, ok)],
+            ["data", "memory", "x", "u_prev", "ref"],
+            ["u", "violation", "fallback", "slack", "step"],
         )
-        X, U, V = Xb + dX, Ub + cs.reshape(du, nu, N), Vb + dV
 
-        def shift(M):
-            return cs.horzcat(M[:, 1:], M[:, -1])
-
-        self.step = _Call(
-            cs.Function(
-                "rti",
-                [Xb, Ub, Vb, x0, vp, ref, p],
-                [shift(X), shift(U), shift(V), U, viol],
-                ["Xb", "Ub", "Vb", "x0", "vp", "ref", "p"],
-                ["Xn", "Un", "Vn", "U", "violation"],
-            )
+    def _update_function(self) -> cs.Function:
+        """(data, memory, x, u_prev, step) -> memory_next: the corrected trajectory
+        shifted by one sample (the next guess) and the plan."""
+        pb, N = self.pb, self.N
+        nx, nu = pb.nx, pb.nu
+        nq, w = N * nu, 1 + nx + nu
+        data = self._data_symbol()
+        mem, x, u_prev = (cs.MX.sym(n, k) for n, k in self._io()[:3])
+        step = cs.MX.sym("step", nq + 1)
+        D = self._unpack(data)
+        dm, ok = step[:nq], step[nq]
+        du = cs.reshape(cs.mtimes(_cumulative(N, nu), dm), nu, N)
+        Xb, Vb, L = D["Xb"], D["Vb"], D["L"]
+        dX, dV = [x / pb.xs - D["Xb0"]], []
+        for k in range(N):
+            Lk = L[:, k * w : (k + 1) * w]
+            dV.append(Lk[:, 0] + cs.mtimes(Lk[:, 1:], cs.vertcat(dX[k], du[:, k])))
+            dX.append(Vb[-nx:, k] + dV[k][-nx:] - Xb[:, k + 1])
+        X, V = Xb + cs.horzcat(*dX), Vb + cs.horzcat(*dV)
+        U = cs.reshape(D["Ub"], nu, N) + du
+        Xn, Un, Vn = _ahead(X), _ahead(U), _ahead(V)
+        keep = ok * _finite(Xn) * _finite(Vn)
+        guess = cs.vertcat(cs.vec(Xn), cs.vec(Un), cs.vec(Vn))
+        guess = cs.if_else(keep, guess, cs.MX(self.slices["has_guess"].start, 1))
+        plan = cs.if_else(ok, U * pb.us, self._held(mem, u_prev))
+        return cs.Function(
+            "nmpc_update",
+            [data, mem, x, u_prev, step],
+            [cs.vertcat(guess, keep, cs.vec(plan), 1)],
+            ["data", "memory", "x", "u_prev", "step"],
+            ["memory_next"],
         )
-        self.pb = pb
-        self.guess: list[np.ndarray] | None = None
 
-    def solve(
-        self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray
-    ) -> tuple[np.ndarray, bool]:
-        """The input plan [SI] (horizon x nu) and whether the QP's answer is feasible, for
-        the reference at nodes 1..horizon and the model parameters ``p`` [SI]."""
-        pb, N, nx, nu = self.pb, self.pb.s.horizon, self.pb.nx, self.pb.nu
-        xi, vp = x / pb.xs, u_prev / pb.us
-        if self.guess is None:
-            self.guess = [
-                np.tile(xi[:, None], (1, N + 1)),
-                np.tile(vp[:, None], (1, N)),
-                np.tile(xi[:, None], (pb.s.degree, N)),
-            ]
-        Xn, Un, Vn, U, viol = self.step(*self.guess, xi, vp, ref, p)
-        if not (viol[0] <= 1e-6 and np.all(np.isfinite(U)) and np.all(np.isfinite(Xn))):
-            self.guess = None  # restart from the measurement next time
-            return np.zeros((N, nu)), False
-        self.guess = [Xn.reshape(N + 1, nx).T, Un.reshape(N, nu).T, Vn.reshape(N, -1).T]
-        return U.reshape(N, nu) * pb.us, True
+
+def _one_blas_thread() -> None:
+    """Run the OpenBLAS bundled with CasADi (its LAPACK linear solvers' BLAS, not numpy's)
+    on one thread, for the whole process: its 54 x 54 LU (dgetrf) went multi-threaded and
+    ran 5x slower (2.8 against 0.54 ms for the 20 intervals) whenever the other core was
+    busy; matrices this small gain nothing from threads. (``OPENBLAS_NUM_THREADS=1`` does
+    the same from outside.)"""
+    path = Path(cs.__file__).parent / "libcasadi-tp-openblas.so.0"
+    if path.is_file():
+        ctypes.CDLL(str(path)).openblas_set_num_threads(1)
+
+
+def _at(M: cs.MX, k: int, N: int, nu: int) -> cs.MX:
+    """``M`` placed at input block ``k`` of ``N`` blocks of ``nu`` columns, zeros elsewhere."""
+    r = M.shape[0]
+    return cs.horzcat(cs.MX(r, k * nu), M, cs.MX(r, (N - k - 1) * nu))
+
+
+def _moves(N: int, nu: int) -> cs.DM:
+    """The moves ``u_k - u_{k-1}`` of the stacked inputs (the first from zero)."""
+    return cs.DM(np.kron(np.eye(N) - np.eye(N, k=-1), np.eye(nu)))
+
+
+def _cumulative(N: int, nu: int) -> cs.DM:
+    """The inverse of :func:`_moves`: the inputs as sums of their moves."""
+    return cs.DM(np.kron(np.tril(np.ones((N, N))), np.eye(nu)))
+
+
+def _ahead(M: cs.MX) -> cs.MX:
+    """The columns moved one ahead, the last repeated."""
+    return cs.horzcat(M[:, 1:], M[:, -1])
+
+
+def _finite(M: cs.MX) -> cs.MX:
+    """1 if every entry of ``M`` is finite (neither inf nor NaN), else 0."""
+    return cs.mmin(cs.vec(cs.fabs(M) < np.inf))
 
 
 class _Call:
@@ -467,6 +818,7 @@ class NonlinearMPC(RecedingHorizon):
     """
 
     slug = "nmpc"
+    offsets = OFFSETS  # the input and output disturbances, after the model parameters
 
     def __init__(
         self,
@@ -491,10 +843,57 @@ class NonlinearMPC(RecedingHorizon):
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
         self._offset = 0.0
+        self.violation = 0.0  # the last RTI QP answer's (scaled rows, see QP_FEASIBLE)
+        self.slack = 0.0  # the last RTI plan's largest tension slack [N]
         if isinstance(self.engine, _RealTimeIteration):
-            self.engine.guess = None
+            self.engine.reset()
         else:
             self.engine.warm = {}
+
+    def law_function(self) -> cs.Function:
+        """The RTI's whole per-sample law as one pure CasADi Function (solver "rti")::
+
+            nmpc_law(memory, x, u_prev, ref, p)
+                -> (memory_next, u, violation, fallback, slack)
+
+        ``memory`` (zeros at the start) carries the guess and the plan between samples
+        (:class:`_RealTimeIteration`), ``x`` the state [SI, ``model.state_names``],
+        ``u_prev`` the input held [SI], ``ref`` the reference at nodes 1..horizon [SI, as
+        the optimiser sees it: clipped, shifted by the integral action], ``p`` the
+        prediction's parameters [SI, ``model.param_names``]; ``u`` the command [SI],
+        ``violation`` the QP answer's, ``fallback`` 1 when the sample fell back, ``slack``
+        the plan's largest tension slack [N]. This
+        controller calls exactly these Functions each sample (split: ``engine.sample``).
+        For C generation build the controller with ``linear_solver="qr"``: LAPACK (the
+        default "lapacklu") has no code generation. The
+        QP solver DAQP's generated C includes ``daqp/api.h`` and links statically
+        against ``libdaqpstat.a``, both in the casadi wheel (``casadi/include``,
+        :data:`.rti_compiled.LINK_FLAGS`).
+
+        Raises
+        ------
+        ParameterError
+            For the NLP solvers (ipopt, fatrop), which are not one Function.
+        """
+        if not isinstance(self.engine, _RealTimeIteration):
+            raise ParameterError("nmpc.solver", self.settings.solver, "'rti' for a law Function")
+        return self.engine.law
+
+    @property
+    def memory(self) -> np.ndarray:
+        """The RTI's memory vector now (a copy; see :meth:`law_function`)."""
+        return self.engine.memory.copy()
+
+    def _rti(self, x: np.ndarray, ref: np.ndarray) -> dict:
+        """One sample of the RTI law; the command by name."""
+        eng = self.engine
+        u, viol, fallback, slack = eng.sample(x, self._u, ref, self._p)
+        mem = eng.memory
+        self.stats.fallbacks += int(fallback[0])
+        self.violation, self.slack = float(viol[0]), float(slack[0])
+        self._plan = mem[eng.slices["plan"]].reshape(-1, len(self._u))
+        self._u = u
+        return dict(zip(self.inputs, self._u.tolist(), strict=True))
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
@@ -503,9 +902,18 @@ class NonlinearMPC(RecedingHorizon):
         # integral action shifts it by the integrated error, kept inside the reachable range
         nodes = self.nodes(ref)
         shifted = np.clip(nodes + self._offset, self.clip.low, self.clip.high)
-        plan, ok = self.engine.solve(x, self._u, shifted, self._p)
-        u = self.apply(plan if ok else None)
-        if np.all((self._u > self._u_lo) & (self._u < self._u_hi)):  # no windup at a bound
+        u_prev = self._u.copy()
+        if isinstance(self.engine, _RealTimeIteration):
+            u = self._rti(x, shifted)
+        else:
+            plan, ok = self.engine.solve(x, self._u, shifted, self._p)
+            self.slack = self.engine.slack
+            u = self.apply(plan if ok else None)
+        # anti-windup: no integration while the command is held by a bound or moves at
+        # the rate limit (the optimiser could not follow a larger shift either)
+        at_rate = np.abs(self._u - u_prev) >= self.settings.rate_max * self.dt * (1 - 1e-6)
+        at_bound = (self._u <= self._u_lo) | (self._u >= self._u_hi)
+        if not np.any(at_rate | at_bound):
             error = ref - float(y[self.settings.output])
             self._offset += self.settings.integral_gain * self.dt * error
         return u
@@ -532,13 +940,16 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     overrides).
     Common keys: ``output``, ``input``, ``u_min``, ``u_max``, ``tension_min`` (the hard
     tension bound, default 0). Own keys: the other :class:`NMPCSettings` fields,
-    ``fidelity``, ``estimator`` ("none" or "ekf") and ``ekf``. On an EKF that estimates a
-    parameter of the prediction (by default the load mass), the estimate is fed to the
+    ``fidelity``, ``estimator`` ("none" or "ekf"), ``ekf`` and ``disturbance`` (the
+    disturbance model the EKF estimates, :func:`~.receding.ekf_disturbance`: "load",
+    "input", "output" or "none"; default "load" where the plant has one). On an EKF that
+    estimates a parameter of the prediction or an offset, the estimate is fed to the
     prediction every sample and ``integral_gain`` defaults to 0 (set it to keep the
     integral reference shift as well).
     """
-    extra = {"fidelity": DEFAULT_FIDELITY}
+    extra = {"fidelity": DEFAULT_FIDELITY, "disturbance": None}
     own, est, ekf_settings = mpc_settings("nmpc", model, settings, NMPCSettings, extra)
+    ekf_settings = ekf_disturbance("nmpc", model, est, own.pop("disturbance"), ekf_settings)
     given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
     fidelity = own.pop("fidelity")
     smooth = {"fidelity": fidelity, "flow_law": "smooth", "saturate": False}
@@ -555,7 +966,7 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
         )
     params = {n: given[n] for n in pred.param_names if n in given}
     fed = est == "ekf" and any(
-        n in pred.param_names for n in estimated_parameters(model, ekf_settings)
+        n in (*pred.param_names, *OFFSETS) for n in estimated_parameters(model, ekf_settings)
     )
     if fed and "integral_gain" not in settings:  # the load estimate removes the offset
         own["integral_gain"] = 0.0

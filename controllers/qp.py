@@ -11,6 +11,20 @@ import scipy.linalg
 from sarcomere.dynamics.errors import ParameterError
 
 QP_SOLVERS = {
+    # CasADi's own QPs: qrqp's generated C is self-contained (daqp, osqp and hpipm generate
+    # calls into their libraries; qpOASES and ipqp cannot be generated)
+    "ipqp": {
+        "print_iter": False,
+        "print_header": False,
+        "print_info": False,
+        "error_on_fail": False,
+    },
+    "qrqp": {
+        "print_iter": False,
+        "print_header": False,
+        "print_info": False,
+        "error_on_fail": False,
+    },  # fmt: skip
     "qpoases": {"printLevel": "none", "error_on_fail": False},
     "daqp": {"error_on_fail": False},
     # HPIPM's default inf (1e8) is inside the range of our scaled bounds: it then treats

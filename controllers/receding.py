@@ -24,7 +24,8 @@ from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .ekf import make_ekf
+from .disturbance import RANDOM_WALK, check_disturbance
+from .ekf import OFFSETS, make_ekf
 from .estimated import OnEstimate
 from .registry import count, own_settings
 
@@ -158,19 +159,25 @@ class RecedingHorizon(Controller):
         self._u_lo = np.full(len(names), s.u_min)
         self._u_hi = np.full(len(names), s.u_max)
         self.clip = ReferenceClip(model, s.output, names[0], (s.u_min, s.u_max), params)
-        self._p_nominal = np.asarray(model.parameters(params), dtype=float).ravel()
+        nominal = np.asarray(model.parameters(params), dtype=float).ravel()
+        self._p_nominal = np.concatenate([nominal, np.zeros(len(self.offsets))])
         self._p = self._p_nominal.copy()
+
+    offsets: tuple[str, ...] = ()
+    """Run-time inputs of the prediction that are not model parameters, appended to the
+    parameter vector (the NMPC's input and output disturbances, :data:`~.ekf.OFFSETS`;
+    0 by default)."""
 
     @property
     def runtime_parameters(self) -> tuple[str, ...]:
-        """Every parameter of the prediction model: all are run-time inputs of the
-        prediction (see :meth:`set_parameters`)."""
-        return tuple(self.model.param_names)
+        """Every parameter of the prediction model and the :attr:`offsets`: all are
+        run-time inputs of the prediction (see :meth:`set_parameters`)."""
+        return (*self.model.param_names, *self.offsets)
 
     @property
     def parameters(self) -> dict[str, float]:
-        """The parameter values [SI] the prediction uses now, by name."""
-        return dict(zip(self.model.param_names, self._p.tolist(), strict=True))
+        """The parameter (and offset) values [SI] the prediction uses now, by name."""
+        return dict(zip(self.runtime_parameters, self._p.tolist(), strict=True))
 
     def set_parameters(self, values: Mapping[str, float]) -> None:
         """Predict with ``values`` [SI, by name] from the next sample on (e.g. an
@@ -180,13 +187,13 @@ class RecedingHorizon(Controller):
         Raises
         ------
         ParameterError
-            For a name not of the prediction model or a non-finite value.
+            For a name not of :attr:`runtime_parameters` or a non-finite value.
         """
-        names = self.model.param_names
+        names = self.runtime_parameters
         for name, value in values.items():
             where = f"{self.slug}.parameters.{name}"
             if name not in names:
-                raise ParameterError(where, value, f"one of {names}")
+                raise ParameterError(where, value, f"one of {list(names)}")
             if not (isinstance(value, int | float) and math.isfinite(value)):
                 raise ParameterError(where, value, "a finite number [SI]")
             self._p[names.index(name)] = float(value)
@@ -273,6 +280,42 @@ def mpc_settings(
     return own, own.pop("estimator"), own.pop("ekf")
 
 
+def ekf_disturbance(
+    slug: str,
+    model: Model,
+    estimator: str,
+    disturbance: object,
+    ekf_settings: Mapping[str, object],
+) -> Mapping[str, object]:
+    """The EKF settings with the ``disturbance`` model (:mod:`.disturbance`) as what it
+    estimates: "load" the load mass (2 g/sqrt(s)), "input" and "output" the offsets of
+    :data:`~.ekf.OFFSETS` (:data:`~.disturbance.RANDOM_WALK`), "none" nothing; None (the
+    default) leaves the EKF's own default (the load where the plant has one). An explicit
+    ``ekf.disturbance_std`` wins over the default but not over a model given here.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown model, "load" on a plant without one, or a disturbance model
+        without an estimator (nothing would estimate it).
+    """
+    if disturbance is None:
+        return ekf_settings
+    kind = check_disturbance(slug, disturbance, model.param_names)
+    if estimator != "ekf" and kind != "none":
+        raise ParameterError(
+            f"{slug}.disturbance",
+            kind,
+            "'none' without an estimator",
+            "an EKF (estimator = 'ekf') estimates the disturbance",
+        )
+    if not isinstance(ekf_settings, Mapping):
+        return ekf_settings  # make_ekf refuses it
+    name = {"load": "load.m", "input": OFFSETS[0], "output": OFFSETS[1]}.get(kind)
+    std = {} if name is None else {name: RANDOM_WALK[kind]}
+    return {**ekf_settings, "disturbance_std": std}
+
+
 def with_estimator(
     slug: str,
     ctl: Controller,
@@ -290,5 +333,6 @@ def with_estimator(
     if estimator != "ekf":
         raise ParameterError(f"{slug}.estimator", estimator, "'none' or 'ekf'")
     measured = settings.get("measured") or [settings["output"], "regulator.p_out"]
-    ekf = make_ekf(model, op, dt, measured, settings.get("noise_std"), ekf_settings)
+    out = settings["output"] if settings["output"] in measured else None
+    ekf = make_ekf(model, op, dt, measured, settings.get("noise_std"), ekf_settings, out)
     return OnEstimate(ctl, ekf, model, op)

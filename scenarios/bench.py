@@ -8,8 +8,9 @@
   limits of the explicit fixed-step methods (:mod:`sarcomere.dynamics.studies.stability`);
   writes ``DIR/stability.json``, two charts and ``DIR/summary.json``.
 * ``sarcomere bench mpc --out DIR [--quick]``: time per step of the MPCs on the
-  length-control scene (:mod:`sarcomere.scenarios.studies.mpc_speed`); writes ``DIR/mpc.json``
-  and ``DIR/summary.json``.
+  length-control scene, and the RTI NMPC's feedback latency and preparation, in Python and
+  compiled (:mod:`sarcomere.scenarios.studies.mpc_speed`); writes ``DIR/mpc.json`` and
+  ``DIR/summary.json``.
 
 ``--quick`` uses fewer tolerances, steps and repeats (under a minute each).
 The CLI wires :func:`add_arguments` and :func:`handler` as the ``bench`` subcommand.

@@ -14,7 +14,11 @@ plant's states by name (state feedback).
 **Timing.** The time of each ``Controller.checked`` call (Python included) over the scene,
 median and 95th percentile; the plant's integration is not counted. The RTI and the LMPC
 run the scene ``FAST_REPEATS`` times and keep the quietest run. The RTI's time is
-split into its one CasADi call and the Python around it. The plain ``Opti`` formulation
+split into its feedback (the measurement-to-command latency: the affine update of the
+condensed QP and the QP), its preparation (linearisation and condensing, and the update of
+the guess, made after the command) and the Python around them; it runs in Python (CasADi's
+virtual machine) and compiled (``compiled = true``: generated C), and the two also run
+interleaved, sample by sample in one loop, for like-for-like ratios. The plain ``Opti`` formulation
 (RK4 multiple shooting with 15 substeps per interval, unscaled, ``opti.solve()`` each
 sample, warm-started through ``set_initial``) and do-mpc (if installed: the same Radau
 collocation, cost and tension bound through its ``MPC`` class with IPOPT; do-mpc has no
@@ -49,7 +53,7 @@ SLOW_STEPS = {False: 15, True: 6}
 """Samples the plain Opti formulation and do-mpc run (two to three orders of magnitude
 slower than the RTI): their medians are over these samples after the first."""
 L_NAME, P_NAME = "myofibril.length", "regulator.p_cmd"
-FAST, FAST_REPEATS = ("nmpc_rti", "lmpc"), 3
+FAST, FAST_REPEATS = ("nmpc_rti", "nmpc_rti_compiled", "lmpc"), 3
 """The fast variants run the scene this many times and report the run with the smallest
 median: the machine is shared, and a busy neighbour inflates a whole run."""
 
@@ -259,27 +263,95 @@ def _prediction(fidelity: str = "full"):
 
 
 class _Timed:
-    """A callable that records the wall time of each call of ``f``."""
+    """A callable that records the wall time (``times``) and this thread's CPU time
+    (``cpu``) of each call of ``f`` [s]: on a shared machine the wall time also counts the
+    time the process waited for a core."""
 
     def __init__(self, f) -> None:
-        self.f, self.times = f, []
+        self.f, self.times, self.cpu = f, [], []
 
     def __call__(self, *args):
-        tic = time.perf_counter()
+        tic, cpu = time.perf_counter(), time.thread_time()
         out = self.f(*args)
         self.times.append(time.perf_counter() - tic)
+        self.cpu.append(time.thread_time() - cpu)
         return out
 
 
-def timed_rti(model):
-    """An RTI NMPC whose one CasADi call is timed apart (where the time goes)."""
+def timed_rti(model, compiled: bool = False):
+    """An RTI NMPC whose three Functions (prepare, feedback, update) are timed apart: the
+    feedback call is the measurement-to-command latency."""
 
     def make(eq):
-        ctl = NonlinearMPC(model, eq.u, DT, NMPCSettings(solver="rti", horizon=HORIZON))
-        ctl.engine.step = _Timed(ctl.engine.step)
+        s = NMPCSettings(solver="rti", horizon=HORIZON, compiled=compiled)
+        ctl = NonlinearMPC(model, eq.u, DT, s)
+        calls = ctl.engine.calls
+        for name in calls:
+            calls[name] = _Timed(calls[name])
         return ctl
 
     return make
+
+
+def _split(row: dict) -> None:
+    """Add the RTI's feedback latency and preparation time per step (median, p95) [ms]
+    from its timed calls (the first sample, which prepares at the measurement, left out)."""
+    calls = row["controller"].engine.calls
+    for clock, tag in (("times", ""), ("cpu", "_cpu")):
+        feedback = np.array(getattr(calls["feedback"], clock)[1:]) * 1e3
+        row[f"feedback{tag}_median_ms"] = float(np.median(feedback))
+        row[f"feedback{tag}_p95_ms"] = float(np.percentile(feedback, 95))
+        n = len(feedback) + 1
+        prep = sum(np.array(getattr(calls[k], clock)[1:n]) for k in ("prepare", "update"))
+        row[f"prepare_update{tag}_median_ms"] = float(np.median(prep * 1e3))
+        row[f"rti_calls{tag}_median_ms"] = float(np.median(prep * 1e3 + feedback))
+
+
+def interleaved_rti(quick: bool) -> dict:
+    """The RTI in Python and compiled on the same scene in one loop, sample by sample (the
+    same machine load for both): the plant follows the Python one; the compiled one gets
+    the same measurements. Medians [ms] of each one's feedback and whole step, their
+    ratios, and the largest command difference [Pa]."""
+    pred = _prediction()
+    plant = hanging_load(N_APS, load_kg=LOAD_KG)
+    eq = solve_equilibrium(plant, {P_NAME: P_START})
+    ctls = {"python": timed_rti(pred)(eq), "compiled": timed_rti(pred, True)(eq)}
+    sim = Simulator(plant)
+    sim.reset(x0=eq.x)
+    t_end, t_load = scene_times(quick)
+    worst, loaded = 0.0, False
+    steps_cpu = {k: [] for k in ctls}
+    for _ in range(round(t_end / DT)):
+        if not loaded and sim.t >= t_load - 1e-9:
+            sim.reset(x0=sim.x, params={"load.m": HOOK_MASS_KG + LOAD_KG + 0.05}, t0=sim.t)
+            loaded = True
+        y = sim.signals(ctls["python"].outputs)
+        r = {L_NAME: reference(sim.t, eq[L_NAME], quick)}
+        u = {}
+        for k, c in ctls.items():
+            cpu = time.thread_time()
+            u[k] = c.checked(sim.t, y, r)[P_NAME]
+            steps_cpu[k].append(time.thread_time() - cpu)
+        worst = max(worst, abs(u["python"] - u["compiled"]))
+        sim.step({P_NAME: u["python"]}, DT)
+    out = {"max_command_difference_Pa": worst}
+    for name, c in ctls.items():
+        row = {"controller": c}
+        _split(row)
+        row.pop("controller")
+        row["step_median_ms"] = float(np.median(c.stats.solve_times_s[1:]) * 1e3)
+        row["step_p95_ms"] = float(np.percentile(c.stats.solve_times_s[1:], 95) * 1e3)
+        row["step_cpu_median_ms"] = float(np.median(steps_cpu[name][1:]) * 1e3)
+        row["step_cpu_p95_ms"] = float(np.percentile(steps_cpu[name][1:], 95) * 1e3)
+        out[name] = row
+    for k in (
+        "feedback_median_ms",
+        "step_median_ms",
+        "feedback_cpu_median_ms",
+        "step_cpu_median_ms",
+    ):
+        out[f"{k[:-3]}_ratio_python_to_compiled"] = out["python"][k] / out["compiled"][k]
+    return out
 
 
 def study(out_dir: Path, quick: bool = False) -> dict:
@@ -293,6 +365,7 @@ def study(out_dir: Path, quick: bool = False) -> dict:
 
     variants = {
         "nmpc_rti": timed_rti(pred),
+        "nmpc_rti_compiled": timed_rti(pred, compiled=True),
         "nmpc_ipopt": nmpc("ipopt"),
         "nmpc_fatrop": nmpc("fatrop"),
         "lmpc": lambda eq: LinearMPC(
@@ -310,13 +383,17 @@ def study(out_dir: Path, quick: bool = False) -> dict:
         rows[name] = min(runs, key=lambda r: r["step_median_ms"])
         rows[name]["medians_of_repeats_ms"] = [r["step_median_ms"] for r in runs]
         rows[name]["wall_s"] = time.perf_counter() - tic
+    for name in ("nmpc_rti", "nmpc_rti_compiled"):
+        _split(rows[name])
     rti = rows["nmpc_rti"]
-    rti["casadi_call_median_ms"] = statistics.median(rti["controller"].engine.step.times) * 1e3
-    rti["python_around_ms"] = rti["step_median_ms"] - rti["casadi_call_median_ms"]
+    calls = rti["controller"].engine.calls
+    casadi = sum(statistics.median(calls[k].times) for k in calls) * 1e3
+    rti["python_around_ms"] = rti["step_median_ms"] - casadi
     slow = SLOW_STEPS[quick]
     rows["opti_plain"] = run_scene(lambda eq: PlainOpti(pred, eq.u, DT), quick, slow)
     if _do_mpc_status() == "installed":
         rows["do_mpc"] = run_scene(lambda eq: DoMPC(pred, eq.u, DT), quick, slow)
+    interleaved = interleaved_rti(quick)
     fidelity = {}
     for fid in ("full", "quasi_static", "symmetric"):
         r = run_scene(nmpc("rti", _prediction(fid)), quick)
@@ -329,13 +406,18 @@ def study(out_dir: Path, quick: bool = False) -> dict:
         "quick": quick,
         "variants": rows,
         "prediction_fidelity_rti": fidelity,
+        "rti_interleaved": interleaved,
         "do_mpc": _do_mpc_status(),
     }
     path = out_dir / "mpc.json"
     path.write_text(json.dumps(result, indent=1))
     metrics = {f"{k}_step_median_ms": v["step_median_ms"] for k, v in rows.items()}
     metrics.update({f"{k}_rmse_before_load_mm": rows[k]["rmse_before_load_mm"] for k in variants})
-    metrics["rti_casadi_call_median_ms"] = rti["casadi_call_median_ms"]
+    for name in ("nmpc_rti", "nmpc_rti_compiled"):
+        for k in ("feedback_median_ms", "feedback_p95_ms", "step_p95_ms"):
+            metrics[f"{name}_{k}"] = rows[name][k]
+    for k in ("feedback_median_ratio_python_to_compiled", "step_median_ratio_python_to_compiled"):
+        metrics[f"rti_{k}"] = interleaved[k]
     # like for like: the RTI over the same first samples the slow variants run
     first = rti["first_samples_median_ms"]
     metrics["nmpc_speedup_vs_plain_opti"] = rows["opti_plain"]["step_median_ms"] / first

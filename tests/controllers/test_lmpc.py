@@ -54,14 +54,21 @@ def test_rate_limit_and_bound_are_active(plant):
     assert np.all(np.abs(np.diff(mpc._plan[:, 0])) <= 5e3 + 1e-6)
 
 
-def test_relinearized_when_the_output_moved_far(plant):
+def test_relinearized_at_the_target_when_the_output_moved_far(plant):
+    """Past ``relinearize_m`` the model is linearised at the target: the steady state with
+    the output on the reference (here the 80 kPa equilibrium, solved independently)."""
     model, eq = plant
-    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(relinearize_m=1e-4))
+    # the state jumps (no filter) and the input stays behind (no input trigger)
+    s = LMPCSettings(relinearize_m=1e-4, relinearize_u=1.0, disturbance="none")
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, s)
     mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})
     assert mpc.relinearizations == 1
     far = solve_equilibrium(model, {P: 8e4})  # 0.5 mm shorter
     mpc.checked(0.01, measure(mpc, far), {L: far[L]})
-    assert mpc.relinearizations == 2 and mpc._y_lin == pytest.approx(far[L], rel=1e-12)
+    x_l, u_l, y_l = mpc._lin_point
+    assert mpc.relinearizations == 2 and y_l == pytest.approx(far[L], rel=1e-12)
+    assert u_l[0] == pytest.approx(8e4, rel=1e-9)
+    assert x_l == pytest.approx(far.x, rel=1e-8, abs=1e-12)
     mpc.checked(0.02, measure(mpc, far), {L: far[L]})
     assert mpc.relinearizations == 2  # near the new point: kept
 
@@ -95,15 +102,16 @@ def test_condensed_qp_equals_closed_form_lq():
     assert du[0] == pytest.approx(-K @ xi0, rel=1e-8)
 
 
-def test_failed_qp_falls_back_to_the_shifted_plan(plant, monkeypatch):
+def test_failed_qp_falls_back_to_the_shifted_plan(plant):
     model, eq = plant
     mpc = LinearMPC(model, eq.x, eq.u, 0.01)
     y = measure(mpc, eq)
     mpc.checked(0.0, y, {L: eq[L] - 2e-3})
     plan = mpc._plan.copy()
-    monkeypatch.setattr(mpc._qp, "solve", lambda *a: (None, False))
+    mpc._p_law[0] = np.nan  # a broken Hessian: the QP's answer is not feasible
     u = mpc.checked(0.01, y, {L: eq[L] - 2e-3})
     assert u[P] == plan[1, 0] and mpc.stats.fallbacks == 1
+    assert np.array_equal(mpc._plan, np.vstack([plan[1:], plan[-1:]]))
 
 
 def test_unreachable_reference_is_clipped_with_a_warning(plant):
@@ -234,3 +242,51 @@ def test_preview_moves_the_lmpc_before_a_known_step(plant):
     assert np.allclose(u[False][:30], 5e4, atol=1.0)  # waits for the step
     assert u[True][25] > 6e4  # 66 kPa at 0.25 s: pressurises ahead of it
     assert rms[True] < 0.6 * rms[False]  # 0.20 mm against 0.44 mm RMS
+
+
+def test_update_is_the_law_function_and_qrqp_gives_the_same_moves(plant):
+    """Each sample of :meth:`LinearMPC.update` is one evaluation of ``law_function()`` on
+    ``(memory, x, u_prev, ref, law_parameters())``; the same Function built with qrqp (the
+    controller FMU's, C code without an external library) gives the same command and
+    memory as the DAQP one the Python loop uses."""
+    model, eq = plant
+    soft = (("myofibril.actin0.T", 0.0), ("myofibril.actin1.T", 0.0))
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(soft_min=soft, horizon=10))
+    qrqp = mpc.law_function("qrqp")
+    y = measure(mpc, eq)
+    for k in range(4):
+        ref = eq[L] - 1e-3 * (k + 1) / 4
+        memory, u_prev = mpc.memory, mpc._u.copy()
+        x = [*eq.x, y[L], *(y[n] for n, _ in soft)]
+        u = mpc.checked(0.01 * k, y, {L: ref})[P]
+        mem_q, u_q, ok = qrqp(memory, x, u_prev, np.full(11, ref), mpc.law_parameters())
+        assert bool(ok) and mpc.stats.fallbacks == 0
+        assert float(u_q) == pytest.approx(u, rel=1e-9)
+        assert np.array(mem_q).ravel() == pytest.approx(mpc.memory, rel=1e-9)
+    assert u > 4e4 + 1e3  # it moved
+
+
+def test_relinearized_on_the_state_distance_and_on_the_input_distance(plant):
+    """Each trigger alone (the others set out of reach): a jump to the 80 kPa equilibrium
+    moves the chamber's air mass about 40 % of its span over 0-0.1 MPa (past a quarter);
+    a reference 2 mm shorter ramps the command past 5 % of its range in a few samples."""
+    model, eq = plant
+    far = solve_equilibrium(model, {P: 8e4})
+    only_x = LMPCSettings(relinearize_m=1.0, relinearize_u=10.0, disturbance="none")
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, only_x)
+    mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})
+    assert mpc.relinearizations == 1
+    mpc.checked(0.01, measure(mpc, far), {L: far[L]})
+    assert mpc.relinearizations == 2  # the state moved
+    only_u = LMPCSettings(
+        relinearize_m=1.0, relinearize_x=10.0, relinearize_u=0.05, disturbance="none"
+    )
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, only_u)
+    y, held = measure(mpc, eq), [4e4]
+    for k in range(10):
+        held.append(mpc.checked(0.01 * k, y, {L: eq[L] - 2e-3})[P])
+        if mpc.relinearizations == 2:
+            break
+    # re-linearised at the first sample whose held command had left the 5 kPa band
+    assert mpc.relinearizations == 2
+    assert abs(held[-2] - 4e4) > 5e3 and abs(held[-3] - 4e4) <= 5e3

@@ -102,15 +102,57 @@ def test_raised_minimum_tension_holds_in_closed_loop():
     assert length > 57.5e-3  # and the chain still got long (0.4 s)
 
 
-def test_failed_qp_falls_back_to_the_shifted_plan(prediction, monkeypatch):
+def test_failed_qp_falls_back_to_the_shifted_plan(prediction):
+    """An unreachable hard tension bound (5 N): the law's if_else reproduces
+    RecedingHorizon.apply: the previous plan shifted, else the input held; the guess is
+    dropped. Softened, the same bound gives a finite command with a slack, no fallback."""
     model, eq = prediction
-    mpc = NonlinearMPC(model, eq.u, 0.01)
-    y = {n: eq[n] for n in mpc.outputs}
-    mpc.checked(0.0, y, {L: eq[L] - 2e-4})
-    plan = mpc._plan.copy()
-    monkeypatch.setattr(mpc.engine, "solve", lambda *a: (np.zeros_like(plan), False))
-    u = mpc.checked(0.01, y, {L: eq[L] - 2e-4})
-    assert u[P] == plan[1, 0] and mpc.stats.fallbacks == 1
+    good = NonlinearMPC(model, eq.u, 0.01)
+    y = {n: eq[n] for n in good.outputs}
+    good.checked(0.0, y, {L: eq[L] - 2e-4})
+    plan, memory = good._plan.copy(), good.memory
+    hard = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(tension_min=5.0, soft_constraints=False))
+    law, x = hard.law_function(), np.array([eq[n] for n in model.state_names])
+    ref, p = np.full(20, eq[L] - 2e-4), hard.parameters.values()
+    mem, u, viol, fallback, _ = (np.array(v).ravel() for v in law(memory, x, plan[0], ref, list(p)))
+    sl = hard.engine.slices
+    assert fallback[0] == 1 and viol[0] > 1e-6
+    assert u[0] == plan[1, 0]  # the previous plan, one sample on
+    assert np.array_equal(mem[sl["plan"]], np.append(plan[1:, 0], plan[-1, 0]))
+    assert mem[sl["has_guess"]][0] == 0 and mem[sl["has_plan"]][0] == 1
+    assert hard.checked(0.0, y, {L: eq[L]})[P] == eq.u[0]  # no plan yet: hold
+    assert hard.stats.fallbacks == 1
+    soft = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(tension_min=5.0))
+    u = soft.checked(0.0, y, {L: eq[L]})[P]
+    assert np.isfinite(u) and soft.stats.fallbacks == 0 and soft.slack > 1.0
+
+
+def test_the_law_function_called_by_hand_gives_the_controllers_commands():
+    """The Python controller runs exactly the one CasADi law: replayed from zero memory
+    with the same measurements, it gives the same commands to 1e-12 (relative). (No
+    integral action here: the reference shift is the controller's, outside the law.)"""
+    plant = hanging_load(1, load_kg=0.02)
+    pred = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    s = NMPCSettings(tension_min=0.19, integral_gain=0.0)
+    mpc = NonlinearMPC(pred, eq.u, 0.01, s)
+    sim = Simulator(plant)
+    sim.reset(x0=eq.x)
+    calls, commands = [], []
+    for k in range(30):
+        y = sim.signals(mpc.outputs)
+        r = eq[L] + (1.2e-3 if k >= 3 else 0.0)
+        x, u_prev = np.array([y[n] for n in pred.state_names]), mpc._u.copy()
+        commands.append(mpc.checked(sim.t, y, {L: r})[P])
+        calls.append((x, u_prev, np.full(20, min(r, mpc.clip.high)), mpc._p.copy()))
+        sim.step({P: commands[-1]}, 0.01)
+    assert len(set(commands)) > 10  # it moved
+    law, memory, replay = mpc.law_function(), np.zeros(mpc.engine.n_memory), []
+    for x, u_prev, ref, p in calls:
+        memory, u, *_ = (np.array(v).ravel() for v in law(memory, x, u_prev, ref, p))
+        replay.append(u[0])
+    assert np.allclose(replay, commands, rtol=1e-12, atol=0)
+    assert law.name_in() == ["memory", "x", "u_prev", "ref", "p"]
 
 
 @pytest.mark.parametrize(
@@ -232,8 +274,10 @@ def test_the_rti_gets_one_reference_per_node(prediction, monkeypatch):
     model, eq = prediction
     mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(horizon=5, integral_gain=0.0))
     y = {n: eq[n] for n in mpc.outputs}
-    seen, step = [], mpc.engine.step
-    monkeypatch.setattr(mpc.engine, "step", lambda *a: seen.append(np.array(a[5])) or step(*a))
+    seen, step = [], mpc.engine.calls["feedback"]
+    monkeypatch.setitem(
+        mpc.engine.calls, "feedback", lambda *a: seen.append(np.array(a[4])) or step(*a)
+    )
     ahead = eq[L] - np.array([0.0, 0.0, 1e-4, 2e-4, 3e-4])
     mpc.set_preview({L: ahead})
     mpc.checked(0.0, y, {L: eq[L]})

@@ -6,9 +6,9 @@ LMPC re-linearises at a parameter fed to it."""
 import numpy as np
 import pytest
 
-from sarcomere.controllers import make_controller
+from sarcomere.controllers import make_controller, operating_point
 from sarcomere.controllers.base import Controller
-from sarcomere.controllers.lmpc import LinearMPC
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.controllers.qp import zoh
 from sarcomere.dynamics import Simulator, hanging_load, solve_equilibrium
@@ -49,15 +49,39 @@ def test_a_parameter_set_at_run_time_is_the_one_predicted_with(prediction, solve
 def test_the_rti_functions_parameter_input_is_the_value_given(prediction):
     model, eq = prediction
     mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(solver="rti"))
-    F = mpc.engine.step
+    F = mpc.engine.calls["prepare"]  # the preparation takes the parameters
     i = F.function.name_in().index("p")
-    assert F.function.nnz_in(i) == len(model.param_names)
-    mpc.set_parameters({M: 0.0567})
+    # the model's parameters, then the input and output disturbances
+    assert F.function.nnz_in(i) == len(model.param_names) + 2
+    assert mpc.runtime_parameters[-2:] == ("disturbance.input", "disturbance.output")
+    mpc.set_parameters({M: 0.0567, "disturbance.input": 123.0})
     mpc.checked(0.0, {n: eq[n] for n in mpc.outputs}, {L: eq[L]})
     passed = F.args[i]
     assert passed[model.param_names.index(M)] == 0.0567
     expected = np.array(model.parameters({M: 0.0567}), dtype=float).ravel()
-    assert np.array_equal(passed, expected)
+    assert np.array_equal(passed, [*expected, 123.0, 0.0])
+
+
+@pytest.mark.parametrize("offset", ["disturbance.input", "disturbance.output"])
+def test_an_offset_fed_to_the_nmpc_is_the_one_predicted_with(prediction, offset):
+    """Told the plant adds 10 kPa to its command (or 0.2 mm to its measured length), the
+    NMPC holds the steady state that has the output on the reference with it: 10 kPa
+    less (or the equilibrium 0.2 mm longer, solved independently)."""
+    model, eq = prediction
+    settings = NMPCSettings(solver="rti", u_max=3e5, integral_gain=0.0)
+    if offset == "disturbance.input":
+        value, state = 1e4, eq
+        u_hold = eq.u[0] - 1e4
+    else:  # the true length is 0.2 mm shorter than measured: the target is that length
+        value = 2e-4
+        state = operating_point(model, {P: 5e4}, target=(L, eq[L] - 2e-4), tol=1e-12)
+        u_hold = state.u[0]
+    mpc = NonlinearMPC(model, np.array([u_hold]), 0.01, settings)
+    mpc.set_parameters({offset: value})
+    y = {n: state[n] for n in mpc.outputs}
+    for k in range(3):
+        u = mpc.checked(0.01 * k, y, {L: eq[L]})[P]
+        assert u == pytest.approx(u_hold, abs=1.0)
 
 
 def test_bad_parameters_are_refused(prediction):
@@ -128,9 +152,12 @@ def test_the_integral_stays_an_option_on_the_ekf():
 
 
 def test_the_lmpc_relinearises_at_a_parameter_set_at_run_time():
+    """A parameter fed from outside (an EKF's load; the LMPC's own filter off) moved past
+    ``relinearize_rel``: the QP's model becomes the linearisation at the steady state
+    for the reference at the new load (solved independently by ``operating_point``)."""
     plant = hanging_load(1, load_kg=0.02)
     eq = solve_equilibrium(plant, {P: 5e4})
-    mpc = LinearMPC(plant, eq.x, eq.u, 0.01)
+    mpc = LinearMPC(plant, eq.x, eq.u, 0.01, LMPCSettings(u_max=3e5, disturbance="none"))
     y = {n: eq[n] for n in mpc.outputs}
     mpc.checked(0.0, y, {L: eq[L]})
     assert mpc.relinearizations == 1
@@ -141,13 +168,14 @@ def test_the_lmpc_relinearises_at_a_parameter_set_at_run_time():
     mpc.set_parameters({M: m0 + 0.05})
     mpc.checked(0.02, y, {L: eq[L]})
     assert mpc.relinearizations == 2 and mpc.parameters[M] == m0 + 0.05
-    # the QP's model is the linearisation at the new load, not at the nominal one
+    heavy = operating_point(plant, {P: 5e4}, {M: m0 + 0.05}, target=(L, eq[L]), tol=1e-12)
+    x_l, u_l, _ = mpc._lin_point
+    assert u_l[0] == pytest.approx(heavy.u[0], rel=1e-8)
     lin = plant.linearization([L])
-    heavy = np.array(plant.parameters({M: m0 + 0.05}), dtype=float).ravel()
-    A, B, *_ = (np.array(X) for X in lin(eq.x, np.zeros(0), eq.u, heavy))
-    A0, *_ = (np.array(X) for X in lin(eq.x, np.zeros(0), eq.u, plant.parameters()))
+    A, B, *_ = (np.array(X) for X in lin(heavy.x, np.zeros(0), heavy.u, heavy.p))
+    A0, *_ = (np.array(X) for X in lin(eq.x, np.zeros(0), eq.u, eq.p))
     Ad, _ = zoh(A, B, 0.01)
-    assert np.allclose(mpc._qp.Ad, Ad, rtol=1e-12, atol=1e-12)
+    assert np.allclose(mpc._qp.Ad, Ad, rtol=1e-6, atol=1e-9)
     assert not np.allclose(A, A0, rtol=1e-3)
 
 
@@ -170,3 +198,26 @@ def test_the_lmpc_on_the_ekfs_load_settles_faster():
     still 0.19 mm off 2.5 s after the step, at the estimated 70 g a few micrometres."""
     fed, nominal = lmpc_load_step_residual(True), lmpc_load_step_residual(False)
     assert fed < 2e-5 and nominal > 1e-4
+
+
+def test_the_integral_does_not_wind_up_while_the_command_moves_at_the_rate_limit(prediction):
+    """A 2 mm step with 2 kPa per sample: the command ramps at the rate limit for many
+    samples, far from its bounds; the integral of the error is frozen on each of them
+    (it grew on every one before), and integrates again once the command is free."""
+    model, eq = prediction
+    s = NMPCSettings(solver="rti", u_max=3e5, rate_max=2e5, integral_gain=5.0)
+    mpc = NonlinearMPC(model, eq.u, 0.01, s)
+    sim = Simulator(model)
+    sim.reset(x0=eq.x)
+    ramp, free = 0, 0
+    for k in range(60):
+        before, u_prev = mpc._offset, mpc._u[0]
+        u = mpc.checked(0.01 * k, sim.signals(mpc.outputs), {L: eq[L] - 2e-3})[P]
+        assert 0.0 < u < 3e5  # never at a bound
+        if abs(u - u_prev) >= 2e3 * (1 - 1e-6):
+            ramp += 1
+            assert mpc._offset == before
+        elif mpc._offset != before:
+            free += 1
+        sim.step({P: u}, 0.01)
+    assert ramp >= 10 and free >= 10
