@@ -251,7 +251,8 @@ def test_update_is_the_law_function_and_qrqp_gives_the_same_moves(plant):
     memory as the DAQP one the Python loop uses."""
     model, eq = plant
     soft = (("myofibril.actin0.T", 0.0), ("myofibril.actin1.T", 0.0))
-    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(soft_min=soft, horizon=10))
+    settings = LMPCSettings(soft_min=soft, horizon=10, weight_du=1e-7)  # moves > 1 kPa
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, settings)
     qrqp = mpc.law_function("qrqp")
     y = measure(mpc, eq)
     for k in range(4):
