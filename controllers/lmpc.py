@@ -71,10 +71,11 @@ class LMPCSettings:
     weight_y : float
         Weight of the squared tracking error [1/m^2].
     weight_du : float
-        Weight of the squared input move per sample [1/Pa^2]. The default (a 3 kPa move
-        costs as much as 1 mm of error) keeps the loop stable when the plant carries 50 g
-        more than the linearisation (at 1e-8 it cycles between 0.14 and 0.3 MPa in the
-        control-length scene).
+        Weight of the squared input move per sample [1/Pa^2]. The default (a 1.8 kPa
+        move costs as much as 1 mm of error; chosen by the tuning study
+        :mod:`sarcomere.scenarios.studies.mpc_tuning`) keeps the loop stable when the
+        plant carries 50 g more than the linearisation (at 1e-8 it cycles between 0.14
+        and 0.3 MPa in the control-length scene).
     u_min, u_max : float
         Regulator command bounds [Pa gauge].
     rate_max : float
@@ -112,7 +113,7 @@ class LMPCSettings:
 
     horizon: int = 20
     weight_y: float = 1.0e6
-    weight_du: float = 1.0e-7
+    weight_du: float = 3.0e-7
     u_min: float = 0.0
     u_max: float = 1.0e5
     rate_max: float = 2.0e6

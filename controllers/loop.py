@@ -43,7 +43,7 @@ from sarcomere.dynamics.simulation.settings import SolverSettings
 from sarcomere.dynamics.simulation.simulator import Simulator
 
 from .base import Controller, ControllerStats
-from .metrics import loop_metrics
+from .metrics import loop_metrics, step_window_end
 
 
 @dataclass(frozen=True)
@@ -149,10 +149,14 @@ def run_closed_loop(
     reachable : (float, float), optional
         The output range the input can hold: a reference outside it is clipped, with one
         warning per run.
-    step : (r_before, r_after, t_step, t_end), optional
-        The reference step whose overshoot and settling time are measured.
+    step : (r_before, r_after, t_step, t_next), optional
+        The reference step whose overshoot and settling time are measured, judged up to
+        :func:`~.metrics.step_window_end`: the next change of the reference ``t_next``
+        less the controller's preview horizon (``preview_samples * dt`` when ``preview``),
+        or the disturbance or the end of the run if first.
     tension_min : float
-        The thread tension constraint [N] the violation metric checks.
+        The thread tension bound [N] whose violation on the plant
+        (:func:`~.metrics.tension_violation`, at the samples) is measured.
     preview : bool
         Whether the reference is known ahead: if so, before every update a controller with
         ``preview_samples > 0`` (the MPCs) gets ``reference`` at its next samples (clipped to
@@ -172,6 +176,13 @@ def run_closed_loop(
             raise ParameterError("noise_std", name, "a signal of the model")
         if not (math.isfinite(std) and std >= 0):
             raise ParameterError(f"noise_std.{name}", std, "[0, inf)")
+    judged = None  # the step and the end of its window, checked before the run
+    if step is not None:
+        lead = controller.preview_samples * dt if preview else 0.0
+        after = [stop_time]
+        if disturbance is not None and disturbance.time > step[2]:
+            after.append(disturbance.time)
+        judged = (*step[:3], step_window_end(step[2], step[3], lead, min(after)))
     sim = Simulator(model, settings)
     sim.reset(x0=op.x, z0=op.z)
     sim.p = op.p.copy()
@@ -233,8 +244,9 @@ def run_closed_loop(
         refs,
         tensions,
         controller.stats.solve_times_s,
-        step,
+        judged,
         tension_min,
+        dt,
     )
     metrics["fallbacks"] = float(controller.stats.fallbacks)
     return ClosedLoopResult(result, metrics, controller.stats)

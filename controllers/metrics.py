@@ -13,10 +13,19 @@ Examples
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from sarcomere.dynamics.errors import ParameterError
 
 SETTLING_BAND = 0.02
 """Settling: the error stays within this fraction of the step size."""
+
+VIOLATION_TOL = 1e-3
+"""Tension-bound violation [N] below which a sample does not count as violating in
+:func:`tension_violation`'s time: 1 mN, the tolerance issue 18 gives a constrained MPC for
+its estimator's error (a controller riding the bound reads a few uN below it)."""
 
 UNIT_SCALES = {"m": (1e-3, "mm"), "N": (1.0, "N"), "Pa": (1e3, "kPa")}
 """How a tracked output's error is reported: SI unit -> (scale, suffix)."""
@@ -27,11 +36,43 @@ def rmse(y: np.ndarray, r: np.ndarray) -> float:
     return float(np.sqrt(np.mean((np.asarray(y) - np.asarray(r)) ** 2)))
 
 
+def step_window_end(
+    t_step: float, t_next_reference: float, preview_s: float = 0.0, t_unforeseen: float = math.inf
+) -> float:
+    """End of the window [s] in which a reference step at ``t_step`` is judged.
+
+    The window ends at the next change of the reference, ``t_next_reference``, less the
+    controller's preview horizon ``preview_s`` (a controller that sees the reference that
+    far ahead starts moving for the next change then, on purpose: that move is not a
+    failure to settle), or at ``t_unforeseen`` (a disturbance, the end of the run: things
+    no controller sees coming), whichever is first. Without preview (``preview_s = 0``)
+    every controller is judged up to the next event, as before.
+
+    Raises
+    ------
+    ParameterError
+        ``preview_s`` < 0, or a window that would end at or before the step (the next
+        change of the reference comes within the preview horizon of the step).
+    """
+    if not (math.isfinite(preview_s) and preview_s >= 0):
+        raise ParameterError("preview_s", preview_s, "[0, inf) s")
+    end = min(t_next_reference - preview_s, t_unforeseen)
+    if not end > t_step:
+        raise ParameterError(
+            "step_time",
+            t_step,
+            f"< {end:g} s: the step is judged up to the next reference change at "
+            f"{t_next_reference:g} s less the preview horizon {preview_s:g} s, or the next "
+            f"unforeseen event at {t_unforeseen:g} s",
+        )
+    return end
+
+
 def step_response_metrics(
     t: np.ndarray, y: np.ndarray, r_before: float, r_after: float, t_step: float, t_end: float
 ) -> dict[str, float]:
     """Overshoot [%] and 2 % settling time [s] of a reference step at ``t_step``, judged
-    on the samples in ``[t_step, t_end)``.
+    on the samples in ``[t_step, t_end)`` (``t_end`` from :func:`step_window_end`).
 
     Overshoot is the largest excursion beyond the new reference, against the step size
     (0 if none). Settling time is from the step to the first sample after which the
@@ -57,12 +98,26 @@ def step_response_metrics(
     return {"overshoot_pct": overshoot, "settling_time_s": settle}
 
 
-def constraint_violation(tensions: np.ndarray, tension_min: float = 0.0) -> float:
-    """Largest violation of ``T >= tension_min`` over all threads and samples [N]; 0 if
-    none (input bounds hold by construction: :meth:`~.base.Controller.checked`)."""
-    if np.size(tensions) == 0:
-        return 0.0
-    return max(0.0, float(tension_min - np.min(tensions)))
+def tension_violation(
+    tensions: np.ndarray, tension_min: float, dt: float, tol: float = VIOLATION_TOL
+) -> dict[str, float]:
+    """How far and how long the plant's thread tensions broke ``T >= tension_min``.
+
+    ``tensions`` [N] is threads x samples, sampled every ``dt`` [s]. Returns
+    ``tension_violation_max_mN``: the largest ``tension_min - T`` over threads and samples
+    [mN] (0 if none), and ``tension_violation_time_s``: ``dt`` times the number of samples
+    at which some thread is more than ``tol`` [N] below the bound (each sample stands for
+    the ``dt`` after it). The bounds of the command hold by construction
+    (:meth:`~.base.Controller.checked`): the tension is the one state bound to check.
+    """
+    T = np.atleast_2d(np.asarray(tensions, dtype=float))
+    if T.size == 0:
+        return {"tension_violation_max_mN": 0.0, "tension_violation_time_s": 0.0}
+    slack = tension_min - T.min(axis=0)  # the worst thread at each sample
+    return {
+        "tension_violation_max_mN": max(0.0, float(slack.max())) * 1e3,
+        "tension_violation_time_s": float(np.count_nonzero(slack > tol)) * dt,
+    }
 
 
 def solve_times(times_s: list[float]) -> dict[str, float]:
@@ -85,17 +140,21 @@ def loop_metrics(
     times_s: list[float],
     step: tuple[float, float, float, float] | None = None,
     tension_min: float = 0.0,
+    dt: float | None = None,
 ) -> dict[str, float]:
     """The scene metrics of one run: ``rmse_<suffix>`` (:data:`UNIT_SCALES`),
     ``overshoot_pct`` and ``settling_time_s`` (of ``step`` = ``(r_before, r_after,
-    t_step, t_end)``, 0 without one), ``constraint_violation_max`` [N] and the solve
-    times."""
+    t_step, t_end)``, ``t_end`` the window's end, 0 without one), the
+    :func:`tension_violation` (sampled every ``dt``, default ``t[1] - t[0]``) and the
+    solve times."""
     scale, suffix = UNIT_SCALES.get(unit, (1.0, unit))
     out = {f"rmse_{suffix}": rmse(y, r) / scale}
     if step is None:
         out.update({"overshoot_pct": 0.0, "settling_time_s": 0.0})
     else:
         out.update(step_response_metrics(t, y, *step))
-    out["constraint_violation_max"] = constraint_violation(tensions, tension_min)
+    if dt is None:
+        dt = float(t[1] - t[0]) if len(t) > 1 else 0.0
+    out.update(tension_violation(tensions, tension_min, dt))
     out.update(solve_times(times_s))
     return out

@@ -13,8 +13,8 @@ saturating regulator); ``[simulation] stop_time``; ``[solver]`` the plant's inte
   its ``rate_max`` setting);
 - ``sample_time`` (default 10 ms; from 1 ms to the plant's slowest time constant, see
   :func:`~sarcomere.controllers.registry.check_sample_time`); ``seed`` of the noise
-  (default 0); ``tension_min``: the thread tension constraint the violation metric checks
-  (default 0 N);
+  (default 0); ``tension_min``: the thread tension bound (default 0 N), handed to every
+  controller that can state it (the MPCs) and checked on the plant for all;
 - ``preview``: whether the reference is known ahead (default true, as for every packaged
   scene's planned steps and sines): a controller that takes it (the NMPC, the LMPC) then
   sees the reference at each node of its horizon; false gives it ``r(t)`` held over the
@@ -31,10 +31,16 @@ saturating regulator); ``[simulation] stop_time``; ``[solver]`` the plant's inte
   or text such as ``estimator = "ekf"``).
 
 Metrics, prefixed by the key: ``rmse_mm`` (force: ``rmse_N``), ``overshoot_pct`` and
-``settling_time_s`` of the step (judged up to the next event), ``constraint_violation_max``
-[N], ``solve_time_median_ms``, ``solve_time_p95_ms``, ``fallbacks``, and per sine
-``rmse_sine_<f>_mm``, and ``disturbance_peak_mm`` (largest error from the disturbance to
-the next event). One result (CSV, curves) per key.
+``settling_time_s`` of the step (judged up to the next change of the reference less the
+controller's preview horizon, or the disturbance:
+:func:`~sarcomere.controllers.metrics.step_window_end`), ``tension_violation_max_mN`` and
+``tension_violation_time_s`` (how far and how long the plant's threads broke
+``tension_min``, more than 1 mN for the time:
+:func:`~sarcomere.controllers.metrics.tension_violation`), ``solve_time_median_ms``,
+``solve_time_p95_ms``, ``fallbacks``, and per sine ``rmse_sine_<f>_mm``, and
+``disturbance_peak_mm`` (largest error from the disturbance to the next event). Where each
+controller gets its states (:func:`estimator_of`) is in the printed header and
+``summary.json`` (``estimators``). One result (CSV, curves) per key.
 """
 
 from __future__ import annotations
@@ -129,6 +135,17 @@ def _reference(sc: Scenario, tbl: dict, unit: str, y_op: float):
     return reference, t_step, step, sines
 
 
+def estimator_of(controller, measured: list[str]) -> str:
+    """Where ``controller`` gets its states: ``"ekf"`` (an extended Kalman filter fed the
+    ``measured`` signals), ``"measured"`` (output feedback on the measured signals only, the
+    PID) or ``"exact states"`` (state feedback reading the plant's states, noise-free)."""
+    from sarcomere.controllers.estimated import OnEstimate
+
+    if isinstance(controller, OnEstimate) or getattr(controller, "estimator", None) is not None:
+        return "ekf"
+    return "measured" if set(controller.outputs) <= set(measured) else "exact states"
+
+
 def _builder(b: Binding):
     """``build_model(fidelity, flow_law, saturate)``: the scene's set-up at another fidelity
     level or flow law (a controller's prediction model; the plant is the scene's own)."""
@@ -209,13 +226,14 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         )
     stop = sc.simulation.stop_time
     events = sorted({stop, *(a for _, a, _ in sines), *([dist.time] if dist else [])})
+    changes = sorted({stop, *(a for _, a, _ in sines)})  # where the reference changes
     reach = sorted(operating_point(model, {P_CMD: v}, b.overrides)[output] for v in (p_min, p_max))
     entries = _table(sc, ctl.get("controllers", {}), ("control", "controllers"))
     if not entries:
         raise sc.error(("control", "controllers"), "no controllers to run")
     settings = _settings(sc, model)
     scale, suffix = UNIT_SCALES.get(unit, (1.0, unit))
-    metrics, results = {}, {}
+    metrics, results, estimators = {}, {}, {}
     for key, raw in entries.items():
         path = ("control", "controllers", key)
         own = dict(_table(sc, raw, path))
@@ -248,23 +266,28 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
             key = exc.name.split(".")[-1]
             where = ("control", "sample_time") if key == "dt" else (*path, key)
             raise sc.error(where, describe(exc)) from None
-        step_end = next(e for e in events if e > t_step)
-        run = run_closed_loop(
-            model,
-            controller,
-            op,
-            reference,
-            stop,
-            output=output,
-            settings=settings,
-            noise_std=noise,
-            seed=seed,
-            disturbance=dist,
-            reachable=(reach[0], reach[1]),
-            step=(y_op, y_op + step, t_step, step_end) if step else None,
-            tension_min=t_min,
-            preview=preview,
-        )
+        step_next = next(e for e in changes if e > t_step)
+        try:
+            run = run_closed_loop(
+                model,
+                controller,
+                op,
+                reference,
+                stop,
+                output=output,
+                settings=settings,
+                noise_std=noise,
+                seed=seed,
+                disturbance=dist,
+                reachable=(reach[0], reach[1]),
+                step=(y_op, y_op + step, t_step, step_next) if step else None,
+                tension_min=t_min,
+                preview=preview,
+            )
+        except ParameterError as exc:
+            if exc.name != "step_time":
+                raise
+            raise sc.error(("control", "reference", "step_time"), describe(exc)) from None
         res = run.result
         err = res[output] - res["reference"]
         for f, a, b_end in sines:
@@ -278,17 +301,21 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         metrics.update({f"{key}_{k}": v for k, v in run.metrics.items()})
         res.meta.update({"controller": slug, "sample_time_s": dt})
         results[key] = res
+        estimators[key] = estimator_of(controller, measured)
     extra = {
         "operating_point": {"pressure_Pa": p_op, output: y_op},
         "input_limits": {"u_min_Pa": p_min, "u_max_Pa": p_max, "rate_max_Pa_per_s": rate_max},
         "reachable": {output: reach},
         "reference_known_ahead": preview,
+        "tension_min_N": t_min,
+        "estimators": estimators,
         "controllers": {k: dict(_table(sc, v, ("control",))) for k, v in entries.items()},
     }
     return RunOutput(
         sc.name,
         fid,
-        f"{settings.method} plant, controllers sampled every {dt * 1e3:g} ms (zero-order hold)",
+        f"{settings.method} plant, controllers sampled every {dt * 1e3:g} ms (zero-order hold); "
+        "states from: " + ", ".join(f"{k} {v}" for k, v in estimators.items()),
         metrics=metrics,
         results=results,
         extra=extra,

@@ -177,7 +177,7 @@ def test_soft_lower_bound_pulls_the_signal_up_and_is_paid_for():
 
 def test_as_iosystem_is_the_same_law_as_update(plant):
     model, eq = plant
-    mpc = LinearMPC(model, eq.x, eq.u, 0.01)
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(weight_du=1e-7))  # values below
     lin = linearize(model, eq, [*model.state_names, L], dt=0.01)
     loop = ct.interconnect(
         [lin, mpc.as_iosystem()], inplist=["reference"], outlist=["myofibril__length"]
@@ -235,7 +235,7 @@ def test_preview_moves_the_lmpc_before_a_known_step(plant):
     ref = lambda t: eq[L] - (1e-3 if t >= 0.3 else 0.0)  # noqa: E731
     rms, u = {}, {}
     for preview in (False, True):
-        mpc = LinearMPC(model, eq.x, eq.u, 0.01)
+        mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(weight_du=1e-7))  # values below
         run = run_closed_loop(model, mpc, eq, ref, 0.6, output=L, preview=preview)
         err = run.result[L] - run.result["reference"]
         rms[preview], u[preview] = float(np.sqrt(np.mean(err**2))), run.result[P]
@@ -251,7 +251,8 @@ def test_update_is_the_law_function_and_qrqp_gives_the_same_moves(plant):
     memory as the DAQP one the Python loop uses."""
     model, eq = plant
     soft = (("myofibril.actin0.T", 0.0), ("myofibril.actin1.T", 0.0))
-    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(soft_min=soft, horizon=10))
+    settings = LMPCSettings(soft_min=soft, horizon=10, weight_du=1e-7)  # moves > 1 kPa
+    mpc = LinearMPC(model, eq.x, eq.u, 0.01, settings)
     qrqp = mpc.law_function("qrqp")
     y = measure(mpc, eq)
     for k in range(4):

@@ -8,7 +8,7 @@ import pytest
 from sarcomere.controllers import operating_point
 from sarcomere.controllers.base import Controller
 from sarcomere.controllers.loop import Disturbance, run_closed_loop
-from sarcomere.controllers.metrics import constraint_violation, rmse, step_response_metrics
+from sarcomere.controllers.metrics import rmse, step_response_metrics
 from sarcomere.dynamics import Staircase, hanging_load, simulate
 from sarcomere.dynamics.errors import ParameterError
 
@@ -123,7 +123,6 @@ def test_step_metrics_of_a_second_order_response():
     down = step_response_metrics(t, 2 - y, 2.0, 1.0, 0.0, 3.0)  # a step down: the same
     assert down == pytest.approx(got)
     assert rmse(np.array([1.0, 3.0]), np.array([0.0, 0.0])) == pytest.approx(math.sqrt(5))
-    assert constraint_violation(np.array([[0.1, -0.02], [0.3, 0.2]])) == pytest.approx(0.02)
 
 
 def test_simulator_is_untouched_by_noise(plant):

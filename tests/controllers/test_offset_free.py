@@ -184,7 +184,9 @@ def lmpc_load_step_residual(feed):
     over the last 0.3 s of 3 s [m]."""
     plant = hanging_load(3, load_kg=0.02)
     eq = solve_equilibrium(plant, {P: 5e4})
-    mpc = make_controller("lmpc", plant, eq, 0.01, TASK)
+    # the move weight the values below were measured with (the tuned default 3e-7 closes
+    # the nominal model's gap faster: 3.5 um instead of 0.19 mm)
+    mpc = make_controller("lmpc", plant, eq, 0.01, {**TASK, "weight_du": 1e-7})
     assert mpc.fed == [M]
     if not feed:
         mpc.fed = []

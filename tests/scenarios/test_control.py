@@ -21,7 +21,8 @@ from sarcomere.scenarios.cli import main
 SUFFIXES = (
     "overshoot_pct",
     "settling_time_s",
-    "constraint_violation_max",
+    "tension_violation_max_mN",
+    "tension_violation_time_s",
     "solve_time_median_ms",
     "solve_time_p95_ms",
 )
@@ -54,7 +55,7 @@ def _short_length_scene() -> str:
 
 
 def test_packaged_scenes_load():
-    for name in ("control-length", "control-force"):
+    for name in ("control-length", "control-force", "control-tension"):
         sc = load_scenario(name)
         assert sc.kind == "closed_loop"
         assert set(sc.control["controllers"]) == {
@@ -85,7 +86,8 @@ def test_length_scene_shortened_end_to_end(tmp_path, drawn_png):
         )
         for suffix in SUFFIXES:
             assert f"{key}_{suffix}" in m
-        assert m[f"{key}_constraint_violation_max"] == 0  # the threads stay taut
+        assert m[f"{key}_tension_violation_max_mN"] == 0  # the threads stay taut
+        assert m[f"{key}_tension_violation_time_s"] == 0
         assert m[f"{key}_settling_time_s"] < 0.7  # a 1.5 mm step settles
         assert 0 < m[f"{key}_rmse_sine_3Hz_mm"] < 1.0
         assert m[f"{key}_disturbance_peak_mm"] > 3  # +50 g pulls the chain down
