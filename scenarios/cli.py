@@ -105,6 +105,9 @@ def _study_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--workers", metavar="N", type=_count, help="local worker processes")
     where.add_argument("--scheduler", metavar="ADDRESS", help="tcp://HOST:PORT of a Dask cluster")
     parser.add_argument("--max-samples", metavar="N", type=_count, help="cap on the samples")
+    parser.add_argument(
+        "--max-store-mb", metavar="MB", type=_count, help="cap on the store's size [MB] (2147)"
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress line, no summary")
 
 
@@ -112,9 +115,10 @@ def _study(args: argparse.Namespace) -> int:
     from .explore.study import Study
 
     study = Study.from_file(args.study)
-    ds = study.run(
-        args.out, args.workers, args.scheduler, not args.quiet, max_samples=args.max_samples
-    )
+    caps = {"max_samples": args.max_samples}
+    if args.max_store_mb is not None:
+        caps["max_store_bytes"] = args.max_store_mb * 1_000_000
+    ds = study.run(args.out, args.workers, args.scheduler, not args.quiet, **caps)
     if not args.quiet:
         failed = int((ds["status"] != 0).sum())
         print(f"study {study.definition.name}: {ds['status'].size} samples, {failed} failed")

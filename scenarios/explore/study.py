@@ -132,7 +132,7 @@ class Study:
                 "max_store_bytes",
                 max_store_bytes,
                 f">= {size} for study '{study.name}' ({n} samples x "
-                f"{size // n} B estimated = {size / 1e6:.1f} MB)",
+                f"{size // n} B estimated = {size / 1e6:.1f} MB); raise --max-store-mb",
             )
 
     def _layout(self, design, batch: int | None) -> dict:

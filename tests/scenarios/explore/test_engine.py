@@ -272,3 +272,15 @@ def test_a_task_that_cannot_import_on_the_worker_is_a_cluster_error(tmp_path, cl
 def missing(study, indices, points):
     """An evaluator whose module is not installed on the workers."""
     import sarcomere_not_installed  # noqa: F401
+
+
+def test_the_cli_store_cap_refuses_before_any_work(tmp_path, capsys):
+    """montecarlo-family keeps series: about 3.3 MB estimated, over a 1 MB cap."""
+    from sarcomere.scenarios.cli import main
+
+    out = tmp_path / "mc"
+    status = main(["study", "montecarlo-family", "--out", str(out), "--max-store-mb", "1"])
+    err = capsys.readouterr().err
+    assert status != 0
+    assert "max_store_bytes' = 1000000" in err and "3.3 MB" in err and "--max-store-mb" in err
+    assert not out.exists()
