@@ -10,8 +10,9 @@ model names one constant the estimator finds and the prediction uses:
 - ``"output"``: a constant added to the tracked output [SI of the output];
 - ``"none"``: no disturbance estimate.
 
-The nonlinear MPC gets them from the EKF (:mod:`.ekf`, augmented states) as run-time
-parameters of its prediction. The linear MPC, on the states it reads, runs
+The nonlinear MPC gets them as run-time parameters of its prediction, from the EKF
+(:mod:`.ekf`, augmented states) or, on the states it reads, from its own
+:class:`StateDisturbanceFilter` (below). The linear MPC, on the states it reads, runs
 :class:`DisturbanceFilter`: a Kalman filter of the one constant on its linearisation.
 Because every state is read, the filter reduces to a scalar random walk observed through
 the one-step prediction residual ::
@@ -27,6 +28,9 @@ each state and the output's noise variance. The estimate is relative to the
 linearisation's value; it restarts at 0 (keeping its variance) when the model is
 re-linearised there. The linear MPC keeps the total inside a range (the load's; the
 input's range either side of 0; the reachable output span either side of 0).
+:class:`StateDisturbanceFilter` is the same filter linearised afresh at every sample
+(at the last state and input, at the present estimate), for the nonlinear MPC, whose
+prediction has no fixed linearisation; it keeps the same ranges.
 """
 
 from __future__ import annotations
