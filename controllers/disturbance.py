@@ -10,8 +10,9 @@ model names one constant the estimator finds and the prediction uses:
 - ``"output"``: a constant added to the tracked output [SI of the output];
 - ``"none"``: no disturbance estimate.
 
-The nonlinear MPC gets them from the EKF (:mod:`.ekf`, augmented states) as run-time
-parameters of its prediction. The linear MPC, on the states it reads, runs
+The nonlinear MPC gets them as run-time parameters of its prediction, from the EKF
+(:mod:`.ekf`, augmented states) or, on the states it reads, from its own
+:class:`StateDisturbanceFilter` (below). The linear MPC, on the states it reads, runs
 :class:`DisturbanceFilter`: a Kalman filter of the one constant on its linearisation.
 Because every state is read, the filter reduces to a scalar random walk observed through
 the one-step prediction residual ::
@@ -27,13 +28,20 @@ each state and the output's noise variance. The estimate is relative to the
 linearisation's value; it restarts at 0 (keeping its variance) when the model is
 re-linearised there. The linear MPC keeps the total inside a range (the load's; the
 input's range either side of 0; the reachable output span either side of 0).
+:class:`StateDisturbanceFilter` is the same filter linearised afresh at every sample
+(at the last state and input, at the present estimate), for the nonlinear MPC, whose
+prediction has no fixed linearisation; it keeps the same ranges.
 """
 
 from __future__ import annotations
 
+import casadi as cs
 import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.model import Model
+
+from .qp import zoh
 
 DISTURBANCES = ("load", "input", "output", "none")
 """The disturbance models (module docstring)."""
@@ -86,3 +94,90 @@ class DisturbanceFilter:
         self.value += float(gain @ innovation)
         self.variance = prior / (1.0 + prior * self._ESE)
         return self.value
+
+
+class StateDisturbanceFilter:
+    """:class:`DisturbanceFilter` of one run-time parameter ``p[index]`` of a nonlinear
+    model whose every state is read (the nonlinear MPC's): the residual is the one of the
+    module docstring with the linearisation made afresh at every sample, at the last
+    sample's state and input and the present estimate (so ``c`` is one sample's motion
+    from there, the zero-order-hold step of the linearised model, and ``e_k`` is taken at
+    the present estimate, not at 0); the variance is carried from sample to sample.
+
+    Parameters
+    ----------
+    model : Model
+        An explicit model with the tracked output.
+    output : str
+        The tracked signal.
+    kind : str
+        "load", "input" or "output" (:data:`DISTURBANCES`).
+    dt : float
+        Sample time [s].
+    x_scale : numpy.ndarray
+        The size of each state [SI]; the residual's floor is ``1e-6`` of it.
+    input_std, output_std : float
+        The input's noise [SI of the input] and the output's as read [SI].
+    bounds : (float, float)
+        The estimate's range [SI].
+
+    The vector ``p`` of :meth:`update` is the model's parameters followed by the input
+    and output disturbances (:attr:`~.receding.RecedingHorizon.runtime_parameters`):
+    ``f(x, u + d_in, p)`` and ``y(x, u + d_in, p) + d_out``.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        output: str,
+        kind: str,
+        dt: float,
+        x_scale: np.ndarray,
+        input_std: float,
+        output_std: float,
+        bounds: tuple[float, float],
+    ) -> None:
+        if kind not in RANDOM_WALK:
+            raise ParameterError("disturbance", kind, f"one of {sorted(RANDOM_WALK)}")
+        n_model, nx = model.p.numel(), model.nx
+        self.index = {"load": model.param_names.index("load.m") if kind == "load" else 0,
+                      "input": n_model, "output": n_model + 1}[kind]  # fmt: skip
+        x0, x, u = cs.SX.sym("x0", nx), cs.SX.sym("x", nx), cs.SX.sym("u", len(model.input_names))
+        p = cs.SX.sym("p", n_model + 2)
+        pm, z = p[:n_model], cs.SX(0, 1)
+        f = model.function("ode")(x0, z, u + p[n_model], pm)
+        y = model.signals_function([output])(x, z, u + p[n_model], pm) + p[n_model + 1]
+        d = p[self.index]
+        outs = [cs.jacobian(f, x0), cs.jacobian(f, u), f, cs.jacobian(f, d), y, cs.jacobian(y, d)]
+        self._lin = cs.Function("disturbance_lin", [x0, x, u, p], outs)
+        self.dt, self.floor = float(dt), 1e-6 * np.asarray(x_scale, float)
+        self.input_std, self.output_std = float(input_std), float(output_std)
+        self.q = self.dt * RANDOM_WALK[kind] ** 2
+        self.bounds = (float(bounds[0]), float(bounds[1]))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the last sample and start from the variance ``10 q``."""
+        self._last: np.ndarray | None = None
+        self.variance = 10 * self.q
+
+    def update(self, x: np.ndarray, u_prev: np.ndarray, out: float, p: np.ndarray) -> float:
+        """The estimate [SI] after reading the state ``x`` and the output ``out`` now, with
+        ``u_prev`` held over the last sample and ``p`` the values predicted with (its entry
+        ``index`` the present estimate, returned unchanged at the first sample)."""
+        x = np.asarray(x, float)
+        last, self._last = self._last, x.copy()
+        if last is None:
+            return float(p[self.index])
+        A, B, f, f_d, y, y_d = (np.array(v, float) for v in self._lin(last, x, u_prev, p))
+        nx, nu = B.shape
+        _, G = zoh(A, np.hstack([B, f, f_d]), self.dt)
+        Bd, drift, E_x = G[:, :nu], G[:, nu], G[:, nu + 1]
+        S = np.zeros((nx + 1, nx + 1))
+        S[:nx, :nx] = self.input_std**2 * Bd @ Bd.T + np.diag(self.floor**2)
+        S[nx, nx] = self.output_std**2
+        residual = np.concatenate([x - last - drift, [out - float(y[0, 0])]])
+        kalman = DisturbanceFilter(np.concatenate([E_x, y_d[0]]), S, self.q, self.variance)
+        step = kalman.update(residual)
+        self.variance = kalman.variance
+        return float(np.clip(p[self.index] + step, *self.bounds))

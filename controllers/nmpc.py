@@ -34,12 +34,15 @@ Parameters of the prediction (the load, the geometry, the regulator) are run-tim
 the solver's Function, not constants: :meth:`NonlinearMPC.set_parameters` changes them
 between samples, and on an EKF (:class:`~.estimated.OnEstimate`) the estimated load is fed
 every sample, so the prediction carries the load the plant has (offset-free by the
-disturbance model).
+disturbance model). On the states themselves (no EKF) the NMPC runs its own Kalman filter
+of one disturbance (``disturbance``: "load", "input" or "output"; the LMPC's filter,
+:class:`~.disturbance.StateDisturbanceFilter`) and feeds its estimate the same way; the
+law Function is the same, only its ``p`` changes.
 
 Integral action (``integral_gain``, default 5 1/s; :func:`make_nmpc` makes it 0 when an
-EKF feeds a parameter estimate): the reference the optimiser sees is moved by the
-integrated tracking error, so a load the prediction does not know (the +50 g disturbance)
-leaves no steady offset.
+EKF or the own filter feeds an estimate): the reference the optimiser sees is moved by
+the integrated tracking error, so a load the prediction does not know (the +50 g
+disturbance) leaves no steady offset, slowly.
 
 A failed solve (infeasible QP, NLP not converged) falls back to the previous plan shifted
 by one sample and is counted in ``stats.fallbacks``.
@@ -61,7 +64,8 @@ from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
 from .base import Controller
-from .ekf import OFFSETS, estimated_parameters
+from .disturbance import DISTURBANCES, StateDisturbanceFilter, check_disturbance
+from .ekf import DEFAULT_STD, OFFSETS, estimated_parameters
 from .qp import qp_solver
 from .receding import (
     TENSION,
@@ -135,8 +139,8 @@ class NMPCSettings:
         ``integral_gain * integral of (r - y) dt`` (not while the input is at a bound or
         moves at the rate limit: anti-windup), so
         a load or model error the prediction does not know leaves no steady offset; 0
-        turns it off (:func:`make_nmpc` on an EKF that feeds the load estimate defaults to
-        0: the prediction then knows the load).
+        turns it off (:func:`make_nmpc` defaults to 0 where an EKF or the own filter,
+        ``disturbance``, feeds an estimate: the prediction then knows the load).
     terminal_weight : float
         Extra weight of the squared tracking error at the last node [1/m^2], added to
         ``weight_y`` there (default 0: the 0.2 s horizon outlasts the regulator lag and
@@ -161,6 +165,17 @@ class NMPCSettings:
     tension_l2 : float
         Quadratic penalty of a tension slack [1/N^2] (keeps the slack's QP block
         positive definite).
+    disturbance : str
+        The disturbance model of the NMPC's own Kalman filter on the states it reads
+        (:class:`~.disturbance.StateDisturbanceFilter`): "load" (the load mass), "input",
+        "output" or "none" (default here: the bare law, what the controller FMU exports;
+        :func:`make_nmpc` defaults to "load" where the model has a load, else "input",
+        when no EKF runs). Its estimate is fed to the prediction's run-time parameters
+        every sample.
+    input_std, output_std : float or None
+        The filter's noise: of the input [Pa] (default 2 kPa, the EKF's and the LMPC's)
+        and of the tracked output as read [SI] (None: :data:`~.ekf.DEFAULT_STD` of its
+        unit).
     """
 
     horizon: int = 20
@@ -183,8 +198,16 @@ class NMPCSettings:
     soft_constraints: bool = True
     tension_l1: float = 1.0e6
     tension_l2: float = 1.0e6
+    disturbance: str = "none"
+    input_std: float = 2.0e3
+    output_std: float | None = None
 
     def __post_init__(self) -> None:
+        if self.disturbance not in DISTURBANCES:
+            raise ParameterError("nmpc.disturbance", self.disturbance, f"one of {DISTURBANCES}")
+        positive("nmpc", "input_std", self.input_std, allow_zero=True)
+        if self.output_std is not None:
+            positive("nmpc", "output_std", self.output_std)
         check_horizon("nmpc.horizon", self.horizon)
         positive("nmpc", "integral_gain", self.integral_gain, allow_zero=True)
         positive("nmpc", "weight_y", self.weight_y)
@@ -838,13 +861,39 @@ class NonlinearMPC(RecedingHorizon):
         pb = _Problem(model, s, self.dt, np.where(big > 1e-12, big, 1e-2))
         self.problem = pb
         self.engine = _RealTimeIteration(pb) if s.solver == "rti" else _CollocationNLP(pb, s.solver)
+        self.disturbance = check_disturbance("nmpc", s.disturbance, model.param_names)
+        self.filter = self._disturbance_filter(pb.xs)
         self.reset(u_op)
+
+    def _disturbance_filter(self, xs: np.ndarray) -> StateDisturbanceFilter | None:
+        """The Kalman filter of :attr:`NMPCSettings.disturbance` (None for "none"), its
+        estimate kept in the range of the load, +-the input range or +-the reachable
+        output span."""
+        s, m, kind = self.settings, self.model, self.disturbance
+        if kind == "none":
+            return None
+        if kind == "load":
+            var = m.variables["load.m"]
+            bounds = (var.low, var.high)
+        else:
+            span = s.u_max - s.u_min if kind == "input" else self.clip.high - self.clip.low
+            bounds = (-span, span)
+        y_std = s.output_std or DEFAULT_STD.get(m.unit(s.output), 1e-6)
+        return StateDisturbanceFilter(m, s.output, kind, self.dt, xs, s.input_std, y_std, bounds)
+
+    @property
+    def disturbance_estimate(self) -> float:
+        """The own filter's estimate now [SI]: the load mass [kg], the input offset [Pa],
+        the output offset [SI]; 0 for "none"."""
+        return 0.0 if self.filter is None else float(self._p[self.filter.index])
 
     def reset(self, u0: Mapping[str, float] | np.ndarray) -> None:
         super().reset(u0)
         self._offset = 0.0
         self.violation = 0.0  # the last RTI QP answer's (scaled rows, see QP_FEASIBLE)
         self.slack = 0.0  # the last RTI plan's largest tension slack [N]
+        if self.filter is not None:
+            self.filter.reset()
         if isinstance(self.engine, _RealTimeIteration):
             self.engine.reset()
         else:
@@ -898,6 +947,9 @@ class NonlinearMPC(RecedingHorizon):
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
         ref = self.clip(r)
+        if self.filter is not None:  # this sample's disturbance estimate, predicted with
+            k = self.filter.index
+            self._p[k] = self.filter.update(x, self._u, float(y[self.settings.output]), self._p)
         # the reference per node: the preview if given for this sample, else r(t) held;
         # integral action shifts it by the integrated error, kept inside the reachable range
         nodes = self.nodes(ref)
@@ -940,16 +992,25 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     overrides).
     Common keys: ``output``, ``input``, ``u_min``, ``u_max``, ``tension_min`` (the hard
     tension bound, default 0). Own keys: the other :class:`NMPCSettings` fields,
-    ``fidelity``, ``estimator`` ("none" or "ekf"), ``ekf`` and ``disturbance`` (the
-    disturbance model the EKF estimates, :func:`~.receding.ekf_disturbance`: "load",
-    "input", "output" or "none"; default "load" where the plant has one). On an EKF that
-    estimates a parameter of the prediction or an offset, the estimate is fed to the
-    prediction every sample and ``integral_gain`` defaults to 0 (set it to keep the
-    integral reference shift as well).
+    ``fidelity``, ``estimator`` ("none" or "ekf"), ``ekf`` and ``disturbance`` ("load",
+    "input", "output" or "none"). Without an estimator the NMPC's own Kalman filter on
+    the states it reads estimates the disturbance (:attr:`NMPCSettings.disturbance`,
+    default "load" where the prediction has a load, else "input", as the LMPC's); on an
+    EKF the EKF does (:func:`~.receding.ekf_disturbance`, default its own: the load where
+    the plant has one) and the NMPC's filter is off. The output's noise (``noise_std``)
+    sets ``output_std`` unless given. Whichever estimates a parameter of the prediction
+    or an offset, the estimate is fed to the prediction every sample and
+    ``integral_gain`` defaults to 0 (set it to keep the integral reference shift as
+    well; ``disturbance = "none"`` without an EKF keeps the integral's default 5 1/s).
     """
     extra = {"fidelity": DEFAULT_FIDELITY, "disturbance": None}
     own, est, ekf_settings = mpc_settings("nmpc", model, settings, NMPCSettings, extra)
-    ekf_settings = ekf_disturbance("nmpc", model, est, own.pop("disturbance"), ekf_settings)
+    kind = own.pop("disturbance")
+    if est == "ekf":  # the EKF estimates the disturbance: no second estimate
+        ekf_settings = ekf_disturbance("nmpc", model, kind, ekf_settings)
+    noise = (settings.get("noise_std") or {}).get(settings["output"])
+    if own["output_std"] is None and noise:
+        own["output_std"] = float(noise)
     given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
     fidelity = own.pop("fidelity")
     smooth = {"fidelity": fidelity, "flow_law": "smooth", "saturate": False}
@@ -965,10 +1026,16 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
             "a System flattened by hand records no set-up to rebuild for prediction",
         )
     params = {n: given[n] for n in pred.param_names if n in given}
-    fed = est == "ekf" and any(
-        n in (*pred.param_names, *OFFSETS) for n in estimated_parameters(model, ekf_settings)
-    )
-    if fed and "integral_gain" not in settings:  # the load estimate removes the offset
+    if est == "ekf":
+        own["disturbance"] = "none"
+        fed = any(
+            n in (*pred.param_names, *OFFSETS) for n in estimated_parameters(model, ekf_settings)
+        )
+    else:  # the NMPC's own filter on the states it reads
+        default = "load" if "load.m" in pred.param_names else "input"
+        own["disturbance"] = check_disturbance("nmpc", kind or default, pred.param_names)
+        fed = own["disturbance"] != "none"
+    if fed and "integral_gain" not in settings:  # the estimate removes the offset
         own["integral_gain"] = 0.0
     s = NMPCSettings(
         **own,

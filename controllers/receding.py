@@ -283,7 +283,6 @@ def mpc_settings(
 def ekf_disturbance(
     slug: str,
     model: Model,
-    estimator: str,
     disturbance: object,
     ekf_settings: Mapping[str, object],
 ) -> Mapping[str, object]:
@@ -296,19 +295,11 @@ def ekf_disturbance(
     Raises
     ------
     ParameterError
-        For an unknown model, "load" on a plant without one, or a disturbance model
-        without an estimator (nothing would estimate it).
+        For an unknown model, or "load" on a plant without one.
     """
     if disturbance is None:
         return ekf_settings
     kind = check_disturbance(slug, disturbance, model.param_names)
-    if estimator != "ekf" and kind != "none":
-        raise ParameterError(
-            f"{slug}.disturbance",
-            kind,
-            "'none' without an estimator",
-            "an EKF (estimator = 'ekf') estimates the disturbance",
-        )
     if not isinstance(ekf_settings, Mapping):
         return ekf_settings  # make_ekf refuses it
     name = {"load": "load.m", "input": OFFSETS[0], "output": OFFSETS[1]}.get(kind)

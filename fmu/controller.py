@@ -168,7 +168,8 @@ def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> Sample
 
 
 def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc") -> SampledSystem:
-    """A full-state real-time-iteration ``nmpc`` (no estimator) as a sampled system.
+    """A full-state real-time-iteration ``nmpc`` (no estimator, ``disturbance = "none"``)
+    as a sampled system.
 
     The update is the NMPC's own law (:meth:`NonlinearMPC.law_function`: one RTI step
     with its warm start as memory) with the Python controller's steps around it: the
@@ -185,6 +186,12 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     if not isinstance(nmpc, NonlinearMPC) or nmpc.settings.solver != "rti":
         raise ParameterError(
             "controller", _what(nmpc), "an NMPC with solver 'rti' (the exported law)"
+        )
+    if nmpc.disturbance != "none":
+        raise ParameterError(
+            "controller",
+            f"nmpc (disturbance '{nmpc.disturbance}')",
+            "an NMPC with disturbance 'none' (its disturbance filter is not exported)",
         )
     s, pred = nmpc.settings, nmpc.model
     _generated("nmpc", s.qp_solver)
@@ -398,7 +405,7 @@ def export_controller_fmu(
     ------
     ParameterError
         For a controller without an exported law (a controller on an EKF, an NMPC solved
-        by ipopt or fatrop, an LMPC with a disturbance filter), a bias
+        by ipopt or fatrop, an NMPC or LMPC with a disturbance filter), a bias
         outside the bounds, a bad version or path.
     """
     builders = {PID: pid_system, LQI: lqi_system, NonlinearMPC: nmpc_system, LinearMPC: lmpc_system}

@@ -85,10 +85,3 @@ def test_the_nmpc_on_the_ekfs_input_disturbance_holds_the_reference(plant):
     assert sim.signal(L) == pytest.approx(eq[L], abs=1e-7)
     assert mpc.inner.parameters["disturbance.input"] == pytest.approx(1e4, rel=1e-3)
     assert u[P] == pytest.approx(4e4, rel=1e-4)
-
-
-def test_a_disturbance_model_without_an_estimator_is_refused(plant):
-    model, eq = plant
-    task = {"output": L, "input": P, "u_min": 0.0, "u_max": 3e5}
-    with pytest.raises(ParameterError, match="nmpc.disturbance"):
-        make_controller("nmpc", model, eq, 0.01, {**task, "disturbance": "input"})

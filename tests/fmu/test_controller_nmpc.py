@@ -121,7 +121,7 @@ def test_the_lmpc_fmu_equals_the_python_lmpc_at_its_linearisation(plant, tmp_pat
     which it does not re-linearise (the FMU keeps its linearisation)."""
     m, _, op = plant
     tension = "myofibril.actin0.T"
-    # weight_du pinned at the value the loop below was measured with (the default is tuned)
+    # the move weight this test was written at (at the tuned 3e-7 the command moves 10 kPa)
     s = LMPCSettings(horizon=10, disturbance="none", soft_min=((tension, 0.05),), weight_du=1e-7)
     lmpc = LinearMPC(m, op.x, op.u, DT, s)
     path = export_controller_fmu(lmpc, m, tmp_path / "lmpc.fmu", U0, 3)

@@ -269,6 +269,11 @@ def test_a_known_reference_is_previewed_by_the_nmpc(tmp_path):
         "",
         _short_length_scene(),
     )
+    # the formulation these values were measured with: the integral shift, no disturbance
+    # filter (with the default load filter the step overshoots 5.6 % known, 10.0 % blind)
+    text = text.replace(
+        "[control.controllers.nmpc]\n", '[control.controllers.nmpc]\ndisturbance = "none"\n'
+    )
     known = run(parse_scenario(text, "known.toml"), tmp_path / "known", quiet=True)
     blind_text = text.replace("seed = 1", "seed = 1\npreview = false")
     blind = run(parse_scenario(blind_text, "blind.toml"), tmp_path / "blind", quiet=True)
