@@ -60,6 +60,7 @@ from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
+from . import sparse_lu
 from .base import Controller
 from .ekf import OFFSETS, estimated_parameters
 from .qp import qp_solver
@@ -77,10 +78,14 @@ from .rti_compiled import compiled_functions
 SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
 
-LINEAR_SOLVERS = ("auto", "lapacklu", "lapackqr", "qr")
-"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense LU (the fastest:
-"auto") or QR, or CasADi's own sparse QR (the one that generates C, 1.3 against 0.97 ms
-for the 20 intervals compiled)."""
+LINEAR_SOLVERS = ("auto", "lapacklu", "lapackqr", "qr", "sparse_lu")
+"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense LU (the fastest in
+CasADi's virtual machine) or QR, CasADi's own sparse QR (generates C, slowly), or the
+sparse LU written out as SX expressions with the Jacobians (:mod:`.sparse_lu`: generates
+C, the fastest compiled); "auto": "sparse_lu" when ``compiled``, else "lapacklu"."""
+
+GENERATED_SOLVERS = ("qr", "sparse_lu")
+"""The linear solvers whose law generates C (LAPACK's have no code generation)."""
 
 QP_FEASIBLE = 1e-6
 """Largest violation (rows scaled by ``1 + |A du|``, bounds in scaled input units) of a QP
@@ -145,11 +150,15 @@ class NMPCSettings:
     compiled : bool
         Run the RTI as generated C, compiled with gcc and cached on disk
         (:mod:`.rti_compiled`): the linearisation, the condensing, the feedback and the
-        update; the lifted linear solves stay LAPACK calls (``linear_solver``). Default
-        false (BENCHMARKS.md, section 5: measured compile time against the time saved).
+        update, with the lifted linear solves as the sparse LU of :mod:`.sparse_lu`
+        (``linear_solver`` "auto"). Default false (BENCHMARKS.md, section 5: measured
+        compile time against the time saved).
     linear_solver : str
-        Linear solver of the lifted Radau equations: "lapacklu", "lapackqr", "qr" (the
-        one that generates C: use it for a law to export) or "auto" (default: LAPACK LU).
+        Linear solver of the lifted Radau equations: "lapacklu", "lapackqr", "qr"
+        (CasADi's sparse QR), "sparse_lu" (:mod:`.sparse_lu`, SX expressions fused with
+        the Jacobians; with "qr" the ones that generate C: use it for a law to export) or
+        "auto" (default: "sparse_lu" when compiled, else LAPACK LU, the faster in
+        CasADi's virtual machine).
     soft_constraints : bool
         Soften the thread-tension bounds (default true): every bound row of every node
         gets a slack ``s >= 0`` [N] costing ``tension_l1 s + tension_l2 s^2``; false keeps
@@ -462,7 +471,10 @@ class _RealTimeIteration:
             ["memory_next", "u", "violation", "fallback", "slack"],
         )
         parts = [self.prepare, self.feedback, self.update]
-        if pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
+        if pb.s.compiled and self.solve is None:  # all in C
+            built = compiled_functions(parts, "nmpc_rti")
+            parts = [built[f.name()] for f in parts]
+        elif pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
             built = compiled_functions([head, tail, self.feedback, self.update], "nmpc_rti")
             parts = [self._prepare_function(built["nmpc_head"], built["nmpc_tail"])]
             parts += [built["nmpc_feedback"], built["nmpc_update"]]
@@ -503,13 +515,21 @@ class _RealTimeIteration:
         ps = cs.SX.sym("p", pb.np)
         R = pb.res(xi, V, cs.vertcat(v, ps), pb.dt)
         RV, RB = cs.jacobian(R, V), cs.horzcat(R, cs.jacobian(R, cs.vertcat(xi, v)))
-        # common subexpressions of both Jacobians merged: 5114 instead of 6077 instructions
-        self.lin = cs.Function("radau_lin", [V, xi, v, ps], cs.cse([RV, RB])).map(N)
-        linsol = "lapacklu" if pb.s.linear_solver == "auto" else pb.s.linear_solver
-        if linsol.startswith("lapack"):
-            _one_blas_thread()
-        A, B = cs.MX.sym("RV", RV.sparsity()), cs.MX.sym("RB", RB.sparsity())
-        self.solve = cs.Function("lift_solve", [A, B], [-cs.solve(A, B, linsol)]).map(N)
+        linsol = pb.s.linear_solver
+        if linsol == "auto":
+            linsol = "sparse_lu" if pb.s.compiled else "lapacklu"
+        if linsol == "sparse_lu":  # the solve as expressions, with the Jacobians: no call
+            order = sparse_lu.block_order(np.array(cs.DM(RV.sparsity(), 1)) != 0, nx, d)
+            L = -sparse_lu.solve(RV, RB, order)
+            self.lin = cs.Function("radau_lift", [V, xi, v, ps], cs.cse([L])).map(N)
+            self.solve = None
+        else:
+            # common subexpressions of both Jacobians merged: 5114 instead of 6077
+            self.lin = cs.Function("radau_lin", [V, xi, v, ps], cs.cse([RV, RB])).map(N)
+            if linsol.startswith("lapack"):
+                _one_blas_thread()
+            A, B = cs.MX.sym("RV", RV.sparsity()), cs.MX.sym("RB", RB.sparsity())
+            self.solve = cs.Function("lift_solve", [A, B], [-cs.solve(A, B, linsol)]).map(N)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
         self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
 
@@ -530,13 +550,13 @@ class _RealTimeIteration:
         p = cs.MX.sym("p", pb.np)
         Xb, Ub, Vb = self._guess(mem, x / pb.xs, u / pb.us)
         P = cs.repmat(p, 1, N)
-        RV, RB = self.lin(Vb, Xb[:, :N], Ub, P)
+        lifted = self.lin.call([Vb, Xb[:, :N], Ub, P])  # [RV, RB], or [L] (fused)
         YT, CYT = self.outs(Xb[:, 1:], P)
-        names = ["Xb", "Ub", "Vb", "RV", "RB", "YT", "CYT"]
+        names = ["Xb", "Ub", "Vb", *(["RV", "RB"] if self.solve else ["L"]), "YT", "CYT"]
         return cs.Function(
             "nmpc_head",
             [mem, x, u, p],
-            [Xb, Ub, Vb, RV, RB, YT, CYT],
+            [Xb, Ub, Vb, *lifted, YT, CYT],
             ["memory", "x", "u_prev", "p"],
             names,
         )
@@ -546,8 +566,9 @@ class _RealTimeIteration:
         mem, x, u = (cs.MX.sym(n, k) for n, k in self._io()[:3])
         p = cs.MX.sym("p", self.pb.np)
         inline = not head.is_a("External")  # CasADi's own: one graph, no calls between
-        Xb, Ub, Vb, RV, RB, YT, CYT = head.call([mem, x, u, p], inline, False)
-        (data,) = tail.call([Xb, Ub, Vb, self.solve(RV, RB), YT, CYT], inline, False)
+        Xb, Ub, Vb, *lifted, YT, CYT = head.call([mem, x, u, p], inline, False)
+        L = self.solve(*lifted) if self.solve else lifted[0]
+        (data,) = tail.call([Xb, Ub, Vb, L, YT, CYT], inline, False)
         return cs.Function(
             "nmpc_prepare", [mem, x, u, p], [data], ["memory", "x", "u_prev", "p"], ["data"]
         )
