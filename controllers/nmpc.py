@@ -478,7 +478,12 @@ class _RealTimeIteration:
             built = compiled_functions([head, tail, self.feedback, self.update], "nmpc_rti")
             parts = [self._prepare_function(built["nmpc_head"], built["nmpc_tail"])]
             parts += [built["nmpc_feedback"], built["nmpc_update"]]
-        self.calls = dict(zip(("prepare", "feedback", "update"), map(_Call, parts), strict=True))
+        # the prepared data (some 27 000 numbers at n = 3, N = 20) stays in the preparation's
+        # output array, which the feedback and the update read in place
+        prepare, feedback, update = _Call(parts[0], copy=False), *map(_Call, parts[1:])
+        feedback.share(0, prepare.res[0])
+        update.share(0, prepare.res[0])
+        self.calls = {"prepare": prepare, "feedback": feedback, "update": update}
         self.reset()
 
     def _io(self) -> list[tuple[str, int]]:
@@ -788,10 +793,12 @@ def _finite(M: cs.MX) -> cs.MX:
 
 class _Call:
     """Repeated calls of a CasADi Function on numpy arrays through ``Function.buffer``
-    (about 1 us of overhead per call instead of some 30 us of conversions per argument)."""
+    (about 1 us of overhead per call instead of some 30 us of conversions per argument).
+    With ``copy=False`` the outputs returned are the call's own arrays, overwritten by the
+    next call; an input shared (:meth:`share`) with another call's output is read in place."""
 
-    def __init__(self, F: cs.Function) -> None:
-        self.function = F
+    def __init__(self, F: cs.Function, copy: bool = True) -> None:
+        self.function, self.copy = F, copy
         self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
         self.res = [np.zeros(F.nnz_out(i)) for i in range(F.n_out())]
         self.buf, self.trigger = F.buffer()
@@ -800,12 +807,20 @@ class _Call:
         for i, arr in enumerate(self.res):
             self.buf.set_res(i, memoryview(arr))
 
+    def share(self, i: int, source: np.ndarray) -> None:
+        """Read input ``i`` from ``source`` (another call's output array): passing that
+        array as the argument then copies nothing."""
+        self.args[i] = source
+        self.buf.set_arg(i, memoryview(source))
+
     def __call__(self, *args) -> list[np.ndarray]:
-        """Arguments as arrays (column-major flattened); copies of the outputs' nonzeros."""
+        """Arguments as arrays (column-major flattened); the outputs' nonzeros (copies
+        unless ``copy=False``)."""
         for arr, value in zip(self.args, args, strict=True):
-            arr[:] = np.ravel(value, order="F")
+            if value is not arr:
+                arr[:] = np.ravel(value, order="F")
         self.trigger()
-        return [r.copy() for r in self.res]
+        return [r.copy() for r in self.res] if self.copy else list(self.res)
 
 
 class NonlinearMPC(RecedingHorizon):
