@@ -421,8 +421,11 @@ class _RealTimeIteration:
       holds no guess (the first sample, or after a fallback): the guess is then the
       measured state and the previous input held.
     * :attr:`feedback` ``(data, memory, x, u_prev, ref) -> (u, violation, fallback,
-      slack, step)``: the affine update of the QP's gradient and bounds, the QP and the
-      command: the measurement-to-command latency.
+      slack, step)``: the affine update of the QP's gradient and bounds (the measured
+      state's distance from the guess carried through the intervals' end sensitivities
+      and the outputs' Jacobians: 2N matrix-vector products, cheaper than the N matrix
+      products that would condense it in the preparation), the QP and the command: the
+      measurement-to-command latency.
     * :attr:`update` ``(data, memory, x, u_prev, step) -> memory_next``: the next guess
       (the corrected trajectory shifted by one sample) and the plan, after the command.
 
@@ -587,26 +590,27 @@ class _RealTimeIteration:
         Xb, Ub, Vb = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("Xb", "Ub", "Vb"))
         YT, CYT = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("YT", "CYT"))
         L = cs.MX.sym("L", nx * pb.s.degree, N * w)
-        # node k's state correction: dX_k = c_k + Phi_k a0 + G_k du, a0 = x0 - Xb_0
-        c, Phi, G = cs.MX(nx, 1), cs.MX.eye(nx), cs.MX(nx, nq)
-        cc, PP, GG = [c], [Phi], [G]
+        # node k's state correction: dX_k = c_k + Phi_k a0 + G_k du, a0 = x0 - Xb_0; the
+        # part in a0 is left to the feedback (:meth:`_measured`: 20 products with a vector
+        # there instead of 20 matrix products here)
+        c, G = cs.MX(nx, 1), cs.MX(nx, nq)
+        cc, GG = [c], [G]
         for k in range(N):
             Lk = L[-nx:, k * w : (k + 1) * w]  # the interval's end
             Ak, Bk = Lk[:, 1 : 1 + nx], Lk[:, 1 + nx :]
             c = Vb[-nx:, k] + Lk[:, 0] + cs.mtimes(Ak, c) - Xb[:, k + 1]
-            Phi, G = cs.mtimes(Ak, Phi), cs.mtimes(Ak, G) + _at(Bk, k, N, nu)
-            cc.append(c), PP.append(Phi), GG.append(G)
+            G = cs.mtimes(Ak, G) + _at(Bk, k, N, nu)
+            cc.append(c), GG.append(G)
         # every node's output rows times its corrections at once: the outputs' Jacobians
         # as one block-diagonal matrix (their nonzeros in the same order)
-        ny, nT = 1 + len(pb.tensions), len(pb.tensions)
+        ny = 1 + len(pb.tensions)
         blocks = cs.diagcat(*[cs.DM.ones(ny, nx)] * N).sparsity()
         BD = cs.MX(blocks, cs.vec(cs.densify(CYT)))
-        M = cs.mtimes(BD, cs.horzcat(cs.vertcat(*cc[1:]), cs.vertcat(*PP[1:]), cs.vertcat(*GG[1:])))
+        M = cs.mtimes(BD, cs.horzcat(cs.vertcat(*cc[1:]), cs.vertcat(*GG[1:])))
         YTv = cs.vec(cs.densify(YT))
-        ry = list(range(0, N * ny, ny))
-        rT = [k * ny + 1 + i for k in range(N) for i in range(nT)]
-        ey0, Ey, Jy = YTv[ry] + M[ry, 0], M[ry, 1 : 1 + nx], M[ry, 1 + nx :]
-        tb0, Et, TJ = YTv[rT] + M[rT, 0], M[rT, 1 : 1 + nx], M[rT, 1 + nx :]
+        ry, rT = self._rows()
+        ey0, Jy = YTv[ry] + M[ry, 0], M[ry, 1:]
+        tb0, TJ = YTv[rT] + M[rT, 0], M[rT, 1:]
         # the QP's variables are the moves' corrections dm = Dk du (du = C dm, C = Dk^-1):
         # the rate limits are then bounds, which keeps the active sets regular
         Dk, C = _moves(N, nu), _cumulative(N, nu)
@@ -623,11 +627,10 @@ class _RealTimeIteration:
             "H": 2 * (cs.mtimes(JyC.T, WJ) + wu2 * cs.DM.eye(nq)),
             "AT": cs.mtimes(TJ, C),
             "g": 2 * (cs.mtimes(WJ.T, ey0) + wu2 * m0),
-            "Ga": 2 * cs.mtimes(WJ.T, Ey),
             "Gr": -2 * WJ.T,
             "m0": m0,
             "tb0": tb0,
-            "Et": Et,
+            "CYT": cs.densify(CYT),
             "Ub": Ubv,
             "Xb": Xb,
             "Vb": Vb,
@@ -664,6 +667,24 @@ class _RealTimeIteration:
             return cs.repmat(u_prev, 1, N)
         return cs.if_else(mem[sl["has_plan"]], _ahead(last), cs.repmat(u_prev, 1, N))
 
+    def _rows(self) -> tuple[list[int], list[int]]:
+        """The tracked output's and the tensions' rows among every node's outputs."""
+        ny, N = 1 + len(self.pb.tensions), self.N
+        return list(range(0, N * ny, ny)), [k * ny + i for k in range(N) for i in range(1, ny)]
+
+    def _measured(self, D: dict[str, cs.MX], a0: cs.MX) -> tuple[cs.MX, cs.MX]:
+        """The nodes' tracked outputs and tensions moved by the measured state's distance
+        ``a0`` from the guess (scaled): ``a0`` through the intervals' end sensitivities
+        (``L``), then the outputs' Jacobians (``CYT``)."""
+        nx, w, N = self.pb.nx, 1 + self.pb.nx + self.pb.nu, self.N
+        dx, out = a0, []
+        for k in range(N):
+            dx = cs.mtimes(D["L"][-nx:, k * w + 1 : k * w + 1 + nx], dx)
+            out.append(cs.mtimes(D["CYT"][:, k * nx : (k + 1) * nx], dx))
+        ry, rT = self._rows()
+        ya = cs.vertcat(*out)
+        return ya[ry], ya[rT]
+
     def _feedback_function(self) -> cs.Function:
         """(data, memory, x, u_prev, ref) -> (u, violation, fallback, slack, step)."""
         pb, N = self.pb, self.N
@@ -673,14 +694,15 @@ class _RealTimeIteration:
         mem, x, u_prev, ref = (cs.MX.sym(n, k) for n, k in self._io())
         D = self._unpack(data)
         a0, vp = x / pb.xs - D["Xb0"], u_prev / pb.us
+        ey_a, et_a = self._measured(D, a0)
         E1vp = cs.vertcat(vp, cs.MX(nq - nu, 1))
         rate = E1vp - D["m0"]  # minus the guess's moves from the previous input
         wu2 = s.weight_du * pb.us[0] ** 2
-        g = D["g"] + cs.mtimes(D["Ga"], a0) + cs.mtimes(D["Gr"], ref) - 2 * wu2 * E1vp
+        g = D["g"] + cs.mtimes(D["Gr"], ref - ey_a) - 2 * wu2 * E1vp
         dv = s.rate_max * pb.dt / pb.us[0]
         C = _cumulative(N, nu)
         # rows: the input bounds (C dm), then the tensions; variable bounds: the rates
-        T_low = s.tension_min - D["tb0"] - cs.mtimes(D["Et"], a0)
+        T_low = s.tension_min - D["tb0"] - et_a
         lba = cs.vertcat(s.u_min / pb.us[0] - D["Ub"], T_low)
         uba = cs.vertcat(s.u_max / pb.us[0] - D["Ub"], cs.DM.inf(nT * N))
         lbx, ubx = rate - dv, rate + dv
