@@ -15,6 +15,7 @@ ratio, the largest command difference [Pa], the export time.
 Usage::
 
     python benchmarks/controller_fmu.py --out out/bench/controller_fmu.json [--n 3]
+        [--linear-solver sparse_lu qr]   # the NMPC law's lifted solver(s), one run each
     python benchmarks/controller_fmu.py --controller lmpc
 """
 
@@ -32,7 +33,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
-from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
+from sarcomere.controllers.nmpc import GENERATED_SOLVERS, NMPCSettings, NonlinearMPC
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.fmu.controller import export_controller_fmu
@@ -87,18 +88,11 @@ def fmu_steps(path: Path, folder: str, nmpc, read, refs, ident: str) -> tuple[li
     return cmds, times
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=3, help="APS in the chain")
-    ap.add_argument("--samples", type=int, default=200, help="samples of the scene")
-    ap.add_argument("--controller", choices=("nmpc", "lmpc"), default="nmpc")
-    ap.add_argument("--out", type=Path, help="JSON file of the results")
-    args = ap.parse_args()
-    plant = hanging_load(args.n, load_kg=0.02)
-    pred = hanging_load(args.n, load_kg=0.02, flow_law="smooth", saturate=False)
-    op = solve_equilibrium(plant, {"regulator.p_cmd": U0})
+def measure(plant, pred, op, args, linear_solver: str) -> dict:
+    """One controller's closed loop, its FMU's export and steps; the results."""
     if args.controller == "nmpc":
-        nmpc = NonlinearMPC(pred, op.u, DT, NMPCSettings(linear_solver="qr"))
+        s = NMPCSettings(linear_solver=linear_solver)
+        nmpc = NonlinearMPC(pred, op.u, DT, s)
     else:  # re-linearisation out of reach: the FMU keeps the linearisation
         fixed = LMPCSettings(disturbance="none", relinearize_m=1.0, relinearize_x=1e6)
         nmpc = LinearMPC(plant, op.x, op.u, DT, fixed)
@@ -111,6 +105,7 @@ def main() -> None:
         got, fmu_times = fmu_steps(path, folder, nmpc, read, refs, args.controller)
     res = {
         "controller": args.controller,
+        "linear_solver": linear_solver if args.controller == "nmpc" else None,
         "n": args.n,
         "horizon": nmpc.settings.horizon,
         "samples": args.samples,
@@ -121,8 +116,37 @@ def main() -> None:
         "python_update_median_ms": 1e3 * statistics.median(py_times),
         "max_command_difference_Pa": float(np.max(np.abs(np.subtract(got, want)))),
         "fallbacks": nmpc.stats.fallbacks,
+        "commands": want,
     }
     res["ratio_python_over_fmu"] = res["python_update_median_ms"] / res["fmu_doStep_median_ms"]
+    return res
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=3, help="APS in the chain")
+    ap.add_argument("--samples", type=int, default=200, help="samples of the scene")
+    ap.add_argument("--controller", choices=("nmpc", "lmpc"), default="nmpc")
+    ap.add_argument(
+        "--linear-solver",
+        nargs="+",
+        choices=GENERATED_SOLVERS,
+        default=list(GENERATED_SOLVERS)[::-1],
+        help="the NMPC law's lifted solver(s), each measured in this process",
+    )
+    ap.add_argument("--out", type=Path, help="JSON file of the results")
+    args = ap.parse_args()
+    plant = hanging_load(args.n, load_kg=0.02)
+    pred = hanging_load(args.n, load_kg=0.02, flow_law="smooth", saturate=False)
+    op = solve_equilibrium(plant, {"regulator.p_cmd": U0})
+    solvers = args.linear_solver if args.controller == "nmpc" else [None]
+    runs = [measure(plant, pred, op, args, ls) for ls in solvers]
+    first = runs[0].pop("commands")
+    for r in runs[1:]:  # the same closed loop with another solver: its commands' distance
+        r["max_command_difference_to_first_Pa"] = float(
+            np.max(np.abs(np.subtract(r.pop("commands"), first)))
+        )
+    res = runs[0] if len(runs) == 1 else {"runs": runs}
     print(json.dumps(res, indent=1))
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -63,6 +63,7 @@ from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
+from . import sparse_lu
 from .base import Controller
 from .disturbance import DISTURBANCES, StateDisturbanceFilter, check_disturbance
 from .ekf import DEFAULT_STD, OFFSETS, estimated_parameters
@@ -81,10 +82,14 @@ from .rti_compiled import compiled_functions
 SOLVERS = ("ipopt", "fatrop", "rti")
 """NMPC solution methods."""
 
-LINEAR_SOLVERS = ("auto", "lapacklu", "lapackqr", "qr")
-"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense LU (the fastest:
-"auto") or QR, or CasADi's own sparse QR (the one that generates C, 1.3 against 0.97 ms
-for the 20 intervals compiled)."""
+LINEAR_SOLVERS = ("auto", "lapacklu", "lapackqr", "qr", "sparse_lu")
+"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense LU (the fastest in
+CasADi's virtual machine) or QR, CasADi's own sparse QR (generates C, slowly), or the
+sparse LU written out as SX expressions with the Jacobians (:mod:`.sparse_lu`: generates
+C, the fastest compiled); "auto": "sparse_lu" when ``compiled``, else "lapacklu"."""
+
+GENERATED_SOLVERS = ("qr", "sparse_lu")
+"""The linear solvers whose law generates C (LAPACK's have no code generation)."""
 
 QP_FEASIBLE = 1e-6
 """Largest violation (rows scaled by ``1 + |A du|``, bounds in scaled input units) of a QP
@@ -149,11 +154,15 @@ class NMPCSettings:
     compiled : bool
         Run the RTI as generated C, compiled with gcc and cached on disk
         (:mod:`.rti_compiled`): the linearisation, the condensing, the feedback and the
-        update; the lifted linear solves stay LAPACK calls (``linear_solver``). Default
-        false (BENCHMARKS.md, section 5: measured compile time against the time saved).
+        update, with the lifted linear solves as the sparse LU of :mod:`.sparse_lu`
+        (``linear_solver`` "auto"). Default false (BENCHMARKS.md, section 5: measured
+        compile time against the time saved).
     linear_solver : str
-        Linear solver of the lifted Radau equations: "lapacklu", "lapackqr", "qr" (the
-        one that generates C: use it for a law to export) or "auto" (default: LAPACK LU).
+        Linear solver of the lifted Radau equations: "lapacklu", "lapackqr", "qr"
+        (CasADi's sparse QR), "sparse_lu" (:mod:`.sparse_lu`, SX expressions fused with
+        the Jacobians; with "qr" the ones that generate C: use it for a law to export) or
+        "auto" (default: "sparse_lu" when compiled, else LAPACK LU, the faster in
+        CasADi's virtual machine).
     soft_constraints : bool
         Soften the thread-tension bounds (default true): every bound row of every node
         gets a slack ``s >= 0`` [N] costing ``tension_l1 s + tension_l2 s^2``; false keeps
@@ -435,8 +444,11 @@ class _RealTimeIteration:
       holds no guess (the first sample, or after a fallback): the guess is then the
       measured state and the previous input held.
     * :attr:`feedback` ``(data, memory, x, u_prev, ref) -> (u, violation, fallback,
-      slack, step)``: the affine update of the QP's gradient and bounds, the QP and the
-      command: the measurement-to-command latency.
+      slack, step)``: the affine update of the QP's gradient and bounds (the measured
+      state's distance from the guess carried through the intervals' end sensitivities
+      and the outputs' Jacobians: 2N matrix-vector products, cheaper than the N matrix
+      products that would condense it in the preparation), the QP and the command: the
+      measurement-to-command latency.
     * :attr:`update` ``(data, memory, x, u_prev, step) -> memory_next``: the next guess
       (the corrected trajectory shifted by one sample) and the plan, after the command.
 
@@ -485,11 +497,19 @@ class _RealTimeIteration:
             ["memory_next", "u", "violation", "fallback", "slack"],
         )
         parts = [self.prepare, self.feedback, self.update]
-        if pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
+        if pb.s.compiled and self.solve is None:  # all in C
+            built = compiled_functions(parts, "nmpc_rti")
+            parts = [built[f.name()] for f in parts]
+        elif pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
             built = compiled_functions([head, tail, self.feedback, self.update], "nmpc_rti")
             parts = [self._prepare_function(built["nmpc_head"], built["nmpc_tail"])]
             parts += [built["nmpc_feedback"], built["nmpc_update"]]
-        self.calls = dict(zip(("prepare", "feedback", "update"), map(_Call, parts), strict=True))
+        # the prepared data (some 27 000 numbers at n = 3, N = 20) stays in the preparation's
+        # output array, which the feedback and the update read in place
+        prepare, feedback, update = _Call(parts[0], copy=False), *map(_Call, parts[1:])
+        feedback.share(0, prepare.res[0])
+        update.share(0, prepare.res[0])
+        self.calls = {"prepare": prepare, "feedback": feedback, "update": update}
         self.reset()
 
     def _io(self) -> list[tuple[str, int]]:
@@ -526,13 +546,21 @@ class _RealTimeIteration:
         ps = cs.SX.sym("p", pb.np)
         R = pb.res(xi, V, cs.vertcat(v, ps), pb.dt)
         RV, RB = cs.jacobian(R, V), cs.horzcat(R, cs.jacobian(R, cs.vertcat(xi, v)))
-        # common subexpressions of both Jacobians merged: 5114 instead of 6077 instructions
-        self.lin = cs.Function("radau_lin", [V, xi, v, ps], cs.cse([RV, RB])).map(N)
-        linsol = "lapacklu" if pb.s.linear_solver == "auto" else pb.s.linear_solver
-        if linsol.startswith("lapack"):
-            _one_blas_thread()
-        A, B = cs.MX.sym("RV", RV.sparsity()), cs.MX.sym("RB", RB.sparsity())
-        self.solve = cs.Function("lift_solve", [A, B], [-cs.solve(A, B, linsol)]).map(N)
+        linsol = pb.s.linear_solver
+        if linsol == "auto":
+            linsol = "sparse_lu" if pb.s.compiled else "lapacklu"
+        if linsol == "sparse_lu":  # the solve as expressions, with the Jacobians: no call
+            order = sparse_lu.block_order(np.array(cs.DM(RV.sparsity(), 1)) != 0, nx, d)
+            L = -sparse_lu.solve(RV, RB, order)
+            self.lin = cs.Function("radau_lift", [V, xi, v, ps], cs.cse([L])).map(N)
+            self.solve = None
+        else:
+            # common subexpressions of both Jacobians merged: 5114 instead of 6077
+            self.lin = cs.Function("radau_lin", [V, xi, v, ps], cs.cse([RV, RB])).map(N)
+            if linsol.startswith("lapack"):
+                _one_blas_thread()
+            A, B = cs.MX.sym("RV", RV.sparsity()), cs.MX.sym("RB", RB.sparsity())
+            self.solve = cs.Function("lift_solve", [A, B], [-cs.solve(A, B, linsol)]).map(N)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
         self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
 
@@ -553,13 +581,13 @@ class _RealTimeIteration:
         p = cs.MX.sym("p", pb.np)
         Xb, Ub, Vb = self._guess(mem, x / pb.xs, u / pb.us)
         P = cs.repmat(p, 1, N)
-        RV, RB = self.lin(Vb, Xb[:, :N], Ub, P)
+        lifted = self.lin.call([Vb, Xb[:, :N], Ub, P])  # [RV, RB], or [L] (fused)
         YT, CYT = self.outs(Xb[:, 1:], P)
-        names = ["Xb", "Ub", "Vb", "RV", "RB", "YT", "CYT"]
+        names = ["Xb", "Ub", "Vb", *(["RV", "RB"] if self.solve else ["L"]), "YT", "CYT"]
         return cs.Function(
             "nmpc_head",
             [mem, x, u, p],
-            [Xb, Ub, Vb, RV, RB, YT, CYT],
+            [Xb, Ub, Vb, *lifted, YT, CYT],
             ["memory", "x", "u_prev", "p"],
             names,
         )
@@ -569,8 +597,9 @@ class _RealTimeIteration:
         mem, x, u = (cs.MX.sym(n, k) for n, k in self._io()[:3])
         p = cs.MX.sym("p", self.pb.np)
         inline = not head.is_a("External")  # CasADi's own: one graph, no calls between
-        Xb, Ub, Vb, RV, RB, YT, CYT = head.call([mem, x, u, p], inline, False)
-        (data,) = tail.call([Xb, Ub, Vb, self.solve(RV, RB), YT, CYT], inline, False)
+        Xb, Ub, Vb, *lifted, YT, CYT = head.call([mem, x, u, p], inline, False)
+        L = self.solve(*lifted) if self.solve else lifted[0]
+        (data,) = tail.call([Xb, Ub, Vb, L, YT, CYT], inline, False)
         return cs.Function(
             "nmpc_prepare", [mem, x, u, p], [data], ["memory", "x", "u_prev", "p"], ["data"]
         )
@@ -584,26 +613,27 @@ class _RealTimeIteration:
         Xb, Ub, Vb = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("Xb", "Ub", "Vb"))
         YT, CYT = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("YT", "CYT"))
         L = cs.MX.sym("L", nx * pb.s.degree, N * w)
-        # node k's state correction: dX_k = c_k + Phi_k a0 + G_k du, a0 = x0 - Xb_0
-        c, Phi, G = cs.MX(nx, 1), cs.MX.eye(nx), cs.MX(nx, nq)
-        cc, PP, GG = [c], [Phi], [G]
+        # node k's state correction: dX_k = c_k + Phi_k a0 + G_k du, a0 = x0 - Xb_0; the
+        # part in a0 is left to the feedback (:meth:`_measured`: 20 products with a vector
+        # there instead of 20 matrix products here)
+        c, G = cs.MX(nx, 1), cs.MX(nx, nq)
+        cc, GG = [c], [G]
         for k in range(N):
             Lk = L[-nx:, k * w : (k + 1) * w]  # the interval's end
             Ak, Bk = Lk[:, 1 : 1 + nx], Lk[:, 1 + nx :]
             c = Vb[-nx:, k] + Lk[:, 0] + cs.mtimes(Ak, c) - Xb[:, k + 1]
-            Phi, G = cs.mtimes(Ak, Phi), cs.mtimes(Ak, G) + _at(Bk, k, N, nu)
-            cc.append(c), PP.append(Phi), GG.append(G)
+            G = cs.mtimes(Ak, G) + _at(Bk, k, N, nu)
+            cc.append(c), GG.append(G)
         # every node's output rows times its corrections at once: the outputs' Jacobians
         # as one block-diagonal matrix (their nonzeros in the same order)
-        ny, nT = 1 + len(pb.tensions), len(pb.tensions)
+        ny = 1 + len(pb.tensions)
         blocks = cs.diagcat(*[cs.DM.ones(ny, nx)] * N).sparsity()
         BD = cs.MX(blocks, cs.vec(cs.densify(CYT)))
-        M = cs.mtimes(BD, cs.horzcat(cs.vertcat(*cc[1:]), cs.vertcat(*PP[1:]), cs.vertcat(*GG[1:])))
+        M = cs.mtimes(BD, cs.horzcat(cs.vertcat(*cc[1:]), cs.vertcat(*GG[1:])))
         YTv = cs.vec(cs.densify(YT))
-        ry = list(range(0, N * ny, ny))
-        rT = [k * ny + 1 + i for k in range(N) for i in range(nT)]
-        ey0, Ey, Jy = YTv[ry] + M[ry, 0], M[ry, 1 : 1 + nx], M[ry, 1 + nx :]
-        tb0, Et, TJ = YTv[rT] + M[rT, 0], M[rT, 1 : 1 + nx], M[rT, 1 + nx :]
+        ry, rT = self._rows()
+        ey0, Jy = YTv[ry] + M[ry, 0], M[ry, 1:]
+        tb0, TJ = YTv[rT] + M[rT, 0], M[rT, 1:]
         # the QP's variables are the moves' corrections dm = Dk du (du = C dm, C = Dk^-1):
         # the rate limits are then bounds, which keeps the active sets regular
         Dk, C = _moves(N, nu), _cumulative(N, nu)
@@ -620,11 +650,10 @@ class _RealTimeIteration:
             "H": 2 * (cs.mtimes(JyC.T, WJ) + wu2 * cs.DM.eye(nq)),
             "AT": cs.mtimes(TJ, C),
             "g": 2 * (cs.mtimes(WJ.T, ey0) + wu2 * m0),
-            "Ga": 2 * cs.mtimes(WJ.T, Ey),
             "Gr": -2 * WJ.T,
             "m0": m0,
             "tb0": tb0,
-            "Et": Et,
+            "CYT": cs.densify(CYT),
             "Ub": Ubv,
             "Xb": Xb,
             "Vb": Vb,
@@ -661,6 +690,24 @@ class _RealTimeIteration:
             return cs.repmat(u_prev, 1, N)
         return cs.if_else(mem[sl["has_plan"]], _ahead(last), cs.repmat(u_prev, 1, N))
 
+    def _rows(self) -> tuple[list[int], list[int]]:
+        """The tracked output's and the tensions' rows among every node's outputs."""
+        ny, N = 1 + len(self.pb.tensions), self.N
+        return list(range(0, N * ny, ny)), [k * ny + i for k in range(N) for i in range(1, ny)]
+
+    def _measured(self, D: dict[str, cs.MX], a0: cs.MX) -> tuple[cs.MX, cs.MX]:
+        """The nodes' tracked outputs and tensions moved by the measured state's distance
+        ``a0`` from the guess (scaled): ``a0`` through the intervals' end sensitivities
+        (``L``), then the outputs' Jacobians (``CYT``)."""
+        nx, w, N = self.pb.nx, 1 + self.pb.nx + self.pb.nu, self.N
+        dx, out = a0, []
+        for k in range(N):
+            dx = cs.mtimes(D["L"][-nx:, k * w + 1 : k * w + 1 + nx], dx)
+            out.append(cs.mtimes(D["CYT"][:, k * nx : (k + 1) * nx], dx))
+        ry, rT = self._rows()
+        ya = cs.vertcat(*out)
+        return ya[ry], ya[rT]
+
     def _feedback_function(self) -> cs.Function:
         """(data, memory, x, u_prev, ref) -> (u, violation, fallback, slack, step)."""
         pb, N = self.pb, self.N
@@ -670,14 +717,15 @@ class _RealTimeIteration:
         mem, x, u_prev, ref = (cs.MX.sym(n, k) for n, k in self._io())
         D = self._unpack(data)
         a0, vp = x / pb.xs - D["Xb0"], u_prev / pb.us
+        ey_a, et_a = self._measured(D, a0)
         E1vp = cs.vertcat(vp, cs.MX(nq - nu, 1))
         rate = E1vp - D["m0"]  # minus the guess's moves from the previous input
         wu2 = s.weight_du * pb.us[0] ** 2
-        g = D["g"] + cs.mtimes(D["Ga"], a0) + cs.mtimes(D["Gr"], ref) - 2 * wu2 * E1vp
+        g = D["g"] + cs.mtimes(D["Gr"], ref - ey_a) - 2 * wu2 * E1vp
         dv = s.rate_max * pb.dt / pb.us[0]
         C = _cumulative(N, nu)
         # rows: the input bounds (C dm), then the tensions; variable bounds: the rates
-        T_low = s.tension_min - D["tb0"] - cs.mtimes(D["Et"], a0)
+        T_low = s.tension_min - D["tb0"] - et_a
         lba = cs.vertcat(s.u_min / pb.us[0] - D["Ub"], T_low)
         uba = cs.vertcat(s.u_max / pb.us[0] - D["Ub"], cs.DM.inf(nT * N))
         lbx, ubx = rate - dv, rate + dv
@@ -790,10 +838,12 @@ def _finite(M: cs.MX) -> cs.MX:
 
 class _Call:
     """Repeated calls of a CasADi Function on numpy arrays through ``Function.buffer``
-    (about 1 us of overhead per call instead of some 30 us of conversions per argument)."""
+    (about 1 us of overhead per call instead of some 30 us of conversions per argument).
+    With ``copy=False`` the outputs returned are the call's own arrays, overwritten by the
+    next call; an input shared (:meth:`share`) with another call's output is read in place."""
 
-    def __init__(self, F: cs.Function) -> None:
-        self.function = F
+    def __init__(self, F: cs.Function, copy: bool = True) -> None:
+        self.function, self.copy = F, copy
         self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
         self.res = [np.zeros(F.nnz_out(i)) for i in range(F.n_out())]
         self.buf, self.trigger = F.buffer()
@@ -802,12 +852,20 @@ class _Call:
         for i, arr in enumerate(self.res):
             self.buf.set_res(i, memoryview(arr))
 
+    def share(self, i: int, source: np.ndarray) -> None:
+        """Read input ``i`` from ``source`` (another call's output array): passing that
+        array as the argument then copies nothing."""
+        self.args[i] = source
+        self.buf.set_arg(i, memoryview(source))
+
     def __call__(self, *args) -> list[np.ndarray]:
-        """Arguments as arrays (column-major flattened); copies of the outputs' nonzeros."""
+        """Arguments as arrays (column-major flattened); the outputs' nonzeros (copies
+        unless ``copy=False``)."""
         for arr, value in zip(self.args, args, strict=True):
-            arr[:] = np.ravel(value, order="F")
+            if value is not arr:
+                arr[:] = np.ravel(value, order="F")
         self.trigger()
-        return [r.copy() for r in self.res]
+        return [r.copy() for r in self.res] if self.copy else list(self.res)
 
 
 class NonlinearMPC(RecedingHorizon):

@@ -38,7 +38,7 @@ import casadi as cs
 from sarcomere.controllers.estimated import OnEstimate
 from sarcomere.controllers.lmpc import LinearMPC
 from sarcomere.controllers.lqi import LQI
-from sarcomere.controllers.nmpc import NonlinearMPC
+from sarcomere.controllers.nmpc import GENERATED_SOLVERS, NonlinearMPC
 from sarcomere.controllers.pid import LAW_PARAMETERS, PID, STATE_NAMES, pid_law
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
@@ -195,9 +195,9 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
         )
     s, pred = nmpc.settings, nmpc.model
     _generated("nmpc", s.qp_solver)
-    if s.linear_solver != "qr":  # LAPACK's solvers are library calls CasADi cannot generate
+    if s.linear_solver not in GENERATED_SOLVERS:  # LAPACK's are calls, not generated C
         raise ParameterError(
-            "nmpc.linear_solver", s.linear_solver, "'qr' (the lifted solves generated to C)"
+            "nmpc.linear_solver", s.linear_solver, f"one of {GENERATED_SOLVERS} (generated C)"
         )
     (uname,) = nmpc.inputs
     for n in (s.output, uname):

@@ -347,7 +347,7 @@ def _mpc(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
     try:
         op = solve_equilibrium(pred, {task["input"]: bias})
         if part.kind == "nmpc":
-            own = {"linear_solver": "qr", **own}  # the solver the exported law generates
+            own = {"linear_solver": "sparse_lu", **own}  # the solver the exported law generates
             part.controller = NonlinearMPC(pred, op.u, dt, NMPCSettings(**own, **bounds))
         else:
             settings = LMPCSettings(**own, **bounds, **FIXED_LINEARISATION)

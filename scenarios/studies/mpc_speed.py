@@ -17,8 +17,10 @@ run the scene ``FAST_REPEATS`` times and keep the quietest run. The RTI's time i
 split into its feedback (the measurement-to-command latency: the affine update of the
 condensed QP and the QP), its preparation (linearisation and condensing, and the update of
 the guess, made after the command) and the Python around them; it runs in Python (CasADi's
-virtual machine) and compiled (``compiled = true``: generated C), and the two also run
-interleaved, sample by sample in one loop, for like-for-like ratios. The plain ``Opti`` formulation
+virtual machine) and compiled (``compiled = true``: generated C, the lifted solves the
+sparse LU of :mod:`sarcomere.controllers.sparse_lu`), and the two, with the compiled one on
+LAPACK's LU as a third, also run interleaved, sample by sample in one loop, for
+like-for-like ratios. The plain ``Opti`` formulation
 (RK4 multiple shooting with 15 substeps per interval, unscaled, ``opti.solve()`` each
 sample, warm-started through ``set_initial``) and do-mpc (if installed: the same Radau
 collocation, cost and tension bound through its ``MPC`` class with IPOPT; do-mpc has no
@@ -278,12 +280,14 @@ class _Timed:
         return out
 
 
-def timed_rti(model, compiled: bool = False):
+def timed_rti(model, compiled: bool = False, linear_solver: str = "auto"):
     """An RTI NMPC whose three Functions (prepare, feedback, update) are timed apart: the
     feedback call is the measurement-to-command latency."""
 
     def make(eq):
-        s = NMPCSettings(solver="rti", horizon=HORIZON, compiled=compiled)
+        s = NMPCSettings(
+            solver="rti", horizon=HORIZON, compiled=compiled, linear_solver=linear_solver
+        )
         ctl = NonlinearMPC(model, eq.u, DT, s)
         calls = ctl.engine.calls
         for name in calls:
@@ -308,14 +312,19 @@ def _split(row: dict) -> None:
 
 
 def interleaved_rti(quick: bool) -> dict:
-    """The RTI in Python and compiled on the same scene in one loop, sample by sample (the
-    same machine load for both): the plant follows the Python one; the compiled one gets
-    the same measurements. Medians [ms] of each one's feedback and whole step, their
-    ratios, and the largest command difference [Pa]."""
+    """The RTI in Python, compiled (its lifted solves the generated sparse LU) and compiled
+    with LAPACK's LU (as before the sparse LU) on the same scene in one loop, sample by
+    sample (the same machine load for all): the plant follows the Python one; the compiled
+    ones get the same measurements. Medians [ms] of each one's feedback and whole step,
+    their ratios, and the largest command difference to the Python one's [Pa]."""
     pred = _prediction()
     plant = hanging_load(N_APS, load_kg=LOAD_KG)
     eq = solve_equilibrium(plant, {P_NAME: P_START})
-    ctls = {"python": timed_rti(pred)(eq), "compiled": timed_rti(pred, True)(eq)}
+    ctls = {
+        "python": timed_rti(pred)(eq),
+        "compiled": timed_rti(pred, True)(eq),
+        "compiled_lapack": timed_rti(pred, True, "lapacklu")(eq),
+    }
     sim = Simulator(plant)
     sim.reset(x0=eq.x)
     t_end, t_load = scene_times(quick)
@@ -332,7 +341,7 @@ def interleaved_rti(quick: bool) -> dict:
             cpu = time.thread_time()
             u[k] = c.checked(sim.t, y, r)[P_NAME]
             steps_cpu[k].append(time.thread_time() - cpu)
-        worst = max(worst, abs(u["python"] - u["compiled"]))
+        worst = max(worst, *(abs(u["python"] - u[k]) for k in u))
         sim.step({P_NAME: u["python"]}, DT)
     out = {"max_command_difference_Pa": worst}
     for name, c in ctls.items():
@@ -351,6 +360,7 @@ def interleaved_rti(quick: bool) -> dict:
         "step_cpu_median_ms",
     ):
         out[f"{k[:-3]}_ratio_python_to_compiled"] = out["python"][k] / out["compiled"][k]
+        out[f"{k[:-3]}_ratio_lapack_to_sparse_lu"] = out["compiled_lapack"][k] / out["compiled"][k]
     return out
 
 
@@ -416,7 +426,11 @@ def study(out_dir: Path, quick: bool = False) -> dict:
     for name in ("nmpc_rti", "nmpc_rti_compiled"):
         for k in ("feedback_median_ms", "feedback_p95_ms", "step_p95_ms"):
             metrics[f"{name}_{k}"] = rows[name][k]
-    for k in ("feedback_median_ratio_python_to_compiled", "step_median_ratio_python_to_compiled"):
+    for k in (
+        "feedback_median_ratio_python_to_compiled",
+        "step_median_ratio_python_to_compiled",
+        "step_median_ratio_lapack_to_sparse_lu",
+    ):
         metrics[f"rti_{k}"] = interleaved[k]
     # like for like: the RTI over the same first samples the slow variants run
     first = rti["first_samples_median_ms"]
