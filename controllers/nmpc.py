@@ -522,11 +522,20 @@ class _RealTimeIteration:
         self.data: np.ndarray | None = None
         self.data_p: np.ndarray | None = None
 
-    def sample(self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray):
+    def sample(
+        self,
+        x: np.ndarray,
+        u_prev: np.ndarray,
+        ref: np.ndarray,
+        p: np.ndarray,
+        p_next: np.ndarray | None = None,
+    ):
         """One sample split as in real time: the preparation made after the previous one
         (redone now if memory holds no guess or the parameters changed), the feedback,
-        then the update and the next preparation. Equal to :attr:`law` (the same
-        Functions); returns ``(u, violation, fallback, slack)`` as arrays."""
+        then the update and the next preparation, with ``p_next`` (default ``p``: an
+        estimator that has its next parameters ready keeps them out of the measurement
+        to command path). Equal to :attr:`law` (the same Functions); returns ``(u,
+        violation, fallback, slack)`` as arrays."""
         c = self.calls
         if self.data is None or not np.array_equal(p, self.data_p):
             self.data = c["prepare"](self.memory, x, u_prev, p)[0]
@@ -534,8 +543,9 @@ class _RealTimeIteration:
         self.memory = c["update"](self.data, self.memory, x, u_prev, step)[0]
         self.data = None
         if self.memory[self.slices["has_guess"]][0]:  # between samples: x, u unused
-            self.data = c["prepare"](self.memory, x, u, p)[0]
-            self.data_p = p.copy()
+            nxt = p if p_next is None else p_next
+            self.data = c["prepare"](self.memory, x, u, nxt)[0]
+            self.data_p = nxt.copy()
         return u, viol, fallback, slack
 
     def _lifts(self, pb: _Problem) -> None:
@@ -991,10 +1001,11 @@ class NonlinearMPC(RecedingHorizon):
         """The RTI's memory vector now (a copy; see :meth:`law_function`)."""
         return self.engine.memory.copy()
 
-    def _rti(self, x: np.ndarray, ref: np.ndarray) -> dict:
-        """One sample of the RTI law; the command by name."""
+    def _rti(self, x: np.ndarray, ref: np.ndarray, p: np.ndarray) -> dict:
+        """One sample of the RTI law with the parameters ``p`` (the next preparation with
+        the present ones); the command by name."""
         eng = self.engine
-        u, viol, fallback, slack = eng.sample(x, self._u, ref, self._p)
+        u, viol, fallback, slack = eng.sample(x, self._u, ref, p, self._p)
         mem = eng.memory
         self.stats.fallbacks += int(fallback[0])
         self.violation, self.slack = float(viol[0]), float(slack[0])
@@ -1005,6 +1016,7 @@ class NonlinearMPC(RecedingHorizon):
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
         ref = self.clip(r)
+        prepared = self._p.copy()  # the RTI's preparation was made with these
         if self.filter is not None:  # this sample's disturbance estimate, predicted with
             k = self.filter.index
             self._p[k] = self.filter.update(x, self._u, float(y[self.settings.output]), self._p)
@@ -1014,7 +1026,10 @@ class NonlinearMPC(RecedingHorizon):
         shifted = np.clip(nodes + self._offset, self.clip.low, self.clip.high)
         u_prev = self._u.copy()
         if isinstance(self.engine, _RealTimeIteration):
-            u = self._rti(x, shifted)
+            # real time: the command from the preparation made between samples with the
+            # last estimate (the filter's prior for this sample: its disturbance is a random
+            # walk); this sample's estimate goes into the next preparation
+            u = self._rti(x, shifted, prepared if self.filter is not None else self._p)
         else:
             plan, ok = self.engine.solve(x, self._u, shifted, self._p)
             self.slack = self.engine.slack

@@ -105,3 +105,42 @@ def test_the_settings_are_checked_and_the_fmu_refuses_the_filter(plant, tmp_path
     mpc = make_controller("nmpc", model, eq, DT, TASK)
     with pytest.raises(ParameterError, match="disturbance 'load'"):
         export_controller_fmu(mpc, model, tmp_path / "nmpc.fmu", 5e4)
+
+
+def test_the_filters_estimate_stays_out_of_the_measurement_to_command_path(plant):
+    """With the filter on, each sample's command comes from the preparation made between
+    samples (one preparation per sample, after the command): the estimate changes every
+    sample, and re-preparing on it inside the sample would make the latency the whole
+    step instead of the feedback. The command uses the last sample's estimate."""
+    model, eq = plant
+    mpc = make_controller("nmpc", model, eq, DT, TASK)
+    eng = mpc.engine
+    calls = {"prepare": 0}
+    prepare = eng.calls["prepare"]
+
+    def counted(*args):
+        calls["prepare"] += 1
+        return prepare(*args)
+
+    eng.calls["prepare"] = counted
+    hold(model, eq, mpc, 5, k_load=0)  # first sample: no guess yet, prepared in the sample
+    calls["prepare"] = 0
+    errors, estimates = hold_more(model, eq, mpc, 30)
+    assert calls["prepare"] == 30  # one per sample, none in the measurement-to-command path
+    assert np.ptp(estimates) > 1e-4  # the estimate did move every sample (the load step)
+
+
+def hold_more(model, eq, mpc, samples):
+    """``hold`` continued without a reset of the controller: +50 g on the plant."""
+    sim = Simulator(model)
+    sim.reset(x0=eq.x)
+    p = eq.p.copy()
+    p[model.param_names.index(M)] += 0.05
+    sim.p = p
+    errors, estimates = [], []
+    for _ in range(samples):
+        u = mpc.checked(sim.t, sim.signals(mpc.outputs), {L: eq[L]})
+        sim.step({P: u[P]}, DT)
+        errors.append(sim.signal(L) - eq[L])
+        estimates.append(mpc.disturbance_estimate)
+    return np.array(errors), np.array(estimates)
