@@ -59,21 +59,10 @@ def unit_of(ds: xr.Dataset, study: Any, name: str) -> str:
         if item.name == name:
             return str(item.unit)
     if name.startswith("series_"):
+        from .spec import signal_unit
+
         return signal_unit(study, name.removeprefix("series_"))
     return "1"
-
-
-def signal_unit(study: Any, signal: str) -> str:
-    """The SI unit of a model signal of the study's scene (the scene's model is bound once
-    per process by the study's loader), ``"?"`` when it cannot be told."""
-    from sarcomere.dynamics.errors import SarcomereError
-
-    from .spec import scene_context
-
-    try:
-        return str(scene_context(study.scene()).model.unit(signal))
-    except (SarcomereError, KeyError, AttributeError):
-        return "?"
 
 
 def label(ds: xr.Dataset, study: Any, name: str) -> str:

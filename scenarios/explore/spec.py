@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sarcomere.dynamics.errors import ParameterError, ScenarioError
+from sarcomere.dynamics.errors import ParameterError, SarcomereError, ScenarioError
 from sarcomere.dynamics.files import path_kind, read_text
 from sarcomere.dynamics.units import to_si
 
@@ -438,6 +438,15 @@ def scene_context(sc):
 
 
 _CONTEXTS: dict = {}
+
+
+def signal_unit(study: StudyDef, signal: str) -> str:
+    """The SI unit of a model signal of the study's scene (its model bound once per
+    process), ``"?"`` when it cannot be told."""
+    try:
+        return str(scene_context(study.scene()).model.unit(signal))
+    except (SarcomereError, KeyError, AttributeError):
+        return "?"
 
 
 def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_file) -> StudyDef:

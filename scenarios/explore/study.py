@@ -137,6 +137,7 @@ class Study:
 
     def _layout(self, design, batch: int | None) -> dict:
         from .engine import default_batch
+        from .spec import signal_unit
 
         study = self.definition
         signals, time = self._series()
@@ -160,7 +161,9 @@ class Study:
             fingerprint=study.fingerprint(),
             factors=factors,
             metrics=[Column(m.name, m.unit, m.long_name) for m in study.metrics],
-            series=[Column(series_name(s), "", f"{s} over time") for s in signals],
+            series=[
+                Column(series_name(s), signal_unit(study, s), f"{s} over time") for s in signals
+            ],
             series_time=time,
             chunk=batch or default_batch(n),
             attrs=attrs,

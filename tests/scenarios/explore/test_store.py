@@ -148,3 +148,14 @@ def test_named_lists_are_compared_by_name_and_long_values_shortened():
     assert diff[:2] == ["factors.a.v: 1 -> 2", "factors.b: {'name': 'b', 'v': 0} -> (absent)"]
     assert diff[2].startswith("x: [0, 1, 2,") and diff[2].endswith("... -> [0]")
     assert len(diff[2]) < 80
+
+
+def test_a_studys_series_carry_their_signals_units():
+    """montecarlo-family keeps the length and the load thread's tension over time: the
+    store's series variables get the model's units (they had none)."""
+    from sarcomere.scenarios.explore.study import Study
+
+    study = Study.from_file("montecarlo-family")
+    layout = study._layout(study.definition.design(), None)
+    units = {c.name: c.unit for c in layout["series"]}
+    assert units == {"series_myofibril.length": "m", "series_myofibril.actin3.T": "N"}
