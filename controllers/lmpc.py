@@ -40,7 +40,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import casadi as cs
 import control as ct
@@ -57,6 +56,7 @@ from .ekf import DEFAULT_STD, estimated_parameters
 from .qp import zoh
 from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
 from .registry import positive, register_controller
+from .rti_compiled import daqp_build
 from .target import SteadyTarget
 
 
@@ -298,11 +298,7 @@ def law_c_build(solver: str) -> tuple[list[str], list[str]]:
         return [], []
     if solver == "qpoases":
         raise ParameterError("lmpc.qp_solver", solver, "'daqp' or 'qrqp' for C code")
-    root = Path(cs.__file__).parent
-    lib = root / "libdaqpstat.a"
-    if not (lib.is_file() and (root / "include" / "daqp").is_dir()):
-        raise SolverError(f"the DAQP headers or static library are not in {root}")
-    return [f"-I{root / 'include'}"], [str(lib)]
+    return daqp_build()
 
 
 LAW_TOL = 1e-6

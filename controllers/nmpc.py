@@ -985,7 +985,7 @@ class NonlinearMPC(RecedingHorizon):
         default "lapacklu") has no code generation. The
         QP solver DAQP's generated C includes ``daqp/api.h`` and links statically
         against ``libdaqpstat.a``, both in the casadi wheel (``casadi/include``,
-        :data:`.rti_compiled.LINK_FLAGS`).
+        :func:`.rti_compiled.daqp_build`).
 
         Raises
         ------

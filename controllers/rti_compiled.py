@@ -31,8 +31,15 @@ CFLAGS = ("-O2",)
 _CASADI = Path(cs.__file__).parent
 
 
-LINK_FLAGS = (str(_CASADI / "libdaqpstat.a"), "-lm")
-"""The static DAQP archive (the linker takes from it only what the C calls) and libm."""
+def daqp_build() -> tuple[list[str], list[str]]:
+    """Compiling C that CasADi generated with DAQP inside: the compiler flag for its
+    headers and the static archive to link (the linker takes only what the C calls), both
+    from the installed casadi wheel; the one place that finds them (the LMPC law, the
+    compiled RTI, the controller FMU)."""
+    lib = _CASADI / "libdaqpstat.a"
+    if not (lib.is_file() and (_CASADI / "include" / "daqp").is_dir()):
+        raise SolverError(f"the DAQP headers or static library are not in {_CASADI}")
+    return [f"-I{_CASADI / 'include'}"], [str(lib)]
 
 
 def compiled_functions(functions: Sequence[cs.Function], stem: str) -> dict[str, cs.Function]:
@@ -61,7 +68,8 @@ def compiled_functions(functions: Sequence[cs.Function], stem: str) -> dict[str,
             raise SolverError(f"{stem}: cannot generate C ({line})")
         path = folder / f"{stem}.c"
         path.write_text(source)
-        return [compiled.Unit(path, (*CFLAGS, f"-I{_CASADI / 'include'}"))]
+        return [compiled.Unit(path, (*CFLAGS, *include))]
 
-    path, _ = compiled.shared_library(stem, inputs, units, LINK_FLAGS)
+    include, link = daqp_build()
+    path, _ = compiled.shared_library(stem, inputs, units, (*link, "-lm"))
     return {f.name(): cs.external(f.name(), str(path)) for f in functions}

@@ -33,7 +33,7 @@ import fmpy
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import solve_equilibrium
-from sarcomere.dynamics.errors import ParameterError, SarcomereError
+from sarcomere.dynamics.errors import ParameterError, SarcomereError, SolverError
 from sarcomere.dynamics.modeling.model import Model
 
 from . import codegen, description
@@ -287,11 +287,13 @@ def qp_libraries(src: Path) -> list[str]:
     FMU's law): DAQP's headers and static library as the casadi wheel ships them."""
     if not any("<daqp/api.h>" in f.read_text() for f in src.glob("sm_*.c")):
         return []
-    root = Path(cs.__file__).parent
-    lib = root / "libdaqpstat.a"
-    if not lib.is_file():
-        raise FmuError(f"the law calls DAQP, but its static library is not in {root}")
-    return ["-I", str(root / "include"), str(lib)]
+    from sarcomere.controllers.rti_compiled import daqp_build
+
+    try:
+        include, link = daqp_build()
+    except SolverError as exc:
+        raise FmuError(f"the law calls DAQP: {exc}") from None
+    return [*include, *link]
 
 
 def check_target(path: str | Path, fmi_version: int) -> Path:
