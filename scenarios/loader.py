@@ -192,14 +192,18 @@ def load_scenario(source: str | Path) -> Scenario:
 
 
 class _Reader:
-    """Typed access to the parsed TOML, turning every problem into a ScenarioError."""
+    """Typed access to the parsed TOML, turning every problem into a ScenarioError (of
+    ``error_class``: the study reader's is a StudyError)."""
+
+    error_class: type[ScenarioError] = ScenarioError
 
     def __init__(self, file: str, lines: dict[KeyPath, int]) -> None:
         self.file, self.lines = file, lines
 
     def error(self, path: KeyPath, message: str, key: str | None = None) -> ScenarioError:
-        """A ScenarioError at ``path`` (shown as ``key`` if given)."""
-        return ScenarioError(self.file, key or dotted(path), message, line_of(self.lines, path))
+        """An ``error_class`` at ``path`` (shown as ``key`` if given)."""
+        where = key or dotted(path)
+        return self.error_class(self.file, where, message, line_of(self.lines, path))
 
     def table(
         self,
@@ -228,11 +232,17 @@ class _Reader:
         return value
 
     def choice(
-        self, tbl: dict, path: KeyPath, key: str, choices: Sequence[str], default: object
+        self,
+        tbl: dict,
+        path: KeyPath,
+        key: str,
+        choices: Sequence[str],
+        default: object = _REQUIRED,
     ) -> str:
         value = self.text(tbl, path, key, default)
         if value not in choices:
-            raise self.error((*path, key), f"'{value}' is not one of {', '.join(choices)}")
+            hint = did_you_mean(value, list(choices))
+            raise self.error((*path, key), f"'{value}' is not one of {', '.join(choices)}{hint}")
         return value
 
     def quantity(self, value: object, path: KeyPath, unit: str, bare_ok: bool = False) -> float:

@@ -31,8 +31,8 @@ import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError, SarcomereError, ScenarioError
 from sarcomere.dynamics.files import path_kind, read_text
-from sarcomere.dynamics.units import to_si
 
+from .. import loader
 from ..spec import describe, did_you_mean, dotted, line_of, unknown_key
 from . import packaged_studies
 from .metric_def import MetricDef
@@ -368,38 +368,10 @@ def _value(v: object) -> str:
 # ---------------------------------------------------------------------------- reading
 
 
-class _Reader:
+class _Reader(loader._Reader):
     """Typed access to ``[study]``, turning every problem into a StudyError."""
 
-    def __init__(self, file: str, lines: dict) -> None:
-        self.file, self.lines = file, lines
-
-    def error(self, path: tuple, message: str) -> StudyError:
-        return StudyError(self.file, dotted(path), message, line_of(self.lines, path))
-
-    def table(self, value, path, allowed=None, required=()) -> dict:
-        if not isinstance(value, dict):
-            raise self.error(path, f"expected a table, got {value!r}")
-        for key in value:
-            if allowed is not None and key not in allowed:
-                raise self.error((*path, key), unknown_key(key, allowed))
-        for key in required:
-            if key not in value:
-                raise self.error(path, f"missing required key '{key}'")
-        return value
-
-    def text(self, tbl: dict, path: tuple, key: str, default=None) -> str:
-        value = tbl.get(key, default)
-        if not isinstance(value, str):
-            raise self.error((*path, key), f"expected a string, got {value!r}")
-        return value
-
-    def choice(self, tbl: dict, path: tuple, key: str, choices, default=None) -> str:
-        value = self.text(tbl, path, key, default)
-        if value not in choices:
-            hint = did_you_mean(value, choices)
-            raise self.error((*path, key), f"'{value}' is not one of {', '.join(choices)}{hint}")
-        return value
+    error_class = StudyError
 
     def integer(self, tbl: dict, path: tuple, key: str, low: int, default=None) -> int | None:
         value = tbl.get(key, default)
@@ -408,13 +380,6 @@ class _Reader:
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise self.error((*path, key), f"{value!r}: expected an integer >= {low}")
         return value
-
-    def quantity(self, value: object, path: tuple, unit: str) -> float:
-        """``value`` in SI ``unit``; a bare non-zero number of a dimensioned unit refused."""
-        try:
-            return to_si(value, unit, dotted(path), bare_ok=False)
-        except ParameterError as exc:
-            raise self.error(path, describe(exc)) from None
 
 
 # ---------------------------------------------------------------------------- checking
