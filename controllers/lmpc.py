@@ -54,7 +54,14 @@ from .base import Controller
 from .disturbance import DISTURBANCES, RANDOM_WALK, DisturbanceFilter, check_disturbance
 from .ekf import DEFAULT_STD, estimated_parameters
 from .qp import zoh
-from .receding import TENSION, RecedingHorizon, check_horizon, mpc_settings, with_estimator
+from .receding import (
+    TENSION,
+    BufferedCall,
+    RecedingHorizon,
+    check_horizon,
+    mpc_settings,
+    with_estimator,
+)
 from .registry import positive, register_controller
 from .rti_compiled import daqp_build
 from .target import SteadyTarget
@@ -364,28 +371,6 @@ def velocity_law(nx: int, nu: int, ns: int, horizon: int, solver: str = "daqp") 
     )
 
 
-class _Buffered:
-    """Repeated calls of a CasADi Function on bound numpy arrays (``Function.buffer``:
-    about 1 us per call instead of some 30 us of conversions per argument)."""
-
-    def __init__(self, F: cs.Function) -> None:
-        self.function = F
-        self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
-        self.res = [np.zeros(F.nnz_out(i)) for i in range(F.n_out())]
-        self.buf, self.trigger = F.buffer()
-        for i, arr in enumerate(self.args):
-            self.buf.set_arg(i, memoryview(arr))
-        for i, arr in enumerate(self.res):
-            self.buf.set_res(i, memoryview(arr))
-
-    def __call__(self, *args) -> list[np.ndarray]:
-        """Arguments as flat arrays; copies of the outputs."""
-        for arr, value in zip(self.args, args, strict=True):
-            arr[:] = value
-        self.trigger()
-        return [r.copy() for r in self.res]
-
-
 class LinearMPC(RecedingHorizon):
     """Linear MPC of the tracked output (see the module docstring) by the regulator command.
 
@@ -446,7 +431,7 @@ class LinearMPC(RecedingHorizon):
         self._lin = model.linearization([s.output, *self._soft])
         self._du_max = np.full(len(names), s.rate_max * self.dt)
         self._u_scale = self._u_hi - self._u_lo
-        self._law = _Buffered(self.law_function())
+        self._law = BufferedCall(self.law_function())
         if model.nz:
             raise ParameterError("lmpc.model", model.name, "an explicit model (no algebraic)")
         kind = s.disturbance or ("load" if "load.m" in model.param_names else "input")

@@ -70,6 +70,7 @@ from .ekf import DEFAULT_STD, OFFSETS, estimated_parameters
 from .qp import qp_solver
 from .receding import (
     TENSION,
+    BufferedCall,
     RecedingHorizon,
     check_horizon,
     ekf_disturbance,
@@ -506,7 +507,10 @@ class _RealTimeIteration:
             parts += [built["nmpc_feedback"], built["nmpc_update"]]
         # the prepared data (some 27 000 numbers at n = 3, N = 20) stays in the preparation's
         # output array, which the feedback and the update read in place
-        prepare, feedback, update = _Call(parts[0], copy=False), *map(_Call, parts[1:])
+        prepare, feedback, update = (
+            BufferedCall(parts[0], copy=False),
+            *map(BufferedCall, parts[1:]),
+        )
         feedback.share(0, prepare.res[0])
         update.share(0, prepare.res[0])
         self.calls = {"prepare": prepare, "feedback": feedback, "update": update}
@@ -844,38 +848,6 @@ def _ahead(M: cs.MX) -> cs.MX:
 def _finite(M: cs.MX) -> cs.MX:
     """1 if every entry of ``M`` is finite (neither inf nor NaN), else 0."""
     return cs.mmin(cs.vec(cs.fabs(M) < np.inf))
-
-
-class _Call:
-    """Repeated calls of a CasADi Function on numpy arrays through ``Function.buffer``
-    (about 1 us of overhead per call instead of some 30 us of conversions per argument).
-    With ``copy=False`` the outputs returned are the call's own arrays, overwritten by the
-    next call; an input shared (:meth:`share`) with another call's output is read in place."""
-
-    def __init__(self, F: cs.Function, copy: bool = True) -> None:
-        self.function, self.copy = F, copy
-        self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
-        self.res = [np.zeros(F.nnz_out(i)) for i in range(F.n_out())]
-        self.buf, self.trigger = F.buffer()
-        for i, arr in enumerate(self.args):
-            self.buf.set_arg(i, memoryview(arr))
-        for i, arr in enumerate(self.res):
-            self.buf.set_res(i, memoryview(arr))
-
-    def share(self, i: int, source: np.ndarray) -> None:
-        """Read input ``i`` from ``source`` (another call's output array): passing that
-        array as the argument then copies nothing."""
-        self.args[i] = source
-        self.buf.set_arg(i, memoryview(source))
-
-    def __call__(self, *args) -> list[np.ndarray]:
-        """Arguments as arrays (column-major flattened); the outputs' nonzeros (copies
-        unless ``copy=False``)."""
-        for arr, value in zip(self.args, args, strict=True):
-            if value is not arr:
-                arr[:] = np.ravel(value, order="F")
-        self.trigger()
-        return [r.copy() for r in self.res] if self.copy else list(self.res)
 
 
 class NonlinearMPC(RecedingHorizon):
