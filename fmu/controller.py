@@ -187,22 +187,12 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
         raise ParameterError(
             "controller", _what(nmpc), "an NMPC with solver 'rti' (the exported law)"
         )
-    if nmpc.disturbance != "none":
-        raise ParameterError(
-            "controller",
-            f"nmpc (disturbance '{nmpc.disturbance}')",
-            "an NMPC with disturbance 'none' (its disturbance filter is not exported)",
-        )
+    uname = _exportable("nmpc", nmpc, model)
     s, pred = nmpc.settings, nmpc.model
-    _generated("nmpc", s.qp_solver)
     if s.linear_solver not in GENERATED_SOLVERS:  # LAPACK's are calls, not generated C
         raise ParameterError(
             "nmpc.linear_solver", s.linear_solver, f"one of {GENERATED_SOLVERS} (generated C)"
         )
-    (uname,) = nmpc.inputs
-    for n in (s.output, uname):
-        if n not in model.signal_names:
-            raise ParameterError("model", model.name, f"a plant with the NMPC's signal '{n}'")
     yu, (uu, lo, hi) = pred.unit(s.output), _bias(nmpc, pred, bias)
     law = nmpc.law_function()
     nm = law.nnz_in(0)
@@ -276,18 +266,8 @@ def lmpc_system(lmpc: LinearMPC, model: Model, bias: float, name: str = "lmpc") 
     the measured output, the model's states and the soft-bounded signals by name;
     parameters ``u_min``, ``u_max``, ``du_max``, one ``<signal>.soft_min`` per soft bound
     (tunable) and ``bias`` (fixed). Units from the prediction model."""
-    if lmpc.disturbance != "none":
-        raise ParameterError(
-            "controller",
-            f"lmpc (disturbance '{lmpc.disturbance}')",
-            "an LMPC with disturbance 'none' (its disturbance filter is not exported)",
-        )
+    uname = _exportable("lmpc", lmpc, model)
     s, pred = lmpc.settings, lmpc.model
-    _generated("lmpc", s.qp_solver)
-    (uname,) = lmpc.inputs
-    for n in (s.output, uname):
-        if n not in model.signal_names:
-            raise ParameterError("model", model.name, f"a plant with the LMPC's signal '{n}'")
     yu, (uu, lo, hi) = pred.unit(s.output), _bias(lmpc, pred, bias)
     law, soft = lmpc.law_function(), [n for n, _ in s.soft_min]
     nm = law.nnz_in(0)
@@ -346,6 +326,26 @@ def lmpc_system(lmpc: LinearMPC, model: Model, bias: float, name: str = "lmpc") 
         cs.Function("output", [x, p], [x[-1]]),
         cs.Function("start", [u, p], [start]),
     )
+
+
+def _exportable(slug: str, mpc, model: Model) -> str:
+    """The name of the input of an MPC (``slug`` "nmpc" or "lmpc") whose law can be
+    exported; refused: one with its own disturbance filter, a QP solver without C
+    generation, or a plant ``model`` without the tracked output and the input."""
+    if mpc.disturbance != "none":
+        raise ParameterError(
+            "controller",
+            f"{slug} (disturbance '{mpc.disturbance}')",
+            f"an {slug.upper()} with disturbance 'none' (its disturbance filter is not exported)",
+        )
+    _generated(slug, mpc.settings.qp_solver)
+    (uname,) = mpc.inputs
+    for n in (mpc.settings.output, uname):
+        if n not in model.signal_names:
+            raise ParameterError(
+                "model", model.name, f"a plant with the {slug.upper()}'s signal '{n}'"
+            )
+    return uname
 
 
 def _generated(slug: str, solver: str) -> None:
