@@ -526,31 +526,26 @@ class _RealTimeIteration:
         self.data: np.ndarray | None = None
         self.data_p: np.ndarray | None = None
 
-    def sample(
-        self,
-        x: np.ndarray,
-        u_prev: np.ndarray,
-        ref: np.ndarray,
-        p: np.ndarray,
-        p_next: np.ndarray | None = None,
-    ):
+    def sample(self, x: np.ndarray, u_prev: np.ndarray, ref: np.ndarray, p: np.ndarray):
         """One sample split as in real time: the preparation made after the previous one
-        (redone now if memory holds no guess or the parameters changed), the feedback,
-        then the update and the next preparation, with ``p_next`` (default ``p``: an
-        estimator that has its next parameters ready keeps them out of the measurement
-        to command path). Equal to :attr:`law` (the same Functions); returns ``(u,
-        violation, fallback, slack)`` as arrays."""
+        (redone now if memory holds no guess or ``p`` differs from it), the feedback and
+        the update; :meth:`prepare_next` readies the next sample after the command is out.
+        Equal to :attr:`law` (the same Functions); returns ``(u, violation, fallback,
+        slack)`` as arrays."""
         c = self.calls
         if self.data is None or not np.array_equal(p, self.data_p):
             self.data = c["prepare"](self.memory, x, u_prev, p)[0]
         u, viol, fallback, slack, step = c["feedback"](self.data, self.memory, x, u_prev, ref)
         self.memory = c["update"](self.data, self.memory, x, u_prev, step)[0]
         self.data = None
-        if self.memory[self.slices["has_guess"]][0]:  # between samples: x, u unused
-            nxt = p if p_next is None else p_next
-            self.data = c["prepare"](self.memory, x, u, nxt)[0]
-            self.data_p = nxt.copy()
         return u, viol, fallback, slack
+
+    def prepare_next(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> None:
+        """Between samples: the next sample's preparation with the parameters ``p`` (once
+        memory holds a guess; ``x`` and ``u`` are then not used)."""
+        if self.memory[self.slices["has_guess"]][0]:
+            self.data = self.calls["prepare"](self.memory, x, u, p)[0]
+            self.data_p = p.copy()
 
     def _lifts(self, pb: _Problem) -> None:
         """The per-interval linearisation, its linear solves (both mapped over the horizon)
@@ -973,11 +968,10 @@ class NonlinearMPC(RecedingHorizon):
         """The RTI's memory vector now (a copy; see :meth:`law_function`)."""
         return self.engine.memory.copy()
 
-    def _rti(self, x: np.ndarray, ref: np.ndarray, p: np.ndarray) -> dict:
-        """One sample of the RTI law with the parameters ``p`` (the next preparation with
-        the present ones); the command by name."""
+    def _rti(self, x: np.ndarray, ref: np.ndarray) -> dict:
+        """One sample of the RTI law with the present parameters; the command by name."""
         eng = self.engine
-        u, viol, fallback, slack = eng.sample(x, self._u, ref, p, self._p)
+        u, viol, fallback, slack = eng.sample(x, self._u, ref, self._p)
         mem = eng.memory
         self.stats.fallbacks += int(fallback[0])
         self.violation, self.slack = float(viol[0]), float(slack[0])
@@ -985,13 +979,15 @@ class NonlinearMPC(RecedingHorizon):
         self._u = u
         return dict(zip(self.inputs, self._u.tolist(), strict=True))
 
+    def _estimate(self, x: np.ndarray, u_held: np.ndarray, y: Mapping[str, float]) -> None:
+        """The own filter's disturbance estimate from this sample into the parameters."""
+        if self.filter is not None:
+            out = float(y[self.settings.output])
+            self._p[self.filter.index] = self.filter.update(x, u_held, out, self._p)
+
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
         ref = self.clip(r)
-        prepared = self._p.copy()  # the RTI's preparation was made with these
-        if self.filter is not None:  # this sample's disturbance estimate, predicted with
-            k = self.filter.index
-            self._p[k] = self.filter.update(x, self._u, float(y[self.settings.output]), self._p)
         # the reference per node: the preview if given for this sample, else r(t) held;
         # integral action shifts it by the integrated error, kept inside the reachable range
         nodes = self.nodes(ref)
@@ -1000,9 +996,12 @@ class NonlinearMPC(RecedingHorizon):
         if isinstance(self.engine, _RealTimeIteration):
             # real time: the command from the preparation made between samples with the
             # last estimate (the filter's prior for this sample: its disturbance is a random
-            # walk); this sample's estimate goes into the next preparation
-            u = self._rti(x, shifted, prepared if self.filter is not None else self._p)
+            # walk); this sample's estimate, made after the command, goes into the next
+            u = self._rti(x, shifted)
+            self._estimate(x, u_prev, y)
+            self.engine.prepare_next(x, self._u, self._p)
         else:
+            self._estimate(x, u_prev, y)
             plan, ok = self.engine.solve(x, self._u, shifted, self._p)
             self.slack = self.engine.slack
             u = self.apply(plan if ok else None)
