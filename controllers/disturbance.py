@@ -63,6 +63,19 @@ def check_disturbance(slug: str, value: object, params: list[str]) -> str:
     return str(value)
 
 
+def residual_noise(
+    Bd: np.ndarray, input_std: float, x_floor: np.ndarray, y_std: float
+) -> np.ndarray:
+    """Covariance of one sample's residual of the states and the output [SI^2]: the
+    input's noise ``input_std`` through the discretised input matrix ``Bd``, a floor
+    ``x_floor`` on each state (keeps it invertible) and the output's noise ``y_std``."""
+    nx = Bd.shape[0]
+    S = np.zeros((nx + 1, nx + 1))
+    S[:nx, :nx] = input_std**2 * Bd @ Bd.T + np.diag(np.asarray(x_floor, float) ** 2)
+    S[nx, nx] = y_std**2
+    return S
+
+
 class DisturbanceFilter:
     """The Kalman filter of one constant disturbance on a linearisation (module docstring).
 
@@ -173,9 +186,7 @@ class StateDisturbanceFilter:
         nx, nu = B.shape
         _, G = zoh(A, np.hstack([B, f, f_d]), self.dt)
         Bd, drift, E_x = G[:, :nu], G[:, nu], G[:, nu + 1]
-        S = np.zeros((nx + 1, nx + 1))
-        S[:nx, :nx] = self.input_std**2 * Bd @ Bd.T + np.diag(self.floor**2)
-        S[nx, nx] = self.output_std**2
+        S = residual_noise(Bd, self.input_std, self.floor, self.output_std)
         residual = np.concatenate([x - last - drift, [out - float(y[0, 0])]])
         kalman = DisturbanceFilter(np.concatenate([E_x, y_d[0]]), S, self.q, self.variance)
         step = kalman.update(residual)

@@ -51,7 +51,13 @@ from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .disturbance import DISTURBANCES, RANDOM_WALK, DisturbanceFilter, check_disturbance
+from .disturbance import (
+    DISTURBANCES,
+    RANDOM_WALK,
+    DisturbanceFilter,
+    check_disturbance,
+    residual_noise,
+)
 from .ekf import DEFAULT_STD, estimated_parameters
 from .qp import zoh
 from .receding import (
@@ -523,9 +529,7 @@ class LinearMPC(RecedingHorizon):
             E = np.concatenate([Bd[:, 0], D[0]])
         else:
             E = np.concatenate([np.zeros(nx), [1.0]])
-        S = np.zeros((nx + 1, nx + 1))
-        S[:nx, :nx] = s.input_std**2 * Bd @ Bd.T + np.diag(self._x_floor**2)
-        S[nx, nx] = self._y_std**2
+        S = residual_noise(Bd, s.input_std, self._x_floor, self._y_std)
         q = self.dt * RANDOM_WALK[self.disturbance] ** 2
         variance = 10 * q if self._filter is None else self._filter.variance
         self._filter = DisturbanceFilter(E, S, q, variance)
