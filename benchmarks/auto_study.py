@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from sarcomere.dynamics.fidelity import policy
-from sarcomere.scenarios import dynamic, parse_scenario
+from sarcomere.scenarios import parse_scenario, transient
 from sarcomere.scenarios.threads import limited_blas
 
 KINDS = ("step", "ramp", "staircase", "sine", "dither", "vent")
@@ -139,7 +139,7 @@ def run(text: str):
     sc = parse_scenario(text, "scene.toml")
     gc.collect()
     tic = time.perf_counter()
-    out = dynamic.run_transient(sc, Path("."))
+    out = transient.run_transient(sc, Path("."))
     return out, time.perf_counter() - tic
 
 

@@ -45,7 +45,7 @@ import numpy as np
 from sarcomere.dynamics import fidelity as ladder
 from sarcomere.dynamics.assemblies import FIDELITIES
 from sarcomere.dynamics.errors import SarcomereError
-from sarcomere.scenarios import dynamic, parse_scenario
+from sarcomere.scenarios import binding, parse_scenario, transient
 from sarcomere.scenarios.loader import packaged_scenarios
 from sarcomere.scenarios.threads import limited_blas
 
@@ -95,10 +95,10 @@ def _with_level(text: str, level: str) -> str:
 def _ladder_level(text: str, level: str, signals: list[str]):
     """Run linear or equilibrium_path the way ``auto`` does: build full, path, level."""
     sc = parse_scenario(_with_level(text, "full"), "scene.toml")
-    b = dynamic.bind(sc)
+    b = binding.bind(sc)
     full = b.build("full")
-    inputs = {dynamic.INPUT_ALIASES.get(k, k): v for k, v in sc.inputs.items()}
-    grid = dynamic.time_grid(sc.simulation)
+    inputs = {binding.INPUT_ALIASES.get(k, k): v for k, v in sc.inputs.items()}
+    grid = binding.time_grid(sc.simulation)
     name = next(iter(inputs))
     nodes = ladder.policy.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
     path = ladder.equilibrium_path(full, name, inputs[name](grid), b.overrides, nodes)
@@ -109,7 +109,7 @@ def _ladder_level(text: str, level: str, signals: list[str]):
 def _runner(text: str, level: str):
     """The transient runner on the scene at ``level``: (result, auto report or {})."""
     sc = parse_scenario(_with_level(text, level), "scene.toml")
-    out = dynamic.run_transient(sc, Path("."))
+    out = transient.run_transient(sc, Path("."))
     rep = out.extra.get("fidelity_auto", {})
     extra = {}
     if rep:

@@ -20,7 +20,7 @@ import numpy as np
 
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.simulation.simulate import simulate
-from sarcomere.scenarios import dynamic
+from sarcomere.scenarios import binding
 from sarcomere.scenarios.explore.evaluate import evaluate_batch
 from sarcomere.scenarios.explore.spec import parse_study
 
@@ -50,12 +50,12 @@ method = "radau"
 def scene_run_s(study) -> float:
     """One start equilibrium + simulate of the base scene as the scene runner does it."""
     sc = study.scene()
-    b = dynamic.bind(sc)
+    b = binding.bind(sc)
     model = b.build("full")
-    inputs, wanted, grid = dynamic._prepare(sc, b, model)
-    settings = dynamic._settings(sc, model)
+    inputs, wanted, grid = binding.prepare(sc, b, model)
+    settings = binding.solver_settings(sc, model)
     tic = time.perf_counter()
-    start = solve_equilibrium(model, {dynamic.P_CMD: 0.0}, b.overrides)
+    start = solve_equilibrium(model, {binding.P_CMD: 0.0}, b.overrides)
     simulate(
         model,
         sc.simulation.stop_time,

@@ -54,7 +54,7 @@ import numpy as np
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.units import to_si
 
-from .dynamic import Binding, _settings, bind, check_n, fidelity_level
+from .binding import Binding, bind, check_n, fidelity_level, solver_settings
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
 from .spec import Scenario, describe, unknown_key
@@ -231,7 +231,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     entries = _table(sc, ctl.get("controllers", {}), ("control", "controllers"))
     if not entries:
         raise sc.error(("control", "controllers"), "no controllers to run")
-    settings = _settings(sc, model)
+    settings = solver_settings(sc, model)
     scale, suffix = UNIT_SCALES.get(unit, (1.0, unit))
     metrics, results, estimators = {}, {}, {}
     for key, raw in entries.items():

@@ -40,12 +40,13 @@ from sarcomere.fmu.cosim import INPUT_LAWS, ORDERINGS, cosimulate
 from sarcomere.fmu.export import FMI_VERSIONS, export_fmu
 from sarcomere.fmu.participants import FmuParticipant
 
+from .binding import scene_inputs
 from .cosim_system import run_system
-from .dynamic import _inputs, run_transient  # _inputs: the same name and unit checks as a run
 from .export_fmu import scenario_setup
 from .output import RunOutput
 from .runner import register_runner
 from .spec import Scenario, unknown_key
+from .transient import run_transient
 
 KEYS = ("fmu", "fmi", "ordering", "inputs")
 NAME = "muscle"
@@ -141,7 +142,7 @@ def run_cosim(sc: Scenario, out_dir: Path) -> RunOutput:
     native = native_run.results["main"]
     sim = sc.simulation
     step = sim.output_interval or (sim.stop_time - sim.start_time)
-    sources = {f"{NAME}.{k}": sig for k, sig in _inputs(sc, model).items()}
+    sources = {f"{NAME}.{k}": sig for k, sig in scene_inputs(sc, model).items()}
     with tempfile.TemporaryDirectory(prefix="sarcomere-cosim-") as tmp:
         if "fmu" in sc.cosim:
             path = sc.base_dir / str(sc.cosim["fmu"])

@@ -89,7 +89,7 @@ from sarcomere.fmu.cosim import INPUT_LAWS, ORDERINGS, Connection, cosimulate
 from sarcomere.fmu.export import FMI_VERSIONS, Experiment, export_fmu
 from sarcomere.fmu.participants import FmuParticipant, NativeParticipant
 
-from .dynamic import _settings
+from .binding import solver_settings
 from .export_fmu import scenario_setup
 from .output import RunOutput
 from .progress import report
@@ -488,7 +488,7 @@ def _monolithic_loop(sc: Scenario, mu: Part, lo: Part, ctl: Part, reference) -> 
         reference,
         sc.simulation.stop_time,
         output=y_name,
-        settings=_settings(sc, mono),
+        settings=solver_settings(sc, mono),
     ).result
     names = _compared(mu, ctl)
     signals = {new: loop[old] for old, new in names.items()}
@@ -539,7 +539,7 @@ def run_system(sc: Scenario, out_dir: Path) -> RunOutput:
             _export(sc, p, Path(tmp), sim.stop_time)
             show = exposed[p.name]
             if p.fmu is None:
-                participants[p.name] = _StartedNative(p, _settings(sc, p.model), show)
+                participants[p.name] = _StartedNative(p, solver_settings(sc, p.model), show)
             else:
                 opened = s.enter_context(open_fmu(p.fmu))
                 participants[p.name] = FmuParticipant(opened, p.name, expose=show)

@@ -34,7 +34,7 @@ def scenario_setup(source: str | Path | Scenario) -> tuple[Model, dict, dict, Ex
     from sarcomere.dynamics.assemblies import FIDELITIES
     from sarcomere.fmu.export import DEFAULT_STEP_S, Experiment
 
-    from .dynamic import _inputs, bind, check_n  # _inputs: the same checks as a run
+    from .binding import bind, check_n, scene_inputs
     from .loader import load_scenario
     from .spec import Scenario
 
@@ -50,7 +50,7 @@ def scenario_setup(source: str | Path | Scenario) -> tuple[Model, dict, dict, Ex
     sim = sc.simulation
     if sim is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
-    inputs = {k: float(sig(sim.start_time)) for k, sig in _inputs(sc, model).items()}
+    inputs = {k: float(sig(sim.start_time)) for k, sig in scene_inputs(sc, model).items()}
     experiment = Experiment(sim.start_time, sim.stop_time, sim.output_interval or DEFAULT_STEP_S)
     return model, dict(b.overrides), inputs, experiment
 

@@ -66,7 +66,7 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
     from sarcomere.controllers.linearize import classify_poles, linearize, operating_point
     from sarcomere.dynamics.modeling.labels import to_label
 
-    from .dynamic import _inputs, bind, command_range, distinct, fidelity_level
+    from .binding import bind, command_range, distinct, fidelity_level, scene_inputs
     from .loader import load_scenario
 
     sc = load_scenario(source)
@@ -78,7 +78,7 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
     fid = fidelity_level(sc, allow_auto=False)
     model = b.build(fid)
     if sc.kind == "transient":
-        _inputs(sc, model)  # the scene's inputs are checked as a run would
+        scene_inputs(sc, model)  # the scene's inputs are checked as a run would
     p = _pressure(sc, pressure)
     low, high = command_range(model, b.overrides)
     if pressure is not None and not low <= p <= high:

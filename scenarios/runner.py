@@ -32,8 +32,8 @@ _RUNNERS: dict[str, Runner] = {}
 #: static run never imports the co-simulation master or python-control).
 BUILTIN_KINDS = {
     "static": "sarcomere.scenarios.static",
-    "equilibrium": "sarcomere.scenarios.dynamic",
-    "transient": "sarcomere.scenarios.dynamic",
+    "equilibrium": "sarcomere.scenarios.equilibrium",
+    "transient": "sarcomere.scenarios.transient",
     "closed_loop": "sarcomere.scenarios.control",
     "cosim": "sarcomere.scenarios.cosim",
 }

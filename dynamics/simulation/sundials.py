@@ -99,6 +99,36 @@ def step_function(model: Model, settings: SolverSettings) -> cs.Function:
     )
 
 
+class UnknownOption(ParameterError):
+    """An option name CasADi's integrator does not have; ``close``: CasADi's nearest."""
+
+    def __init__(self, name: str, value: object, plugin: str, close: list[str]) -> None:
+        super().__init__(name, value, f"options of casadi.integrator('{plugin}')", "unknown")
+        self.close = close
+
+
+def check_option(plugin: str, key: str, value: object) -> None:
+    """Refuse an option ``key = value`` that ``casadi.integrator(plugin)`` would reject,
+    before any model is built (a throw-away integrator of ``x' = -x`` is made with it).
+
+    Raises
+    ------
+    UnknownOption
+        ``key`` is not an option of ``plugin`` (with CasADi's nearest names).
+    ParameterError
+        CasADi refuses the value (``allowed``: CasADi's last line).
+    """
+    x = cs.SX.sym("x")
+    try:
+        cs.integrator("probe", plugin, {"x": x, "ode": -x}, 0.0, [1.0], {key: value})
+    except RuntimeError as exc:
+        text = str(exc)
+        if "Unknown option" in text:
+            raise UnknownOption(key, value, plugin, re.findall(r'> "([^"]+)"', text)) from None
+        lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
+        raise ParameterError(key, value, lines[-1][:200], f"refused by {plugin}") from None
+
+
 def _option_hint(msg: str, plugin: str) -> tuple[str, str]:
     """(allowed, reason) from CasADi's refusal of an option: the bad name and the
     closest valid ones, on one line."""

@@ -114,51 +114,26 @@ def evaluate_batch(study: StudyDef, indices, points: np.ndarray | None = None) -
 
 def _run(study: StudyDef, ctx: _Context, point):
     """One sample's Result (the signals the metrics need) and the seconds spent in the
-    equilibrium and the integration."""
-    from sarcomere.dynamics.simulation.simulate import simulate
+    equilibrium and the integration (:func:`~sarcomere.scenarios.binding.run`, its start
+    continued from the scene's own start equilibrium on this model, found once per model:
+    most samples then need one Newton solve)."""
+    from sarcomere.dynamics.equilibrium import solve_equilibrium
+
+    from .. import binding
 
     sc = ctx.scene
     model, over, inputs = sc.apply(study.factors, point)
-    sim = sc.scene.simulation
-    u0 = {name: float(sig(sim.start_time)) for name, sig in inputs.items()}
     tic = time.perf_counter()
-    start = _start(model, u0, over, sc)
-    res = simulate(
-        model,
-        sim.stop_time,
-        inputs,
-        over,
-        x0=start.x,
-        z0=start.z,
-        settings=sc.settings if model is sc.model else _settings(sc, model),
-        t_out=sc.grid,
-        signals=mx.needed_signals(model.signal_names, study.metrics, study.series),
-    )
-    dt = time.perf_counter() - tic
-    res.require_finite(sc.fidelity)
-    return res, dt
-
-
-def _start(model, u0: dict, over: dict, sc):
-    """The start equilibrium at ``u0`` and ``over``, by continuation from the scene's own
-    start equilibrium on this model (found once per model: most samples then need one
-    Newton solve); from the model's start values where that continuation fails."""
-    from sarcomere.dynamics.equilibrium import solve_equilibrium
-
-    scene_u0 = {k: float(sig(sc.scene.simulation.start_time)) for k, sig in sc.inputs.items()}
+    scene_u0 = {k: float(sig(sc.grid[0])) for k, sig in sc.inputs.items()}
     base_over = sc.binding.overrides
     key = ("explore.start", repr(sorted(scene_u0.items())), repr(sorted(base_over.items())))
     guess = model.cached(key, lambda: solve_equilibrium(model, scene_u0, base_over))
-    try:
-        return solve_equilibrium(model, u0, over, guess=guess)
-    except SarcomereError:
-        return solve_equilibrium(model, u0, over)
-
-
-def _settings(sc, model):
-    from .. import dynamic
-
-    return dynamic._settings(sc.scene, model)
+    settings = sc.settings if model is sc.model else binding.solver_settings(sc.scene, model)
+    signals = mx.needed_signals(model.signal_names, study.metrics, study.series)
+    res = binding.run(model, inputs, over, sc.grid, settings, signals, guess=guess)
+    dt = time.perf_counter() - tic
+    res.require_finite(sc.fidelity)
+    return res, dt
 
 
 def _one_line(exc: BaseException) -> str:

@@ -26,7 +26,7 @@ from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.signals import Ramp, Step
 from sarcomere.dynamics.units import to_si
 
-from .. import dynamic
+from .. import binding as scene_binding
 from .designs import FAMILY, family_member
 
 #: Parameters a factor may not set: structural (built into the model's bounds).
@@ -90,7 +90,7 @@ BUILDS = {"models": 0, "probes": 0}
 """Models flattened in this process: study models and APS probes (tests count them)."""
 
 
-def model_for(binding: dynamic.Binding, key: tuple, fidelity: str, n: int, aps: APSParams):
+def model_for(binding: scene_binding.Binding, key: tuple, fidelity: str, n: int, aps: APSParams):
     """The model of ``binding`` at ``n`` with ``aps``, flattened once per process and
     ``key`` (the scene's structure) and reused."""
     full_key = (key, fidelity, n, aps)
@@ -156,18 +156,18 @@ class SceneContext:
             raise sc.error(("scenario", "kind"), f"'{sc.kind}': a study runs kind 'transient'")
         sc.refuse_unused("sweep", "control", "cosim", "outputs.tolerance")
         self.scene = sc
-        self.binding = dynamic.bind(sc)
-        fid = dynamic.fidelity_level(sc, allow_auto=True)
+        self.binding = scene_binding.bind(sc)
+        fid = scene_binding.fidelity_level(sc, allow_auto=True)
         if fid == "auto":
             raise sc.error(
                 ("model", "fidelity"), "'auto' picks a level per run; a study needs one level"
             )
-        dynamic.check_n(sc, ("model", "n"), self.binding.n, fid)
+        scene_binding.check_n(sc, ("model", "n"), self.binding.n, fid)
         self.fidelity = fid
         self.key = (sc.name, repr(sc.model), repr(sorted(sc.parameters.items())))
         self.model = self.model_at(self.binding.n)
-        self.inputs, self.signals, self.grid = dynamic._prepare(sc, self.binding, self.model)
-        self.settings = dynamic._settings(sc, self.model)
+        self.inputs, self.signals, self.grid = scene_binding.prepare(sc, self.binding, self.model)
+        self.settings = scene_binding.solver_settings(sc, self.model)
 
     def model_at(self, n: int, aps: APSParams | None = None) -> Model:
         return model_for(self.binding, self.key, self.fidelity, n, aps or self.binding.aps)
@@ -199,7 +199,7 @@ class SceneContext:
             return Target(name, "load", "kg", 0.0, math.inf, long_name="hanging load (payload)")
         if name == "pressure":
             self.pressure_signal()
-            low, high = dynamic.command_range(self.model, b.overrides)
+            low, high = scene_binding.command_range(self.model, b.overrides)
             return Target(
                 name, "pressure", "Pa", low, high, long_name="regulator command level (gauge)"
             )
@@ -250,7 +250,7 @@ class SceneContext:
     def pressure_signal(self):
         """The scene's step or ramp on the regulator command (the ``pressure`` factor
         replaces its final level)."""
-        sig = self.inputs.get(dynamic.P_CMD)
+        sig = self.inputs.get(scene_binding.P_CMD)
         if not isinstance(sig, Step | Ramp):
             what = "no input" if sig is None else f"a {type(sig).__name__.lower()}"
             raise ParameterError(
@@ -286,7 +286,7 @@ class SceneContext:
             elif f.name == "load":
                 loads = v
             elif f.name == "pressure":
-                inputs[dynamic.P_CMD] = dataclasses.replace(self.pressure_signal(), final=v)
+                inputs[scene_binding.P_CMD] = dataclasses.replace(self.pressure_signal(), final=v)
             elif f.name == "family":
                 fields.update(family_member(v))
             elif f.name.startswith("aps."):

@@ -1,7 +1,7 @@
 """Named scalar metrics of one transient run, and its time series on a stated grid.
 
-The rise time is the scenes' own (:func:`sarcomere.scenarios.dynamic.rise_time`, with
-its noise threshold :data:`~sarcomere.scenarios.dynamic.RISE_MIN_STROKE_M`); a metric a
+The rise time and the overshoot are the scenes' own (:mod:`sarcomere.scenarios.step_metrics`,
+with its noise threshold :data:`~sarcomere.scenarios.step_metrics.RISE_MIN_STROKE_M`); a metric a
 run does not define (the rise time or overshoot of a run that does not move) is NaN with
 the reason in the sample's note, never a silent NaN.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..dynamic import RISE_MIN_STROKE_M, rise_time
+from ..step_metrics import RISE_MIN_STROKE_M, overshoot, rise_time
 from .metric_def import MetricDef
 
 LENGTH = "myofibril.length"
@@ -75,7 +75,6 @@ def compute(res, metrics) -> tuple[dict[str, float], list[str]]:
     out, notes = {}, []
     t = np.asarray(res.index, float)
     L = np.asarray(res[LENGTH], float) if LENGTH in res else np.full(2, np.nan)
-    dy = L[-1] - L[0]
     for m in metrics:
         if m.signal:
             out[m.name] = float(np.interp(m.time, t, np.asarray(res[m.signal], float)))
@@ -89,11 +88,10 @@ def compute(res, metrics) -> tuple[dict[str, float], list[str]]:
             if rise is None:
                 notes.append(f"rise_time: {why}")
         elif m.name == "overshoot":
-            if abs(dy) < RISE_MIN_STROKE_M:
-                out[m.name] = np.nan
-                notes.append(f"overshoot: the net stroke {abs(dy):.3g} m is below the noise level")
-            else:
-                out[m.name] = float(max(0.0, np.max((L - L[-1]) * np.sign(dy))) / abs(dy))
+            value, why = overshoot(L, RISE_MIN_STROKE_M, "m")
+            out[m.name] = np.nan if value is None else value
+            if value is None:
+                notes.append(f"overshoot: {why}")
         elif m.name in ("peak_tension", "min_tension"):
             T = np.array([res[n] for n in tensions(res.names)])
             out[m.name] = float(T.max() if m.name == "peak_tension" else T.min())

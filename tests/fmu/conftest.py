@@ -12,9 +12,9 @@ from fmpy.fmi2 import FMU2Model, FMU2Slave, fmi2CallbackFunctions, fmi2CallbackL
 
 from sarcomere.fmu import export_fmu
 from sarcomere.scenarios.cli import main
-from sarcomere.scenarios.dynamic import run_transient
 from sarcomere.scenarios.export_fmu import scenario_setup
 from sarcomere.scenarios.loader import load_scenario
+from sarcomere.scenarios.transient import run_transient
 
 #: A transient isometric scene: one APS on a rigid fixture, a pressure step.
 ISOMETRIC_SCENE = """

@@ -32,7 +32,7 @@ from sarcomere.dynamics.errors import SarcomereError
 from sarcomere.dynamics.simulation.settings import SolverSettings
 from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.fmu.export import export_fmu, start_point
-from sarcomere.scenarios.dynamic import _inputs  # the input mapping export_fmu uses
+from sarcomere.scenarios.binding import scene_inputs  # the input mapping export_fmu uses
 from sarcomere.scenarios.export_fmu import scenario_setup
 from sarcomere.scenarios.loader import load_scenario, packaged_scenarios
 
@@ -77,7 +77,7 @@ def _case(scene: str):
     """Model, parameter overrides, start state, input names and signals, stop time."""
     model, params, inputs, experiment = scenario_setup(scene)
     x0, _, _ = start_point(model, params, inputs)
-    signals = _inputs(load_scenario(scene), model)
+    signals = scene_inputs(load_scenario(scene), model)
     names = list(model.input_names)
     return model, params, x0, names, [signals[n] for n in names], experiment.stop_time
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sarcomere.dynamics.fidelity import policy
-from sarcomere.scenarios import dynamic, parse_scenario
+from sarcomere.scenarios import parse_scenario, transient
 from sarcomere.scenarios.loader import packaged_scenarios
 
 SCENES = [  # name, the level auto picks (the dither: with no time for full first)
@@ -24,7 +24,7 @@ SCENES = [  # name, the level auto picks (the dither: with no time for full firs
 
 def _run(text: str):
     sc = parse_scenario(text, "scene.toml")
-    return sc, dynamic.run_transient(sc, Path("."))
+    return sc, transient.run_transient(sc, Path("."))
 
 
 @pytest.mark.parametrize(("name", "level"), SCENES)

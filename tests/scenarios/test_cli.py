@@ -134,7 +134,7 @@ def test_console_script_help() -> None:
     assert "run" in done.stdout and "list" in done.stdout
 
 
-HEAVY = ("casadi", "control", "matplotlib", "scipy.signal", "pint", "sarcomere.scenarios.dynamic")
+HEAVY = ("casadi", "control", "matplotlib", "scipy.signal", "pint", "sarcomere.scenarios.binding")
 
 _PROBE = f"""
 import json, sys

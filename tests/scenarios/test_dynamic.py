@@ -118,11 +118,11 @@ stop_time = "0.3 s"
 def test_flow_law_is_chosen_from_the_scenario(tmp_path):
     """[model.options] flow_law reaches the model: the smooth law differs from the exact
     one during filling (not at rest), and an unknown law is refused with its key."""
-    from sarcomere.scenarios import dynamic
+    from sarcomere.scenarios import binding
 
     sc = parse_scenario(SMOOTH.replace("FLOW", "smooth"), "s.toml")
     exact = parse_scenario(SMOOTH.replace("FLOW", "iso6358"), "e.toml")
-    assert dynamic.bind(sc).flow_law == "smooth"
+    assert binding.bind(sc).flow_law == "smooth"
     out_s = run(sc, tmp_path / "s", quiet=True)
     out_e = run(exact, tmp_path / "e", quiet=True)
     (res_s,), (res_e,) = out_s.results.values(), out_e.results.values()
@@ -138,7 +138,7 @@ def test_rise_time_of_a_first_order_response_is_tau_ln9(dt):
     """The 10-90 % rise time of y = y0 + S (1 - exp(-(t - t0) / tau)) is tau ln 9, on
     the interpolated signal, whether or not the grid divides the run (it was quantised to
     the grid, and 0 when both crossings fell between two samples)."""
-    from sarcomere.scenarios.dynamic import rise_time
+    from sarcomere.scenarios.step_metrics import rise_time
 
     tau, t0, S = 0.05, 0.1, -0.015  # a 15 mm contraction
     t = np.unique(np.append(np.arange(0.0, 2.0, dt), 2.0))
@@ -148,7 +148,7 @@ def test_rise_time_of_a_first_order_response_is_tau_ln9(dt):
 
 
 def test_rise_time_is_left_out_with_a_reason_for_no_stroke_or_an_unresolved_rise():
-    from sarcomere.scenarios.dynamic import rise_time
+    from sarcomere.scenarios.step_metrics import rise_time
 
     t = np.linspace(0.0, 1.0, 11)
     rise, why = rise_time(t, 0.17 + 1e-7 * t, 1e-5, "m")

@@ -12,7 +12,7 @@ import pytest
 
 from sarcomere.dynamics.errors import ScenarioError
 from sarcomere.dynamics.fidelity import policy
-from sarcomere.scenarios import dynamic, parse_scenario, run
+from sarcomere.scenarios import binding, parse_scenario, run
 
 SCENE = """
 [scenario]
@@ -64,8 +64,8 @@ def test_slow_ramp_runs_the_equilibrium_path_alone_within_tolerance(
     tmp_path, monkeypatch, ladder_only
 ):
     calls = []
-    simulate = dynamic.simulate
-    monkeypatch.setattr(dynamic, "simulate", lambda *a, **k: calls.append(1) or simulate(*a, **k))
+    simulate = binding.simulate
+    monkeypatch.setattr(binding, "simulate", lambda *a, **k: calls.append(1) or simulate(*a, **k))
     auto, _, error = _both(tmp_path, RAMP, "2.5 s")
     assert auto.fidelity == "equilibrium_path"
     assert len(calls) == 1  # the full run of _both only: auto integrated nothing
@@ -97,8 +97,8 @@ def test_paused_full_goes_on_when_the_ladder_ends_at_full(tmp_path, monkeypatch)
     monkeypatch.setattr(policy, "FULL_FIRST_BUDGET_S", 1e-9)  # pauses after a piece
     monkeypatch.setattr(policy, "FULL_FIRST_FINISH_S", 0.0)  # and always asks the ladder
     calls = []
-    simulate = dynamic.simulate
-    monkeypatch.setattr(dynamic, "simulate", lambda *a, **k: calls.append(1) or simulate(*a, **k))
+    simulate = binding.simulate
+    monkeypatch.setattr(binding, "simulate", lambda *a, **k: calls.append(1) or simulate(*a, **k))
     auto, _, error = _both(tmp_path, STEP, "6 s")
     report = auto.extra["fidelity_auto"]
     assert auto.fidelity == "full" and report["full_first"]["finished"] is False
@@ -135,9 +135,9 @@ def test_small_sweep_runs_the_linear_level_within_tolerance(tmp_path, ladder_onl
 
 def test_step_on_a_long_chain_runs_the_grouped_level_without_a_full_model(tmp_path, monkeypatch):
     built = []
-    build = dynamic.Binding.build
+    build = binding.Binding.build
     monkeypatch.setattr(
-        dynamic.Binding, "build", lambda self, fid, **k: built.append(fid) or build(self, fid, **k)
+        binding.Binding, "build", lambda self, fid, **k: built.append(fid) or build(self, fid, **k)
     )
     auto, _, error = _both(tmp_path, STEP, "2 s", n=10)
     assert auto.fidelity == "grouped"  # weight gradient and inertia kept

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sarcomere.scenarios import dynamic, parse_scenario
+from sarcomere.scenarios import parse_scenario, transient
 from sarcomere.scenarios.loader import packaged_scenarios
 
 
@@ -14,7 +14,7 @@ from sarcomere.scenarios.loader import packaged_scenarios
 def test_step_50g_runs_at_the_instant_levels(level):
     text = packaged_scenarios()["step-50g"].read_text()
     sc = parse_scenario(text.replace('fidelity = "full"', f'fidelity = "{level}"'), "s.toml")
-    run = dynamic.run_transient(sc, Path("."))
+    run = transient.run_transient(sc, Path("."))
     assert run.fidelity == level
     res = run.results["main"]
     for k in (1, 3):

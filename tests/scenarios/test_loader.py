@@ -324,7 +324,7 @@ stop_time = "1 s"
 )
 def test_a_bare_number_of_a_dimensioned_key_is_refused(body: str, key: str, value: str) -> None:
     """Issue 16: `load = 50` was 50 kg without a word; a file's quantities need a unit."""
-    from sarcomere.scenarios.dynamic import bind
+    from sarcomere.scenarios.binding import bind
 
     sc = parse_scenario(SCENE.format(body=body), "u.toml")
     with pytest.raises(ScenarioError) as info:
@@ -374,7 +374,7 @@ def test_an_unparsable_quantity_gives_a_reason() -> None:
 
 def test_a_setting_the_build_refuses_is_blamed_on_its_option_and_line() -> None:
     """Issue 16: regulator_tau was reported as `regulator.tau`, with no file and line."""
-    from sarcomere.scenarios.dynamic import bind
+    from sarcomere.scenarios.binding import bind
 
     sc = parse_scenario(SCENE.format(body='[model.options]\nregulator_tau = "0.1 us"'), "u.toml")
     with pytest.raises(ScenarioError) as info:
@@ -383,7 +383,7 @@ def test_a_setting_the_build_refuses_is_blamed_on_its_option_and_line() -> None:
 
 
 def test_load_m_against_the_load_option_is_refused_naming_both() -> None:
-    from sarcomere.scenarios.dynamic import bind
+    from sarcomere.scenarios.binding import bind
 
     body = '[model.options]\nload = "50 g"\n[parameters]\n"load.m" = "60 g"'
     with pytest.raises(ScenarioError) as info:
@@ -394,7 +394,7 @@ def test_load_m_against_the_load_option_is_refused_naming_both() -> None:
 
 
 def test_aps_thermal_is_a_parameter_and_aps_material_points_to_model_material() -> None:
-    from sarcomere.scenarios.dynamic import bind
+    from sarcomere.scenarios.binding import bind
 
     body = '[parameters]\n"aps.thermal" = "adiabatic"'
     assert bind(parse_scenario(SCENE.format(body=body), "u.toml")).aps.thermal == "adiabatic"
@@ -424,7 +424,7 @@ def test_aps_thermal_is_a_parameter_and_aps_material_points_to_model_material() 
     ],
 )
 def test_an_implausible_load_or_geometry_warns_naming_the_value(body, key, needle) -> None:
-    from sarcomere.scenarios.dynamic import bind
+    from sarcomere.scenarios.binding import bind
     from sarcomere.scenarios.spec import ScenarioWarning
 
     with pytest.warns(ScenarioWarning) as caught:
@@ -436,7 +436,7 @@ def test_an_implausible_load_or_geometry_warns_naming_the_value(body, key, needl
 
 @pytest.mark.parametrize("name", list(packaged_scenarios()))
 def test_every_packaged_scene_loads_and_binds_without_warnings(name: str) -> None:
-    from sarcomere.scenarios.dynamic import bind
+    from sarcomere.scenarios.binding import bind
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")

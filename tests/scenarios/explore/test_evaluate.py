@@ -7,7 +7,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from sarcomere.scenarios import dynamic
+from sarcomere.scenarios import binding, step_metrics
 from sarcomere.scenarios.catalog import packaged_scenarios
 from sarcomere.scenarios.explore import evaluate, factors, metrics, spec
 from sarcomere.scenarios.explore.evaluate import evaluate_batch
@@ -54,11 +54,11 @@ def test_sample_equals_the_scene_run_with_the_same_values():
     )
     text += '\n[parameters]\n"aps.k_s" = "760 N/m"\n"myofibril.tube2.C" = "2.5e-9 m^3/(s*Pa)"\n'
     sc = parse_scenario(text, "scene.toml")
-    _, res = dynamic._simulate(sc, dynamic.bind(sc), "full")
+    res = binding.simulate_scene(sc, binding.bind(sc), "full")
     L = res["myofibril.length"]
     assert got.metrics["length_final"][0] == pytest.approx(L[-1], abs=1e-8)  # atol 1e-9 m
     assert got.metrics["stroke"][0] == pytest.approx(L[0] - L[-1], rel=1e-6)
-    rise, _ = dynamic.rise_time(res.index, L, dynamic.RISE_MIN_STROKE_M)
+    rise, _ = step_metrics.rise_time(res.index, L, step_metrics.RISE_MIN_STROKE_M)
     assert got.metrics["rise_time"][0] == pytest.approx(rise, rel=1e-6)
     T = np.array([res[n] for n in metrics.tensions(res.names)])
     assert got.metrics["peak_tension"][0] == pytest.approx(T.max(), rel=1e-7)
@@ -163,11 +163,11 @@ def test_family_member_with_a_relative_tolerance_equals_the_scene_run():
     text = packaged_scenarios()["step-50g"].read_text(encoding="utf-8") + "\n[parameters]\n"
     text += "".join(f'"aps.{k}" = "{v!r} {unit}"\n' for k, v, unit in _units(values))
     sc = parse_scenario(text, "scene.toml")
-    _, res = dynamic._simulate(sc, dynamic.bind(sc), "full")
+    res = binding.simulate_scene(sc, binding.bind(sc), "full")
     L = res["myofibril.length"]
     # the same parameters to an ulp; the runs agree within the solver's atol (1e-9 m)
     model, over, _ = spec.scene_context(rel.scene()).apply(rel.factors, rel.design().points[0])
-    direct = dynamic.bind(sc).build("full")
+    direct = binding.bind(sc).build("full")
     np.testing.assert_allclose(model.parameters(over), direct.parameters(), rtol=1e-15)
     assert got.metrics["length_final"][0] == pytest.approx(L[-1], abs=1e-8)
     assert got.metrics["stroke"][0] == pytest.approx(L[0] - L[-1], rel=1e-6)
@@ -198,7 +198,7 @@ def test_a_structural_aps_field_builds_one_model_per_level(fresh_caches):
     assert factors.BUILDS["models"] - before == 1  # C3 = 0 is the base model
     text = packaged_scenarios()["step-50g"].read_text(encoding="utf-8")
     sc = parse_scenario(text + '\n[parameters]\n"aps.C3" = "2 kPa"\n', "scene.toml")
-    L = dynamic._simulate(sc, dynamic.bind(sc), "full")[1]["myofibril.length"]
+    L = binding.simulate_scene(sc, binding.bind(sc), "full")["myofibril.length"]
     assert got.metrics["length_final"][1] == pytest.approx(L[-1], abs=1e-8)
     assert abs(got.metrics["length_final"][1] - got.metrics["length_final"][0]) > 1e-6
 

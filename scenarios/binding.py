@@ -1,4 +1,19 @@
-"""Scenario kinds on the lumped dynamic model: "equilibrium" sweeps and "transient" runs.
+"""The public scene binding: a scene's ``[model]``, ``[parameters]``, inputs, solver and
+output grid bound to the lumped dynamic model, and :func:`run`, the one simulation of a
+bound scene from its start equilibrium.
+
+Every kind on the dynamic model goes through it (the equilibrium sweep,
+:mod:`.equilibrium`; the transient, :mod:`.transient`; the closed loop, co-simulation,
+``linearize``, ``export-fmu``) and so does the study evaluator
+(:mod:`.explore.evaluate`). The API, for code that binds scenes (fitting, robots):
+
+- :func:`bind` -> :class:`Binding` (``Binding.build(level)`` -> ``Model``);
+- :func:`fidelity_level`, :func:`check_n`: the level and the chain length, checked;
+- :func:`inputs`: the scene's signals by model input (the ``pressure`` alias, units);
+- :func:`solver_settings`: ``[solver]`` as :class:`SolverSettings`, every key checked;
+- :func:`time_grid`, :func:`prepare`: the output grid; inputs, signals and grid checked;
+- :func:`run`: simulate a model from its equilibrium at the inputs' first values;
+  :func:`simulate_scene`: the same for a bound scene at one level.
 
 ``[model]`` for ``name = "myofibril"``: ``n``, ``material``, ``fidelity`` (one of
 :data:`~sarcomere.dynamics.assemblies.FIDELITIES`, or ``"auto"`` for transients), and
@@ -31,14 +46,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
-import time
-from pathlib import Path
+from collections.abc import Mapping, Sequence
 
-import casadi as cs
 import numpy as np
 
-from sarcomere.dynamics import fidelity as ladder
 from sarcomere.dynamics.assemblies import (
     FIDELITIES,
     FLOW_LAWS,
@@ -50,15 +61,15 @@ from sarcomere.dynamics.assemblies import (
 )
 from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
-from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.errors import ParameterError, SarcomereError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
 from sarcomere.dynamics.signals import Table
-from sarcomere.dynamics.simulation.simulate import PausableRun, SolverSettings, simulate
+from sarcomere.dynamics.simulation import sundials
+from sarcomere.dynamics.simulation.simulate import MAX_VALUES, SolverSettings, simulate
 from sarcomere.dynamics.units import to_si
 
-from .output import RunOutput, quantity_tag
-from .runner import register_runner
+from .output import CSV_BYTES_PER_VALUE
 from .spec import Scenario, SimulationSpec, describe, did_you_mean, dotted, unknown_key
 
 P_CMD = "regulator.p_cmd"
@@ -323,7 +334,7 @@ def command_range(model: Model, overrides: dict) -> tuple[float, float]:
     return max(var.low, 0.0), min(var.high, float(p_max))
 
 
-def _range_error(sc: Scenario, path: tuple, value: float, rng: tuple, when: str = ""):
+def range_error(sc: Scenario, path: tuple, value: float, rng: tuple, when: str = ""):
     low, high = (v / 1e6 for v in rng)
     return sc.error(
         path,
@@ -342,7 +353,7 @@ def distinct(value: float, bounds: tuple[float, ...]) -> str:
     return repr(value)
 
 
-def _check_commands(sc: Scenario, model: Model, overrides: dict, inputs: dict, grid) -> None:
+def check_commands(sc: Scenario, model: Model, overrides: dict, inputs: dict, grid) -> None:
     """Refuse a pressure command outside the regulator's range, at its first time (on the
     output grid, the breakpoints and every row of a table)."""
     if P_CMD not in inputs:
@@ -358,73 +369,7 @@ def _check_commands(sc: Scenario, model: Model, overrides: dict, inputs: dict, g
     if bad.size:
         name = next(k for k, v in sc.inputs.items() if v is sig)
         when = f" at t = {t[bad[0]]:g} s"
-        raise _range_error(sc, ("inputs", name), float(values[bad[0]]), rng, when)
-
-
-def _solve(sc: Scenario, model: Model, pressure: float, over: dict, guess):
-    try:
-        return solve_equilibrium(model, {P_CMD: pressure}, over, guess=guess)
-    except ParameterError as exc:
-        raise sc.parameter_error(exc.name, describe(exc)) from None
-
-
-# --- kind "equilibrium" -------------------------------------------------------------
-def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
-    """Sweep pressure (first axis) for each value of the other axes (``n`` or ``load``).
-
-    Isometric: the tared force ``force`` = F(P) - F(0) [N]. Hanging: ``length`` [m],
-    ``length_ratio`` = L / L' with L' = L(0 MPa, no load, same n) and the paper's
-    actuation strain ``strain`` = (L[P, load] - L[0, load]) / L[0, 0].
-    """
-    sc.refuse_unused("inputs", "simulation", "solver", "outputs.tolerance", "control", "cosim")
-    b = bind(sc)
-    fid = fidelity_level(sc, allow_auto=False)
-    check_n(sc, ("model", "n"), b.n, fid)
-    if not sc.sweep or sc.sweep[0].name != "pressure":
-        raise sc.error(("sweep",), "the first sweep axis must be 'pressure'")
-    pressures = np.asarray(sc.sweep[0].values)
-    others = sc.sweep[1:]
-    if len(others) > 1 or (others and others[0].name not in ("n", "load")):
-        raise sc.error(("sweep",), "at most one more axis, 'n' or 'load'")
-    axis = others[0] if others else None
-    if axis is not None and axis.name == "n":
-        if ("model", "n") in sc.key_lines or sc.model.n != 1:
-            raise sc.error(("model", "n"), "[sweep.n] sets n; remove it")
-        for v in axis.values:
-            check_n(sc, ("sweep", "n", "values"), v, fid)
-    if axis is not None and axis.name == "load" and b.setup == "isometric":
-        raise sc.error(("sweep", "load"), "the isometric set-up holds no load; sweep 'n' instead")
-    if axis is not None and axis.name == "load" and "load" in sc.model.options:
-        raise sc.error(("model", "options", "load"), "[sweep.load] sets the load; remove it")
-    if axis is not None and axis.name == "load" and "load.m" in b.overrides:
-        raise sc.parameter_error("load.m", "[sweep.load] sets the load; remove it")
-    if axis is not None and axis.name == "load" and min(axis.values) < 0:
-        bad = min(axis.values)
-        raise sc.error(("sweep", "load", "values"), f"{bad * 1e3:g} g: a load is >= 0 kg")
-    if axis is not None and axis.name == "load" and max(axis.values) > PLAUSIBLE_LOAD_KG[1]:
-        sc.warn(
-            ("sweep", "load"),
-            f"{max(axis.values):.6g} kg is above the plausible {PLAUSIBLE_LOAD_KG[1]:g} kg "
-            "(the paper's loads are 0 to 100 g)",
-        )
-    cases = axis.values if axis else (None,)
-    check_output_size(sc, len(pressures) * len(cases), 5, ("sweep", "pressure"))
-    results, metrics = {}, {}
-    for value in cases:
-        n = round(value) if axis is not None and axis.name == "n" else b.n
-        load = value if axis is not None and axis.name == "load" else b.load_kg
-        prefix = f"n{n}_" if axis is not None and axis.name == "n" else ""
-        key, res, mets = _equilibrium_case(sc, b, fid, pressures, n, load, prefix)
-        results[key] = res
-        metrics.update(mets)
-    return RunOutput(
-        sc.name,
-        fid,
-        "damped Newton on the exact sparse Jacobian, continuation",
-        metrics=metrics,
-        results=results,
-        extra={"aps_params": _aps_dict(b.aps), "setup": b.setup},
-    )
+        raise range_error(sc, ("inputs", name), float(values[bad[0]]), rng, when)
 
 
 def check_n(sc: Scenario, path: tuple, n: float, fidelity: str) -> None:
@@ -448,72 +393,12 @@ def check_n(sc: Scenario, path: tuple, n: float, fidelity: str) -> None:
         )
 
 
-def _equilibrium_case(sc, b: Binding, fid, pressures, n, load, prefix=""):
-    """One curve against pressure; ``prefix`` (``"n2_"``) names the swept n in its key
-    and metrics when n is an axis."""
-    model = b.build(fid, n)
-    over = dict(b.overrides)
-    rng = command_range(model, over)
-    for p in pressures:
-        if not rng[0] <= p <= rng[1]:
-            raise _range_error(sc, ("sweep", "pressure"), float(p), rng)
-    if b.setup == "hanging":
-        over["load.m"] = model.variables["load.m"].value - b.load_kg + load
-    rest = _solve(sc, model, 0.0, {**over, **_no_load(model, b)}, None)
-    base = _solve(sc, model, 0.0, over, rest)
-    rows, guess = [], base
-    for p in pressures:
-        guess = _solve(sc, model, float(p), over, guess)
-        rows.append(guess)
-    chamber = np.array([e["myofibril.aps1.chamber.p_gauge"] for e in rows])
-    tag_p = quantity_tag(pressures[-1] / 1e6, "MPa")
-    if b.setup == "isometric":
-        force = np.array([e["sensor.f"] for e in rows]) - base["sensor.f"]
-        key = f"n{n}"
-        res = Result(
-            "pressure",
-            "Pa",
-            pressures,
-            {"force": force, "chamber_pressure": chamber},
-            {"force": "N", "chamber_pressure": "Pa"},
-        )
-        return key, res, {f"force_n{n}_{tag_p}_N": float(force[-1])}
-    L = np.array([e["myofibril.length"] for e in rows])
-    L00, L0 = rest["myofibril.length"], base["myofibril.length"]
-    grams = quantity_tag(load * 1e3, "g")
-    res = Result(
-        "pressure",
-        "Pa",
-        pressures,
-        {
-            "length": L,
-            "length_ratio": L / L00,
-            "strain": (L - L0) / L00,
-            "chamber_pressure": chamber,
-        },
-        {"length": "m", "length_ratio": "1", "strain": "1", "chamber_pressure": "Pa"},
-    )
-    mets = {
-        f"rest_length_n{n}_mm": L00 * 1e3,
-        f"length_ratio_{prefix}{grams}_0MPa": L0 / L00,
-        f"length_ratio_{prefix}{grams}_{tag_p}": float(L[-1] / L00),
-        f"strain_{prefix}{grams}_{tag_p}": float((L[-1] - L0) / L00),
-    }
-    return f"{prefix}load_{grams}", res, mets
-
-
-def _no_load(model: Model, b: Binding) -> dict:
-    if b.setup != "hanging":
-        return {}
-    return {"load.m": model.variables["load.m"].value - b.load_kg}
-
-
-def _aps_dict(p: APSParams) -> dict:
+def aps_dict(p: APSParams) -> dict:
+    """The APS fields of ``p`` (``summary.json``'s ``aps_params``)."""
     return dataclasses.asdict(p)
 
 
-# --- kind "transient" ---------------------------------------------------------------
-def _inputs(sc: Scenario, model: Model) -> dict:
+def scene_inputs(sc: Scenario, model: Model) -> dict:
     """The scenario's signals by model input; an input given twice (by its alias and its
     full name) is refused naming both keys."""
     out, given = {}, {}
@@ -544,7 +429,7 @@ def _inputs(sc: Scenario, model: Model) -> dict:
 SUNDIALS_ALIASES = {"abstol": "atol", "reltol": "rtol", "max_num_steps": "max_steps"}
 
 
-def _settings(sc: Scenario, model: Model) -> SolverSettings:
+def solver_settings(sc: Scenario, model: Model) -> SolverSettings:
     """``[solver]`` as SolverSettings; every key is checked before anything runs: the
     settings' own fields (``max_steps``) become fields, the rest must be options the
     method accepts (CVODES and IDAS options are checked against CasADi's)."""
@@ -574,20 +459,19 @@ def _check_sundials_option(sc: Scenario, method: str, key: str, value: object) -
     path = ("solver", key)
     if key in SUNDIALS_ALIASES:
         raise sc.error(path, f"set it as [solver] {SUNDIALS_ALIASES[key]}")
-    x = cs.SX.sym("x")
     try:
-        cs.integrator("probe", method, {"x": x, "ode": -x}, 0.0, [1.0], {key: value})
-    except RuntimeError as exc:
-        text = str(exc)
-        if "Unknown option" in text:
-            close = re.findall(r'> "([^"]+)"', text) + list(SUNDIALS_ALIASES.values())
-            hint = did_you_mean(key, close)
-            raise sc.error(path, f"'{key}' is not a setting or {method} option{hint}") from None
-        lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
-        raise sc.error(path, f"{value!r} refused by {method}: {lines[-1][:200]}") from None
+        sundials.check_option(method, key, value)
+    except sundials.UnknownOption as exc:
+        hint = did_you_mean(key, [*exc.close, *SUNDIALS_ALIASES.values()])
+        raise sc.error(path, f"'{key}' is not a setting or {method} option{hint}") from None
+    except ParameterError as exc:
+        raise sc.error(path, f"{value!r} refused by {method}: {exc.allowed}") from None
 
 
-def _default_signals(model: Model) -> list[str]:
+def default_signals(model: Model) -> list[str]:
+    """The signals a transient keeps besides ``[outputs] signals``: the command, the
+    regulator's outlet, the length, the load's position, the force sensor, and each
+    unit's chamber pressure, expansion, thread tension and stretch."""
     keep = ("regulator.p_cmd", "regulator.p_out", "myofibril.length", "load.s", "sensor.f")
     suffix = (".chamber.p_gauge", ".expansion.s", ".T", ".e")
     return [
@@ -611,10 +495,6 @@ def time_grid(sim: SimulationSpec) -> np.ndarray:
     return np.unique(np.append(sim.start_time + dt * np.arange(count + 1), sim.stop_time))
 
 
-#: Bytes per value of a CSV file (``repr`` of a float and a comma), for the estimate.
-CSV_BYTES_PER_VALUE = 21
-
-
 def check_output_size(sc: Scenario, points: int, columns: int, path: tuple) -> None:
     """Refuse a result above ``[outputs] max_values`` before computing it, with numbers;
     ``path`` names the key that sets the number of points."""
@@ -630,205 +510,73 @@ def check_output_size(sc: Scenario, points: int, columns: int, path: tuple) -> N
         )
 
 
-def _prepare(sc: Scenario, b: Binding, model: Model) -> tuple[dict, list[str], np.ndarray]:
-    """The inputs, the signals to keep and the output grid of a transient, checked."""
-    inputs = _inputs(sc, model)
+def prepare(sc: Scenario, b: Binding, model: Model) -> tuple[dict, list[str], np.ndarray]:
+    """The inputs (:func:`scene_inputs`), the signals to keep and the output grid of a
+    transient on ``model``, checked (output size, commands in the regulator's range)."""
+    inputs = scene_inputs(sc, model)
     sim = sc.simulation
     if sim is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
-    wanted = list(dict.fromkeys(_default_signals(model) + list(sc.outputs.signals)))
+    wanted = list(dict.fromkeys(default_signals(model) + list(sc.outputs.signals)))
     missing = [n for n in wanted if n not in model.signal_names]
     if missing:
         raise sc.error(("outputs", "signals"), f"unknown signals {missing}")
     points = _intervals(sim)[1] + 2  # at most: the stop time may add one
     check_output_size(sc, points, len(wanted) + 1, ("simulation", "output_interval"))
     grid = time_grid(sim)
-    _check_commands(sc, model, b.overrides, inputs, grid)
+    check_commands(sc, model, b.overrides, inputs, grid)
     return inputs, wanted, grid
 
 
-def _simulate(
-    sc: Scenario,
-    b: Binding,
-    fid: str,
-    model: Model | None = None,
+def run(
+    model: Model,
+    inputs: Mapping[str, object],
+    params: Mapping[str, object],
+    t_out: np.ndarray,
+    settings: SolverSettings,
+    signals: Sequence[str],
+    *,
     guess: Equilibrium | None = None,
-):
-    """Build (unless given) and simulate from the start equilibrium, found by
-    continuation from ``guess`` (an equilibrium of ``model``) where one is known."""
-    model = b.build(fid) if model is None else model
-    inputs, wanted, grid = _prepare(sc, b, model)
-    sim = sc.simulation
-    u0 = {k: float(sig(sim.start_time)) for k, sig in inputs.items()}
-    start = solve_equilibrium(model, u0, b.overrides, guess=guess)
-    res = simulate(
+    max_values: float = MAX_VALUES,
+) -> Result:
+    """Simulate ``model`` through ``t_out`` [s] from its equilibrium at the inputs' values
+    at ``t_out[0]``: the one simulation of a bound scene (every kind and the studies).
+
+    ``inputs``: input name to signal (:func:`scene_inputs`); ``params``: parameter
+    overrides (``Binding.overrides`` or a study sample's); ``settings``:
+    :func:`solver_settings`; ``signals``: those returned; ``guess``: an equilibrium of
+    ``model`` to continue the start from (where that fails, the start is found from the
+    model's start values); ``max_values``: the largest output (points x signals). Returns
+    the :class:`Result` on ``t_out``, solver statistics in ``meta``.
+    """
+    u0 = {k: float(sig(t_out[0])) for k, sig in inputs.items()}
+    try:
+        start = solve_equilibrium(model, u0, params, guess=guess)
+    except SarcomereError:
+        if guess is None:
+            raise
+        start = solve_equilibrium(model, u0, params)
+    return simulate(
         model,
-        sim.stop_time,
+        float(t_out[-1]),
         inputs,
-        b.overrides,
+        params,
         x0=start.x,
         z0=start.z,
-        settings=_settings(sc, model),
-        t_out=grid,
-        signals=wanted,
-        max_values=sc.outputs.max_values,
-    )
-    sel = res.select(wanted)
-    sel.meta.update(res.meta)
-    return model, sel
-
-
-def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
-    """Simulate from the equilibrium at the inputs' start values (see module docstring).
-
-    ``fidelity = "auto"``: the cheapest level predicted within ``[outputs] tolerance``
-    of "full" runs, and only that one (see :func:`choose_fidelity`).
-    """
-    sc.refuse_unused("sweep", "control", "cosim")
-    if sc.model.fidelity != "auto":
-        sc.refuse_unused("outputs.tolerance")
-    b = bind(sc)
-    fid = fidelity_level(sc, allow_auto=True)
-    check_n(sc, ("model", "n"), b.n, fid)
-    extra = {"aps_params": _aps_dict(b.aps), "setup": b.setup}
-    metrics = {}
-    if fid == "auto":
-        fid, res, report = choose_fidelity(sc, b)
-        extra["fidelity_auto"] = report
-        metrics["fidelity_predicted_error"] = report["predicted_error"][fid]
-    else:
-        _, res = _simulate(sc, b, fid)
-    found, left_out = transient_metrics(res)
-    metrics.update(found)
-    if left_out:
-        extra["metrics_left_out"] = left_out
-    return RunOutput(
-        sc.name, fid, res.meta["method"], metrics=metrics, results={"main": res}, extra=extra
+        settings=settings,
+        t_out=t_out,
+        signals=signals,
+        max_values=max_values,
     )
 
 
-#: Smallest net length stroke (|final - initial|, m) with a rise time: below it the
-#: change is not told from numerical noise (rtol 1e-6 on a 0.1 m chain is 0.1 um); the
-#: packaged steps and ramps move about 15 mm.
-RISE_MIN_STROKE_M = 1e-5
-
-
-def transient_metrics(res: Result) -> tuple[dict[str, float], dict[str, str]]:
-    """Final and initial length and pressure, rise time, slack time, solver statistics;
-    and the metrics left out, each with why (``rise_time_10_90_s`` of a run that does not
-    move, or whose output grid does not resolve the rise)."""
-    m, left_out = {}, {}
-    if "myofibril.length" in res:
-        L = res["myofibril.length"]
-        m["length_initial_mm"] = float(L[0] * 1e3)
-        m["length_final_mm"] = float(L[-1] * 1e3)
-        rise, why = rise_time(res.index, L, RISE_MIN_STROKE_M, "m")
-        if rise is None:
-            left_out["rise_time_10_90_s"] = why
-        else:
-            m["rise_time_10_90_s"] = rise
-    chamber = next(n for n in res.names if n.endswith(".chamber.p_gauge"))  # the top unit
-    m["pressure_final_kPa"] = res.final(chamber) / 1e3
-    if "sensor.f" in res:
-        m["force_final_N"] = res.final("sensor.f")
-    stretches = [n for n in res.names if n.endswith(".e") and ".actin" in n]
-    if stretches:
-        slack = np.any(np.array([res[n] < 0 for n in stretches]), axis=0)
-        m["slack_time_s"] = float(np.sum(np.diff(res.index) * slack[:-1]))
-    m["solver_steps"] = float(res.meta.get("n_steps", math.nan))
-    return m, left_out
-
-
-def rise_time(
-    t: np.ndarray, y: np.ndarray, min_stroke: float, unit: str = ""
-) -> tuple[float | None, str]:
-    """10-90 % rise time [s] of ``y(t)`` from ``y[0]`` to ``y[-1]``, on the linearly
-    interpolated signal: the first times ``y`` crosses ``y0 + 0.1 dy`` and ``y0 + 0.9 dy``
-    (``dy = y[-1] - y[0]``), each interpolated between its two samples.
-
-    Returns ``(None, why)`` when ``|dy| < min_stroke`` (``unit``: the signal's, for the
-    message) or when both crossings fall in one sample interval (the grid does not
-    resolve the rise); else ``(rise, "")``.
-    """
-    t, y = np.asarray(t, float), np.asarray(y, float)
-    dy = y[-1] - y[0]
-    if not abs(dy) >= min_stroke:
-        return None, (
-            f"the net stroke |final - initial| = {abs(dy):.3g} {unit} is below the noise "
-            f"level {min_stroke:g} {unit}: no rise to time"
-        )
-    frac = (y - y[0]) / dy
-    crossings = []
-    for level in (0.1, 0.9):
-        i = int(np.argmax(frac >= level))  # >= 1: frac[0] = 0; frac[-1] = 1 reaches it
-        w = (level - frac[i - 1]) / (frac[i] - frac[i - 1])
-        crossings.append((i, t[i - 1] + w * (t[i] - t[i - 1])))
-    (i10, t10), (i90, t90) = crossings
-    if i10 == i90:
-        return None, (
-            f"the output grid ({t[i90] - t[i90 - 1]:.3g} s there) does not resolve the rise: "
-            "both crossings fall in one interval"
-        )
-    return float(t90 - t10), ""
-
-
-def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
-    """Bind the scene to the auto policy (:func:`sarcomere.dynamics.fidelity.choose`:
-    the cheapest level predicted within ``[outputs] tolerance``, default 1 %, of
-    "full", over ``[outputs] signals``, default ``myofibril.length``) and run the
-    chosen level alone; at n <= 6 the full run is handed to the policy to run first, in
-    pieces it may pause between ("full first"). The auto run's wall time is in the
-    report."""
-    tic = time.perf_counter()
-    if sc.simulation is None:
-        raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
-    grid = time_grid(sc.simulation)
-    first = "symmetric" if ladder.grouped_units(b.n) < b.n else "full"
-    cheap = b.build(first)  # the first model the ladder needs: inputs checked on it
-    inputs = _inputs(sc, cheap)
-    _check_commands(sc, cheap, b.overrides, inputs, grid)
-    care = list(sc.outputs.signals) or ["myofibril.length"]
-    # what linear and equilibrium_path return: full's signals (they run at n <= 6 only)
-    wanted = _prepare(sc, b, cheap)[1] if first == "full" else care
-    full = _pausable_full(sc, b, cheap, inputs, wanted, grid) if first == "full" else None
-    models = {(first, GROUPS): cheap}
-
-    def build(level: str, groups: int = GROUPS) -> Model:
-        key = (level, groups if level == "grouped" else GROUPS)
-        if key not in models:
-            models[key] = b.build(level, groups=groups)
-        return models[key]
-
-    scene = ladder.Scene(
-        n=b.n,
-        build=build,
-        inputs=inputs,
-        t_out=grid,
-        params=b.overrides,
-        signals=care,
-        named={*care, *(n for names in sc.outputs.plots.values() for n in names)},
-        keep=wanted,
-        tolerance=sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01,
-        full=full,
-    )
-    choice = ladder.choose(scene)
-    res = choice.result
-    if res is None:
-        res = _simulate(sc, b, choice.level, choice.model, choice.start)[1]
-    res.require_finite(choice.level)
-    report = choice.report(scene)
-    report["wall_time_s"] = time.perf_counter() - tic
-    return choice.level, res, report
-
-
-def _pausable_full(sc: Scenario, b: Binding, model: Model, inputs, wanted, grid) -> PausableRun:
-    """The full model's run from the start equilibrium as auto's "full first" runs it
-    (:data:`~sarcomere.dynamics.fidelity.policy.FULL_FIRST_BUDGET_S`), not yet started."""
-    u0 = {k: float(sig(grid[0])) for k, sig in inputs.items()}
-    start = solve_equilibrium(model, u0, b.overrides)
-    settings = _settings(sc, model)
-    return PausableRun(model, inputs, b.overrides, start.x, start.z, settings, grid, wanted)
-
-
-register_runner("equilibrium", run_equilibrium)
-register_runner("transient", run_transient)
+def simulate_scene(
+    sc: Scenario, b: Binding, fid: str, model: Model | None = None, guess: Equilibrium | None = None
+) -> Result:
+    """The transient of scene ``sc`` (bound as ``b``) at level ``fid``: :func:`prepare`
+    and :func:`run` on ``model`` (built when not given), the start continued from
+    ``guess`` where one is known."""
+    model = b.build(fid) if model is None else model
+    inputs, wanted, grid = prepare(sc, b, model)
+    settings, limit = solver_settings(sc, model), sc.outputs.max_values
+    return run(model, inputs, b.overrides, grid, settings, wanted, guess=guess, max_values=limit)
