@@ -29,7 +29,7 @@ import casadi as cs
 import numpy as np
 
 from sarcomere.dynamics.assemblies import FIDELITIES
-from sarcomere.dynamics.components.aps import CHAIN_LEVELS
+from sarcomere.dynamics.components.chains import CHAIN_LEVELS
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model

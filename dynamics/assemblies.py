@@ -21,11 +21,11 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-from .components.aps import (
+from .components.aps import APSParams
+from .components.chains import (
     CHAIN_LEVELS,
     FLOW_LAWS,
     INSTANT_LEVELS,
-    APSParams,
     GroupedMyofibril,
     Myofibril,
     SymmetricMyofibril,
@@ -57,11 +57,11 @@ HOOK_MASS_KG = 1.0e-3
 FIDELITIES = (*CHAIN_LEVELS, "grouped", "symmetric", *INSTANT_LEVELS)
 """Dynamic fidelity levels (see :data:`CHAIN_LEVELS` and docs/model.md); "grouped" is
 :data:`GROUPS` groups of units in series, two representative half-groups each, with the
-bodies' inertia and the weight gradient (:class:`~.components.aps.GroupedMyofibril`,
+bodies' inertia and the weight gradient (:class:`~.components.chains.GroupedMyofibril`,
 all n units when n <= GROUPS), "symmetric" one representative unit for n identical
 units; "instant_pneumatics" and "instant_quasi_static" the mechanics of "full" and
 "quasi_static" with every chamber at the regulator's outlet pressure
-(:data:`~.components.aps.INSTANT_LEVELS`: no air masses, no tubes)."""
+(:data:`~.components.chains.INSTANT_LEVELS`: no air masses, no tubes)."""
 
 GROUPS = 3
 """Groups of the "grouped" level: its cost is that of a chain of at most 6 units

@@ -26,7 +26,7 @@ import numpy as np
 
 from .errors import ParameterError, ScenarioError
 from .files import read_text
-from .units import to_si
+from .units import si_unit, to_si
 
 
 def _inside(times: list[float], t0: float, tf: float) -> list[float]:
@@ -46,7 +46,9 @@ class Signal(ABC):
     Parameters
     ----------
     unit : str
-        SI unit of the value, e.g. ``"Pa"``; ``"1"`` if dimensionless.
+        Unit of the value, e.g. ``"Pa"``; ``"1"`` if dimensionless. Another unit of a
+        dimension with an SI unit (``"kPa"``, ``"bar"``, ``"psi"``) is the unit of bare
+        numbers: the values are taken to SI and ``unit`` becomes the SI unit.
     """
 
     unit: str = "1"
@@ -57,20 +59,23 @@ class Signal(ABC):
 
     def __post_init__(self) -> None:
         """Take every quantity field to SI (numbers or quantity strings), then check it."""
+        si_value_unit, factor = si_unit(self.unit)
         for f in fields(self):
             kind = self.spec_keys.get(f.name, "")
             if not kind:
                 continue
-            unit = self.unit if kind == "value" else kind
+            unit, scale = (self.unit, factor) if kind == "value" else (kind, 1.0)
             value = getattr(self, f.name)
             if f.name == "levels":
                 if isinstance(value, str) or not hasattr(value, "__iter__"):
                     raise ParameterError("levels", value, f"a list of values in {unit}")
-                si = tuple(to_si(v, unit, f"levels[{i}]") for i, v in enumerate(value))
+                si = tuple(to_si(v, unit, f"levels[{i}]") * scale for i, v in enumerate(value))
             else:
-                si = to_si(value, unit, f.name)
+                si = to_si(value, unit, f.name) * scale
             object.__setattr__(self, f.name, si)
         self._check()
+        if factor != 1.0 or si_value_unit != self.unit:
+            object.__setattr__(self, "unit", si_value_unit)
 
     def _check(self) -> None:  # noqa: B027  (a hook; most types override it)
         """Check the SI fields against each other (override; default: nothing to check)."""
@@ -402,7 +407,10 @@ class Table(Signal):
             seq = getattr(self, name)
             if isinstance(seq, str) or not hasattr(seq, "__iter__"):
                 raise ParameterError(name, seq, f"a list of numbers in {unit}", self.source)
-            object.__setattr__(self, name, _si_tuple(seq, unit, name))
+            si = _si_tuple(seq, unit, name)
+            if name == "values" and (factor := si_unit(unit)[1]) != 1.0:
+                si = tuple(v * factor for v in si)
+            object.__setattr__(self, name, si)
         if len(self.times) < 2 or len(self.times) != len(self.values):
             raise ParameterError(
                 "times", self.times, "at least two times, as many as values", self.source

@@ -119,6 +119,33 @@ def to_si(value: object, unit: str, name: str = "value", bare_ok: bool = True) -
     return out
 
 
+_SI_SYMBOLS = ("Pa", "m", "kg", "s", "N", "Hz")
+"""SI units :func:`si_unit` maps another unit of the same dimension onto."""
+
+
+@functools.cache
+def si_unit(unit: str) -> tuple[str, float]:
+    """The SI unit of ``unit``'s dimension and the factor taking a number in ``unit`` to it:
+    ``si_unit("kPa") == ("Pa", 1000.0)``, ``si_unit("psi")`` through pint. A unit of
+    another dimension (or with an offset, degC) is returned as it is, with factor 1."""
+    if unit in _UNITS:
+        dim, factor = _UNITS[unit]
+        si = next(k for k, (d, f) in _UNITS.items() if d == dim and f == 1.0)
+        return (unit, 1.0) if dim == "1" else (si, factor)
+    import pint
+
+    try:
+        q = _registry().Quantity(1.0, unit)
+    except Exception:  # pint raises several unrelated types for bad text
+        return unit, 1.0
+    for si in _SI_SYMBOLS:
+        try:
+            return si, float(q.to(si).magnitude)
+        except (pint.DimensionalityError, pint.OffsetUnitCalculusError):
+            continue
+    return unit, 1.0
+
+
 def _check_bare(out: float, value: object, unit: str, name: str, bare_ok: bool) -> None:
     """Refuse a bare non-zero number of a dimensioned ``unit`` unless ``bare_ok``."""
     if bare_ok or out == 0 or not math.isfinite(out) or _dimensionless(unit):

@@ -19,7 +19,7 @@ import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
 from sarcomere.dynamics.files import path_kind, read_text
-from sarcomere.dynamics.units import to_si
+from sarcomere.dynamics.units import si_unit, to_si
 
 from .catalog import packaged_scenarios
 from .signals import SIGNAL_TYPES, signal_from_spec
@@ -268,10 +268,11 @@ class _Reader:
             raise self.error(path, f"expected a list of strings, got {value!r}")
         return tuple(value)
 
-    def unit(self, tbl: dict, path: KeyPath, variable: str) -> str:
-        """The SI unit of ``variable``: the ``unit`` key, or a known default."""
+    def unit(self, tbl: dict, path: KeyPath, variable: str, any_si: bool = False) -> str:
+        """The SI unit of ``variable``: the ``unit`` key, or a known default; ``any_si``:
+        any unit of an SI unit's dimension ("kPa": a signal takes its values to SI)."""
         unit = self.text(tbl, path, "unit", KNOWN_UNITS.get(variable, _REQUIRED))
-        if unit not in SI_UNITS:
+        if unit not in SI_UNITS and not (any_si and si_unit(unit)[0] in SI_UNITS):
             raise self.error((*path, "unit"), f"'{unit}' is not an SI unit ({', '.join(SI_UNITS)})")
         return unit
 
@@ -368,7 +369,7 @@ def _inputs(r: _Reader, value: object, base_dir: Path) -> dict:
         spec = dict(r.table(item, path))
         cls = SIGNAL_TYPES[r.choice(spec, path, "type", list(SIGNAL_TYPES), _REQUIRED)]
         r.table(spec, path, ["type", "unit", *cls.spec_keys], cls.required_keys())
-        unit = r.unit(spec, path, name)
+        unit = r.unit(spec, path, name, any_si=True)
         bare = "none" if spec.pop("unit", None) is None else "values"  # in the stated unit
         try:
             out[name] = signal_from_spec(spec, unit, dotted(path), base_dir, bare)

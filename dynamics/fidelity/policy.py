@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..assemblies import GROUPS
-from ..components.aps import GroupedMyofibril, chain_end_names
+from ..components.chains import GroupedMyofibril, chain_end_names
 from ..equilibrium import Equilibrium
 from ..modeling.model import Model
 from ..results import Result

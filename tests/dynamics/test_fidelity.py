@@ -7,7 +7,8 @@ from scipy.linalg import expm
 
 from sarcomere.dynamics import fidelity
 from sarcomere.dynamics.assemblies import hanging_load
-from sarcomere.dynamics.components.aps import APSParams, GroupedMyofibril
+from sarcomere.dynamics.components.aps import APSParams
+from sarcomere.dynamics.components.chains import GroupedMyofibril
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import SolverError
 from sarcomere.dynamics.results import Result

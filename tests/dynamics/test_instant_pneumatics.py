@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from sarcomere.dynamics import SolverSettings, hanging_load, isometric, simulate
-from sarcomere.dynamics.components.aps import APSParams, Myofibril
+from sarcomere.dynamics.components.aps import APSParams
+from sarcomere.dynamics.components.chains import Myofibril
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.signals import Step

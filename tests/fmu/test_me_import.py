@@ -16,7 +16,8 @@ import pytest
 from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP
 from sarcomere.controllers.qp import qp_solver, zoh
 from sarcomere.dynamics.assemblies import hanging_load
-from sarcomere.dynamics.components.aps import APSParams, Myofibril
+from sarcomere.dynamics.components.aps import APSParams
+from sarcomere.dynamics.components.chains import Myofibril
 from sarcomere.dynamics.components.environment import Environment
 from sarcomere.dynamics.components.mechanical import (
     Fixed,

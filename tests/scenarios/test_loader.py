@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from sarcomere.dynamics.errors import ScenarioError
+from sarcomere.dynamics.units import to_si
 from sarcomere.scenarios.loader import (
     key_lines,
     load_scenario,
@@ -443,3 +444,13 @@ def test_every_packaged_scene_loads_and_binds_without_warnings(name: str) -> Non
         sc = load_scenario(name)
         if sc.kind != "static":
             bind(sc)
+
+
+@pytest.mark.parametrize("unit", ["kPa", "bar", "psi"])
+def test_an_input_in_any_pressure_unit_is_taken_to_pa(tmp_path: Path, unit: str) -> None:
+    """Issue 24: ``unit = "kPa"`` on an input was refused ("not an SI unit")."""
+    text = SCENE.format(body="").replace('final = "0.1 MPa"', f'final = 2\nunit = "{unit}"')
+    sc = load_scenario(write(tmp_path, text))
+    step = sc.inputs["pressure"]
+    assert step.unit == "Pa"
+    assert step.final == pytest.approx(to_si(f"2 {unit}", "Pa"), rel=1e-12)

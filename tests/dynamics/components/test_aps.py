@@ -10,7 +10,8 @@ import pytest
 
 from sarcomere.dynamics.assemblies import hanging_load, isometric
 from sarcomere.dynamics.calibration import TARGETS, evaluate
-from sarcomere.dynamics.components.aps import APSParams, Myofibril
+from sarcomere.dynamics.components.aps import APSParams
+from sarcomere.dynamics.components.chains import Myofibril
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate

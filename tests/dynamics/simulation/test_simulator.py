@@ -13,7 +13,7 @@ import sarcomere.dynamics.simulation as simulation_pkg
 from sarcomere.dynamics import Simulator, SolverSettings, simulate
 from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.component import Component, System
-from sarcomere.dynamics.signals import Ramp, Sine, Staircase, Step
+from sarcomere.dynamics.signals import Ramp, Sine, Staircase, Step, Table
 from sarcomere.dynamics.simulation.simulate import PausableRun
 
 from .conftest import X0_M, _exact
@@ -186,6 +186,25 @@ def test_a_signal_in_another_unit_than_its_input_is_refused():
         simulate(model, 0.1, {"lag.u": Step(final=0.1, unit="m")})
     ok = simulate(model, 0.1, {"lag.u": Step(final=1e5, unit="Pa")})
     assert ok.final("lag.x") > 0
+
+
+@pytest.mark.parametrize(
+    "signal",
+    [
+        Step(final=100, unit="kPa"),
+        Step(final="0.1 MPa", unit="kPa"),
+        Step(final=1, unit="bar"),
+        Staircase(levels=(0.1,), dwell=1.0, unit="MPa"),
+        Table(times=(0.0, 1.0), values=(100, 100), unit="kPa"),
+    ],
+)
+def test_a_signal_in_any_pressure_unit_drives_a_pressure_input(signal):
+    """Issue 24: ``Step(unit="kPa")`` was refused (a signal in kPa for an input in Pa)."""
+    assert signal.unit == "Pa"
+    a = simulate(lag_model(), 0.2, {"lag.u": signal})
+    b = simulate(lag_model(), 0.2, {"lag.u": 1e5})
+    np.testing.assert_allclose(a["lag.x"], b["lag.x"], rtol=1e-12)
+    assert Step(final=14.5038, unit="psi").final == pytest.approx(1e5, rel=1e-5)
 
 
 def test_simulate_accepts_inputs_with_units():
