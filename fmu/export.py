@@ -57,7 +57,7 @@ SAMPLE_TOL = 1e-6
 ``t / T - SAMPLE_TOL <= k < (t + h) / T - SAMPLE_TOL`` [-, fraction of a period]: times
 that accumulate rounding errors still hit their sample."""
 
-C_SOURCES = ("physics.c", "instance.c")
+C_SOURCES = ("physics.c", "instance.c", "registry.c")
 C_HEADERS = ("physics.h", "instance.h")
 
 
