@@ -57,6 +57,12 @@ SAMPLE_TOL = 1e-6
 ``t / T - SAMPLE_TOL <= k < (t + h) / T - SAMPLE_TOL`` [-, fraction of a period]: times
 that accumulate rounding errors still hit their sample."""
 
+MAX_SAMPLES = 1000
+"""Most sample instants a sampled system's ``doStep`` runs (a longer step is refused with a
+message, as a continuous model's ``doStep`` stops after ``codegen.CS_MAX_STEPS`` internal
+steps): all of them see the same held inputs, and an NMPC law costs about 10 ms a sample,
+so one call stays below some 10 s."""
+
 C_SOURCES = ("physics.c", "instance.c", "registry.c")
 C_HEADERS = ("physics.h", "instance.h")
 
@@ -192,6 +198,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         "SM_SAMPLED": int(sampled),
         "SM_SAMPLE_PERIOD": repr(lay.sample_period or 0.0),
         "SM_SAMPLE_TOL": repr(SAMPLE_TOL),
+        "SM_MAX_SAMPLES": MAX_SAMPLES,
         "SM_ADVANCE_UNIT": _c_string("samples" if sampled else "Radau IIA steps"),
         "SM_NX": nx,
         "SM_NU": nu,

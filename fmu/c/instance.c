@@ -320,7 +320,8 @@ SmStatus sm_get_reals(SmInstance* inst, const unsigned* vr, size_t n, double* va
 
 /* --- Co-Simulation -------------------------------------------------------------------- */
 /* Refuses a step that cannot be taken: not a finite h > 0, a t + h that does not advance
- * time or leaves the FMU's time range, or one past the stop time given at set-up. */
+ * time or leaves the FMU's time range, one past the stop time given at set-up, or (a
+ * sampled system) one holding more than SM_MAX_SAMPLES sample instants. */
 static int check_step(SmInstance* inst, double t, double h) {
     const double t_max = SM_TIME_RESOLUTION / DBL_EPSILON;
     const char* why = NULL;
@@ -339,6 +340,12 @@ static int check_step(SmInstance* inst, double t, double h) {
                "doStep: step size %g s ends at t = %.9g s, past the stop time %.9g s given at "
                "set-up",
                h, t + h, inst->t_stop);
+        return 0;
+    } else if (sm_samples(t - inst->v.t_start, h) > SM_MAX_SAMPLES) {
+        sm_log(inst, SM_ERROR, SM_LOG_ERROR,
+               "doStep: step size %g s holds %.0f sample instants (period %g s), more than %d "
+               "in one doStep (all would see the same held inputs): take shorter doSteps",
+               h, sm_samples(t - inst->v.t_start, h), SM_SAMPLE_PERIOD, SM_MAX_SAMPLES);
         return 0;
     }
     if (why != NULL) {

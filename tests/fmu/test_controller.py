@@ -22,6 +22,7 @@ from sarcomere.controllers.pid import make_pid
 from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.fmu.controller import export_controller_fmu, pid_system
+from sarcomere.fmu.export import MAX_SAMPLES
 from sarcomere.fmu.participants import fmi2_callbacks
 from sarcomere.fmu.sampled import export_sampled_fmu
 
@@ -189,6 +190,23 @@ def test_steps_shorter_longer_and_off_the_sample_grid(fmu, plant, pid):
     s.set(reference=r, measurement=ys[3])
     s.step(2.5 * DT, 2.5 * DT)  # instants 3T, 4T
     assert s.get("command") == pytest.approx(want[4], rel=1e-12)
+    s.close()
+
+
+def test_one_do_step_runs_at_most_max_samples(fmu, plant):
+    """A doStep over more than MAX_SAMPLES instants is refused with a message (bounded work
+    per call: an NMPC's doStep(0, 10) ran 1000 samples in 9.5 s, and the longest step
+    accepted would have run for weeks); the instance goes on."""
+    s = Slave(fmu)
+    y = plant[1]["myofibril.length"]
+    s.set(reference=y, measurement=y)
+    MESSAGES.clear()
+    with pytest.raises(FMICallException):
+        s.step(0.0, (MAX_SAMPLES + 0.5) * DT)
+    if fmu[1] == 2:
+        assert f"holds {MAX_SAMPLES + 1} sample instants (period 0.01 s), more than" in MESSAGES[-1]
+    s.step(0.0, MAX_SAMPLES * DT)  # the most in one call
+    s.step(MAX_SAMPLES * DT, DT)
     s.close()
 
 

@@ -423,6 +423,24 @@ def test_a_tampered_serialized_state_is_refused(step_loaded, tamper, why):
     fmu.freeInstance()
 
 
+def test_a_do_step_too_long_for_its_integrator_names_its_length(step_loaded):
+    """doStep(0, 4e6 s) after a 0.5 MPa step (step-50g's muscle): radau.c's smallest
+    step is 10 machine epsilons of the step's end, 9e-9 s, which the filling's first steps
+    need to undercut: the message says that the step's length limits (it said "too small
+    (10 machine epsilons of t)" at t = 0)."""
+    fmu = step_loaded.instance()
+    _start(fmu, None, step_loaded)
+    _command(fmu, step_loaded, 5e5)
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, 4e6)
+    message = step_loaded.errors()[-1]
+    assert (
+        "the step size became too small (below 8.88e-09 s, 10 machine epsilons of this " in message
+    )
+    assert "doStep's length 4e+06 s: it is the step's end that limits; take shorter" in message
+    fmu.freeInstance()
+
+
 @pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
 def test_a_do_step_past_its_step_limit_is_reported(tmp_path, monkeypatch, load):
     """An FMU built with at most 3 Radau IIA steps per doStep: a 0.1 s step through the
