@@ -199,6 +199,7 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         "SM_SAMPLE_PERIOD": repr(lay.sample_period or 0.0),
         "SM_SAMPLE_TOL": repr(SAMPLE_TOL),
         "SM_MAX_SAMPLES": MAX_SAMPLES,
+        "SM_SHARED_MEMORY": int(gen.shared_memory),
         "SM_ADVANCE_UNIT": _c_string("samples" if sampled else "Radau IIA steps"),
         "SM_NX": nx,
         "SM_NU": nu,

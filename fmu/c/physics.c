@@ -9,6 +9,9 @@
 #include <string.h>
 
 #include "sm_casadi.h"
+#if SM_SHARED_MEMORY
+#include <stdatomic.h>
+#endif
 #if !SM_SAMPLED
 #include "sm_radau.h"
 #endif
@@ -98,6 +101,27 @@ double sm_samples(double t, double h) {
     return ceil((t + h) / SM_SAMPLE_PERIOD - SM_SAMPLE_TOL) - first_sample(t);
 }
 
+#if SM_SHARED_MEMORY
+/* The generated law keeps a solver's memory in static slots, one per loaded binary
+ * (CasADi's code generation): one update at a time in the process, so instances stepped in
+ * parallel threads wait for each other instead of failing. */
+static atomic_flag law_lock = ATOMIC_FLAG_INIT;
+#endif
+
+static int update(SmWork* wk, const double* x, const double* u, const double* p, double* xn) {
+    const double* arg[] = {x, u, p};
+    double* res[] = {xn};
+#if SM_SHARED_MEMORY
+    while (atomic_flag_test_and_set(&law_lock)) {
+    }
+#endif
+    int failed = call(wk, sm_update, 3, arg, 1, res);
+#if SM_SHARED_MEMORY
+    atomic_flag_clear(&law_lock);
+#endif
+    return failed;
+}
+
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg) {
     double xw[SM_NX], xn[SM_NX];
@@ -105,9 +129,14 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
     memcpy(xw, x, sizeof xw);
     *substeps = 0;
     for (double k = first; k < end; k += 1.0) {
-        const double* arg[] = {xw, u, p};
-        double* res[] = {xn};
-        if (call(wk, sm_update, 3, arg, 1, res) || !all_finite(xn, SM_NX)) {
+        if (update(wk, xw, u, p, xn)) {
+            snprintf(msg, SM_MSG,
+                     "the law's generated code failed at the sample t = %.9g s (a solver inside "
+                     "it returned an error)",
+                     k * SM_SAMPLE_PERIOD);
+            return 1;
+        }
+        if (!all_finite(xn, SM_NX)) {
             snprintf(msg, SM_MSG, "the update at the sample t = %.9g s is not finite",
                      k * SM_SAMPLE_PERIOD);
             return 1;
