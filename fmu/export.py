@@ -290,10 +290,15 @@ def compile_binary(src: Path, out: Path, fmi_version: int) -> None:
         raise FmuError(f"the C compiler failed ({' '.join(cmd[:6])} ...): {done.stderr[-2000:]}")
 
 
+def calls_daqp(src: Path) -> bool:
+    """Whether the generated sources in ``src`` call DAQP (a controller FMU's law)."""
+    return any("<daqp/api.h>" in f.read_text() for f in src.glob("sm_*.c"))
+
+
 def qp_libraries(src: Path) -> list[str]:
     """The compiler arguments for a generated QP solver the sources call (a controller
     FMU's law): DAQP's headers and static library as the casadi wheel ships them."""
-    if not any("<daqp/api.h>" in f.read_text() for f in src.glob("sm_*.c")):
+    if not calls_daqp(src):
         return []
     from sarcomere.controllers.rti_compiled import daqp_build
 
@@ -421,9 +426,11 @@ def build(
         for name in (*C_SOURCES, *C_HEADERS, f"fmi{fmi_version}.c"):
             (src / name).write_text(templates.joinpath(name).read_text())
         sources = [*C_SOURCES, f"fmi{fmi_version}.c", *gen.sources, "model_data.c"]
+        if calls_daqp(src):  # DAQP's sources are not in the archive: declare no rebuild
+            sources = []
         xml = description.model_description(lay, fmi_version, ident, guid, sources, experiment)
         (root / "modelDescription.xml").write_text(xml)
-        if fmi_version == 3:
+        if fmi_version == 3 and sources:
             (src / "buildDescription.xml").write_text(description.build_description(ident, sources))
         # this machine's binary folder and library suffix, as importers look them up
         platform = fmpy.platform if fmi_version == 2 else fmpy.platform_tuple
