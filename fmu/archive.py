@@ -11,8 +11,12 @@ and the problem:
   larger than :data:`RATIO_FLOOR_BYTES` expands more than :data:`MAX_RATIO` times (zip
   bombs); extraction never writes more than an entry declares (``zipfile`` stops at the
   declared size and checks the CRC);
-* ``modelDescription.xml`` exists, is well-formed XML whose root is
+* ``modelDescription.xml`` exists, is at most :data:`MAX_DESCRIPTION_BYTES` (checked before
+  any parsing), is well-formed XML whose root is
   ``fmiModelDescription`` with ``fmiVersion`` 2.0 or 3.x, and fmpy reads it;
+* every model identifier is a C identifier (as the FMI schema requires: it names the
+  binary and prefixes its functions), so the binary's path stays inside the extraction
+  folder (checked on the resolved path too);
 * the FMU has the interface asked for (Co-Simulation by default) and the binary of its
   model identifier for this platform
   (``binaries/linux64`` for FMI 2.0, ``binaries/x86_64-linux`` for FMI 3.0).
@@ -20,6 +24,7 @@ and the problem:
 
 from __future__ import annotations
 
+import re
 import shutil
 import stat
 import tempfile
@@ -47,6 +52,14 @@ MAX_ENTRIES = 10_000
 MAX_RATIO = 200.0
 """Largest accepted expansion (uncompressed / compressed size) of an entry larger than
 :data:`RATIO_FLOOR_BYTES`; generated C and shared libraries compress some 3 to 10 times."""
+
+MAX_DESCRIPTION_BYTES = 8 * 2**20
+"""Largest accepted ``modelDescription.xml`` [bytes], checked before it is parsed (fmpy's
+schema validation costs about 0.7 s of CPU per MB; the largest this project writes, an
+NMPC controller FMU with its law's memory as variables, is well below 1 MB)."""
+
+IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+"""A model identifier: a C identifier (the FMI schema's pattern)."""
 
 RATIO_FLOOR_BYTES = 2**20
 """Entries up to this uncompressed size [bytes] are not held to :data:`MAX_RATIO`."""
@@ -110,6 +123,9 @@ def _check_entries(path: Path, zf: zipfile.ZipFile) -> None:
                 )
     if total > MAX_UNPACKED_BYTES:
         raise _fail(path, f"entries declare {total} bytes unpacked, more than {MAX_UNPACKED_BYTES}")
+    xml = max((i.file_size for i in infos if i.filename == "modelDescription.xml"), default=0)
+    if xml > MAX_DESCRIPTION_BYTES:
+        raise _fail(path, f"modelDescription.xml is {xml} bytes, more than {MAX_DESCRIPTION_BYTES}")
 
 
 def _fmi_version(path: Path, folder: Path) -> int:
@@ -128,6 +144,23 @@ def _fmi_version(path: Path, folder: Path) -> int:
     if version.startswith("3."):
         return 3
     raise _fail(path, f"unknown FMI version '{version}' (2.0 or 3.x)")
+
+
+def _binary(path: Path, folder: Path, md: ModelDescription, interface: str, version: int) -> None:
+    """Refuses a model identifier that is not a C identifier (or whose binary would resolve
+    outside ``folder``) and a missing binary of the interface used."""
+    for kind in (md.coSimulation, md.modelExchange):
+        ident = "" if kind is None else kind.modelIdentifier
+        if kind is not None and not IDENTIFIER.fullmatch(ident or ""):
+            raise _fail(path, f"modelIdentifier {ident!r} is not a C identifier")
+    kind = getattr(md, interface)
+    if kind is None:
+        raise _fail(path, f"no {INTERFACES[interface]} interface")
+    binary = Path("binaries") / PLATFORMS[version] / f"{kind.modelIdentifier}.so"
+    if not (folder / binary).resolve().is_relative_to(folder.resolve()):
+        raise _fail(path, f"the binary {binary} lies outside the archive")
+    if not (folder / binary).is_file():
+        raise _fail(path, f"no binary for this platform ({binary})")
 
 
 def _not_a_file(path: Path) -> str:
@@ -182,13 +215,7 @@ def open_fmu(path: str | Path, interface: str = "coSimulation") -> Iterator[Open
         except Exception as err:  # fmpy raises plain Exceptions for schema problems
             problem = " ".join(str(err).split())[:300]
             raise _fail(path, f"malformed modelDescription.xml ({problem})") from None
-        kind = getattr(md, interface)
-        if kind is None:
-            raise _fail(path, f"no {INTERFACES[interface]} interface")
-        platform = PLATFORMS[version]
-        binary = Path("binaries") / platform / f"{kind.modelIdentifier}.so"
-        if not (folder / binary).is_file():
-            raise _fail(path, f"no binary for this platform ({binary})")
+        _binary(path, folder, md, interface, version)
         yield OpenedFmu(path, folder, md, version)
     finally:
         shutil.rmtree(folder, ignore_errors=True)

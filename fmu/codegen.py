@@ -87,13 +87,16 @@ its Jacobian) and the states' scale it takes (written into ``sm_radau.h``)."""
 @dataclass(frozen=True)
 class Generated:
     """The work sizes the wrapper allocates for the generated functions of ``sm_casadi.c``
-    (the largest) and the generated C files to compile."""
+    (the largest), the generated C files to compile, and whether that code keeps memory in
+    static slots (``shared_memory``: a QP solver's, one slot per loaded binary in CasADi's
+    code generation, so the wrapper lets one call in at a time)."""
 
     sz_arg: int
     sz_res: int
     sz_iw: int
     sz_w: int
     sources: tuple[str, ...] = ("sm_casadi.c",)
+    shared_memory: bool = False
 
 
 def require_ode(model: Model) -> None:
@@ -183,6 +186,7 @@ def generate(funcs: list[cs.Function], folder: Path) -> Generated:
         max(f.sz_iw() for f in own),
         max(f.sz_w() for f in own),
         sources,
+        "_checkout(void)" in (folder / "sm_casadi.c").read_text(),
     )
 
 

@@ -198,9 +198,10 @@ def _fmi2(lay, ident: str, guid: str, sources, experiment) -> ET.Element:
     for kind in _interfaces(lay):
         extra = {"canHandleVariableCommunicationStepSize": "true"} if kind == "CoSimulation" else {}
         el = ET.SubElement(root, kind, {**caps, **extra})
-        files = ET.SubElement(el, "SourceFiles")
-        for f in sources:
-            ET.SubElement(files, "File", {"name": f})
+        if sources:  # none: a law calling DAQP, whose sources are not in the archive
+            files = ET.SubElement(el, "SourceFiles")
+            for f in sources:
+                ET.SubElement(files, "File", {"name": f})
     _units(root, lay)
     _log_categories(root)
     _experiment(root, experiment)

@@ -57,7 +57,13 @@ SAMPLE_TOL = 1e-6
 ``t / T - SAMPLE_TOL <= k < (t + h) / T - SAMPLE_TOL`` [-, fraction of a period]: times
 that accumulate rounding errors still hit their sample."""
 
-C_SOURCES = ("physics.c", "instance.c")
+MAX_SAMPLES = 1000
+"""Most sample instants a sampled system's ``doStep`` runs (a longer step is refused with a
+message, as a continuous model's ``doStep`` stops after ``codegen.CS_MAX_STEPS`` internal
+steps): all of them see the same held inputs, and an NMPC law costs about 10 ms a sample,
+so one call stays below some 10 s."""
+
+C_SOURCES = ("physics.c", "instance.c", "registry.c")
 C_HEADERS = ("physics.h", "instance.h")
 
 
@@ -192,6 +198,8 @@ def model_data(lay: Layout, gen: codegen.Generated, guid: str, fmi_version: int)
         "SM_SAMPLED": int(sampled),
         "SM_SAMPLE_PERIOD": repr(lay.sample_period or 0.0),
         "SM_SAMPLE_TOL": repr(SAMPLE_TOL),
+        "SM_MAX_SAMPLES": MAX_SAMPLES,
+        "SM_SHARED_MEMORY": int(gen.shared_memory),
         "SM_ADVANCE_UNIT": _c_string("samples" if sampled else "Radau IIA steps"),
         "SM_NX": nx,
         "SM_NU": nu,
@@ -282,10 +290,15 @@ def compile_binary(src: Path, out: Path, fmi_version: int) -> None:
         raise FmuError(f"the C compiler failed ({' '.join(cmd[:6])} ...): {done.stderr[-2000:]}")
 
 
+def calls_daqp(src: Path) -> bool:
+    """Whether the generated sources in ``src`` call DAQP (a controller FMU's law)."""
+    return any("<daqp/api.h>" in f.read_text() for f in src.glob("sm_*.c"))
+
+
 def qp_libraries(src: Path) -> list[str]:
     """The compiler arguments for a generated QP solver the sources call (a controller
     FMU's law): DAQP's headers and static library as the casadi wheel ships them."""
-    if not any("<daqp/api.h>" in f.read_text() for f in src.glob("sm_*.c")):
+    if not calls_daqp(src):
         return []
     from sarcomere.controllers.rti_compiled import daqp_build
 
@@ -413,9 +426,11 @@ def build(
         for name in (*C_SOURCES, *C_HEADERS, f"fmi{fmi_version}.c"):
             (src / name).write_text(templates.joinpath(name).read_text())
         sources = [*C_SOURCES, f"fmi{fmi_version}.c", *gen.sources, "model_data.c"]
+        if calls_daqp(src):  # DAQP's sources are not in the archive: declare no rebuild
+            sources = []
         xml = description.model_description(lay, fmi_version, ident, guid, sources, experiment)
         (root / "modelDescription.xml").write_text(xml)
-        if fmi_version == 3:
+        if fmi_version == 3 and sources:
             (src / "buildDescription.xml").write_text(description.build_description(ident, sources))
         # this machine's binary folder and library suffix, as importers look them up
         platform = fmpy.platform if fmi_version == 2 else fmpy.platform_tuple

@@ -72,12 +72,14 @@ fmi3Instance fmi3InstantiateCoSimulation(
     fmi3Boolean earlyReturnAllowed, const fmi3ValueReference requiredIntermediateVariables[],
     size_t nRequiredIntermediateVariables, fmi3InstanceEnvironment instanceEnvironment,
     fmi3LogMessageCallback logMessage, fmi3IntermediateUpdateCallback intermediateUpdate) {
-    /* no events, no early return, no intermediate variables: all may be ignored */
-    (void)resourcePath, (void)visible, (void)eventModeUsed, (void)earlyReturnAllowed;
+    /* no events, no early return, no intermediate variables: event mode only if used */
+    (void)resourcePath, (void)visible, (void)earlyReturnAllowed;
     (void)requiredIntermediateVariables, (void)nRequiredIntermediateVariables;
     (void)intermediateUpdate;
-    return instantiate(instanceName, instantiationToken, 1, loggingOn, instanceEnvironment,
-                       logMessage);
+    SmInstance* inst = instantiate(instanceName, instantiationToken, 1, loggingOn,
+                                   instanceEnvironment, logMessage);
+    if (inst != NULL) inst->event_mode = eventModeUsed != fmi3False;
+    return inst;
 }
 
 fmi3Instance fmi3InstantiateScheduledExecution(
@@ -119,6 +121,10 @@ fmi3Status fmi3ExitInitializationMode(fmi3Instance c) {
 
 fmi3Status fmi3EnterEventMode(fmi3Instance c) {
     CALL(c, "fmi3EnterEventMode", SM_EVENT | SM_CONT | SM_STEP);
+    if (!sm_mode_fits(inst, SM_EVENT)) {
+        return refuse(c, "fmi3EnterEventMode",
+                      "this Co-Simulation instance was instantiated without eventModeUsed");
+    }
     inst->v.mode = SM_EVENT;
     return fmi3OK;
 }
@@ -362,6 +368,9 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance c, fmi3Boolean* discreteStatesN
 /* --- Model Exchange ------------------------------------------------------------------- */
 fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c) {
     CALL(c, "fmi3EnterContinuousTimeMode", SM_EVENT);
+    if (!sm_mode_fits(inst, SM_CONT)) {
+        return refuse(c, "fmi3EnterContinuousTimeMode", "not a Model Exchange instance");
+    }
     inst->v.mode = SM_CONT;
     return fmi3OK;
 }

@@ -48,6 +48,7 @@ typedef struct {
 typedef struct {
     char* name;
     int cosim;
+    int event_mode; /* FMI 3.0 Co-Simulation: the importer uses event mode (eventModeUsed) */
     SmLogger log;
     SmCallback callback;
     void* log_env;
@@ -64,6 +65,7 @@ typedef struct {
  * bogus pointer is refused without being read. */
 typedef struct {
     SmValues v;
+    int cosim; /* made by a Co-Simulation instance: set only on one */
     const SmInstance* maker;
 } SmState;
 
@@ -75,6 +77,9 @@ typedef struct {
 SmInstance* sm_new(const char* name, int cosim, SmLogger log, SmCallback callback, void* log_env,
                    int logging_on);
 void sm_free(SmInstance* inst);
+/* registry.c: lists a new instance (0 if out of memory); removes one, freeing its states. */
+int sm_register(SmInstance* inst);
+void sm_unregister(SmInstance* inst);
 /* The instance behind a handle the importer passed, or NULL (then logs, if the handle is one
  * freed before). Every API call starts with it. */
 SmInstance* sm_lookup(void* handle, const char* function);
@@ -83,6 +88,10 @@ void sm_log(SmInstance* inst, SmStatus status, int category, const char* fmt, ..
 /* 1 if the instance is in one of the modes of mask; else logs an error naming function. */
 int sm_allowed(SmInstance* inst, int mask, const char* function);
 SmStatus sm_fail(SmInstance* inst, const char* fmt, ...); /* logs, enters SM_FAILED */
+/* 1 if an instance of inst's type has mode: step mode is Co-Simulation's, continuous-time
+ * mode Model Exchange's, event mode Model Exchange's or an FMI 3.0 Co-Simulation's that
+ * uses it (event_mode). */
+int sm_mode_fits(const SmInstance* inst, int mode);
 
 SmStatus sm_set_logging(SmInstance* inst, int on, size_t n, const char* const* categories);
 void sm_reset(SmInstance* inst);

@@ -3,11 +3,15 @@
  * (radau.c), or the sample instants of a sampled system. */
 #include "physics.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
 
 #include "sm_casadi.h"
+#if SM_SHARED_MEMORY
+#include <stdatomic.h>
+#endif
 #if !SM_SAMPLED
 #include "sm_radau.h"
 #endif
@@ -90,18 +94,49 @@ int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg) {
     return 0;
 }
 
+/* The sample instants k T in [t, t + h): k from ceil(t / T) to ceil((t + h) / T) - 1. */
+static double first_sample(double t) { return ceil(t / SM_SAMPLE_PERIOD - SM_SAMPLE_TOL); }
+
+double sm_samples(double t, double h) {
+    return ceil((t + h) / SM_SAMPLE_PERIOD - SM_SAMPLE_TOL) - first_sample(t);
+}
+
+#if SM_SHARED_MEMORY
+/* The generated law keeps a solver's memory in static slots, one per loaded binary
+ * (CasADi's code generation): one update at a time in the process, so instances stepped in
+ * parallel threads wait for each other instead of failing. */
+static atomic_flag law_lock = ATOMIC_FLAG_INIT;
+#endif
+
+static int update(SmWork* wk, const double* x, const double* u, const double* p, double* xn) {
+    const double* arg[] = {x, u, p};
+    double* res[] = {xn};
+#if SM_SHARED_MEMORY
+    while (atomic_flag_test_and_set(&law_lock)) {
+    }
+#endif
+    int failed = call(wk, sm_update, 3, arg, 1, res);
+#if SM_SHARED_MEMORY
+    atomic_flag_clear(&law_lock);
+#endif
+    return failed;
+}
+
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg) {
     double xw[SM_NX], xn[SM_NX];
-    /* the sample instants k T in [t, t + h): k from ceil(t / T) to ceil((t + h) / T) - 1 */
-    double first = ceil(t / SM_SAMPLE_PERIOD - SM_SAMPLE_TOL);
-    double end = ceil((t + h) / SM_SAMPLE_PERIOD - SM_SAMPLE_TOL);
+    double first = first_sample(t), end = first + sm_samples(t, h);
     memcpy(xw, x, sizeof xw);
     *substeps = 0;
     for (double k = first; k < end; k += 1.0) {
-        const double* arg[] = {xw, u, p};
-        double* res[] = {xn};
-        if (call(wk, sm_update, 3, arg, 1, res) || !all_finite(xn, SM_NX)) {
+        if (update(wk, xw, u, p, xn)) {
+            snprintf(msg, SM_MSG,
+                     "the law's generated code failed at the sample t = %.9g s (a solver inside "
+                     "it returned an error)",
+                     k * SM_SAMPLE_PERIOD);
+            return 1;
+        }
+        if (!all_finite(xn, SM_NX)) {
             snprintf(msg, SM_MSG, "the update at the sample t = %.9g s is not finite",
                      k * SM_SAMPLE_PERIOD);
             return 1;
@@ -192,13 +227,18 @@ int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg) {
 static const char* radau_cause(int code) {
     switch (code) {
         case 1: return "too many steps (SM_RADAU_MAX_STEPS in one doStep)";
-        case 2: return "the step size became too small (10 machine epsilons of t)";
+        case 2: return "the step size became too small";
         case 3: return "the Newton iteration failed to converge repeatedly (11 step halvings)";
         case 4: return "the Jacobian is not finite";
         case 5: return "out of memory";
         case 6: return "the right-hand side is not finite";
         default: return "unknown failure";
     }
+}
+
+double sm_samples(double t, double h) {
+    (void)t, (void)h;
+    return 0.0;
 }
 
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
@@ -215,11 +255,21 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
                         SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail);
     *substeps = (long)stats[0];
     if (code) {
+        /* radau.c's smallest step: 10 machine epsilons of the larger of |t| and h */
+        char why[SM_MSG / 2] = "";
+        if (code == 2 && h >= fabs(t_fail)) {
+            snprintf(why, sizeof why,
+                     " (below %.3g s, 10 machine epsilons of this doStep's length %g s: it is "
+                     "the step's end that limits; take shorter doSteps)",
+                     10 * DBL_EPSILON * h, h);
+        } else if (code == 2) {
+            snprintf(why, sizeof why, " (below %.3g s, 10 machine epsilons of t)",
+                     10 * DBL_EPSILON * fabs(t_fail));
+        }
         snprintf(msg, SM_MSG,
                  "the Radau IIA integrator (rtol %.3g, atol %.3g x nominal) stopped at %.9g s "
-                 "into the "
-                 "step after %ld steps: %s",
-                 opt[0], opt[1], t_fail - t, *substeps, radau_cause(code));
+                 "into the step after %ld steps: %s%s",
+                 opt[0], opt[1], t_fail - t, *substeps, radau_cause(code), why);
         return 1;
     }
     if (!all_finite(xf, SM_NX)) {

@@ -48,6 +48,10 @@ int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg);
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg);
 
+/* The sample instants in [t, t + h) a doStep from t (time since the start) runs: a sampled
+ * system, at most SM_MAX_SAMPLES per doStep; 0 for a continuous model. */
+double sm_samples(double t, double h);
+
 /* "" if every bounded output is inside its range, else a message naming the first one. */
 int sm_check_domain(SmWork* wk, const double* x, const double* u, const double* p, char* msg);
 

@@ -76,22 +76,68 @@ BAD = {
 }
 
 
-def _leftovers() -> set[str]:
-    return {p.name for p in Path(tempfile.gettempdir()).glob("sarcomere-fmu-*")}
+@pytest.fixture
+def own_tmp(tmp_path, monkeypatch) -> Path:
+    """This test's own temporary folder for the extraction folders (what other processes
+    leave in the machine's is none of its business)."""
+    folder = tmp_path / "tmp"
+    folder.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(folder))
+    return folder
 
 
 @pytest.mark.parametrize("case", list(BAD))
-def test_a_crafted_bad_archive_is_refused_in_one_line(case, step_fmu, tmp_path):
+def test_a_crafted_bad_archive_is_refused_in_one_line(case, step_fmu, tmp_path, own_tmp):
     edits, message = BAD[case]
     bad = _rewrite(step_fmu, tmp_path / "bad.fmu", **edits)
-    before = _leftovers()
     with pytest.raises(FmuArchiveError) as info:
         with open_fmu(bad):
             pass
     text = str(info.value)
     assert text.startswith(f"FMU '{bad}': ") and message in text, text
     assert "\n" not in text
-    assert _leftovers() == before  # the extraction folder is gone
+    assert not list(own_tmp.glob("sarcomere-fmu-*"))  # the extraction folder is gone
+
+
+def _identifier(ident: str):
+    return _description(lambda d: re.sub(rb'modelIdentifier="[^"]*"', ident.encode(), d))
+
+
+def test_a_model_identifier_leading_out_of_the_archive_is_refused(
+    step_fmu, tmp_path, own_tmp, monkeypatch
+):
+    """``modelIdentifier = "../../../evil"`` names own_tmp/evil.so from the extraction
+    folder's binaries/linux64: a library outside the archive, never to be loaded."""
+    (own_tmp / "evil.so").write_bytes(b"\x7fELF")
+    bad = _rewrite(
+        step_fmu, tmp_path / "bad.fmu", replace=_identifier('modelIdentifier="../../../evil"')
+    )
+    with pytest.raises(
+        FmuArchiveError, match=r"modelIdentifier '\.\./\.\./\.\./evil' is not a C identifier"
+    ):
+        with open_fmu(bad):
+            pass
+    monkeypatch.setattr(archive, "IDENTIFIER", re.compile(".*"))  # the second line of defence
+    with pytest.raises(
+        FmuArchiveError, match=r"binaries/linux64/\.\./\.\./\.\./evil\.so lies outside"
+    ):
+        with open_fmu(bad):
+            pass
+    assert not list(own_tmp.glob("sarcomere-fmu-*"))
+
+
+def test_a_huge_model_description_is_refused_before_it_is_parsed(step_fmu, monkeypatch):
+    def parse(*args, **kwargs):
+        raise AssertionError("parsed")
+
+    monkeypatch.setattr(archive.ElementTree, "parse", parse)
+    monkeypatch.setattr(archive, "read_model_description", parse)
+    monkeypatch.setattr(archive, "MAX_DESCRIPTION_BYTES", 1000)
+    with pytest.raises(
+        FmuArchiveError, match=r"modelDescription.xml is \d+ bytes, more than 1000$"
+    ):
+        with open_fmu(step_fmu):
+            pass
 
 
 def test_declared_sizes_are_bounded(step_fmu, monkeypatch):

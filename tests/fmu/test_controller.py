@@ -4,6 +4,9 @@ measurement sequence that saturates and winds; the doStep semantics of docs/fmu.
 
 from __future__ import annotations
 
+import subprocess
+from pathlib import Path
+
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description, simulate_fmu
@@ -22,6 +25,7 @@ from sarcomere.controllers.pid import make_pid
 from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.fmu.controller import export_controller_fmu, pid_system
+from sarcomere.fmu.export import MAX_SAMPLES, fmi_headers
 from sarcomere.fmu.participants import fmi2_callbacks
 from sarcomere.fmu.sampled import export_sampled_fmu
 
@@ -124,6 +128,30 @@ class Slave:
         self.s.freeInstance()
 
 
+def declared_sources(folder: Path) -> list[str]:
+    """The C files an unzipped FMU declares for a rebuild (FMI 2.0 ``SourceFiles``, FMI 3.0
+    ``sources/buildDescription.xml``, as fmpy reads both)."""
+    md = read_model_description(str(folder))
+    return [f for c in md.buildConfigurations for s in c.sourceFileSets for f in s.sourceFiles]
+
+
+def rebuild_errors(folder: Path, names: list[str]) -> str:
+    """What gcc says building the declared ``names`` from the archive's own sources and the
+    FMI headers alone ("" if they build)."""
+    src = folder / "sources"
+    cmd = ["gcc", "-shared", "-fPIC", "-std=c11", "-I", str(src), "-I", str(fmi_headers())]
+    cmd += [str(src / n) for n in names] + ["-o", str(folder / "rebuilt.so"), "-lm"]
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    return done.stderr if done.returncode else ""
+
+
+def test_the_declared_sources_rebuild_from_the_archive(fmu):
+    folder = Path(fmu[2])
+    names = declared_sources(folder)
+    assert f"fmi{fmu[1]}.c" in names and "sm_casadi.c" in names
+    assert rebuild_errors(folder, names) == ""
+
+
 def test_controller_fmu_validates_and_is_co_simulation_only(fmu):
     path, version, folder = fmu
     assert validate_fmu(str(path)) == []
@@ -189,6 +217,23 @@ def test_steps_shorter_longer_and_off_the_sample_grid(fmu, plant, pid):
     s.set(reference=r, measurement=ys[3])
     s.step(2.5 * DT, 2.5 * DT)  # instants 3T, 4T
     assert s.get("command") == pytest.approx(want[4], rel=1e-12)
+    s.close()
+
+
+def test_one_do_step_runs_at_most_max_samples(fmu, plant):
+    """A doStep over more than MAX_SAMPLES instants is refused with a message (bounded work
+    per call: an NMPC's doStep(0, 10) ran 1000 samples in 9.5 s, and the longest step
+    accepted would have run for weeks); the instance goes on."""
+    s = Slave(fmu)
+    y = plant[1]["myofibril.length"]
+    s.set(reference=y, measurement=y)
+    MESSAGES.clear()
+    with pytest.raises(FMICallException):
+        s.step(0.0, (MAX_SAMPLES + 0.5) * DT)
+    if fmu[1] == 2:
+        assert f"holds {MAX_SAMPLES + 1} sample instants (period 0.01 s), more than" in MESSAGES[-1]
+    s.step(0.0, MAX_SAMPLES * DT)  # the most in one call
+    s.step(MAX_SAMPLES * DT, DT)
     s.close()
 
 

@@ -5,6 +5,9 @@ generated to C) in a closed loop on a plant; a prediction parameter tunable like
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
 import numpy as np
 import pytest
 from fmpy import extract
@@ -19,7 +22,7 @@ from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.fmu.controller import export_controller_fmu
 
-from .test_controller import Slave
+from .test_controller import Slave, declared_sources, rebuild_errors
 
 pytestmark = pytest.mark.slow  # exports and runs FMUs: the full suite (CI)
 
@@ -130,8 +133,50 @@ def test_the_lmpc_fmu_equals_the_python_lmpc_at_its_linearisation(plant, tmp_pat
     assert lmpc.relinearizations == 1 and lmpc.stats.fallbacks == 0  # the one at reset
     assert np.ptp(want) > 2e4  # it moved [Pa]
     fmu = (path, 3, extract(str(path), unzipdir=str(tmp_path / "x")))
+    _declares_no_rebuild(Path(fmu[2]))
     got = _fmu_commands(fmu, lmpc, read, refs, ident="lmpc", extra=[tension])
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * s.u_max)
+
+
+def _declares_no_rebuild(folder: Path) -> None:
+    """A law calling DAQP (whose sources the archive lacks: `daqp/api.h`) declares no
+    sources for a rebuild (they failed to compile from the archive), but ships its own."""
+    assert declared_sources(folder) == []
+    assert (folder / "sources" / "sm_casadi.c").is_file()
+    everything = sorted(p.name for p in (folder / "sources").glob("*.c"))
+    assert "daqp/api.h" in rebuild_errors(folder, everything)  # why nothing is declared
+
+
+def _held(fmu, y: dict, r: float, n: int, names) -> list[float]:
+    """An LMPC FMU instance stepped ``n`` samples on held inputs (the signals ``y``, the
+    reference ``r``): its commands every 100 samples."""
+    s = Slave(fmu, model_identifier="lmpc")
+    s.set(reference=r, **{k: y[k] for k in names})
+    got = []
+    for k in range(n):
+        s.step(k * DT, DT)
+        if k % 100 == 99:
+            got.append(s.get("command"))
+    s.close()
+    return got
+
+
+def test_lmpc_fmu_instances_step_in_parallel_threads(plant, tmp_path):
+    """Four instances of one LMPC FMU (one loaded binary, whose generated DAQP call keeps
+    its solver memory once) stepped at once in four threads give the commands of one
+    instance alone (two calls that met failed with "not finite")."""
+    m, _, op = plant
+    lmpc = LinearMPC(m, op.x, op.u, DT, LMPCSettings(horizon=10, disturbance="none"))
+    path = export_controller_fmu(lmpc, m, tmp_path / "lmpc.fmu", U0, 2)
+    fmu = (path, 2, extract(str(path), unzipdir=str(tmp_path / "x")))
+    _declares_no_rebuild(Path(fmu[2]))
+    y = {**dict(zip(m.state_names, op.x, strict=True)), "measurement": op["myofibril.length"]}
+    args = (fmu, y, op["myofibril.length"] - 1e-3, 2000, list(y))
+    alone = _held(*args)
+    with ThreadPoolExecutor(4) as pool:
+        runs = [pool.submit(_held, *args) for _ in range(4)]
+        assert [run.result() for run in runs] == [alone] * 4
+    assert np.ptp(alone) > 0  # it moved
 
 
 def test_controllers_without_an_exported_law_are_refused(plant, tmp_path):

@@ -151,6 +151,34 @@ def test_saved_state_restores_and_serializes(step_loaded):
     other.fmi2FreeInstance(other.component)
 
 
+def test_a_saved_state_stays_with_its_instance_type(step_loaded):
+    """A state saved by a Co-Simulation instance (in step mode) is refused by a Model
+    Exchange instance and the other way round, as a handle and serialised: else doStep
+    would run on a Model Exchange instance, setContinuousStates on a Co-Simulation one."""
+    fmi = step_loaded
+    cosim, me = fmi.instance(name="cs"), fmi.instance(cosim=False, name="me")
+    _start(cosim, None, fmi)
+    _start(me, None, fmi)
+    for source, target, kinds in (
+        (cosim, me, ("Co-Simulation", "Model Exchange")),
+        (me, cosim, ("Model Exchange", "Co-Simulation")),
+    ):
+        state = source.getFMUstate()
+        raw = source.serializeFMUstate(state)
+        expected = f"a state of a {kinds[0]} instance cannot be set on a {kinds[1]} instance"
+        with pytest.raises(FMICallException):
+            target.setFMUstate(state)
+        assert fmi.errors()[-1] == f"fmi2SetFMUstate: {expected}"
+        with pytest.raises(FMICallException):
+            target.deSerializeFMUstate(raw)
+        assert fmi.errors()[-1] == f"fmi2DeSerializeFMUstate: {expected}"
+        source.freeFMUstate(state)
+    cosim.doStep(0.0, 0.001)  # each unchanged, in its own mode
+    me.enterContinuousTimeMode()
+    cosim.freeInstance()
+    me.freeInstance()
+
+
 def test_instances_are_independent_and_reset(step_loaded):
     fmi = step_loaded
     a, b = fmi.instance(name="a"), fmi.instance(name="b")
@@ -392,6 +420,24 @@ def test_a_tampered_serialized_state_is_refused(step_loaded, tamper, why):
     with pytest.raises(FMICallException):
         fmu.deSerializeFMUstate(tamper(raw, head))
     assert why in fmi.errors()[-1]
+    fmu.freeInstance()
+
+
+def test_a_do_step_too_long_for_its_integrator_names_its_length(step_loaded):
+    """doStep(0, 4e6 s) after a 0.5 MPa step (step-50g's muscle): radau.c's smallest
+    step is 10 machine epsilons of the step's end, 9e-9 s, which the filling's first steps
+    need to undercut: the message says that the step's length limits (it said "too small
+    (10 machine epsilons of t)" at t = 0)."""
+    fmu = step_loaded.instance()
+    _start(fmu, None, step_loaded)
+    _command(fmu, step_loaded, 5e5)
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, 4e6)
+    message = step_loaded.errors()[-1]
+    assert (
+        "the step size became too small (below 8.88e-09 s, 10 machine epsilons of this " in message
+    )
+    assert "doStep's length 4e+06 s: it is the step's end that limits; take shorter" in message
     fmu.freeInstance()
 
 

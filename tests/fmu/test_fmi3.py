@@ -76,7 +76,7 @@ class _Fmu3:
         self.folder = folder
         self.errors: list[str] = []
 
-    def instance(self, cosim=True, name="instance"):
+    def instance(self, cosim=True, name="instance", **options):
         cls = FMU3Slave if cosim else FMU3Model
         fmu = cls(
             guid=self.md.guid,
@@ -89,7 +89,7 @@ class _Fmu3:
             if status == 3:
                 self.errors.append(message.decode())
 
-        fmu.instantiate(logMessage=log)
+        fmu.instantiate(logMessage=log, **options)
         return fmu
 
 
@@ -136,6 +136,27 @@ def test_fmi3_directional_derivatives(fmi3):
     expected = np.block([[A, B], [C, D]])
     scale = np.maximum(np.abs(expected).max(axis=1, keepdims=True), 1e-300)
     np.testing.assert_allclose(J / scale, expected / scale, rtol=0, atol=1e-12)
+    fmu.freeInstance()
+
+
+def test_event_and_continuous_time_mode_belong_to_their_instances(fmi3):
+    """A Co-Simulation instance has event mode only if instantiated with eventModeUsed, and
+    never continuous-time mode (Model Exchange's)."""
+    fmu = _started(fmi3.instance())
+    with pytest.raises(FMICallException):
+        fmu.enterEventMode()
+    assert fmi3.errors[-1] == (
+        "fmi3EnterEventMode: this Co-Simulation instance was instantiated without eventModeUsed"
+    )
+    fmu.doStep(0.0, 0.001)  # still in step mode
+    fmu.freeInstance()
+    fmu = _started(fmi3.instance(name="events", eventModeUsed=True))
+    fmu.enterEventMode()
+    with pytest.raises(FMICallException):
+        fmu.fmi3EnterContinuousTimeMode(fmu.component)
+    assert fmi3.errors[-1] == "fmi3EnterContinuousTimeMode: not a Model Exchange instance"
+    fmu.enterStepMode()
+    fmu.doStep(0.0, 0.001)
     fmu.freeInstance()
 
 
