@@ -34,6 +34,9 @@ from .designs import FAMILY, family_member
 #: Parameters a factor may not set: structural (built into the model's bounds).
 STRUCTURAL = {"regulator.p_max": "the regulator's range is built into the model"}
 
+#: Long names of input factors (in the study's definition: kept as they were).
+LONG_NAMES = {dynamic.P_CMD: "regulator command level (gauge)"}
+
 #: Relative perturbation of an APS field when probing its parameters (:func:`aps_map`).
 PROBE_RATIOS = (1.25, 0.8)
 
@@ -275,7 +278,7 @@ class SceneContext:
         low, high = var.low, var.high
         if input_name == dynamic.P_CMD:
             low, high = dynamic.command_range(self.model, self.binding.overrides)
-        long_name = f"{var.description or input_name}: the step's level"
+        long_name = LONG_NAMES.get(input_name, f"level of the step on {input_name}")
         return Target(name, "input", var.unit, low, high, long_name=long_name, input=input_name)
 
     def base_value(self, name: str, n: int) -> float:
