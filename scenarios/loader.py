@@ -69,8 +69,12 @@ _TABLE_LINE = re.compile(rf"^\[\[?\s*({_KEY})\s*\]\]?")
 _KEY_LINE = re.compile(rf"^({_KEY})\s*=(.*)$")
 
 
-def _key_parts(key: str) -> KeyPath:
-    """Split a TOML key (``a."b.c"``) into its parts, unquoted."""
+def key_parts(key: str) -> KeyPath:
+    """Split a TOML key (``a."b.c"``) into its parts, unquoted.
+
+    >>> key_parts('study.factors."aps.A_p"')
+    ('study', 'factors', 'aps.A_p')
+    """
     return tuple(
         tomllib.loads(f"k = {p}")["k"] if p[0] in "\"'" else p for p in re.findall(_PART, key)
     )
@@ -120,10 +124,10 @@ def key_lines(text: str) -> dict[KeyPath, int]:
             depth += _open_brackets(line)[0]
             continue
         if match := _TABLE_LINE.match(line):
-            table = _key_parts(match[1])
+            table = key_parts(match[1])
             path = table
         elif match := _KEY_LINE.match(line):
-            path = table + _key_parts(match[1])
+            path = table + key_parts(match[1])
             depth, quote = _open_brackets(match[2])
         else:
             continue
@@ -191,14 +195,17 @@ def load_scenario(source: str | Path) -> Scenario:
 # ---------------------------------------------------------------------------- parsing
 
 
-class _Reader:
-    """Typed access to the parsed TOML, turning every problem into a ScenarioError (of
-    ``error_class``: the study reader's is a StudyError)."""
+class Reader:
+    """Typed access to parsed TOML, turning every problem into a ScenarioError (of
+    ``error_class``: a study's is a StudyError)."""
 
-    error_class: type[ScenarioError] = ScenarioError
-
-    def __init__(self, file: str, lines: dict[KeyPath, int]) -> None:
-        self.file, self.lines = file, lines
+    def __init__(
+        self,
+        file: str,
+        lines: dict[KeyPath, int],
+        error_class: type[ScenarioError] = ScenarioError,
+    ) -> None:
+        self.file, self.lines, self.error_class = file, lines, error_class
 
     def error(self, path: KeyPath, message: str, key: str | None = None) -> ScenarioError:
         """An ``error_class`` at ``path`` (shown as ``key`` if given)."""
@@ -256,6 +263,15 @@ class _Reader:
     def opt_quantity(self, tbl: dict, path: KeyPath, key: str, unit: str) -> float | None:
         return None if key not in tbl else self.quantity(tbl[key], (*path, key), unit)
 
+    def integer(self, tbl: dict, path: KeyPath, key: str, low: int, default=None) -> int | None:
+        """``tbl[key]``, a whole number >= ``low`` (``default`` when absent)."""
+        value = tbl.get(key, default)
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise self.error((*path, key), f"{value!r}: expected an integer >= {low}")
+        return value
+
     def number(self, value: object, path: KeyPath, minimum: float | None = None) -> float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise self.error(path, f"expected a number, got {value!r}")
@@ -299,8 +315,16 @@ def parse_scenario(text: str, file: str = "<string>") -> Scenario:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise _syntax_error(exc, text, file) from None
-    lines = key_lines(text)
-    r = _Reader(file, lines)
+    return scenario_from_dict(data, file, key_lines(text))
+
+
+def scenario_from_dict(
+    data: dict, file: str = "<string>", lines: dict[KeyPath, int] | None = None
+) -> Scenario:
+    """Check parsed scenario TOML ``data`` (a study's base merged with its overrides);
+    ``lines`` (key path -> line in ``file``) place its errors."""
+    lines = {} if lines is None else lines
+    r = Reader(file, lines)
     r.table(data, (), SECTIONS, required=("scenario",))
     head = r.table(data["scenario"], ("scenario",), ("name", "kind", "description"), ("kind",))
     stem = Path(file).stem if file != "<string>" else "scenario"
@@ -330,7 +354,7 @@ def parse_scenario(text: str, file: str = "<string>") -> Scenario:
     )
 
 
-def _model(r: _Reader, value: object) -> ModelSpec:
+def _model(r: Reader, value: object) -> ModelSpec:
     path = ("model",)
     keys = ("name", "fidelity", "n", "material", "geometry", "options")
     tbl = r.table(value, path, keys)
@@ -348,7 +372,7 @@ def _model(r: _Reader, value: object) -> ModelSpec:
     )
 
 
-def _parameters(r: _Reader, value: object, path: KeyPath) -> dict[str, object]:
+def _parameters(r: Reader, value: object, path: KeyPath) -> dict[str, object]:
     """Flatten nested tables into dotted names: ``[parameters.load] m`` -> ``load.m``."""
     out: dict[str, object] = {}
     for key, item in r.table(value, path).items():
@@ -362,7 +386,7 @@ def _parameters(r: _Reader, value: object, path: KeyPath) -> dict[str, object]:
     return out
 
 
-def _inputs(r: _Reader, value: object, base_dir: Path) -> dict:
+def _inputs(r: Reader, value: object, base_dir: Path) -> dict:
     out = {}
     for name, item in r.table(value, ("inputs",)).items():
         path = ("inputs", name)
@@ -374,11 +398,11 @@ def _inputs(r: _Reader, value: object, base_dir: Path) -> dict:
         try:
             out[name] = signal_from_spec(spec, unit, dotted(path), base_dir, bare)
         except ParameterError as exc:
-            raise r.error(_key_parts(exc.name.split("[")[0]), describe(exc), exc.name) from None
+            raise r.error(key_parts(exc.name.split("[")[0]), describe(exc), exc.name) from None
     return out
 
 
-def _sweep(r: _Reader, value: object) -> tuple[SweepAxis, ...]:
+def _sweep(r: Reader, value: object) -> tuple[SweepAxis, ...]:
     axes = []
     for name, item in r.table(value, ("sweep",)).items():
         path = ("sweep", name)
@@ -408,7 +432,7 @@ def _sweep(r: _Reader, value: object) -> tuple[SweepAxis, ...]:
     return tuple(axes)
 
 
-def _simulation(r: _Reader, value: object) -> SimulationSpec:
+def _simulation(r: Reader, value: object) -> SimulationSpec:
     path = ("simulation",)
     tbl = r.table(value, path, ("start_time", "stop_time", "output_interval"), ("stop_time",))
     start = r.opt_quantity(tbl, path, "start_time", "s") or 0.0
@@ -421,7 +445,7 @@ def _simulation(r: _Reader, value: object) -> SimulationSpec:
     return SimulationSpec(stop, interval, start)
 
 
-def _solver(r: _Reader, value: object) -> SolverSpec:
+def _solver(r: Reader, value: object) -> SolverSpec:
     path = ("solver",)
     tbl = dict(r.table(value, path))
     method = r.text(tbl, path, "method") if "method" in tbl else None
@@ -437,7 +461,7 @@ def _solver(r: _Reader, value: object) -> SolverSpec:
     return SolverSpec(method, tols["rtol"], tols["atol"], step, rest)
 
 
-def _outputs(r: _Reader, value: object) -> OutputSpec:
+def _outputs(r: Reader, value: object) -> OutputSpec:
     path = ("outputs",)
     tbl = r.table(value, path, ("signals", "tolerance", "plots", "max_values"))
     signals = r.strings(tbl.get("signals", []), (*path, "signals"))
@@ -451,7 +475,7 @@ def _outputs(r: _Reader, value: object) -> OutputSpec:
     return OutputSpec(signals, tolerance, plots, _max_values(r, tbl.get("max_values", MAX_VALUES)))
 
 
-def _max_values(r: _Reader, value: object) -> float:
+def _max_values(r: Reader, value: object) -> float:
     """``[outputs] max_values``: a whole number in ``[1, MAX_VALUES_CEILING]`` (nan, inf
     or a fraction would disable or blur the size guard)."""
     path = ("outputs", "max_values")
@@ -469,7 +493,7 @@ def _max_values(r: _Reader, value: object) -> float:
     return float(value)
 
 
-def _metrics(r: _Reader, value: object) -> tuple[MetricCheck, ...]:
+def _metrics(r: Reader, value: object) -> tuple[MetricCheck, ...]:
     checks = []
     for name, item in r.table(value, ("metrics",)).items():
         path = ("metrics", name)

@@ -12,6 +12,7 @@ flattened once per process and structure (:func:`~.factors.model_for`), compiled
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -46,7 +47,7 @@ class _Context:
     """A study bound in this process: its scene, and its design when first needed."""
 
     def __init__(self, study: StudyDef) -> None:
-        from .spec import scene_context
+        from .factors import scene_context
 
         self.study = study
         self.scene = scene_context(study.scene())
@@ -59,15 +60,16 @@ class _Context:
         return self._design
 
 
-_CONTEXTS: dict[str, _Context] = {}
-
-
 def context(study: StudyDef) -> _Context:
-    """The bound scene (and design) of ``study``, once per process."""
-    key = study.fingerprint()
-    if key not in _CONTEXTS:
-        _CONTEXTS[key] = _Context(study)
-    return _CONTEXTS[key]
+    """The bound scene (and design) of ``study``, once per process (the latest few)."""
+    from .factors import Keyed
+
+    return _context(Keyed((study.fingerprint(),), study))
+
+
+@functools.lru_cache(maxsize=4)
+def _context(study) -> _Context:
+    return _Context(study.value)
 
 
 def evaluate_batch(study: StudyDef, indices, points: np.ndarray | None = None) -> BatchResult:

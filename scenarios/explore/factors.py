@@ -5,15 +5,17 @@ solver, output grid) and turns one sample's factor values into the model to simu
 (built once per process and structure: :func:`model_for`), its parameter overrides and
 its inputs. Everything that a sample changes is a run-time input of the model:
 ``load``, model parameters and the APS fields (mapped onto the per-unit parameters they
-set, see :func:`aps_map`) become parameter overrides, ``pressure`` replaces the level
-of the scene's step or ramp; only ``n`` (and an APS field whose parameters are not
-proportional to it) selects another model.
+set, see :func:`aps_map`) become parameter overrides, an input's factor (``pressure``, the
+scene's name of ``regulator.p_cmd``) replaces the level of the scene's step or ramp on
+it; only ``n`` (and an APS field whose parameters are not proportional to it) selects
+another model. The caches are bounded (``functools.lru_cache``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 from dataclasses import dataclass
 
@@ -32,6 +34,9 @@ from .designs import FAMILY, family_member
 #: Parameters a factor may not set: structural (built into the model's bounds).
 STRUCTURAL = {"regulator.p_max": "the regulator's range is built into the model"}
 
+#: Long names of input factors (in the study's definition: kept as they were).
+LONG_NAMES = {scene_binding.P_CMD: "regulator command level (gauge)"}
+
 #: Relative perturbation of an APS field when probing its parameters (:func:`aps_map`).
 PROBE_RATIOS = (1.25, 0.8)
 
@@ -41,7 +46,7 @@ class Target:
     """What a factor name sets: its SI unit, allowed range, and how it is applied."""
 
     name: str
-    category: str  # "n", "load", "pressure", "family", "aps", "parameter"
+    category: str  # "n", "load", "input", "family", "aps", "parameter" (or "relative")
     unit: str
     low: float
     high: float
@@ -50,6 +55,7 @@ class Target:
     long_name: str = ""
     integer: bool = False
     levels: tuple[float, ...] = ()
+    input: str = ""  # the input whose step or ramp level it sets (category "input")
 
     def allowed(self) -> str:
         """The allowed values, for messages."""
@@ -84,48 +90,47 @@ class Target:
 #: Models kept per process (a study over many structures keeps the latest).
 MAX_MODELS = 32
 
-_MODELS: dict[tuple, Model] = {}
-_PROBES: dict[tuple, tuple[tuple[str, float], ...] | None] = {}
 BUILDS = {"models": 0, "probes": 0}
 """Models flattened in this process: study models and APS probes (tests count them)."""
 
 
-def model_for(binding: scene_binding.Binding, key: tuple, fidelity: str, n: int, aps: APSParams):
-    """The model of ``binding`` at ``n`` with ``aps``, flattened once per process and
-    ``key`` (the scene's structure) and reused."""
-    full_key = (key, fidelity, n, aps)
-    if full_key not in _MODELS:
-        if len(_MODELS) >= MAX_MODELS:
-            del _MODELS[next(iter(_MODELS))]  # the oldest
-        _MODELS[full_key] = dataclasses.replace(binding, aps=aps).build(fidelity, n)
-        BUILDS["models"] += 1
-    return _MODELS[full_key]
+@dataclass(frozen=True)
+class Keyed:
+    """``value`` under a hashable ``key`` (compared and hashed by the key alone): a cache
+    argument whose value is not hashable."""
+
+    key: tuple
+    value: object = dataclasses.field(compare=False)
 
 
-def aps_map(binding, key: tuple, fidelity: str, n: int, field: str):
+@functools.lru_cache(maxsize=MAX_MODELS)
+def model_for(binding: Keyed, fidelity: str, n: int, aps: APSParams) -> Model:
+    """The model of ``binding.value`` (a :class:`~..binding.Binding`, ``binding.key`` its
+    scene's structure) at ``n`` with ``aps``, flattened once per process and reused."""
+    BUILDS["models"] += 1
+    return dataclasses.replace(binding.value, aps=aps).build(fidelity, n)
+
+
+@functools.lru_cache(maxsize=4 * MAX_MODELS)
+def aps_map(binding: Keyed, fidelity: str, n: int, field: str):
     """The model parameters ``field`` of APSParams sets, each as ``(name, value at the
     base field value)``: they are proportional to the field (checked by flattening once
     with the field scaled, and comparing every parameter and start value). None if they
     are not (or the base value is 0): the field is then structural (one model per value).
     """
-    probe_key = (key, fidelity, n, field)
-    if probe_key in _PROBES:
-        return _PROBES[probe_key]
-    base = model_for(binding, key, fidelity, n, binding.aps)
-    v0 = getattr(binding.aps, field)
-    found = None
-    if v0 != 0 and math.isfinite(v0):
-        for ratio in PROBE_RATIOS:
-            try:
-                aps = dataclasses.replace(binding.aps, **{field: v0 * ratio})
-            except ParameterError:
-                continue
-            probe = dataclasses.replace(binding, aps=aps).build(fidelity, n)
-            BUILDS["probes"] += 1
-            found = _proportional(base, probe, ratio)
-            break
-    _PROBES[probe_key] = found
-    return found
+    b = binding.value
+    base = model_for(binding, fidelity, n, b.aps)
+    v0 = getattr(b.aps, field)
+    if v0 == 0 or not math.isfinite(v0):
+        return None
+    for ratio in PROBE_RATIOS:
+        try:
+            aps = dataclasses.replace(b.aps, **{field: v0 * ratio})
+        except ParameterError:
+            continue
+        BUILDS["probes"] += 1
+        return _proportional(base, dataclasses.replace(b, aps=aps).build(fidelity, n), ratio)
+    return None
 
 
 def _proportional(base: Model, probe: Model, ratio: float):
@@ -143,6 +148,17 @@ def _proportional(base: Model, probe: Model, ratio: float):
 
 
 # ---------------------------------------------------------------------------- scene
+
+
+@functools.lru_cache(maxsize=8)
+def _bound(scene: Keyed) -> SceneContext:
+    return SceneContext(scene.value)
+
+
+def scene_context(sc) -> SceneContext:
+    """The :class:`SceneContext` of a scene, bound once per process and scene (it builds
+    the base model; the latest few are kept)."""
+    return _bound(Keyed((sc.file, repr(sc)), sc))
 
 
 class SceneContext:
@@ -164,55 +180,55 @@ class SceneContext:
             )
         scene_binding.check_n(sc, ("model", "n"), self.binding.n, fid)
         self.fidelity = fid
-        self.key = (sc.name, repr(sc.model), repr(sorted(sc.parameters.items())))
+        key = (sc.name, repr(sc.model), repr(sorted(sc.parameters.items())))
+        self.structure = Keyed(key, self.binding)
+        self._targets: dict[str, Target] = {}
         self.model = self.model_at(self.binding.n)
         self.inputs, self.signals, self.grid = scene_binding.prepare(sc, self.binding, self.model)
         self.settings = scene_binding.solver_settings(sc, self.model)
 
     def model_at(self, n: int, aps: APSParams | None = None) -> Model:
-        return model_for(self.binding, self.key, self.fidelity, n, aps or self.binding.aps)
+        return model_for(self.structure, self.fidelity, n, aps or self.binding.aps)
+
+    def aps_parameters(self, field: str, n: int | None = None):
+        """:func:`aps_map` of ``field`` at ``n`` (default: the scene's)."""
+        return aps_map(self.structure, self.fidelity, n or self.binding.n, field)
 
     # --- names -------------------------------------------------------------------
     def target(self, name: str) -> Target:
         """The target of factor ``name``; ParameterError (with the nearest names) if none."""
+        if name not in self._targets:
+            self._targets[name] = self._target(name)
+        return self._targets[name]
+
+    def sets(self, name: str) -> tuple[str, ...]:
+        """The model parameters or input that factor ``name`` sets (at the scene's n)."""
+        t = self.target(name)
+        if t.category == "aps":
+            mapped = self.aps_parameters(name.removeprefix("aps."))
+            return (name,) if mapped is None else tuple(p for p, _ in mapped)
+        return {"load": ("load.m",), "parameter": (name,), "input": (t.input,)}.get(t.category, ())
+
+    def _target(self, name: str) -> Target:
         b = self.binding
         if name == "n":
             low = 2 * GROUPS + 1 if self.fidelity == "grouped" else 1
-            return Target(
-                name,
-                "n",
-                "1",
-                low,
-                N_LIMITS[self.fidelity],
-                long_name="APS in the chain",
-                integer=True,
-            )
+            high = N_LIMITS[self.fidelity]
+            return Target(name, "n", "1", low, high, long_name="APS in the chain", integer=True)
         if name == "load":
-            if b.setup != "hanging":
-                raise ParameterError(
-                    name, name, "a factor of this scene", "set-up 'isometric' holds no load"
-                )
+            why = "set-up 'isometric' holds no load" if b.setup != "hanging" else ""
             if "load.m" in b.overrides:
-                raise ParameterError(
-                    name, name, "a factor of this scene", "the scene sets load.m in [parameters]"
-                )
+                why = "the scene sets load.m in [parameters]"
+            if why:
+                raise ParameterError(name, name, "a factor of this scene", why)
             return Target(name, "load", "kg", 0.0, math.inf, long_name="hanging load (payload)")
-        if name == "pressure":
-            self.pressure_signal()
-            low, high = scene_binding.command_range(self.model, b.overrides)
-            return Target(
-                name, "pressure", "Pa", low, high, long_name="regulator command level (gauge)"
-            )
+        if scene_binding.INPUT_ALIASES.get(name, name) in self.model.input_names:
+            return self._input_target(name, scene_binding.INPUT_ALIASES.get(name, name))
         if name == "family":
             levels = tuple(m.L_r for m in FAMILY)
+            what = "calibration family member (its L_r)"
             return Target(
-                name,
-                "family",
-                "m",
-                min(levels),
-                max(levels),
-                long_name="calibration family member (its L_r)",
-                levels=levels,
+                name, "family", "m", min(levels), max(levels), long_name=what, levels=levels
             )
         group, _, field = name.partition(".")
         if group == "aps" and field in APSParams.numeric_fields():
@@ -234,7 +250,7 @@ class SceneContext:
             )
         why = STRUCTURAL.get(name, "")
         names = [
-            *("n", "load", "pressure", "family"),
+            *("n", "load", *scene_binding.INPUT_ALIASES, "family"),
             *(f"aps.{f}" for f in APSParams.numeric_fields()),
             *self.model.param_names,
         ]
@@ -247,19 +263,23 @@ class SceneContext:
             why or f"unknown factor; {near}",
         )
 
-    def pressure_signal(self):
-        """The scene's step or ramp on the regulator command (the ``pressure`` factor
-        replaces its final level)."""
-        sig = self.inputs.get(scene_binding.P_CMD)
+    def _input_target(self, name: str, input_name: str) -> Target:
+        """A factor on an input: the level of the scene's step or ramp on it."""
+        sig = self.inputs.get(input_name)
         if not isinstance(sig, Step | Ramp):
             what = "no input" if sig is None else f"a {type(sig).__name__.lower()}"
             raise ParameterError(
-                "pressure",
-                "pressure",
-                "a scene with a step or ramp on regulator.p_cmd",
+                name,
+                name,
+                f"a scene with a step or ramp on {input_name}",
                 f"the scene has {what} there",
             )
-        return sig
+        var = self.model.variables[input_name]
+        low, high = var.low, var.high
+        if input_name == scene_binding.P_CMD:
+            low, high = scene_binding.command_range(self.model, self.binding.overrides)
+        long_name = LONG_NAMES.get(input_name, f"level of the step on {input_name}")
+        return Target(name, "input", var.unit, low, high, long_name=long_name, input=input_name)
 
     def base_value(self, name: str, n: int) -> float:
         """The scene's value of model parameter ``name`` (its [parameters] entry, else the
@@ -280,27 +300,25 @@ class SceneContext:
         relative: dict[str, float] = {}
         loads = None
         for f, v in zip(factors, values, strict=True):
-            v = float(v)
-            if f.name == "n":
+            v, t = float(v), self.target(f.name)
+            if t.category == "n":
                 n = int(round(v))
-            elif f.name == "load":
+            elif t.category == "load":
                 loads = v
-            elif f.name == "pressure":
-                inputs[scene_binding.P_CMD] = dataclasses.replace(self.pressure_signal(), final=v)
-            elif f.name == "family":
+            elif t.category == "input":
+                inputs[t.input] = dataclasses.replace(inputs[t.input], final=v)
+            elif t.category == "family":
                 fields.update(family_member(v))
-            elif f.name.startswith("aps."):
+            elif t.category == "aps":
                 (relative if f.relative else fields)[f.name[4:]] = v
-            elif f.relative:
-                over[f.name] = self.base_value(f.name, n) * v
             else:
-                over[f.name] = v
+                over[f.name] = self.base_value(f.name, n) * v if f.relative else v
         for name, scale in relative.items():
             fields[name] = fields.get(name, getattr(b.aps, name)) * scale
         dataclasses.replace(b.aps, **fields)  # a ParameterError for a field out of range
         structural = {}
         for name, value in fields.items():
-            mapped = aps_map(b, self.key, self.fidelity, n, name)
+            mapped = self.aps_parameters(name, n)
             v0 = getattr(b.aps, name)
             if mapped is None:
                 structural[name] = value

@@ -8,8 +8,9 @@ distribution arguments, Sobol' counts that are not powers of two and sample coun
 ``max_samples``. Each problem is a one-line :class:`StudyError` naming the key, the value
 and what is allowed. Schema: ``docs/studies.md``.
 
-Factor names: ``n`` and ``load`` (scene options), ``pressure`` (the level of the scene's
-step or ramp on the regulator command), ``family`` (a member of the calibration family,
+Factor names (read in :mod:`.factor_spec`): ``n`` and ``load`` (scene options),
+``pressure`` (the scene's name of the input ``regulator.p_cmd``: the level of its step or
+ramp), ``family`` (a member of the calibration family,
 by its ``L_r``: :data:`~.designs.FAMILY`), ``aps.<field>`` (an
 :class:`~sarcomere.dynamics.components.aps.APSParams` field, every unit) or a model
 parameter path (``myofibril.tube1.C``). ``relative = true`` makes a factor a multiplier
@@ -21,30 +22,28 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from sarcomere.dynamics.errors import ParameterError, SarcomereError, ScenarioError
+from sarcomere.dynamics.errors import SarcomereError, ScenarioError
 from sarcomere.dynamics.files import path_kind, read_text
 
-from .. import loader
-from ..spec import describe, did_you_mean, dotted, line_of, unknown_key
-from . import packaged_studies
+from ..loader import Reader, key_lines, key_parts, scenario_from_dict
+from ..spec import did_you_mean, line_of, unknown_key
+from . import factor_spec, packaged_studies
+from .factor_spec import Factor
 from .metric_def import MetricDef
 
 KINDS = ("grid", "sample", "sensitivity")
 SAMPLE_METHODS = ("lhs", "sobol", "montecarlo")
 SENSITIVITY_METHODS = ("sobol", "morris")
-DISTRIBUTIONS = ("uniform", "normal", "lognormal", "levels")
 MAX_SAMPLES = 100_000
 """Default cap on a study's sample count (``[study] max_samples`` sets another)."""
 
-OPTION_FACTORS = ("n", "load", "pressure", "family")
 _STUDY_KEYS = (
     "name",
     "base",
@@ -68,57 +67,6 @@ class StudyError(ScenarioError):
 
 
 @dataclass(frozen=True)
-class Factor:
-    """One input of a study, values in SI.
-
-    Parameters
-    ----------
-    name : str
-        ``n``, ``load``, ``pressure``, ``family``, ``aps.<field>`` or a model parameter.
-    unit : str
-        SI unit of its values (``"1"`` for a relative factor).
-    kind : str
-        ``"continuous"`` or ``"discrete"`` (grid axes and ``levels`` are discrete).
-    values : tuple of float
-        Grid values or discrete levels (SI); empty for a continuous distribution.
-    dist : str
-        ``"uniform"``, ``"normal"``, ``"lognormal"``, or ``""`` (values).
-    args : tuple of float
-        uniform (low, high); normal (mean, std); lognormal (median, sigma of the log).
-    relative : bool
-        The value multiplies the base value (family member or scene) of the parameter.
-    long_name : str
-        A description for tables and plots.
-    """
-
-    name: str
-    unit: str
-    kind: str
-    values: tuple[float, ...] = ()
-    dist: str = ""
-    args: tuple[float, ...] = ()
-    relative: bool = False
-    long_name: str = ""
-
-    @property
-    def bounds(self) -> tuple[float, float]:
-        """Range of the values: the levels' extremes, a uniform's bounds, or the 0.1 % and
-        99.9 % quantiles of a normal or lognormal (SI)."""
-        if self.values:
-            return min(self.values), max(self.values)
-        if self.dist == "uniform":
-            return self.args[0], self.args[1]
-        z = 3.090232306167813  # standard normal 99.9 % quantile
-        if self.dist == "normal":
-            return self.args[0] - z * self.args[1], self.args[0] + z * self.args[1]
-        return self.args[0] * math.exp(-z * self.args[1]), self.args[0] * math.exp(z * self.args[1])
-
-    def definition(self) -> dict:
-        """Canonical JSON-serialisable form."""
-        return dataclasses.asdict(self)
-
-
-@dataclass(frozen=True)
 class SeriesDef:
     """Time series kept per sample, interpolated to ``time`` [s]."""
 
@@ -129,13 +77,14 @@ class SeriesDef:
 @dataclass(frozen=True)
 class StudyDef:
     """A checked study. Plain data: it pickles (it travels to Dask workers); the scene is
-    parsed again from ``scene_text`` where it is needed (:meth:`scene`).
+    checked again from ``scene_data`` where it is needed (:meth:`scene`).
 
     ``method``: "grid", "lhs", "sobol", "montecarlo", "sobol-saltelli" or "morris";
     ``count``: the number of samples; ``options``: the design's settings as sorted
     (key, value) pairs: ``grid_shape``; ``count``; ``base_count``, ``calc_second_order``
     (Sobol') or ``levels`` (Morris) and ``metrics`` (the metrics to analyse).
-    ``source_text``: the study file's text; ``scene_text``: the merged scene (TOML).
+    ``source_text``: the study file's text; ``scene_data``: the merged scene (the base's
+    TOML tables with the study file's on top, as parsed).
     """
 
     name: str
@@ -151,7 +100,7 @@ class StudyDef:
     count: int
     options: tuple[tuple[str, object], ...]
     source_text: str
-    scene_text: str
+    scene_data: dict = field(hash=False)
     scene_file: str
     file: str = "<string>"
     description: str = ""
@@ -161,7 +110,7 @@ class StudyDef:
         and overrides merged), the factors, design, metrics and series. The name, the
         description, how the base is written and ``max_samples`` (a cap) are left out."""
         return {
-            "scene": tomllib.loads(self.scene_text),
+            "scene": self.scene_data,
             "kind": self.kind,
             "method": self.method,
             "factors": [f.definition() for f in self.factors],
@@ -190,9 +139,7 @@ class StudyDef:
     def scene(self):
         """The base scene with this study's overrides (a
         :class:`~sarcomere.scenarios.spec.Scenario`)."""
-        from ..loader import parse_scenario
-
-        return parse_scenario(self.scene_text, self.scene_file)
+        return scenario_from_dict(self.scene_data, self.scene_file)
 
     @property
     def factor_names(self) -> tuple[str, ...]:
@@ -202,17 +149,17 @@ class StudyDef:
 def _check_draws(study: StudyDef, design) -> None:
     """Refuse a design whose unbounded draws (normal, lognormal) leave a factor's range,
     naming the factor, the first such value and the range."""
-    from ..loader import key_lines
+    from .factors import scene_context
 
     ctx = None
     for j, f in enumerate(study.factors):
         if f.dist not in ("normal", "lognormal"):
             continue
-        r = _Reader(study.file, key_lines(study.source_text))
+        r = Reader(study.file, key_lines(study.source_text), StudyError)
         path = ("study", "factors", f.name, f.dist)
         ctx = ctx or scene_context(study.scene())
         target = ctx.target(f.name)
-        check = _relative_target(r, path, target, ctx) if f.relative else target
+        check = factor_spec.relative_target(r, path, target, ctx) if f.relative else target
         bad = [v for v in design.points[:, j] if not check.contains(v)]
         if bad:
             i = int(np.flatnonzero(design.points[:, j] == bad[0])[0])
@@ -271,14 +218,12 @@ def load_study(source: str | Path) -> StudyDef:
 def parse_study(text: str, file: str = "<string>") -> StudyDef:
     """Parse and check study TOML ``text``; ``file`` names it in errors and anchors a
     relative ``base``."""
-    from ..loader import key_lines
-
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise StudyError(file, "(toml syntax)", f"TOML syntax error: {exc}") from None
     lines = key_lines(text)
-    r = _Reader(file, lines)
+    r = Reader(file, lines, StudyError)
     if "study" not in data:
         raise r.error(("study",), "missing the [study] table (see docs/studies.md)")
     study = r.table(data.pop("study"), ("study",), _STUDY_KEYS, ("kind",))
@@ -295,22 +240,21 @@ def parse_study(text: str, file: str = "<string>") -> StudyDef:
         scene_data = _merge(base_data, data)
     elif "scenario" not in data:
         raise r.error(("study", "base"), "a study TOML without [scenario] needs base = SCENE")
-    scene_text = dump_toml(scene_data)
-    sc, ctx = _parse_scene(scene_text, scene_file, file, lines, base_lines)
+    sc, ctx = _parse_scene(scene_data, scene_file, file, lines, base_lines)
     name = r.text(study, ("study",), "name", Path(file).stem if file != "<string>" else sc.name)
-    return _check_study(r, study, ctx, name, base or sc.name, text, scene_text, scene_file)
+    return _check_study(r, study, ctx, name, base or sc.name, text, scene_data, scene_file)
 
 
-def _parse_scene(text: str, scene_file: str, file: str, lines: dict, base_lines: dict):
+def _parse_scene(data: dict, scene_file: str, file: str, lines: dict, base_lines: dict):
     """The merged scene and its :class:`~.factors.SceneContext`; an error is placed in the
     study file if it wrote the key, else in the base scene."""
-    from ..loader import _key_parts, parse_scenario
+    from .factors import scene_context
 
     try:
-        sc = parse_scenario(text, scene_file)
+        sc = scenario_from_dict(data, scene_file)
         return sc, scene_context(sc)
     except ScenarioError as exc:
-        path = _key_parts(exc.key)
+        path = key_parts(exc.key)
         message = str(exc).split(f"key '{exc.key}': ", 1)[-1]
         if line_of(lines, path) and file != scene_file:
             raise StudyError(file, exc.key, message, line_of(lines, path)) from None
@@ -328,60 +272,6 @@ def _merge(base: dict, over: dict) -> dict:
     return out
 
 
-def dump_toml(data: dict) -> str:
-    """TOML text of ``data`` (tables, arrays, strings, numbers, booleans), for the loader.
-
-    >>> dump_toml({"a": {"b.c": [1, "x"], "d": {"e": 1.5}}})
-    '[a]\\n"b.c" = [1, "x"]\\n\\n[a.d]\\ne = 1.5\\n'
-    """
-    out: list[str] = []
-    _dump_table(data, (), out)
-    return "\n".join(out).lstrip("\n") + "\n"
-
-
-def _dump_table(tbl: dict, path: tuple, out: list[str]) -> None:
-    scalars = {k: v for k, v in tbl.items() if not isinstance(v, dict)}
-    tables = {k: v for k, v in tbl.items() if isinstance(v, dict)}
-    if path and (scalars or not tables):
-        out.append(f"\n[{dotted(path)}]" if out else f"[{dotted(path)}]")
-    out.extend(f"{dotted((k,))} = {_value(v)}" for k, v in scalars.items())
-    for k, v in tables.items():
-        _dump_table(v, (*path, k), out)
-
-
-def _value(v: object) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return repr(v) if math.isfinite(v) else ("nan" if v != v else ("inf" if v > 0 else "-inf"))
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, list):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{dotted((k,))} = {_value(x)}" for k, x in v.items()) + "}"
-    raise TypeError(f"cannot write {v!r} as TOML")
-
-
-# ---------------------------------------------------------------------------- reading
-
-
-class _Reader(loader._Reader):
-    """Typed access to ``[study]``, turning every problem into a StudyError."""
-
-    error_class = StudyError
-
-    def integer(self, tbl: dict, path: tuple, key: str, low: int, default=None) -> int | None:
-        value = tbl.get(key, default)
-        if value is None:
-            return None
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise self.error((*path, key), f"{value!r}: expected an integer >= {low}")
-        return value
-
-
 # ---------------------------------------------------------------------------- checking
 
 _NEEDS = {
@@ -391,30 +281,18 @@ _NEEDS = {
 }
 
 
-def scene_context(sc):
-    """The :class:`~.factors.SceneContext` of a scene, bound once per process and scene
-    text (it builds the base model)."""
-    from .factors import SceneContext
-
-    key = (sc.file, repr(sc))
-    if key not in _CONTEXTS:
-        _CONTEXTS[key] = SceneContext(sc)
-    return _CONTEXTS[key]
-
-
-_CONTEXTS: dict = {}
-
-
 def signal_unit(study: StudyDef, signal: str) -> str:
     """The SI unit of a model signal of the study's scene (its model bound once per
     process), ``"?"`` when it cannot be told."""
+    from .factors import scene_context
+
     try:
         return str(scene_context(study.scene()).model.unit(signal))
     except (SarcomereError, KeyError, AttributeError):
         return "?"
 
 
-def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_file) -> StudyDef:
+def _check_study(r: Reader, study, ctx, name, base, text, scene_data, scene_file) -> StudyDef:
     S = ("study",)
     kind = r.choice(study, S, "kind", KINDS)
     seed = r.integer(study, S, "seed", 0)
@@ -432,11 +310,11 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
         if key in study:
             raise r.error((*S, key), f"kind '{kind}' does not use [study.{key}]; remove it")
     if kind == "grid":
-        factors, method, options = _grid(r, study["grid"], ctx), "grid", {}
+        factors, method, options = factor_spec.read_grid(r, study["grid"], ctx), "grid", {}
         options["grid_shape"] = [len(f.values) for f in factors]
         size_key = (*S, "grid")
     else:
-        factors = _factors(r, study["factors"], ctx, kind)
+        factors = factor_spec.read_factors(r, study["factors"], ctx, kind)
         if kind == "sample":
             method, options = _sample(r, study["sample"])
             size_key = (*S, "sample", "count")
@@ -453,8 +331,9 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
             "points or raise [study] max_samples",
         )
     metrics, series = _metrics(r, study, ctx, kind, options)
-    _check_every_n(r, factors, metrics, series, ctx, kind)
-    _check_family(r, factors, kind)
+    factor_spec.check_factors(r, factors, ctx, kind)
+    signals = [m.signal for m in metrics if m.signal] + list(series.signals if series else ())
+    factor_spec.check_every_n(r, factors, signals, ctx, kind)
     return StudyDef(
         name=name,
         base=base,
@@ -471,203 +350,14 @@ def _check_study(r: _Reader, study, ctx, name, base, text, scene_text, scene_fil
             sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in options.items())
         ),
         source_text=text,
-        scene_text=scene_text,
+        scene_data=scene_data,
         scene_file=scene_file,
         file=r.file,
         description=r.text(study, ("study",), "description", ""),
     )
 
 
-def _check_family(r: _Reader, factors, kind: str) -> None:
-    """Refuse an absolute APS factor the family member also sets (which would win?)."""
-    from .designs import family_member
-
-    if "family" not in {f.name for f in factors}:
-        return
-    fields = family_member(FAMILY_DEFAULT_L_R)
-    for f in factors:
-        if f.name.startswith("aps.") and f.name[4:] in fields and not f.relative:
-            raise r.error(
-                ("study", "grid" if kind == "grid" else "factors", f.name),
-                f"the family member sets {f.name}; scale it with relative = true or remove "
-                f"family ({', '.join(fields)} come with each member)",
-            )
-
-
-#: Any member's L_r (only its field names are used).
-FAMILY_DEFAULT_L_R = 20e-3
-
-
-def _check_every_n(r: _Reader, factors, metrics, series, ctx, kind: str) -> None:
-    """With ``n`` a factor: every model parameter factor and named signal exists at every
-    n (``myofibril.aps3...`` does not at n = 2)."""
-    n_factor = next((f for f in factors if f.name == "n"), None)
-    params = [f.name for f in factors if f.name not in OPTION_FACTORS and "." in f.name]
-    params = [p for p in params if not p.startswith("aps.")]
-    signals = [m.signal for m in metrics if m.signal] + list(series.signals if series else ())
-    if n_factor is None or not (params or signals):
-        return
-    section = "grid" if kind == "grid" else "factors"
-    for n in n_factor.values:
-        model = ctx.model_at(int(n))
-        for name in params:
-            if name not in model.param_names:
-                raise r.error(("study", section, name), f"no parameter '{name}' at n = {n:g}")
-        for name in signals:
-            if name not in model.signal_names:
-                raise r.error(("study", section, "n"), f"n = {n:g} has no signal '{name}'")
-
-
-def _target(r: _Reader, path: tuple, name: str, ctx):
-    try:
-        return ctx.target(name)
-    except ParameterError as exc:
-        raise r.error(path, describe(exc)) from None
-
-
-def _values(r: _Reader, raw, path: tuple, target) -> tuple[float, ...]:
-    """Grid values or levels: a list of quantities, or {from, to, num} (inclusive)."""
-    if target.category == "family" and raw == "all":
-        return target.levels
-    if isinstance(raw, dict):
-        r.table(raw, path, ("from", "to", "num"), ("from", "to", "num"))
-        lo, hi = (r.quantity(raw[k], (*path, k), target.unit) for k in ("from", "to"))
-        num = r.integer(raw, path, "num", 2)
-        values = tuple(float(v) for v in np.linspace(lo, hi, num))
-    elif isinstance(raw, list) and raw:
-        values = tuple(r.quantity(v, path, target.unit) for v in raw)
-    else:
-        raise r.error(path, f"{raw!r}: expected a list of values or {{from, to, num}}")
-    if len(set(values)) != len(values):
-        raise r.error(path, f"{raw!r}: the values repeat")
-    for v in values:
-        if not target.contains(v):
-            raise r.error(path, target.refusal(v))
-    return values
-
-
-def _grid(r: _Reader, tbl, ctx) -> tuple[Factor, ...]:
-    path = ("study", "grid")
-    r.table(tbl, path)
-    if not tbl:
-        raise r.error(path, "give at least one axis")
-    out = []
-    for name, raw in tbl.items():
-        target = _target(r, (*path, name), name, ctx)
-        _check_aps(r, (*path, name), target, ctx, discrete=True)
-        values = _values(r, raw, (*path, name), target)
-        out.append(Factor(name, target.unit, "discrete", values, long_name=target.long_name))
-    return tuple(out)
-
-
-def _check_aps(r: _Reader, path: tuple, target, ctx, discrete: bool) -> None:
-    """Refuse an APS field that sets no parameter of the model (it would change nothing),
-    or one that is not a run-time parameter (one model per value) drawn continuously."""
-    if target.category != "aps":
-        return
-    from .factors import aps_map
-
-    b, field = ctx.binding, target.name.removeprefix("aps.")
-    mapped = aps_map(b, ctx.key, ctx.fidelity, b.n, field)
-    where = f"fidelity '{ctx.fidelity}', thermal '{b.aps.thermal}'"
-    if mapped == ():
-        raise r.error(path, f"'{target.name}' sets no parameter of this model ({where})")
-    if mapped is None and not discrete:
-        raise r.error(
-            path,
-            f"'{target.name}' is not a run-time parameter of this model ({where}; its base "
-            f"value {getattr(b.aps, field):g} {target.unit}): each value builds a model; "
-            "give levels = [...]",
-        )
-
-
-def _factors(r: _Reader, tbl, ctx, kind: str) -> tuple[Factor, ...]:
-    path = ("study", "factors")
-    r.table(tbl, path)
-    if not tbl:
-        raise r.error(path, "give at least one factor")
-    return tuple(_factor(r, name, item, (*path, name), ctx, kind) for name, item in tbl.items())
-
-
-def _factor(r: _Reader, name: str, item, path: tuple, ctx, kind: str) -> Factor:
-    target = _target(r, path, name, ctx)
-    r.table(item, path, (*DISTRIBUTIONS, "relative"))
-    given = [d for d in DISTRIBUTIONS if d in item]
-    if len(given) != 1:
-        raise r.error(
-            path, f"give exactly one of {', '.join(DISTRIBUTIONS)} (got {given or 'none'})"
-        )
-    dist = given[0]
-    _check_aps(r, path, target, ctx, dist == "levels")
-    relative = item.get("relative", False)
-    if not isinstance(relative, bool):
-        raise r.error((*path, "relative"), f"{relative!r}: expected true or false")
-    if relative and target.category not in ("aps", "parameter"):
-        raise r.error((*path, "relative"), f"'{name}' has no base value to scale; remove it")
-    if target.category in ("n", "family") and dist != "levels":
-        raise r.error((*path, dist), f"'{name}' takes discrete values: use levels = [...]")
-    if kind == "sensitivity" and dist == "levels":
-        raise r.error((*path, dist), "a sensitivity study needs continuous factors")
-    unit = "1" if relative else target.unit
-
-    check = _relative_target(r, path, target, ctx) if relative else target
-    where = (*path, dist)
-    if dist == "levels":
-        values = _values(r, item[dist], where, check)
-        return Factor(name, unit, "discrete", values, relative=relative, long_name=target.long_name)
-    args = _distribution(r, dist, item[dist], where, unit, check)
-    long_name = f"{target.long_name} (relative)" if relative else target.long_name
-    return Factor(name, unit, "continuous", (), dist, args, relative, long_name)
-
-
-def _relative_target(r: _Reader, path: tuple, target, ctx):
-    """The multipliers that keep ``target`` in its range about the scene's value."""
-    from .factors import Target
-
-    name = target.name
-    if target.category == "aps":
-        base = getattr(ctx.binding.aps, name.removeprefix("aps."))
-    else:
-        base = ctx.base_value(name, ctx.binding.n)
-    if not base > 0:
-        raise r.error((*path, "relative"), f"the scene's {name} is {base:g}: scale a value > 0")
-    return Target(
-        name,
-        "relative",
-        "1",
-        target.low / base,
-        target.high / base,
-        target.low_open,
-        target.high_open,
-        f"multiplier of the scene's {name} = {base:g} {target.unit}",
-    )
-
-
-def _distribution(r: _Reader, dist: str, raw, path: tuple, unit: str, check) -> tuple:
-    if dist == "uniform":
-        if not (isinstance(raw, list) and len(raw) == 2):
-            raise r.error(path, f"{raw!r}: expected [low, high]")
-        low, high = (r.quantity(v, path, unit) for v in raw)
-        if not low < high:
-            raise r.error(path, f"{raw!r}: need low < high")
-        for v in (low, high):
-            if not check.contains(v):
-                raise r.error(path, check.refusal(v))
-        return (low, high)
-    keys = ("mean", "std") if dist == "normal" else ("median", "sigma")
-    r.table(raw, path, keys, keys)
-    center = r.quantity(raw[keys[0]], (*path, keys[0]), unit)
-    spread = r.quantity(raw[keys[1]], (*path, keys[1]), unit if dist == "normal" else "1")
-    if not spread > 0:
-        raise r.error((*path, keys[1]), f"{raw[keys[1]]!r}: must be > 0")
-    if dist == "lognormal" and not center > 0:
-        raise r.error((*path, keys[0]), f"{raw[keys[0]]!r}: a lognormal median must be > 0")
-    if not check.contains(center):
-        raise r.error((*path, keys[0]), check.refusal(center))
-    return (center, spread)
-
-
-def _power_of_two(r: _Reader, path: tuple, value: int, what: str) -> None:
+def _power_of_two(r: Reader, path: tuple, value: int, what: str) -> None:
     if value & (value - 1):
         low = 1 << (value.bit_length() - 1)
         raise r.error(
@@ -675,7 +365,7 @@ def _power_of_two(r: _Reader, path: tuple, value: int, what: str) -> None:
         )
 
 
-def _sample(r: _Reader, tbl) -> tuple[str, dict]:
+def _sample(r: Reader, tbl) -> tuple[str, dict]:
     path = ("study", "sample")
     r.table(tbl, path, ("method", "count"), ("method", "count"))
     method = r.choice(tbl, path, "method", SAMPLE_METHODS)
@@ -685,7 +375,7 @@ def _sample(r: _Reader, tbl) -> tuple[str, dict]:
     return method, {"count": count}
 
 
-def _sensitivity(r: _Reader, tbl, factors) -> tuple[str, dict]:
+def _sensitivity(r: Reader, tbl, factors) -> tuple[str, dict]:
     path = ("study", "sensitivity")
     keys = ("method", "base_count", "levels", "second_order", "metrics")
     r.table(tbl, path, keys, ("method", "base_count", "metrics"))
@@ -711,7 +401,7 @@ def _sensitivity(r: _Reader, tbl, factors) -> tuple[str, dict]:
     return "morris", {"base_count": base_count, "levels": levels, "metrics": tuple(names)}
 
 
-def _metrics(r: _Reader, study, ctx, kind, options):
+def _metrics(r: Reader, study, ctx, kind, options):
     from .metrics import STANDARD, chambers, metric_signals, value_at_metric
 
     path = ("study", "metrics")
@@ -762,7 +452,7 @@ def _metrics(r: _Reader, study, ctx, kind, options):
     return tuple(out.values()), _series(r, study, ctx)
 
 
-def _series(r: _Reader, study, ctx) -> SeriesDef | None:
+def _series(r: Reader, study, ctx) -> SeriesDef | None:
     if "series" not in study:
         return None
     path = ("study", "series")
@@ -770,7 +460,9 @@ def _series(r: _Reader, study, ctx) -> SeriesDef | None:
     signals = tbl["signals"]
     if not (isinstance(signals, list) and signals and all(isinstance(s, str) for s in signals)):
         raise r.error((*path, "signals"), f"{signals!r}: expected a list of signal names")
-    for s in signals:
+    for i, s in enumerate(signals):
+        if s in signals[:i]:
+            raise r.error((*path, "signals"), f"'{s}' is given twice")
         if s not in ctx.model.signal_names:
             hint = did_you_mean(s, ctx.model.signal_names)
             raise r.error((*path, "signals"), f"'{s}' is not a signal of the model{hint}")
@@ -778,5 +470,5 @@ def _series(r: _Reader, study, ctx) -> SeriesDef | None:
 
     sim = ctx.scene.simulation
     span = Target("time", "time", "s", sim.start_time, sim.stop_time)
-    times = _values(r, tbl["grid"], (*path, "grid"), span)
+    times = factor_spec.read_values(r, tbl["grid"], (*path, "grid"), span)
     return SeriesDef(tuple(signals), times)

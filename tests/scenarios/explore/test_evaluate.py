@@ -23,8 +23,8 @@ def study(body: str):
 @pytest.fixture
 def fresh_caches():
     """Forget the models, probes and bound scenes of this process."""
-    for cache in (factors._MODELS, factors._PROBES, evaluate._CONTEXTS, spec._CONTEXTS):
-        cache.clear()
+    for cache in (factors.model_for, factors.aps_map, factors._bound, evaluate._context):
+        cache.cache_clear()
     yield
 
 
@@ -166,7 +166,7 @@ def test_family_member_with_a_relative_tolerance_equals_the_scene_run():
     res = binding.simulate_scene(sc, binding.bind(sc), "full")
     L = res["myofibril.length"]
     # the same parameters to an ulp; the runs agree within the solver's atol (1e-9 m)
-    model, over, _ = spec.scene_context(rel.scene()).apply(rel.factors, rel.design().points[0])
+    model, over, _ = factors.scene_context(rel.scene()).apply(rel.factors, rel.design().points[0])
     direct = binding.bind(sc).build("full")
     np.testing.assert_allclose(model.parameters(over), direct.parameters(), rtol=1e-15)
     assert got.metrics["length_final"][0] == pytest.approx(L[-1], abs=1e-8)
@@ -185,7 +185,7 @@ def test_points_given_by_the_caller_skip_the_design(fresh_caches):
     )
     rows = np.array([[1e5]])
     given = evaluate_batch(s, [1], points=rows)
-    assert evaluate._CONTEXTS[s.fingerprint()]._design is None  # never made here
+    assert evaluate.context(s)._design is None  # never made here
     assert given.metrics["stroke"].tolist() == evaluate_batch(s, [1]).metrics["stroke"].tolist()
 
 

@@ -307,3 +307,49 @@ def test_a_study_section_in_a_scene_file(tmp_path):
     path.write_text(scene.replace('kind = "transient"', 'kind = "transient"\nbogus = 1'))
     with pytest.raises(StudyError, match="missing the \\[study\\] table"):
         load_study(path)
+
+
+@pytest.mark.parametrize(
+    ("factors", "fragments"),
+    [
+        (
+            '[study.factors.load]\nuniform = ["40 g", "60 g"]\n'
+            '[study.factors."load.m"]\nuniform = ["40 g", "60 g"]\n',
+            ["'load.m' and 'load' both set load.m", "keep one"],
+        ),
+        (
+            '[study.factors."aps.A_p"]\nuniform = ["0.9", "1.1"]\nrelative = true\n'
+            '[study.factors."myofibril.aps1.chamber.A"]\nuniform = ["10 mm^2", "20 mm^2"]\n',
+            ["'myofibril.aps1.chamber.A' and 'aps.A_p' both set myofibril.aps1.chamber.A"],
+        ),
+        (
+            '[study.factors.pressure]\nuniform = ["0.05 MPa", "0.1 MPa"]\n'
+            '[study.factors."regulator.p_cmd"]\nuniform = ["0.05 MPa", "0.1 MPa"]\n',
+            ["'regulator.p_cmd' and 'pressure' both set regulator.p_cmd"],
+        ),
+    ],
+)
+def test_two_factors_setting_the_same_parameter_are_refused_naming_both(factors, fragments):
+    """Issue 24, bug 1: one of the two silently did nothing."""
+    head = SAMPLE.split("[study.factors")[0]
+    refused(head + factors, *fragments)
+
+
+def test_the_regulator_command_is_a_factor_by_either_name():
+    """``pressure`` is the scene's alias of the input ``regulator.p_cmd``: one kind of
+    factor (an input's step or ramp level), by either name."""
+    by_alias = parse(GRID)
+    by_name = parse(GRID.replace("pressure = ", '"regulator.p_cmd" = '))
+    assert by_name.factors[1].values == by_alias.factors[1].values
+    assert by_name.factors[1].unit == "Pa"
+
+
+def test_a_series_signal_given_twice_is_refused():
+    """Issue 24, bug 3: a repeated signal crashed with zarr's ContainsArrayError."""
+    grid = '{from = "0 s", to = "2 s", num = 5}'
+    twice = '["myofibril.length", "myofibril.length"]'
+    refused(
+        GRID + f"[study.series]\nsignals = {twice}\ngrid = {grid}\n",
+        "study.series.signals",
+        "'myofibril.length' is given twice",
+    )
