@@ -13,6 +13,8 @@
   ``DIR/summary.json``.
 
 ``--quick`` uses fewer tolerances, steps and repeats (under a minute each).
+A metric a study cannot compute is None, printed with the study's note of why (do-mpc
+not installed).
 The CLI wires :func:`add_arguments` and :func:`handler` as the ``bench`` subcommand.
 """
 
@@ -67,8 +69,10 @@ def handler(args: argparse.Namespace) -> int:
         _write_summary(args, solver, out, wall, tmp)
     for p in ["summary.json", *(p.name for p in out["files"])]:
         print(folder / p)
+    notes = out.get("notes", {})  # why a metric is None (an optional package missing)
     for key, value in out["metrics"].items():
-        print(f"  {key} = {value if value is None else f'{value:.4g}'}")
+        why = f" ({notes[key]})" if key in notes else ""
+        print(f"  {key} = {value if value is None else f'{value:.4g}'}{why}")
     return 0
 
 

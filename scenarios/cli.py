@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -193,6 +194,23 @@ def build_parser(
     return parser
 
 
+_OPTION, _SIGNED = re.compile(r"--[^=]+$"), re.compile(r"-\.?\d")
+
+
+def _signed_values(argv: list[str]) -> list[str]:
+    """``--opt -1MPa`` as ``--opt=-1MPa``: argparse takes a word starting with ``-`` and
+    a letter for an option (only bare numbers pass), so a negative quantity would be an
+    argument error instead of the option's own range message. No command has a
+    positional argument that starts with ``-`` and a digit."""
+    out: list[str] = []
+    for word in argv:
+        if out and _OPTION.match(out[-1]) and _SIGNED.match(word):
+            out[-1] = f"{out[-1]}={word}"
+        else:
+            out.append(word)
+    return out
+
+
 class Terminated(BaseException):
     """SIGTERM arrived: unwinds like Ctrl-C, so staged output folders are removed."""
 
@@ -208,7 +226,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print one line, leave no temporary folder (see :mod:`.outdir`) and return the shell's
     conventional 130 and 143.
     """
-    argv = sys.argv[1:] if argv is None else list(argv)
+    argv = _signed_values(sys.argv[1:] if argv is None else list(argv))
     args = build_parser(argv=argv).parse_args(argv)
     from .threads import limited_blas
 

@@ -185,8 +185,10 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     p_max = _quantity(sc, ctl.get("pressure_max", "0.1 MPa"), ("control", "pressure_max"), "Pa")
     high = model.variables[P_CMD].high
     if not (p_min <= p_op <= p_max <= high and 0 < p_op and p_min < p_max):
+        # blame the limit that is out of place, else the operating point between them
+        bad = "pressure_max" if p_max > high or p_max <= p_min else "operating_pressure"
         raise sc.error(
-            ("control", "pressure_max"),
+            ("control", bad),
             f"need pressure_min ({p_min:g} Pa) <= operating_pressure ({p_op:g} Pa) <= "
             f"pressure_max ({p_max:g} Pa) <= the regulator's {high:g} Pa, with "
             "operating_pressure > 0 and pressure_min < pressure_max",

@@ -1,9 +1,10 @@
 """``sarcomere linearize SCENARIO --out DIR``: the exact linearisation of a scene's model.
 
-The operating point is the equilibrium at the regulator command ``--pressure`` (default:
-a closed-loop scene's ``[control] operating_pressure``, a transient's pressure at its
-start time); the outputs are ``--output`` (repeatable; default the closed-loop scene's
-tracked signal, else the length of a hanging chain or the force of an isometric one).
+The operating point is the equilibrium at the regulator command ``--pressure`` (with its
+unit, ``'50 kPa'``; default: a closed-loop scene's ``[control] operating_pressure``, a
+transient's pressure at its start time); the outputs are ``--output`` (repeatable; default
+the closed-loop scene's tracked signal, else the length of a hanging chain or the force of
+an isometric one).
 Written, all or nothing (:func:`~.outdir.staged`):
 
 * ``linearization.json``: the operating point, the names (model names and python-control
@@ -49,8 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _pressure(sc, given: str | None) -> float:
     from sarcomere.dynamics.units import to_si
 
-    if given is not None:
-        return to_si(given, "Pa", "--pressure")
+    if given is not None:  # a unit is needed, as in scene files: 100 (Pa? kPa?) is refused
+        return to_si(given, "Pa", "--pressure", bare_ok=False)
     if sc.kind == "closed_loop" and "operating_pressure" in sc.control:
         return to_si(sc.control["operating_pressure"], "Pa", "control.operating_pressure")
     if sc.kind == "transient" and "pressure" in sc.inputs:
@@ -68,6 +69,7 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
 
     from .binding import bind, command_range, distinct, fidelity_level, scene_inputs
     from .loader import load_scenario
+    from .spec import did_you_mean
 
     sc = load_scenario(source)
     if sc.kind == "static":
@@ -92,6 +94,10 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
         "sensor.f" if b.setup == "isometric" else "myofibril.length"
     )
     outs = list(outputs or [default])
+    for name in outs:
+        if name not in model.signal_names:
+            hint = did_you_mean(name, model.signal_names)
+            raise ScenarioError(sc.file, "--output", f"'{name}' is not a signal of the model{hint}")
     op = operating_point(model, {P_CMD: p}, b.overrides)
     sys = linearize(model, op, outs, inputs=[P_CMD])
     poles = classify_poles(model, sys)

@@ -392,6 +392,8 @@ def _inputs(r: Reader, value: object, base_dir: Path) -> dict:
         path = ("inputs", name)
         spec = dict(r.table(item, path))
         cls = SIGNAL_TYPES[r.choice(spec, path, "type", list(SIGNAL_TYPES), _REQUIRED)]
+        if why := _misspelt(spec, name):
+            raise r.error(path, why)
         r.table(spec, path, ["type", "unit", *cls.spec_keys], cls.required_keys())
         unit = r.unit(spec, path, name, any_si=True)
         bare = "none" if spec.pop("unit", None) is None else "values"  # in the stated unit
@@ -402,11 +404,22 @@ def _inputs(r: Reader, value: object, base_dir: Path) -> dict:
     return out
 
 
+def _misspelt(tbl: dict, name: str) -> str | None:
+    """Why a signal or axis ``name`` without a ``unit`` is refused when it is named like a
+    known variable (``presure``): an unknown name, not a missing unit."""
+    hint = did_you_mean(name, list(KNOWN_UNITS))
+    if "unit" not in tbl and name not in KNOWN_UNITS and hint:
+        return f"unknown key '{name}'{hint} (or give its 'unit')"
+    return None
+
+
 def _sweep(r: Reader, value: object) -> tuple[SweepAxis, ...]:
     axes = []
     for name, item in r.table(value, ("sweep",)).items():
         path = ("sweep", name)
         tbl = r.table(item, path, ("unit", "values", "start", "stop", "step"))
+        if why := _misspelt(tbl, name):
+            raise r.error(path, why)
         unit = r.unit(tbl, path, name)
         stated = "unit" in tbl  # bare numbers are in the stated unit
         if "values" in tbl:

@@ -439,7 +439,8 @@ def study(out_dir: Path, quick: bool = False) -> dict:
         rows["do_mpc"]["step_median_ms"] / first if "do_mpc" in rows else None
     )
     metrics["nmpc_ipopt_first_samples_median_ms"] = rows["nmpc_ipopt"]["first_samples_median_ms"]
-    return {"result": result, "metrics": metrics, "files": [path]}
+    notes = {} if "do_mpc" in rows else {"nmpc_speedup_vs_do_mpc": _do_mpc_status()}
+    return {"result": result, "metrics": metrics, "files": [path], "notes": notes}
 
 
 def _do_mpc_status() -> str:
@@ -448,5 +449,5 @@ def _do_mpc_status() -> str:
             warnings.simplefilter("ignore")
             import do_mpc  # noqa: F401
     except ImportError:
-        return "not installed (optional): not compared"
+        return 'do-mpc not installed (pip install "sarcomere[bench]")'
     return "installed"

@@ -282,3 +282,63 @@ def test_a_closed_pipe_ends_the_output_quietly() -> None:
     finally:
         os.close(write)
     assert (done.returncode, done.stderr) == (141, "")
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        # a bare number was taken as Pa: 100 Pa where 100 kPa was meant (issue 24)
+        (["--pressure", "100"], "'--pressure' = '100' is invalid (a bare number needs a unit"),
+        # a negative quantity was an argparse error ("expected one argument")
+        (["--pressure", "-1MPa"], "key '--pressure': -1 MPa is outside the regulator's range"),
+        (["--pressure", "-.5 MPa"], "key '--pressure': -0.5 MPa is outside the regulator's"),
+        # was "parameter 'outputs' = ...": the option is --output
+        (["--output", "myofibril.lenght"], "key '--output': 'myofibril.lenght' is not a signal"),
+    ],
+)
+def test_linearize_options_are_refused_by_their_own_name(tmp_path, capsys, args, needle):
+    out = tmp_path / "lin"
+    assert main(["linearize", "step-50g", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and "\n" not in err, err
+    assert not out.exists()
+
+
+def test_a_negative_value_of_an_option_reaches_the_option() -> None:
+    from sarcomere.scenarios.cli import _signed_values
+
+    argv = ["linearize", "x", "--pressure", "-1MPa", "--out", "-2", "--", "-3kPa"]
+    assert _signed_values(argv) == [
+        "linearize",
+        "x",
+        "--pressure=-1MPa",
+        "--out=-2",
+        "--",
+        "-3kPa",
+    ]
+    assert _signed_values(["run", "--quiet", "x.toml"]) == ["run", "--quiet", "x.toml"]
+
+
+def test_bench_says_why_a_metric_is_missing(tmp_path, monkeypatch, capsys) -> None:
+    """``bench mpc`` printed ``nmpc_speedup_vs_do_mpc = None`` without saying that do-mpc
+    is not installed."""
+    import types
+
+    from sarcomere.scenarios import bench
+    from sarcomere.scenarios.studies import mpc_speed
+
+    monkeypatch.setitem(sys.modules, "do_mpc", None)  # not importable
+    why = mpc_speed._do_mpc_status()
+    assert why == 'do-mpc not installed (pip install "sarcomere[bench]")'
+
+    def study(out_dir, quick=False):
+        return {"metrics": {"a_ms": 1.5, "b_ratio": None}, "files": [], "notes": {"b_ratio": why}}
+
+    fake = types.ModuleType("fake_study")
+    fake.study = study
+    monkeypatch.setitem(sys.modules, "fake_study", fake)
+    monkeypatch.setitem(bench.STUDIES, "mpc", ("fake_study", "test"))
+    assert main(["bench", "mpc", "--out", str(tmp_path / "b")]) == 0
+    printed = capsys.readouterr().out
+    assert "  a_ms = 1.5\n" in printed
+    assert f"  b_ratio = None ({why})\n" in printed
