@@ -99,6 +99,33 @@ def recorded_signals(model: Model, output: str, inputs: list[str]) -> list[str]:
     return list(dict.fromkeys(keep))
 
 
+def check_disturbance(model: Model, op: Equilibrium, d: Disturbance, stop_time: float) -> None:
+    """Refuse a disturbance the run cannot apply: at a time outside ``[0, stop_time)``, on
+    a parameter the model lacks, or one that moves the parameter out of its range (a
+    negative added load larger than the load: a mass <= 0 sends the integrator off).
+
+    Raises
+    ------
+    ParameterError
+        Naming ``disturbance.time``, ``disturbance.parameter`` or ``disturbance.delta``.
+    """
+    if not (math.isfinite(d.time) and 0 <= d.time < stop_time):
+        raise ParameterError("disturbance.time", d.time, f"[0, {stop_time:g}) s", "inside the run")
+    if d.parameter not in model.param_names:
+        raise ParameterError("disturbance.parameter", d.parameter, "a parameter of the model")
+    var = model.variables[d.parameter]
+    before = float(op.p[model.param_names.index(d.parameter)])
+    after = before + d.delta
+    if not (math.isfinite(after) and var.low <= after <= var.high):
+        raise ParameterError(
+            "disturbance.delta",
+            d.delta,
+            f"[{var.low - before:g}, {var.high - before:g}] {model.unit(d.parameter)}",
+            f"{d.parameter} = {before:g} would become {after:g}, outside its range "
+            f"[{var.low:g}, {var.high:g}]",
+        )
+
+
 MAX_SAMPLES = 10**6
 """Most samples of one closed-loop run: the recorded signals take ``samples x signals x
 8`` bytes (160 MB at a million samples of twenty signals) and each sample costs 0.1-5 ms
@@ -176,6 +203,8 @@ def run_closed_loop(
             raise ParameterError("noise_std", name, "a signal of the model")
         if not (math.isfinite(std) and std >= 0):
             raise ParameterError(f"noise_std.{name}", std, "[0, inf)")
+    if disturbance is not None:
+        check_disturbance(model, op, disturbance, stop_time)
     judged = None  # the step and the end of its window, checked before the run
     if step is not None:
         lead = controller.preview_samples * dt if preview else 0.0

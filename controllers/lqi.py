@@ -336,7 +336,11 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     weights = LQIWeights(**{k: float(own[k]) for k in defaults})
     est = None
     if own["estimator"] == "ekf":
-        measured = settings.get("measured") or [out, "regulator.p_out"]
+        measured = settings.get("measured")
+        if measured is None:
+            measured = [out, "regulator.p_out"]
+        elif not measured:
+            raise ParameterError("lqi.measured", measured, "at least one signal for the EKF")
         est = make_ekf(model, op, dt, measured, settings.get("noise_std"), own["ekf"])
     u_min, u_max = float(settings["u_min"]), float(settings["u_max"])
     return LQI(

@@ -50,7 +50,14 @@ from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
 from .linearize import linearize
-from .registry import max_step, own_settings, positive, refuse_rate_limit, register_controller
+from .registry import (
+    max_step,
+    number,
+    own_settings,
+    positive,
+    refuse_rate_limit,
+    register_controller,
+)
 
 
 @dataclass(frozen=True)
@@ -234,6 +241,9 @@ def make_pid(model: Model, op: Equilibrium, dt: float, settings: dict) -> PID:
     ``rate_max`` (the command's largest rate [input unit/s], None: no limit)."""
     defaults = {"kp": None, "ki": None, "kd": 0.0, "closed_loop_s": 0.15, "tf": 0.02}
     own = own_settings("pid", settings, {**defaults, "tt": None, "rate_max": None})
+    for key in ("kp", "ki", "tt"):
+        if own[key] is not None and not number(own[key]):
+            raise ParameterError(f"pid.{key}", own[key], "a finite number, or None")
     out, inp = settings["output"], settings["input"]
     kp, ki = own["kp"], own["ki"]
     if kp is None or ki is None:

@@ -16,13 +16,14 @@ A factory is ``factory(model, operating_point, dt, settings) -> Controller``:
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Callable, Mapping
 
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import Equilibrium
-from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.errors import ParameterError, SarcomereError
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
@@ -157,26 +158,88 @@ def check_sample_time(slug: str, model: Model, op: Equilibrium, dt: float) -> No
         )
 
 
+class UnknownSettingError(ParameterError):
+    """A setting a factory does not know: names it, the closest valid key and them all."""
+
+    def __init__(self, name: str, value: object, valid: list[str]) -> None:
+        key = name.rsplit(".", 1)[-1]
+        close = (
+            difflib.get_close_matches(key, valid, n=1)
+            or sorted((v for v in valid if key.startswith(v) or v.startswith(key)), key=len)[-1:]
+        )
+        hint = f"; did you mean '{close[0]}'?" if close else ""
+        SarcomereError.__init__(
+            self, f"unknown key '{name}'{hint} (valid keys: {', '.join(valid)})"
+        )
+        self.name, self.value, self.allowed = name, value, f"one of {valid}"
+
+
 def own_settings(slug: str, settings: Mapping[str, object], defaults: Mapping[str, object]):
     """The controller's own settings: ``defaults`` overridden by ``settings`` (the
-    :data:`COMMON_KEYS` left out). Numbers must be finite.
+    :data:`COMMON_KEYS` left out), each of the type of its default (a number for a number,
+    text for text, true/false, a table, a list; a None default is the factory's to check).
+    Numbers must be finite.
 
     Raises
     ------
     ParameterError
-        For a key not in ``defaults`` (naming ``<slug>.<key>`` and the valid keys) or a
-        non-finite number.
+        For a key not in ``defaults`` (:class:`UnknownSettingError`: the closest valid
+        key and them all), a value of another type or a non-finite number, naming
+        ``<slug>.<key>``, the value and the type expected.
     """
     out = dict(defaults)
     for key, value in settings.items():
         if key in COMMON_KEYS:
             continue
         if key not in defaults:
-            raise ParameterError(f"{slug}.{key}", value, f"one of {sorted(defaults)}")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise ParameterError(f"{slug}.{key}", value, "a finite number")
+            raise UnknownSettingError(f"{slug}.{key}", value, sorted(defaults))
+        expected = _kind(defaults[key])
+        if expected is not None and not _is(value, expected):
+            raise ParameterError(f"{slug}.{key}", value, KINDS[expected])
         out[key] = value
     return out
+
+
+KINDS = {
+    "number": "a finite number",
+    "text": "text",
+    "bool": "true or false",
+    "table": "a table",
+    "list": "a list",
+}
+"""What a setting of each kind must be (:func:`own_settings`)."""
+
+
+def _kind(default: object) -> str | None:
+    """The kind of :data:`KINDS` a setting with this default takes (None: unchecked)."""
+    if isinstance(default, bool):
+        return "bool"
+    if isinstance(default, int | float):
+        return "number"
+    if isinstance(default, str):
+        return "text"
+    if isinstance(default, Mapping):
+        return "table"
+    if isinstance(default, list | tuple):
+        return "list"
+    return None
+
+
+def _is(value: object, kind: str) -> bool:
+    """Whether ``value`` is of ``kind`` (:data:`KINDS`)."""
+    if kind == "number":
+        return number(value)
+    types = {"text": str, "bool": bool, "table": Mapping, "list": list | tuple}
+    return isinstance(value, types[kind])
+
+
+def number(value: object) -> bool:
+    """Whether ``value`` is a finite real number (numpy scalars included, bools not)."""
+    return (
+        isinstance(value, int | float | np.integer | np.floating)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+    )
 
 
 def max_step(slug: str, rate_max: object, dt: float, u_min: float, u_max: float) -> float:

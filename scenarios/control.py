@@ -104,12 +104,19 @@ def _quantity(sc: Scenario, value: object, path: tuple, unit: str, low: float | 
     return v
 
 
-def _reference(sc: Scenario, tbl: dict, unit: str, y_op: float):
-    """``r(t)``, the events (times where the reference changes character) and the step."""
+def _reference(sc: Scenario, tbl: dict, unit: str, y_op: float, stop: float):
+    """``r(t)``, the events (times where the reference changes character) and the step;
+    a step or a sine that starts at or after the end of the run ``stop`` is refused."""
     path = ("control", "reference")
     _table(sc, tbl, path, REFERENCE_KEYS)
     step = _quantity(sc, tbl.get("step", 0.0), (*path, "step"), unit)
     t_step = _quantity(sc, tbl.get("step_time", 0.0), (*path, "step_time"), "s", 0.0)
+    if step and t_step >= stop:
+        raise sc.error(
+            (*path, "step_time"),
+            f"{t_step:g} s is at or after the end of the run ([simulation] stop_time = "
+            f"{stop:g} s): the step would never be taken",
+        )
     amp = _quantity(sc, tbl.get("sine_amplitude", 0.0), (*path, "sine_amplitude"), unit)
     sines = []
     raw = tbl.get("sines", [])
@@ -123,6 +130,12 @@ def _reference(sc: Scenario, tbl: dict, unit: str, y_op: float):
         periods = item.get("periods", 1)
         if f <= 0 or isinstance(periods, bool) or not isinstance(periods, int) or periods < 1:
             raise sc.error(p, f"sine {i + 1}: need frequency > 0 and periods an integer >= 1")
+        if start >= stop:
+            raise sc.error(
+                p,
+                f"sine {i + 1} starts at {start:g} s, at or after the end of the run "
+                f"([simulation] stop_time = {stop:g} s): it could not be scored",
+            )
         sines.append((f, start, start + periods / f))
 
     def reference(t: float) -> float:
@@ -133,6 +146,29 @@ def _reference(sc: Scenario, tbl: dict, unit: str, y_op: float):
         return r
 
     return reference, t_step, step, sines
+
+
+SCENE_KEYS = {
+    "dt": "sample_time",
+    "u_min": "pressure_min",
+    "u_max": "pressure_max",
+    "rate_max": "pressure_rate_max",
+    "measured": "measured",
+    "noise_std": "noise",
+}
+"""A controller setting the scene sets -> the ``[control]`` key it comes from."""
+
+
+def _blamed(name: str, slug: str, path: tuple) -> tuple:
+    """The scene key a controller's ParameterError ``name`` is about: ``lqi.ekf.substeps``
+    -> ``(*path, "ekf", "substeps")``, ``lqi.dt`` -> ``("control", "sample_time")``."""
+    parts = name.split(".")
+    if parts[0] == slug and len(parts) > 1:
+        parts = parts[1:]
+    for key in parts[: 1 + (parts[0] == "ekf")]:
+        if key in SCENE_KEYS:
+            return ("control", SCENE_KEYS[key])
+    return (*path, *parts)
 
 
 def estimator_of(controller, measured: list[str]) -> str:
@@ -160,7 +196,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     """Run every ``[control.controllers]`` entry on the same plant and reference."""
     # imported here: python-control and scipy.signal cost about 1 s, paid by control scenes only
     from sarcomere.controllers import CONTROLLERS, make_controller, operating_point
-    from sarcomere.controllers.loop import Disturbance, run_closed_loop
+    from sarcomere.controllers.loop import Disturbance, check_disturbance, run_closed_loop
     from sarcomere.controllers.metrics import UNIT_SCALES
 
     sc.refuse_unused("inputs", "sweep", "outputs.tolerance", "cosim")
@@ -205,16 +241,29 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     if not isinstance(preview, bool):
         raise sc.error(("control", "preview"), f"{preview!r}: expected true or false")
     measured = ctl.get("measured", [output, "regulator.p_out"])
-    if not (isinstance(measured, list) and all(m in model.signal_names for m in measured)):
-        raise sc.error(("control", "measured"), f"{measured!r}: expected signals of the model")
+    if not (
+        isinstance(measured, list)
+        and measured
+        and all(isinstance(m, str) and m in model.signal_names for m in measured)
+    ):
+        raise sc.error(
+            ("control", "measured"), f"{measured!r}: expected a non-empty list of signals"
+        )
     noise = {}
     for name, raw in _table(sc, ctl.get("noise", {}), ("control", "noise")).items():
         if name not in model.signal_names:
             raise sc.error(("control", "noise", name), "not a signal of the model")
+        if name not in measured:
+            raise sc.error(
+                ("control", "noise", name),
+                f"noise on a signal that is not measured (measured = {measured}): "
+                "add it to [control] measured, or remove its noise",
+            )
         noise[name] = _quantity(sc, raw, ("control", "noise", name), model.unit(name), 0.0)
     op = operating_point(model, {P_CMD: p_op}, b.overrides)
     y_op = op[output]
-    reference, t_step, step, sines = _reference(sc, ctl.get("reference", {}), unit, y_op)
+    stop = sc.simulation.stop_time
+    reference, t_step, step, sines = _reference(sc, ctl.get("reference", {}), unit, y_op, stop)
     dist = None
     if "disturbance" in ctl:
         path = ("control", "disturbance")
@@ -226,7 +275,11 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
             "load.m",
             _quantity(sc, d.get("load"), (*path, "load"), "kg"),
         )
-    stop = sc.simulation.stop_time
+        try:
+            check_disturbance(model, op, dist, stop)
+        except ParameterError as exc:
+            key = "time" if exc.name == "disturbance.time" else "load"
+            raise sc.error((*path, key), describe(exc)) from None
     events = sorted({stop, *(a for _, a, _ in sines), *([dist.time] if dist else [])})
     changes = sorted({stop, *(a for _, a, _ in sines)})  # where the reference changes
     reach = sorted(operating_point(model, {P_CMD: v}, b.overrides)[output] for v in (p_min, p_max))
@@ -265,9 +318,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         try:
             controller = make_controller(slug, model, op, dt, task)
         except ParameterError as exc:
-            key = exc.name.split(".")[-1]
-            where = ("control", "sample_time") if key == "dt" else (*path, key)
-            raise sc.error(where, describe(exc)) from None
+            raise sc.error(_blamed(exc.name, slug, path), describe(exc)) from None
         step_next = next(e for e in changes if e > t_step)
         try:
             run = run_closed_loop(
