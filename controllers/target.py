@@ -12,9 +12,9 @@ and ``d_out`` a constant added to the measured output (an output disturbance [SI
 output]). The damped Newton method of :mod:`sarcomere.dynamics.newton` with the exact
 Jacobian (one CasADi Function gives the residual and the Jacobian), warm-started from the
 last target, each row weighted by its largest Jacobian entry times the unknowns' scale,
-stops when every step component is below ``1e-10`` of that scale. The linear MPC linearises at this point
-(:mod:`.lmpc`), so its model is the one of where the loop is going, at the load the
-estimator found.
+stops when every step component is below ``1e-10`` of that scale. The linear MPC
+linearises at this point (:mod:`.lmpc`), so its model is the one of where the loop is
+going, at the load the estimator found.
 """
 
 from __future__ import annotations

@@ -13,9 +13,9 @@ import scipy.sparse as sp
 
 from sarcomere.dynamics import assemblies
 from sarcomere.dynamics.equilibrium import _row_scales
-from sarcomere.dynamics.newton import row_weights
 from sarcomere.dynamics.modeling import component
 from sarcomere.dynamics.modeling.flatten import _connection_equations
+from sarcomere.dynamics.newton import row_weights
 
 
 @pytest.fixture
