@@ -9,11 +9,12 @@ system ::
 
 with ``d_in`` a constant added to the command (an input disturbance [SI of the input])
 and ``d_out`` a constant added to the measured output (an output disturbance [SI of the
-output]). Newton's method with the exact Jacobian (one CasADi Function gives the residual
-and the Jacobian), warm-started from the last target, stops when every step component is
-below ``1e-10`` of the state's scale. The linear MPC linearises at this point
-(:mod:`.lmpc`), so its model is the one of where the loop is going, at the load the
-estimator found.
+output]). The damped Newton method of :mod:`sarcomere.dynamics.newton` with the exact
+Jacobian (one CasADi Function gives the residual and the Jacobian), warm-started from the
+last target, each row weighted by its largest Jacobian entry times the unknowns' scale,
+stops when every step component is below ``1e-10`` of that scale. The linear MPC
+linearises at this point (:mod:`.lmpc`), so its model is the one of where the loop is
+going, at the load the estimator found.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.model import Model
+from sarcomere.dynamics.newton import NewtonFailure, damped_newton, row_weights
 
 MAX_NEWTON = 30
 """Newton steps per target before it is refused (a warm start needs 2 to 4)."""
@@ -73,23 +75,27 @@ class SteadyTarget:
         Raises
         ------
         SolverError
-            If Newton does not converge in :data:`MAX_NEWTON` steps, or meets a singular
-            Jacobian (with the residual).
+            If Newton does not converge in :data:`MAX_NEWTON` steps, meets a singular
+            Jacobian or finds no descent (with the residual).
         """
-        w = np.asarray(guess, dtype=float).copy()
         d = np.array([d_in, d_out], dtype=float)
-        for _ in range(MAX_NEWTON):
+
+        def fun(w):
             res, jac = self._newton(w, ref, p, d)
-            try:
-                step = np.linalg.solve(np.array(jac), -np.array(res).ravel())
-            except np.linalg.LinAlgError:
-                break
-            w += step
-            if not np.all(np.isfinite(w)):
-                break
-            if np.all(np.abs(step) <= 1e-10 * self.scale):
-                return w[: self.nx], w[self.nx :]
-        raise SolverError(
-            f"target: no steady state with the output at {ref:.6g} after {MAX_NEWTON} Newton "
-            f"steps (residual {np.max(np.abs(np.array(res))):.3g})"
-        )
+            return np.array(res).ravel(), np.array(jac)
+
+        try:
+            w = damped_newton(
+                fun,
+                guess,
+                tol=0.0,
+                max_iter=MAX_NEWTON,
+                weights=lambda J: row_weights(J, self.scale),
+                step_tol=1e-10 * self.scale,
+            ).x
+        except NewtonFailure as f:
+            raise SolverError(
+                f"target: no steady state with the output at {ref:.6g}: {f.why} after "
+                f"{f.iterations} Newton steps (residual {f.residual:.3g})"
+            ) from None
+        return w[: self.nx], w[self.nx :]

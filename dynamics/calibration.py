@@ -54,6 +54,7 @@ from .components.aps import APSParams
 from .equilibrium import solve_equilibrium
 from .errors import ParameterError, SolverError
 from .modeling.model import Model
+from .newton import NewtonFailure, damped_newton
 
 P_TEST = 1.0e5  # Pa, the paper's maximum test pressure (0.1 MPa)
 
@@ -394,41 +395,22 @@ def _continuation(system: _System, verbose: bool) -> tuple[np.ndarray, _Path]:
 
 
 def _newton(system: _System, v: np.ndarray, goal: np.ndarray):
-    """Damped Newton on ``R(v, goal) = 0``: backtracking on ``|R|_2`` (a non-finite trial
-    point counts as worse); converged at ``max |R| <= NEWTON_TOL``, or stalled (no more
-    progress) at ``max |R| <= STALL_TOL``. Returns (solution or None, iterations, scaled
-    residual)."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        return _damped_newton(system, v, goal)
+    """Damped Newton (:func:`.newton.damped_newton`) on ``R(v, goal) = 0``: backtracking
+    on ``|R|_2`` (a trial point with a non-finite residual or Jacobian counts as worse);
+    converged at ``max |R| <= NEWTON_TOL``, or stalled (no more progress) at
+    ``max |R| <= STALL_TOL``. Returns (solution or None, iterations, scaled residual)."""
 
+    def fun(x):
+        R, J = system.residual(x, goal)
+        return np.array(R).ravel(), np.array(J)
 
-def _damped_newton(system: _System, v: np.ndarray, goal: np.ndarray):
-    R, J = (np.array(a) for a in system.residual(v, goal))
-    merit, norm = float(np.linalg.norm(R)), float(np.max(np.abs(R)))
-
-    def stalled(it: int):  # no more progress: accept only below STALL_TOL
-        return (v if norm <= STALL_TOL else None), it, norm
-
-    for it in range(1, MAX_NEWTON + 1):
-        try:
-            dv = np.linalg.solve(J, -R.ravel())
-        except np.linalg.LinAlgError:
-            return stalled(it)
-        lam = 1.0
-        while lam >= 1e-4:
-            trial = v + lam * dv
-            R_t, J_t = (np.array(a) for a in system.residual(trial, goal))
-            m_t = float(np.linalg.norm(R_t))
-            if np.isfinite(m_t) and np.all(np.isfinite(J_t)) and m_t < (1 - 1e-4 * lam) * merit:
-                break
-            lam /= 2
-        else:
-            return stalled(it)
-        v, R, J, merit = trial, R_t, J_t, m_t
-        norm = float(np.max(np.abs(R)))
-        if norm <= NEWTON_TOL:
-            return v, it, norm
-    return stalled(MAX_NEWTON)
+    try:
+        sol = damped_newton(
+            fun, v, tol=NEWTON_TOL, max_iter=MAX_NEWTON, merit_norm=None, stall_tol=STALL_TOL
+        )
+    except NewtonFailure as f:
+        return None, f.iterations, f.residual
+    return sol.x, sol.iterations, sol.residual
 
 
 def sensitivities(p: APSParams, rel_step: float = 1e-4) -> tuple[dict, list[float], list[str]]:

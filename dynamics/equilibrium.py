@@ -1,6 +1,7 @@
 """Static equilibrium of a flattened model: ``ode(x, z, u, p) = 0``, ``alg = 0``.
 
-A damped Newton method on the exact sparse CasADi Jacobian, with continuation: the
+The damped Newton method of :mod:`.newton` on the exact sparse CasADi Jacobian, with
+continuation: the
 inputs and parameters move from a solved state to their targets in steps that halve
 on failure. It never returns silently wrong: a failure raises
 :class:`~sarcomere.dynamics.errors.SolverError` with the residual, the iteration count
@@ -21,11 +22,11 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .errors import ParameterError, SolverError
 from .modeling.buffered import BufferedCall
 from .modeling.model import Model
+from .newton import NewtonFailure, damped_newton, row_weights
 from .units import to_si
 
 _ARGS = ["x", "z", "u", "p"]
@@ -62,18 +63,6 @@ def _row_scales(J: cs.SX, scale: cs.SX) -> cs.SX:
     weighted = cs.mtimes(cs.fabs(J), cs.diag(scale))
     rows = [cs.mmax(weighted[i, :]) for i in range(J.size1())]
     return 1.0 / cs.fmax(cs.vertcat(*rows), 1e-300) if rows else cs.SX(0, 1)
-
-
-def _row_scales_of(J: sp.csc_matrix, scale: np.ndarray) -> np.ndarray:
-    """:func:`_row_scales` of a numeric sparse Jacobian: the same numbers (``fmax``
-    skips NaN; a row with structural zeros counts a 0), without a symbolic loop over rows."""
-    n_rows, n_cols = J.shape
-    columns = np.repeat(np.arange(n_cols), np.diff(J.indptr))
-    top = np.full(n_rows, np.nan)
-    np.fmax.at(top, J.indices, np.abs(J.data) * scale[columns])
-    counts = np.bincount(J.indices, minlength=n_rows)
-    rows = np.where(counts < n_cols, np.fmax(top, 0.0), top)
-    return 1.0 / np.fmax(rows, 1e-300)
 
 
 def residual_function(model: Model) -> cs.Function:
@@ -148,44 +137,18 @@ class _Newton:
         rows, colind, shape = self.pattern
         return sp.csc_matrix((self.J(w, u, p), rows, colind), shape=shape)
 
-    def solve(self, w0, u, p, tol, max_iter) -> tuple[np.ndarray, float, int]:
-        w = np.array(w0, dtype=float)
-        scale = np.maximum(np.abs(w), 1e-6)
-        for it in range(1, max_iter + 1):
-            r = self.residual(w, u, p)
-            J = self.jacobian(w, u, p)
-            rs = _row_scales_of(J, scale)
-            norm = np.linalg.norm(r * rs, np.inf)
-            if not np.isfinite(norm):
-                raise _Fail("residual is not finite", norm, it)
-            if norm < tol:
-                return w, norm, it
-            try:
-                dw = spla.spsolve(J, -r)
-            except RuntimeError as exc:  # pragma: no cover - scipy raises for singular
-                raise _Fail(f"singular Jacobian ({exc})", norm, it) from None
-            if not np.all(np.isfinite(dw)):
-                raise _Fail("singular Jacobian (Newton step not finite)", norm, it)
-            alpha = 1.0
-            while alpha > 1e-4:
-                wn = w + alpha * dw
-                rn = self.residual(wn, u, p)
-                if (
-                    np.all(np.isfinite(rn))
-                    and np.linalg.norm(rn * rs, np.inf) < (1 - 1e-4 * alpha) * norm
-                ):
-                    break
-                alpha *= 0.5
-            else:
-                raise _Fail("line search failed (no descent)", norm, it)
-            w = wn
-        raise _Fail(f"no convergence in {max_iter} iterations", norm, max_iter)
-
-
-class _Fail(Exception):
-    def __init__(self, why: str, residual: float, iterations: int) -> None:
-        super().__init__(why)
-        self.why, self.residual, self.iterations = why, residual, iterations
+    def solve(self, w0, u, p, tol, max_iter) -> np.ndarray:
+        """Damped Newton from ``w0``, each residual row scaled by its largest Jacobian
+        entry times ``max(|w0_j|, 1e-6)`` (raises :class:`NewtonFailure`)."""
+        scale = np.maximum(np.abs(w0), 1e-6)
+        return damped_newton(
+            lambda w: (self.residual(w, u, p), self.jacobian(w, u, p)),
+            w0,
+            residual=lambda w: self.residual(w, u, p),
+            weights=lambda J: row_weights(J, scale),
+            tol=tol,
+            max_iter=max_iter,
+        )
 
 
 def solve_equilibrium(
@@ -232,9 +195,9 @@ def solve_equilibrium(
         u = u_start + nxt * (u_target - u_start)
         p = p_start + nxt * (p_target - p_start)
         try:
-            w_new, res, its = newton.solve(w, u, p, tol, max_iter)
-            _check_domain(newton, w_new, u, p)
-        except _Fail as f:
+            sol = newton.solve(w, u, p, tol, max_iter)
+            _check_domain(newton, sol.x, u, p)
+        except NewtonFailure as f:
             last = (f.residual, f.iterations, f.why)
             step /= 2
             if step < min_fraction_step:
@@ -244,8 +207,8 @@ def solve_equilibrium(
                     f"{100 * frac:.3g} % of the way to the target inputs/parameters"
                 ) from None
             continue
-        w, frac, step = w_new, nxt, min(1.0, step * 2)
-        last = (res, its, "ok")
+        w, frac, step = sol.x, nxt, min(1.0, step * 2)
+        last = (sol.residual, sol.iterations, "ok")
     x, z = w[: m.nx], w[m.nx :]
     vals = np.array(newton.sig(x, z, u_target, p_target)).ravel()
     signals = dict(zip(m.signal_names, vals.tolist(), strict=True))
@@ -279,10 +242,10 @@ def _start_point(newton: _Newton, u: np.ndarray, p: np.ndarray, tol: float, max_
     m = newton.model
     w0 = np.concatenate([m.x0(p), m.z0(p)])
     try:
-        w = newton.solve(w0, u, p, tol, max_iter)[0]
+        w = newton.solve(w0, u, p, tol, max_iter).x
         _check_domain(newton, w, u, p)
         return w
-    except _Fail as first:
+    except NewtonFailure as first:
         if m.nz:
             raise SolverError(
                 f"no equilibrium of '{m.name}' at its start values: {first.why}"
@@ -290,10 +253,10 @@ def _start_point(newton: _Newton, u: np.ndarray, p: np.ndarray, tol: float, max_
         why = first.why
     try:
         x = _settle(m, u, p)
-        w = newton.solve(x, u, p, tol, max_iter)[0]
+        w = newton.solve(x, u, p, tol, max_iter).x
         _check_domain(newton, w, u, p)
         return w
-    except (SolverError, _Fail) as exc:
+    except (SolverError, NewtonFailure) as exc:
         raise SolverError(
             f"no equilibrium of '{m.name}' at its start values: Newton from the start values "
             f"failed ({why}), and after {SETTLE_TIME_S:g} s of settling: "
@@ -325,12 +288,12 @@ def _settle_integrator(m: Model) -> cs.Function:
 
 
 def _check_domain(newton: _Newton, w: np.ndarray, u: np.ndarray, p: np.ndarray) -> None:
-    """Reject a root outside the physical domain of any bounded signal (raises _Fail, so
-    the continuation step shrinks)."""
+    """Reject a root outside the physical domain of any bounded signal (raises
+    NewtonFailure, so the continuation step shrinks)."""
     m = newton.model
     bad = out_of_domain(m, np.array(newton.sig(w[: m.nx], w[m.nx :], u, p)).ravel()[:, None])
     if bad:
-        raise _Fail(bad, np.inf, 0)
+        raise NewtonFailure(bad, np.inf, 0)
 
 
 def out_of_domain(model: Model, values: np.ndarray, names: list[str] | None = None) -> str:
