@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from sarcomere.scenarios import runner
+
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 PAGES = ["README.md", "docs/model.md", "docs/architecture.md", "docs/scenarios.md"]
@@ -41,7 +43,11 @@ def test_the_docs_pages_have_examples():
 @pytest.mark.parametrize("page", DOCS)
 def test_docs_python_examples_run(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # examples that write, write here
-    monkeypatch.setattr("sarcomere.scenarios.runner._RUNNERS", {})  # a kind they register
-    run_blocks(ROOT / page)
+    before = set(runner.runner_kinds())
+    try:
+        run_blocks(ROOT / page)
+    finally:  # forget the kinds the examples registered; keep the packaged ones they loaded
+        for kind in set(runner.runner_kinds()) - before:
+            del runner._RUNNERS[kind]
     written = re.findall(r'"(out/[\w-]+)"', (ROOT / page).read_text())
     assert all((tmp_path / folder / "summary.json").is_file() for folder in written)
