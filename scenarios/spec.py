@@ -16,12 +16,12 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING
 
-from sarcomere.dynamics.assemblies import FIDELITIES as MODEL_LEVELS
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
-from sarcomere.dynamics.simulation.simulate import MAX_VALUES
+from sarcomere.dynamics.schema import FIDELITIES as MODEL_LEVELS
+from sarcomere.dynamics.schema import MAX_VALUES
 
 if TYPE_CHECKING:
-    from .signals import Signal
+    from sarcomere.dynamics.signals import Signal
 
 #: Allowed values of ``[model] fidelity``.
 FIDELITIES = ("paper", *MODEL_LEVELS, "auto")

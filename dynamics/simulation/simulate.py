@@ -23,14 +23,11 @@ import numpy as np
 from ..errors import ParameterError
 from ..modeling.model import Model
 from ..results import Result
+from ..schema import MAX_VALUES
 from .settings import METHODS, SolverSettings
 from .simulator import CHUNK_POINTS, Simulator
 
 __all__ = ["METHODS", "MAX_VALUES", "PausableRun", "SolverSettings", "simulate"]
-
-MAX_VALUES = 2e7
-"""Default limit on output points x signals of one :func:`simulate` call (160 MB of
-float64); ``simulate(..., max_values=...)`` raises it."""
 
 
 def simulate(
