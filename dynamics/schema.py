@@ -20,6 +20,11 @@ one representative unit for n identical units; "instant_pneumatics" and
 "instant_quasi_static" the mechanics of "full" and "quasi_static" with every chamber at
 the regulator's outlet pressure (no air masses, no tubes)."""
 
+WITHOUT_MODEL = ("linear", "equilibrium_path")
+"""The levels without a flattened model of their own (:mod:`.fidelity.levels`): the full
+model linearised at the middle of the input's range, and its equilibrium path with the
+linearised deviation from it; transients only, one input."""
+
 MAX_VALUES = 2e7
 """Default limit on output points x signals of one simulation (160 MB of float64);
 ``simulate(..., max_values=...)`` and ``[outputs] max_values`` raise it."""

@@ -28,6 +28,7 @@ from ..equilibrium import Equilibrium, solve_equilibrium
 from ..errors import SarcomereError
 from ..modeling.model import Model
 from ..results import Result
+from ..schema import WITHOUT_MODEL
 from ..simulation.linear import (
     Trajectory,
     breakpoints,
@@ -40,8 +41,7 @@ from ..simulation.linear import (
     step_times,
 )
 
-LEVELS = ("linear", "equilibrium_path")
-"""The levels of this module, by name."""
+LEVELS = WITHOUT_MODEL  # the levels of this module, by name
 
 
 def CubicSpline(*args, **kwargs):  # noqa: N802
@@ -50,6 +50,10 @@ def CubicSpline(*args, **kwargs):  # noqa: N802
 
     return spline(*args, **kwargs)
 
+
+#: Equilibria along the command's range for the ``linear`` level (its operating point,
+#: the middle one, and its prediction's static nonlinearity over the range).
+LINEAR_PATH_NODES = 3
 
 PATH_NODES = 9
 """Equilibria along the input range for the equilibrium path (cubic interpolation of the
