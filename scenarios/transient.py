@@ -93,6 +93,28 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
     return choice.level, res, report
 
 
+#: Why a study on an auto scene runs full in every sample (its summary's "fidelity").
+AUTO_WHY = (
+    f"the auto rule runs full below n = {ladder.REDUCED_FROM_N} units, nothing predicted; "
+    f"the factor n is kept below {ladder.REDUCED_FROM_N}"
+)
+
+
+def study_level(sc: Scenario, n: int) -> str:
+    """The level of every sample of a study on a scene at ``fidelity = "auto"`` with n
+    units: full below :data:`~sarcomere.dynamics.fidelity.REDUCED_FROM_N` (the rule,
+    nothing predicted). From it auto predicts each run's level, which a study's samples
+    cannot share: refused, saying what to write in the study file."""
+    if ladder.predicts(n):
+        raise sc.error(
+            ("model", "fidelity"),
+            f"'auto' picks each run's level by prediction from n = {ladder.REDUCED_FROM_N} on "
+            f"(n = {n}); a study runs one level: set it in the study file, [model] fidelity "
+            '= "grouped" (or another level)',
+        )
+    return "full"
+
+
 def without_model(sc: Scenario, b: Binding, level: str) -> tuple[Result, float]:
     """``linear`` or ``equilibrium_path`` on the full model: its equilibria along the
     command's range, the level, and its predicted error against full over ``[outputs]
