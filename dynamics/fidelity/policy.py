@@ -45,10 +45,10 @@ from .predictions import SAFETY
 AUTO_LADDER = ("symmetric", "grouped", "linear", "equilibrium_path", "full")
 
 #: Shortest chain whose reduced levels auto predicts. The predictions cost about 0.2 s of
-#: CPU whatever n (CPU time, one BLAS thread, the 50 g step of 3 s on a 2 ms grid; auto
-#: picking grouped against full: n = 10 x1.04, 15 x0.76, 20 x0.53, 30 x0.40, and
-#: step-50g-n30-auto x0.40 in benchmarks/fidelity.py); from 24 units full costs more than
-#: twice what the predictions and the grouped run do together.
+#: CPU whatever n: auto picking grouped against full, CPU time, one BLAS thread, medians
+#: of 3 (the step-50g-n30-auto scene at other n): n = 10 x1.04, 15 x0.76, 20 x0.53,
+#: 30 x0.38 (docs/numerics.md); from about 22 units full costs more than twice what the
+#: predictions and the grouped run cost together, and 24 keeps a margin.
 REDUCED_FROM_N = 24
 
 #: Equilibria along the command's range when a reduced chain is compared with its
