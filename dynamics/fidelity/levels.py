@@ -164,22 +164,6 @@ def level_result(
     return path_result(model, path, traj, t_out, signals)
 
 
-def run_linear(
-    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> Result:
-    """The ``linear`` level: the linearisation at the middle of the input's range."""
-    traj = trajectory("linear", model, path, inputs, t_out)
-    return level_result("linear", model, path, traj, t_out, signals)
-
-
-def run_equilibrium_path(
-    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> Result:
-    """The ``equilibrium_path`` level (module docstring)."""
-    traj = trajectory("equilibrium_path", model, path, inputs, t_out)
-    return level_result("equilibrium_path", model, path, traj, t_out, signals)
-
-
 def path_result(model: Model, path: Path, traj: Trajectory, t_out: np.ndarray, signals) -> Result:
     """The outputs ``y_eq(u) + C xi`` of a :func:`path_trajectory`, ``C`` of the node
     nearest to the present input."""

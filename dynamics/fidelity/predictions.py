@@ -8,7 +8,7 @@ predicted error against ``full``, before any nonlinear simulation.
   square-root law, which no linearisation at an equilibrium holds, where the tube's
   pressure drop is zero).
 * :func:`static_nonlinearity`: the static map's distance from the linearisation's
-  straight line, from the equilibria alone (a cheap early exit).
+  straight line, from the equilibria alone (part of ``linear``'s prediction).
 * :func:`predict_reduced`: a reduced chain against a reference chain, both from their
   statics and linearised dynamics (:func:`chain_response`).
 
@@ -152,8 +152,10 @@ def run_level(
     keep,
 ) -> tuple[Result, float]:
     """Run ``level`` (one of :data:`~.levels.LEVELS`) on ``path`` and predict its error
-    over ``signals`` as :func:`predict_linear` and :func:`predict_path` do, its
-    trajectory computed once; returns the outputs ``keep`` and the prediction."""
+    over ``signals`` (relative to each output's span, max over them): :data:`SAFETY`
+    times its :func:`level_defect`, for ``linear`` at least its
+    :func:`static_nonlinearity`; the trajectory computed once. Returns the outputs
+    ``keep`` and the prediction."""
     signals = list(signals)
     traj = trajectory(level, model, path, inputs, t_out)
     defect = level_defect(level, model, path, inputs, t_out, signals, traj)
@@ -162,43 +164,6 @@ def run_level(
             defect, float(np.max(static_nonlinearity(model, path, inputs, t_out, signals)))
         )
     return level_result(level, model, path, traj, t_out, keep), SAFETY * defect
-
-
-def predict_linear(
-    model: Model,
-    path: Path,
-    inputs: Mapping[str, object],
-    t_out: np.ndarray,
-    signals,
-    static: np.ndarray | None = None,
-) -> float:
-    """Predicted error of ``linear``: :data:`SAFETY` times the larger of its static
-    nonlinearity (``static``, computed when not given) and its defect estimate."""
-    if static is None:
-        static = static_nonlinearity(model, path, inputs, t_out, signals)
-    defect = level_defect("linear", model, path, inputs, t_out, signals)
-    return SAFETY * max(float(np.max(static)), defect)
-
-
-def predict_path(
-    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> float:
-    """Predicted error of ``equilibrium_path``: :data:`SAFETY` times its defect
-    estimate."""
-    return SAFETY * level_defect("equilibrium_path", model, path, inputs, t_out, signals)
-
-
-def predict(
-    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> dict[str, float]:
-    """Predicted error of ``linear`` and ``equilibrium_path`` (:func:`predict_linear`,
-    :func:`predict_path`): max over ``signals`` of the error relative to the output's
-    span, from the equilibria along the input's range and their linearisations, before
-    any nonlinear simulation."""
-    return {
-        "linear": predict_linear(model, path, inputs, t_out, signals),
-        "equilibrium_path": predict_path(model, path, inputs, t_out, signals),
-    }
 
 
 @dataclass
