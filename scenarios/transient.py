@@ -1,7 +1,8 @@
 """Scenario kind "transient": a run from the equilibrium at the inputs' start values, at
-one fidelity level or ``"auto"`` (the level :func:`sarcomere.dynamics.fidelity.choose`
-picks); the scene is bound and run by :mod:`.binding`, its step metrics are
-:mod:`.step_metrics`'."""
+one fidelity level, at a level without a model of its own (``linear``,
+``equilibrium_path``, with its predicted error) or at ``"auto"`` (the level
+:func:`sarcomere.dynamics.fidelity.choose` picks); the scene is bound and run by
+:mod:`.binding`, its step metrics come from :mod:`.step_metrics`."""
 
 from __future__ import annotations
 
@@ -22,10 +23,10 @@ from .step_metrics import transient_metrics
 
 
 def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
-    """Simulate from the equilibrium at the inputs' start values (see module docstring).
+    """Simulate from the equilibrium at the inputs' start values (module docstring).
 
-    ``fidelity = "auto"``: the cheapest level predicted within ``[outputs] tolerance``
-    of "full" runs, and only that one (see :func:`choose_fidelity`).
+    ``fidelity = "auto"``: the level of the auto rule runs, and only that one (see
+    :func:`choose_fidelity`).
     """
     sc.refuse_unused("sweep", "control", "cosim")
     if sc.model.fidelity != "auto":
