@@ -10,9 +10,9 @@ over the scene's signals, the reference ``full`` at rtol 1e-9, atol 1e-12), and 
 time of the transient runner end to end (what ``summary.json`` reports) for auto and for
 full at the scene's own settings (CVODES, rtol 1e-6), one BLAS thread, one run each
 (full first; single runs on a shared machine: +/- 30 %). ``--part k/m`` measures every
-m-th scene from the k-th (same draws), for m processes side by side.
-``--full-first-budget 0`` turns auto's full first off (n <= 6; docs/numerics.md): the
-ladder's own choices, as the study measured them before full first.
+m-th scene from the k-th (same draws), for m processes side by side. :func:`measure`
+also runs a level without a model of its own (``linear``, ``equilibrium_path``) against
+its own prediction (the tests' randomised check).
 
 Usage::
 
@@ -29,7 +29,6 @@ from pathlib import Path
 
 import numpy as np
 
-from sarcomere.dynamics.fidelity import policy
 from sarcomere.scenarios import parse_scenario, transient
 from sarcomere.scenarios.threads import limited_blas
 
@@ -143,23 +142,21 @@ def run(text: str):
     return out, time.perf_counter() - tic
 
 
-def measure(scene: dict, timing: bool = True) -> dict:
-    """Auto's choice, predicted and measured error, and (``timing``) auto's and full's
-    end-to-end wall times."""
+def measure(scene: dict, timing: bool = True, level: str = "auto") -> dict:
+    """The level run (auto's choice, or ``level``), its predicted and measured error, and
+    (``timing``) its and full's end-to-end wall times."""
     if timing:
         _, t_full = run(scene_text(scene, "full"))
-    auto, t_auto = run(scene_text(scene, "auto"))
+    auto, t_auto = run(scene_text(scene, level))
     ref, _ = run(scene_text(scene, "full", tight=True))
     a, r = auto.results["main"], ref.results["main"]
     err = max(float(np.max(np.abs(a[s] - r[s])) / np.ptp(r[s])) for s in scene["signals"])
-    rep = auto.extra["fidelity_auto"]
     row = {
         **scene,
-        "chosen": rep["chosen"],
-        "predicted": rep["predicted_error"][rep["chosen"]],
+        "chosen": auto.fidelity,
+        "predicted": auto.metrics.get("fidelity_predicted_error", 0.0),
         "measured": err,
-        "tolerance": rep["tolerance"],
-        "predicted_all": rep["predicted_error"],
+        "tolerance": scene["tolerance_percent"] / 100,
     }
     if timing:
         row.update(auto_s=t_auto, full_s=t_full, cost_ratio=t_auto / t_full)
@@ -215,16 +212,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("out/bench/auto_study.json"))
     parser.add_argument("--part", default="0/1", help="k/m: every m-th scene from the k-th")
     parser.add_argument("--table", nargs="+", type=Path, help="only print the table of these")
-    parser.add_argument(
-        "--full-first-budget",
-        type=float,
-        default=policy.FULL_FIRST_BUDGET_S,
-        help="seconds of full first at n <= 6 (0: off, the ladder alone)",
-    )
     args = parser.parse_args()
-    if not args.full_first_budget >= 0:
-        parser.error(f"--full-first-budget {args.full_first_budget}: need >= 0 s")
-    policy.FULL_FIRST_BUDGET_S = args.full_first_budget
     if args.table:
         rows = sorted((r for f in args.table for r in json.loads(f.read_text())), key=_order)
         print(table(rows))

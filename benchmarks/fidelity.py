@@ -100,7 +100,7 @@ def _ladder_level(text: str, level: str, signals: list[str]):
     inputs = {binding.INPUT_ALIASES.get(k, k): v for k, v in sc.inputs.items()}
     grid = binding.time_grid(sc.simulation)
     name = next(iter(inputs))
-    nodes = ladder.policy.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
+    nodes = ladder.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
     path = ladder.equilibrium_path(full, name, inputs[name](grid), b.overrides, nodes)
     run = ladder.run_linear if level == "linear" else ladder.run_equilibrium_path
     return run(full, path, inputs, grid, signals), {}

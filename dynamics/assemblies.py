@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 from .components.aps import APSParams
 from .components.chains import (
-    CHAIN_LEVELS,
     FLOW_LAWS,
     INSTANT_LEVELS,
     GroupedMyofibril,
@@ -48,20 +47,12 @@ from .errors import ParameterError
 from .modeling.component import System
 from .modeling.model import Model
 from .params.ambient import Ambient
+from .schema import FIDELITIES
 from .units import to_si
 
 HOOK_MASS_KG = 1.0e-3
 """Mass of the load hook and clip [kg] (estimate); the load mass adds to it, so the
 "0 g" experiment still has a defined bottom end."""
-
-FIDELITIES = (*CHAIN_LEVELS, "grouped", "symmetric", *INSTANT_LEVELS)
-"""Dynamic fidelity levels (see :data:`CHAIN_LEVELS` and docs/model.md); "grouped" is
-:data:`GROUPS` groups of units in series, two representative half-groups each, with the
-bodies' inertia and the weight gradient (:class:`~.components.chains.GroupedMyofibril`,
-all n units when n <= GROUPS), "symmetric" one representative unit for n identical
-units; "instant_pneumatics" and "instant_quasi_static" the mechanics of "full" and
-"quasi_static" with every chamber at the regulator's outlet pressure
-(:data:`~.components.chains.INSTANT_LEVELS`: no air masses, no tubes)."""
 
 GROUPS = 3
 """Groups of the "grouped" level: its cost is that of a chain of at most 6 units

@@ -19,14 +19,16 @@ import re
 from abc import ABC, abstractmethod
 from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
-import casadi as ca
 import numpy as np
 
 from .errors import ParameterError, ScenarioError
 from .files import read_text
 from .units import si_unit, to_si
+
+if TYPE_CHECKING:
+    import casadi as ca
 
 
 def _inside(times: list[float], t0: float, tf: float) -> list[float]:
@@ -131,6 +133,8 @@ class Step(Signal):
         return _inside([self.time], t0, tf)
 
     def casadi(self, t: ca.SX | ca.MX) -> ca.SX | ca.MX:
+        import casadi as ca
+
         return ca.if_else(t < self.time, self.initial, self.final)
 
 
@@ -178,6 +182,8 @@ class Ramp(Signal):
         return _inside([self.start, self.start + self.duration], t0, tf)
 
     def casadi(self, t: ca.SX | ca.MX) -> ca.SX | ca.MX:
+        import casadi as ca
+
         frac = ca.fmin(ca.fmax((t - self.start) / self.duration, 0.0), 1.0)
         return self.initial + (self.final - self.initial) * frac
 
@@ -230,6 +236,8 @@ class Staircase(Signal):
         return _inside(self.switch_times, t0, tf)
 
     def casadi(self, t: ca.SX | ca.MX) -> ca.SX | ca.MX:
+        import casadi as ca
+
         out = self.levels[0]
         for level, ts in zip(self.levels[1:], self.switch_times, strict=True):
             out = ca.if_else(t >= ts, level, out)
@@ -288,6 +296,8 @@ class Sine(Signal):
         return _inside([self.start], t0, tf)
 
     def casadi(self, t: ca.SX | ca.MX) -> ca.SX | ca.MX:
+        import casadi as ca
+
         tau = ca.fmax(t - self.start, 0.0)
         return self.offset + self.amplitude * ca.sin(
             2.0 * math.pi * self.frequency * tau + self.phase
@@ -351,6 +361,8 @@ class Chirp(Signal):
         return _inside([self.start, self.start + self.duration], t0, tf)
 
     def casadi(self, t: ca.SX | ca.MX) -> ca.SX | ca.MX:
+        import casadi as ca
+
         tau = ca.fmin(ca.fmax(t - self.start, 0.0), self.duration)
         return self.offset + self.amplitude * ca.sin(self._phase(tau))
 
@@ -441,6 +453,8 @@ class Table(Signal):
         return inside.tolist() if len(inside) <= TABLE_MAX_BREAKPOINTS else []
 
     def casadi(self, t: ca.SX | ca.MX) -> ca.SX | ca.MX:
+        import casadi as ca
+
         lut = ca.interpolant("table", "linear", [list(self.times)], list(self.values))
         return lut(ca.fmin(ca.fmax(t, self.times[0]), self.times[-1]))
 

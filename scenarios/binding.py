@@ -64,6 +64,7 @@ from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SarcomereError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
+from sarcomere.dynamics.schema import WITHOUT_MODEL
 from sarcomere.dynamics.signals import Table
 from sarcomere.dynamics.simulation import sundials
 from sarcomere.dynamics.simulation.simulate import MAX_VALUES, SolverSettings, simulate
@@ -317,11 +318,12 @@ def bind(sc: Scenario) -> Binding:
     )
 
 
-def fidelity_level(sc: Scenario, allow_auto: bool) -> str:
-    """``[model] fidelity``, checked: a level of the set-ups (or ``"auto"`` where
-    allowed)."""
+def fidelity_level(sc: Scenario, allow_auto: bool, without_model: bool = False) -> str:
+    """``[model] fidelity``, checked: a level of the set-ups (or ``"auto"``, and the
+    levels without a model of their own, :data:`WITHOUT_MODEL`, where allowed)."""
     fid = sc.model.fidelity
-    allowed = FIDELITIES + (("auto",) if allow_auto else ())
+    allowed = FIDELITIES + (WITHOUT_MODEL if without_model else ())
+    allowed += ("auto",) if allow_auto else ()
     if fid not in allowed:
         raise sc.error(("model", "fidelity"), f"'{fid}' is not one of {', '.join(allowed)}")
     return fid
@@ -382,7 +384,7 @@ def check_n(sc: Scenario, path: tuple, n: float, fidelity: str) -> None:
     or (grouped) not above 2 GROUPS."""
     if n != round(n) or n < 1:
         raise sc.error(path, f"{n:g} is not a whole number of units >= 1")
-    level = "full" if fidelity == "auto" else fidelity  # auto may end at full
+    level = "full" if fidelity in ("auto", *WITHOUT_MODEL) else fidelity  # on full
     if fidelity == "grouped" and n <= 2 * GROUPS:
         raise sc.error(
             path,

@@ -16,15 +16,15 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING
 
-from sarcomere.dynamics.assemblies import FIDELITIES as MODEL_LEVELS
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
-from sarcomere.dynamics.simulation.simulate import MAX_VALUES
+from sarcomere.dynamics.schema import FIDELITIES as MODEL_LEVELS
+from sarcomere.dynamics.schema import MAX_VALUES, WITHOUT_MODEL
 
 if TYPE_CHECKING:
-    from .signals import Signal
+    from sarcomere.dynamics.signals import Signal
 
 #: Allowed values of ``[model] fidelity``.
-FIDELITIES = ("paper", *MODEL_LEVELS, "auto")
+FIDELITIES = ("paper", *MODEL_LEVELS, *WITHOUT_MODEL, "auto")
 
 #: SI units of well-known input and sweep variables; other variables state ``unit``.
 KNOWN_UNITS: Mapping[str, str] = MappingProxyType(

@@ -1,7 +1,8 @@
 """Scenario kind "transient": a run from the equilibrium at the inputs' start values, at
-one fidelity level or ``"auto"`` (the level :func:`sarcomere.dynamics.fidelity.choose`
-picks); the scene is bound and run by :mod:`.binding`, its step metrics are
-:mod:`.step_metrics`'."""
+one fidelity level, at a level without a model of its own (``linear``,
+``equilibrium_path``, with its predicted error) or at ``"auto"`` (the level
+:func:`sarcomere.dynamics.fidelity.choose` picks); the scene is bound and run by
+:mod:`.binding`, its step metrics come from :mod:`.step_metrics`."""
 
 from __future__ import annotations
 
@@ -10,10 +11,8 @@ from pathlib import Path
 
 from sarcomere.dynamics import fidelity as ladder
 from sarcomere.dynamics.assemblies import GROUPS
-from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
-from sarcomere.dynamics.simulation.simulate import PausableRun
 
 from . import binding
 from .binding import Binding, aps_dict, bind, check_n, fidelity_level
@@ -24,16 +23,16 @@ from .step_metrics import transient_metrics
 
 
 def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
-    """Simulate from the equilibrium at the inputs' start values (see module docstring).
+    """Simulate from the equilibrium at the inputs' start values (module docstring).
 
-    ``fidelity = "auto"``: the cheapest level predicted within ``[outputs] tolerance``
-    of "full" runs, and only that one (see :func:`choose_fidelity`).
+    ``fidelity = "auto"``: the level of the auto rule runs, and only that one (see
+    :func:`choose_fidelity`).
     """
     sc.refuse_unused("sweep", "control", "cosim")
     if sc.model.fidelity != "auto":
         sc.refuse_unused("outputs.tolerance")
     b = bind(sc)
-    fid = fidelity_level(sc, allow_auto=True)
+    fid = fidelity_level(sc, allow_auto=True, without_model=True)
     check_n(sc, ("model", "n"), b.n, fid)
     extra = {"aps_params": aps_dict(b.aps), "setup": b.setup}
     metrics = {}
@@ -41,6 +40,8 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
         fid, res, report = choose_fidelity(sc, b)
         extra["fidelity_auto"] = report
         metrics["fidelity_predicted_error"] = report["predicted_error"][fid]
+    elif fid in ladder.LEVELS:
+        res, metrics["fidelity_predicted_error"] = without_model(sc, b, fid)
     else:
         res = binding.simulate_scene(sc, b, fid)
     found, left_out = transient_metrics(res)
@@ -53,24 +54,20 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
 
 
 def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
-    """Bind the scene to the auto policy (:func:`sarcomere.dynamics.fidelity.choose`:
-    the cheapest level predicted within ``[outputs] tolerance``, default 1 %, of
-    "full", over ``[outputs] signals``, default ``myofibril.length``) and run the
-    chosen level alone; at n <= 6 the full run is handed to the policy to run first, in
-    pieces it may pause between ("full first"). The auto run's wall time is in the
-    report."""
+    """Bind the scene to the auto rule (:func:`sarcomere.dynamics.fidelity.choose`: full
+    below :data:`~sarcomere.dynamics.fidelity.REDUCED_FROM_N` units, else the cheapest
+    reduced level predicted within ``[outputs] tolerance``, default 1 %, of "full", over
+    ``[outputs] signals``, default ``myofibril.length``) and run the chosen level alone.
+    The choice reads no clock; the auto run's wall time is in the report."""
     tic = time.perf_counter()
     if sc.simulation is None:
         raise sc.error(("simulation",), "a transient needs [simulation] stop_time")
     grid = binding.time_grid(sc.simulation)
-    first = "symmetric" if ladder.grouped_units(b.n) < b.n else "full"
-    cheap = b.build(first)  # the first model the ladder needs: inputs checked on it
+    first = "symmetric" if ladder.predicts(b.n) else "full"
+    cheap = b.build(first)  # the first model the rule needs: inputs checked on it
     inputs = binding.scene_inputs(sc, cheap)
     binding.check_commands(sc, cheap, b.overrides, inputs, grid)
     care = list(sc.outputs.signals) or ["myofibril.length"]
-    # what linear and equilibrium_path return: full's signals (they run at n <= 6 only)
-    wanted = binding.prepare(sc, b, cheap)[1] if first == "full" else care
-    full = _pausable_full(sc, b, cheap, inputs, wanted, grid) if first == "full" else None
     models = {(first, GROUPS): cheap}
 
     def build(level: str, groups: int = GROUPS) -> Model:
@@ -87,27 +84,51 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
         params=b.overrides,
         signals=care,
         named={*care, *(n for names in sc.outputs.plots.values() for n in names)},
-        keep=wanted,
         tolerance=sc.outputs.tolerance if sc.outputs.tolerance is not None else 0.01,
-        full=full,
     )
     choice = ladder.choose(scene)
-    res = choice.result
-    if res is None:
-        res = binding.simulate_scene(sc, b, choice.level, choice.model, choice.start)
+    res = binding.simulate_scene(sc, b, choice.level, choice.model, choice.start)
     res.require_finite(choice.level)
     report = choice.report(scene)
     report["wall_time_s"] = time.perf_counter() - tic
     return choice.level, res, report
 
 
-def _pausable_full(sc: Scenario, b: Binding, model: Model, inputs, wanted, grid) -> PausableRun:
-    """The full model's run from the start equilibrium as auto's "full first" runs it
-    (:data:`~sarcomere.dynamics.fidelity.policy.FULL_FIRST_BUDGET_S`), not yet started."""
-    u0 = {k: float(sig(grid[0])) for k, sig in inputs.items()}
-    start = solve_equilibrium(model, u0, b.overrides)
-    settings = binding.solver_settings(sc, model)
-    return PausableRun(model, inputs, b.overrides, start.x, start.z, settings, grid, wanted)
+#: Why a study on an auto scene runs full in every sample (its summary's "fidelity").
+AUTO_WHY = (
+    f"the auto rule runs full below n = {ladder.REDUCED_FROM_N} units, nothing predicted; "
+    f"the factor n is kept below {ladder.REDUCED_FROM_N}"
+)
+
+
+def study_level(sc: Scenario, n: int) -> str:
+    """The level of every sample of a study on a scene at ``fidelity = "auto"`` with n
+    units: full below :data:`~sarcomere.dynamics.fidelity.REDUCED_FROM_N` (the rule,
+    nothing predicted). From it auto predicts each run's level, which a study's samples
+    cannot share: refused, saying what to write in the study file."""
+    if ladder.predicts(n):
+        raise sc.error(
+            ("model", "fidelity"),
+            f"'auto' picks each run's level by prediction from n = {ladder.REDUCED_FROM_N} on "
+            f"(n = {n}); a study runs one level: set it in the study file, [model] fidelity "
+            '= "grouped" (or another level)',
+        )
+    return "full"
+
+
+def without_model(sc: Scenario, b: Binding, level: str) -> tuple[Result, float]:
+    """``linear`` or ``equilibrium_path`` on the full model: its equilibria along the
+    command's range, the level, and its predicted error against full over ``[outputs]
+    signals`` (default ``myofibril.length``; :func:`~sarcomere.dynamics.fidelity.run_level`)."""
+    model = b.build("full")
+    inputs, wanted, grid = binding.prepare(sc, b, model)
+    if len(inputs) != 1:
+        raise sc.error(("inputs",), f"level '{level}' needs one input, the pressure command")
+    name, sig = next(iter(inputs.items()))
+    nodes = ladder.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
+    path = ladder.equilibrium_path(model, name, sig(grid), b.overrides, nodes)
+    care = list(sc.outputs.signals) or ["myofibril.length"]
+    return ladder.run_level(level, model, path, inputs, grid, care, wanted)
 
 
 register_runner("transient", run_transient)

@@ -28,6 +28,7 @@ from ..equilibrium import Equilibrium, solve_equilibrium
 from ..errors import SarcomereError
 from ..modeling.model import Model
 from ..results import Result
+from ..schema import WITHOUT_MODEL
 from ..simulation.linear import (
     Trajectory,
     breakpoints,
@@ -40,8 +41,7 @@ from ..simulation.linear import (
     step_times,
 )
 
-LEVELS = ("linear", "equilibrium_path")
-"""The levels of this module, by name."""
+LEVELS = WITHOUT_MODEL  # the levels of this module, by name
 
 
 def CubicSpline(*args, **kwargs):  # noqa: N802
@@ -50,6 +50,10 @@ def CubicSpline(*args, **kwargs):  # noqa: N802
 
     return spline(*args, **kwargs)
 
+
+#: Equilibria along the command's range for the ``linear`` level (its operating point,
+#: the middle one, and its prediction's static nonlinearity over the range).
+LINEAR_PATH_NODES = 3
 
 PATH_NODES = 9
 """Equilibria along the input range for the equilibrium path (cubic interpolation of the
@@ -158,22 +162,6 @@ def level_result(
     if level == "linear":
         return linear_result(model, path.operating_point, traj, t_out, list(signals))
     return path_result(model, path, traj, t_out, signals)
-
-
-def run_linear(
-    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> Result:
-    """The ``linear`` level: the linearisation at the middle of the input's range."""
-    traj = trajectory("linear", model, path, inputs, t_out)
-    return level_result("linear", model, path, traj, t_out, signals)
-
-
-def run_equilibrium_path(
-    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> Result:
-    """The ``equilibrium_path`` level (module docstring)."""
-    traj = trajectory("equilibrium_path", model, path, inputs, t_out)
-    return level_result("equilibrium_path", model, path, traj, t_out, signals)
 
 
 def path_result(model: Model, path: Path, traj: Trajectory, t_out: np.ndarray, signals) -> Result:

@@ -8,7 +8,7 @@ predicted error against ``full``, before any nonlinear simulation.
   square-root law, which no linearisation at an equilibrium holds, where the tube's
   pressure drop is zero).
 * :func:`static_nonlinearity`: the static map's distance from the linearisation's
-  straight line, from the equilibria alone (a cheap early exit).
+  straight line, from the equilibria alone (part of ``linear``'s prediction).
 * :func:`predict_reduced`: a reduced chain against a reference chain, both from their
   statics and linearised dynamics (:func:`chain_response`).
 
@@ -27,6 +27,7 @@ import numpy as np
 
 from ..errors import SarcomereError
 from ..modeling.model import Model
+from ..results import Result
 from ..simulation.linear import Trajectory, recurse, simulate_linear, static_gain
 from .levels import (
     Path,
@@ -141,87 +142,28 @@ def level_defect(
     return float(np.max(defect_error(model, traj, path.operating_point.p, signals, Y)))
 
 
-def predict_linear(
+def run_level(
+    level: str,
     model: Model,
     path: Path,
     inputs: Mapping[str, object],
     t_out: np.ndarray,
     signals,
-    static: np.ndarray | None = None,
-) -> float:
-    """Predicted error of ``linear``: :data:`SAFETY` times the larger of its static
-    nonlinearity (``static``, computed when not given) and its defect estimate."""
-    if static is None:
-        static = static_nonlinearity(model, path, inputs, t_out, signals)
-    defect = level_defect("linear", model, path, inputs, t_out, signals)
-    return SAFETY * max(float(np.max(static)), defect)
-
-
-def predict_path(
-    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> float:
-    """Predicted error of ``equilibrium_path``: :data:`SAFETY` times its defect
-    estimate."""
-    return SAFETY * level_defect("equilibrium_path", model, path, inputs, t_out, signals)
-
-
-def path_jump_bound(
-    path: Path,
-    inputs: Mapping[str, object],
-    t_out: np.ndarray,
-    signals,
-    e_lin: np.ndarray,
-) -> float:
-    """The equilibrium path's early exit, from the input and the statics alone: where
-    the input jumps (a step), the state cannot, so the deviation from the path right
-    after the jump is the jump of the static response, ``d = |y_eq(u+) - y_eq(u-)| /
-    span``, and the deviation meets a nonlinearity of about ``e_lin d`` (``e_lin`` the
-    :func:`static_nonlinearity` over the range); zero (up to round-off) for continuous
-    inputs. Measured below the path's error on every step and staircase of the
-    randomised study (it only rules the path out: never the unsafe side)."""
-    _, sig = single_input(inputs)
+    keep,
+) -> tuple[Result, float]:
+    """Run ``level`` (one of :data:`~.levels.LEVELS`) on ``path`` and predict its error
+    over ``signals`` (relative to each output's span, max over them): :data:`SAFETY`
+    times its :func:`level_defect`, for ``linear`` at least its
+    :func:`static_nonlinearity`; the trajectory computed once. Returns the outputs
+    ``keep`` and the prediction."""
     signals = list(signals)
-    t0, tf = float(t_out[0]), float(t_out[-1])
-    bps = np.asarray(sig.breakpoints(t0, tf) if hasattr(sig, "breakpoints") else [], float)
-    if not bps.size:
-        return 0.0
-    after = np.asarray(sig(bps), float) * np.ones(len(bps))
-    before = np.asarray(sig(np.nextafter(bps, -np.inf)), float) * np.ones(len(bps))
-    u = np.asarray(sig(t_out), float) * np.ones(len(t_out))
-    span = _span(path.static(signals, u))
-    jump = np.abs(path.static(signals, after) - path.static(signals, before))
-    return float(np.max(e_lin * np.max(jump, axis=0) / span))
-
-
-def path_deviation_bound(
-    model: Model,
-    path: Path,
-    inputs: Mapping[str, object],
-    t_out: np.ndarray,
-    signals,
-    e_lin: np.ndarray,
-) -> float:
-    """The equilibrium path's second early exit: ``e_lin d`` with ``d`` the largest
-    dynamic part of the linearised response at the path's operating point (``y_lin -
-    y_op - K du``, :func:`chain_response`; every step one matrix, so cheap) over the
-    span of the statics: how far the state leaves the path, and so the nonlinearity it
-    meets (fast inputs: a sweep through the load mode deviates by the whole span)."""
-    resp = chain_response(model, path, inputs, t_out, signals)
-    d = np.max(np.abs(resp.dynamic), axis=0) / _span(resp.static)
-    return float(np.max(e_lin * d))
-
-
-def predict(
-    model: Model, path: Path, inputs: Mapping[str, object], t_out: np.ndarray, signals
-) -> dict[str, float]:
-    """Predicted error of ``linear`` and ``equilibrium_path`` (:func:`predict_linear`,
-    :func:`predict_path`): max over ``signals`` of the error relative to the output's
-    span, from the equilibria along the input's range and their linearisations, before
-    any nonlinear simulation."""
-    return {
-        "linear": predict_linear(model, path, inputs, t_out, signals),
-        "equilibrium_path": predict_path(model, path, inputs, t_out, signals),
-    }
+    traj = trajectory(level, model, path, inputs, t_out)
+    defect = level_defect(level, model, path, inputs, t_out, signals, traj)
+    if level == "linear":
+        defect = max(
+            defect, float(np.max(static_nonlinearity(model, path, inputs, t_out, signals)))
+        )
+    return level_result(level, model, path, traj, t_out, keep), SAFETY * defect
 
 
 @dataclass

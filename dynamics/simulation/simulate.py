@@ -23,14 +23,11 @@ import numpy as np
 from ..errors import ParameterError
 from ..modeling.model import Model
 from ..results import Result
+from ..schema import MAX_VALUES
 from .settings import METHODS, SolverSettings
-from .simulator import CHUNK_POINTS, Simulator
+from .simulator import Simulator
 
-__all__ = ["METHODS", "MAX_VALUES", "PausableRun", "SolverSettings", "simulate"]
-
-MAX_VALUES = 2e7
-"""Default limit on output points x signals of one :func:`simulate` call (160 MB of
-float64); ``simulate(..., max_values=...)`` raises it."""
+__all__ = ["METHODS", "MAX_VALUES", "SolverSettings", "simulate"]
 
 
 def simulate(
@@ -114,21 +111,7 @@ def simulate(
     sim = Simulator(model, settings, x0=x0, z0=z0, params=params, t0=float(t_out[0]))
     tic = _time.perf_counter()
     X, Z, U = sim.advance(inputs, t_out, progress)
-    return _result(sim, wanted, t_out, X, Z, U, _time.perf_counter() - tic)
-
-
-def _result(
-    sim: Simulator,
-    wanted: list[str],
-    t_out: np.ndarray,
-    X: np.ndarray,
-    Z: np.ndarray,
-    U: np.ndarray,
-    wall: float,
-) -> Result:
-    """The :class:`Result` of a run of ``sim`` through ``t_out`` (states ``X``, algebraic
-    unknowns ``Z``, inputs ``U``, one row per time; ``wall`` its integration time [s])."""
-    model, settings = sim.model, sim.settings
+    wall = _time.perf_counter() - tic
     S = sim._signals_at(tuple(wanted), X.T, Z.T, U.T)  # bound buffers: no conversions
     values = {name: S[i] for i, name in enumerate(wanted)}
     units = {name: model.unit(name) for name in values}
@@ -158,90 +141,3 @@ def _check_size(
             f"{n_points} output points x {n_signals} signals = {total:.3g} values "
             f"({total * 8 / 1e6:.0f} MB)",
         )
-
-
-class PausableRun:
-    """A :func:`simulate` run through ``t_out`` that can pause when a wall-time budget is
-    spent and go on later where it stopped (the auto policy's "full first",
-    docs/numerics.md). It may pause where :func:`simulate` restarts the integrator anyway:
-    after every ``points`` output points from the start or from an input's breakpoint
-    (:data:`~.simulator.CHUNK_POINTS`). With the default, its integrator restarts where
-    :func:`simulate`'s does: the same result for held inputs (steps, staircases; measured
-    identical on the packaged step, sweep and vent), within the solver's tolerance for
-    smooth ones (a piece's time origin differs: 2e-5 of the length's span on the 30 s
-    dither, rtol 1e-6). Arguments as in :func:`simulate` (``t_out`` and ``signals`` required,
-    checked by the caller)."""
-
-    def __init__(
-        self,
-        model: Model,
-        inputs: Mapping[str, object] | None,
-        params: Mapping[str, object] | None,
-        x0: np.ndarray,
-        z0: np.ndarray | None,
-        settings: SolverSettings,
-        t_out: np.ndarray,
-        signals: Sequence[str],
-        points: int = CHUNK_POINTS,
-    ) -> None:
-        if not (isinstance(points, int) and points >= 1):
-            raise ParameterError("points", points, "an integer >= 1")
-        self.t_out = np.asarray(t_out, dtype=float).reshape(-1)
-        self.inputs, self.wanted = inputs, list(signals)
-        self.sim = Simulator(model, settings, x0=x0, z0=z0, params=params, t0=self.t_out[0])
-        self._cuts = _cuts(self.t_out, inputs or {}, points)
-        self._done = 0  # pieces integrated
-        self._rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self.wall_s = 0.0  # integration time so far [s]
-
-    @property
-    def finished(self) -> bool:
-        return self._done == len(self._cuts) - 1
-
-    @property
-    def fraction(self) -> float:
-        """Share of the time span integrated, 0..1."""
-        t = self.t_out
-        return float((t[self._cuts[self._done]] - t[0]) / (t[-1] - t[0]))
-
-    def run(self, budget_s: float = float("inf")) -> bool:
-        """Integrate piece after piece until the run is finished (True) or, after a
-        piece, ``budget_s`` [s] of wall time since this call is spent (False)."""
-        tic = _time.perf_counter()
-        while not self.finished:
-            lo, hi = self._cuts[self._done], self._cuts[self._done + 1]
-            X, Z, U = self.sim.advance(self.inputs, self.t_out[lo : hi + 1])
-            first = 0 if self._done == 0 else 1  # a piece's first row ends the one before
-            self._rows.append((X[first:], Z[first:], U[first:]))
-            self._done += 1
-            elapsed = _time.perf_counter() - tic
-            if elapsed >= budget_s and not self.finished:
-                self.wall_s += elapsed
-                return False
-        self.wall_s += _time.perf_counter() - tic
-        return True
-
-    def result(self) -> Result:
-        """The finished run's :class:`Result` (runs what is left first)."""
-        self.run()
-        X, Z, U = (np.concatenate(parts) for parts in zip(*self._rows, strict=True))
-        return _result(self.sim, self.wanted, self.t_out, X, Z, U, self.wall_s)
-
-
-def _cuts(t_out: np.ndarray, inputs: Mapping[str, object], points: int) -> list[int]:
-    """Indices into ``t_out`` of the pieces' ends (and 0): where
-    :meth:`~.simulator.Simulator.advance` ends a chunk of ``points`` output points counted
-    from the start or from an input's breakpoint."""
-    t0, tf = float(t_out[0]), float(t_out[-1])
-    bps = {
-        float(b)
-        for sig in inputs.values()
-        if hasattr(sig, "breakpoints")
-        for b in sig.breakpoints(t0, tf)
-    } - {t0, tf}
-    cuts = [0]
-    for a, b in zip([t0, *sorted(bps)], [*sorted(bps), tf], strict=True):
-        lo = 1 + int(np.searchsorted(t_out[1:], a, side="right"))  # the segment's first
-        hi = 1 + int(np.searchsorted(t_out[1:], b, side="right"))  # past its last
-        cuts += [i for i in range(lo + points - 1, hi - 1, points)]
-    return [*cuts, len(t_out) - 1]

@@ -24,11 +24,13 @@ import numpy as np
 from sarcomere.dynamics.assemblies import GROUPS, N_LIMITS
 from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.fidelity import REDUCED_FROM_N
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.signals import Ramp, Step
 from sarcomere.dynamics.units import to_si
 
 from .. import binding as scene_binding
+from ..transient import AUTO_WHY, study_level
 from .designs import FAMILY, family_member
 
 #: Parameters a factor may not set: structural (built into the model's bounds).
@@ -170,14 +172,16 @@ class SceneContext:
     def __init__(self, sc) -> None:
         if sc.kind != "transient":
             raise sc.error(("scenario", "kind"), f"'{sc.kind}': a study runs kind 'transient'")
-        sc.refuse_unused("sweep", "control", "cosim", "outputs.tolerance")
+        sc.refuse_unused("sweep", "control", "cosim")
+        if sc.model.fidelity != "auto":
+            sc.refuse_unused("outputs.tolerance")
         self.scene = sc
         self.binding = scene_binding.bind(sc)
         fid = scene_binding.fidelity_level(sc, allow_auto=True)
+        self.level_note = fid  # what the study states of its level (summary.json)
         if fid == "auto":
-            raise sc.error(
-                ("model", "fidelity"), "'auto' picks a level per run; a study needs one level"
-            )
+            fid = study_level(sc, self.binding.n)
+            self.level_note = f"auto: {fid} in every sample ({AUTO_WHY})"
         scene_binding.check_n(sc, ("model", "n"), self.binding.n, fid)
         self.fidelity = fid
         key = (sc.name, repr(sc.model), repr(sorted(sc.parameters.items())))
@@ -213,7 +217,8 @@ class SceneContext:
         b = self.binding
         if name == "n":
             low = 2 * GROUPS + 1 if self.fidelity == "grouped" else 1
-            high = N_LIMITS[self.fidelity]
+            auto = self.level_note != self.fidelity  # n stays where the auto rule runs full
+            high = REDUCED_FROM_N - 1 if auto else N_LIMITS[self.fidelity]
             return Target(name, "n", "1", low, high, long_name="APS in the chain", integer=True)
         if name == "load":
             why = "set-up 'isometric' holds no load" if b.setup != "hanging" else ""

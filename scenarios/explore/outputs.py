@@ -224,6 +224,7 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
         "study": study.name,
         "kind": study.kind,
         "base": study.base,
+        "fidelity": study.fidelity,
         "method": ds.attrs.get("method", design.method),
         "seed": study.seed,
         "fingerprint": ds.attrs.get("fingerprint") or study.fingerprint(),

@@ -104,6 +104,7 @@ class StudyDef:
     scene_file: str
     file: str = "<string>"
     description: str = ""
+    fidelity: str = ""  # the level every sample runs, and why (summary.json)
 
     def definition(self) -> dict:
         """Canonical, JSON-serialisable; equal iff the same study: the scene it runs (base
@@ -236,6 +237,8 @@ def parse_study(text: str, file: str = "<string>") -> StudyDef:
         except tomllib.TOMLDecodeError as exc:
             raise StudyError(scene_file, "(toml syntax)", f"TOML syntax error: {exc}") from None
         base_data.pop("study", None)  # the base's own study is not this one
+        if "fidelity" in data.get("model", {}):  # the base's auto tolerance goes with it
+            base_data.get("outputs", {}).pop("tolerance", None)
         base_lines = key_lines(base_text)
         scene_data = _merge(base_data, data)
     elif "scenario" not in data:
@@ -354,6 +357,7 @@ def _check_study(r: Reader, study, ctx, name, base, text, scene_data, scene_file
         scene_file=scene_file,
         file=r.file,
         description=r.text(study, ("study",), "description", ""),
+        fidelity=ctx.level_note,
     )
 
 

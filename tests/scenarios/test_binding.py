@@ -35,7 +35,7 @@ def _short(name: str, stop: str = "0.5 s") -> str:
     return text.replace('stop_time = "2 s"', f'stop_time = "{stop}"')
 
 
-@pytest.mark.parametrize("name", ["step-50g"])
+@pytest.mark.parametrize("name", ["step-50g", "step-50g-auto"])
 def test_the_transient_kind_runs_through_the_binding(tmp_path, runs, name):
     out = run(parse_scenario(_short(name), f"{name}.toml"), tmp_path, quiet=True)
     assert out.fidelity == "full" and len(runs) == 1

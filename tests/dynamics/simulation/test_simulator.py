@@ -14,9 +14,6 @@ from sarcomere.dynamics import Simulator, SolverSettings, simulate
 from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.component import Component, System
 from sarcomere.dynamics.signals import Ramp, Sine, Staircase, Step, Table
-from sarcomere.dynamics.simulation.simulate import PausableRun
-
-from .conftest import X0_M, _exact
 
 TAU_S = 0.2
 P_MAX = 2e5
@@ -474,20 +471,3 @@ def test_a_dae_steps_with_idas_and_agrees_with_simulate_and_collocation():
     np.testing.assert_allclose(lengths, ref["myofibril.length"], rtol=1e-7)
     assert ref["myofibril.length"][-1] < ref["myofibril.length"][0] - 1e-3  # it contracted
     assert sim.step_function().size_in("z") == (1, 1)
-
-
-def test_pausable_run_pauses_goes_on_and_matches_the_closed_form(oscillator):
-    """A run in pieces of 100 points with no budget stops after the first; going on
-    finishes it. The oscillator's position within rtol-level error of its closed form, and
-    of simulate's."""
-    t = np.linspace(0.0, 2.0, 401)
-    settings = SolverSettings(rtol=1e-9, atol=1e-12)
-    run = PausableRun(oscillator, None, None, [X0_M, 0.0], None, settings, t, ["mass.s"], 100)
-    assert run.run(0.0) is False and run.fraction == pytest.approx(0.25)
-    res = run.result()
-    assert run.finished and len(res.index) == len(t)
-    np.testing.assert_allclose(res["mass.s"], _exact(t), atol=1e-8 * X0_M)
-    ref = simulate(oscillator, 2.0, x0=[X0_M, 0.0], settings=settings, t_out=t)
-    np.testing.assert_allclose(res["mass.s"], ref["mass.s"], atol=1e-8 * X0_M)
-    with pytest.raises(ParameterError, match="points"):
-        PausableRun(oscillator, None, None, [X0_M, 0.0], None, settings, t, ["mass.s"], 0)

@@ -26,6 +26,7 @@ def stub(kind, factors, metrics, method, problem=None, **options):
     return SimpleNamespace(
         name=f"synthetic-{kind}",
         base="step-50g",
+        fidelity="full",
         kind=kind,
         seed=19,
         factors=tuple(

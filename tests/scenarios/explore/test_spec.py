@@ -251,7 +251,9 @@ def test_metrics_and_series_checked_against_the_model():
 def test_scene_error_is_placed_in_the_study_or_the_base():
     message = refused(GRID + '[model]\nfidelity = "ful"\n', "study.toml", "model.fidelity")
     assert ":" in message.split("key")[0]
-    refused(GRID + '[model]\nfidelity = "auto"\n', "a study needs one level")
+    auto = '[model]\nfidelity = "auto"\nn = 30\n'  # auto predicts each run's level
+    refused(GRID + auto, "study.toml", "model.fidelity", "set it in the study file")
+    assert parse(GRID + '[model]\nfidelity = "auto"\n').fidelity.startswith("auto: full")
 
 
 def test_missing_file_is_a_study_error(tmp_path):
