@@ -34,7 +34,7 @@ import numpy as np
 from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.simulation import radau
-from sarcomere.dynamics.simulation.common import HELD
+from sarcomere.dynamics.simulation.settings import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.sundials import integrator
 from sarcomere.dynamics.studies import workprecision as wp

@@ -31,8 +31,8 @@ from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
 from . import compiled
 from .collocation import radau5_packed, radau5_tableau
-from .common import InputLaw, law_dae, method_options, require_ode
-from .settings import Segment, SolverSettings, add_stats, register_method
+from .common import law_dae, method_options, require_ode
+from .settings import InputLaw, Segment, SolverSettings, add_stats, register_method
 
 SOURCE = Path(__file__).parent / "c" / "radau.c"
 """The integrator's C source (package data)."""

@@ -47,8 +47,8 @@ from ..modeling.model import Model
 from ..signals import Staircase, Step
 from ..units import to_si
 from . import fixed_step, guard, radau, scipy_methods, sundials  # noqa: F401  (register the methods)
-from .common import HELD, InputLaw, method_options, require_step, segment_w
-from .settings import METHODS, Segment, SolverSettings
+from .common import method_options, require_step
+from .settings import HELD, METHODS, InputLaw, Segment, SolverSettings, segment_w
 
 CHUNK_POINTS = 1000
 """Most output points per method call: long runs are integrated in pieces of this many

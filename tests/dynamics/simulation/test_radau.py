@@ -17,7 +17,7 @@ from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.component import Component, System
 from sarcomere.dynamics.signals import Sine, Step
 from sarcomere.dynamics.simulation import compiled, radau
-from sarcomere.dynamics.simulation.common import HELD
+from sarcomere.dynamics.simulation.settings import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.dynamics.studies import workprecision as wp
@@ -300,7 +300,7 @@ _BUILD = """
 import sys
 from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.simulation import compiled, radau, simulate
-from sarcomere.dynamics.simulation.common import HELD
+from sarcomere.dynamics.simulation.settings import HELD
 if sys.argv[1] == "no-compiler":  # a compile would raise
     compiled._compile = lambda *a: sys.exit("the compiler was invoked")
 model = hanging_load(1, load_kg=0.05)
