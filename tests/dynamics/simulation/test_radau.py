@@ -289,13 +289,6 @@ def test_compiled_once_per_model_and_input_law(oscillator, monkeypatch):
     assert len(builds) == 2  # a signal: its own library, once
 
 
-def test_unit_costs_are_timed_in_the_library(oscillator):
-    p, x = oscillator.parameters(), oscillator.x0()
-    costs = radau.unit_costs(oscillator, HELD, 0.0, x, np.zeros(0), p, h=1e-2, reps=50)
-    assert set(costs) == {"rhs", "jac", "lu", "solve", "solve_real"}
-    assert all(0 < v < 1e-3 for v in costs.values()), costs
-
-
 _BUILD = """
 import sys
 from sarcomere.dynamics import hanging_load
