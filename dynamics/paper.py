@@ -145,11 +145,6 @@ class PaperOptions:
                 raise ParameterError(name, getattr(self, name), "True or False")
 
     @classmethod
-    def as_printed(cls) -> PaperOptions:
-        """The equations exactly as printed (same as ``PaperOptions()``)."""
-        return cls()
-
-    @classmethod
     def corrected(cls, **changes: object) -> PaperOptions:
         """The documented corrections: ``force_scale=1e-3``, ``theta="corrected"``.
 
@@ -361,7 +356,7 @@ def paper_static(
     material : YeohMaterial or str, default "dragonskin_30"
         Yeoh material or its slug.
     options : PaperOptions, default None
-        Switches; ``None`` means :meth:`PaperOptions.as_printed`.
+        Switches; ``None`` means ``PaperOptions()``, the equations as printed.
     ambient : Ambient, default None
         Gives the lower pressure bound ``-p_amb``; ``None`` means ``Ambient()``.
 

@@ -296,11 +296,6 @@ class Model:
                     del cache[old]
         return cache[key]
 
-    @property
-    def energy_names(self) -> list[str]:
-        """Names of the stored-energy terms, in the order of ``function("energy")["terms"]``."""
-        return list(self._energies)
-
     def describe(self) -> str:
         """A one-paragraph summary: sizes and the first variables."""
         return (

@@ -254,11 +254,6 @@ class ParameterSet:
         """All parameters in order."""
         return tuple(self._params.values())
 
-    @property
-    def derived_names(self) -> tuple[str, ...]:
-        """Names of the derived parameters (not settable by override)."""
-        return tuple(self._derived)
-
     # -- overrides -----------------------------------------------------------------
     def with_overrides(self, overrides: Mapping[str, object] | None = None) -> ParameterSet:
         """Return a new set with some values replaced.

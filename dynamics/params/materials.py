@@ -96,11 +96,6 @@ class YeohMaterial:
         if self.density <= 0:
             raise ParameterError(f"{self.slug}.density", self.density, "(0, inf) kg/m^3")
 
-    @property
-    def shear_modulus(self) -> float:
-        """Initial shear modulus ``mu0 = 2 C1``, Pa."""
-        return 2.0 * self.C1
-
     def params(self) -> ParameterSet:
         """The material as a :class:`ParameterSet` (C1, C2, C3 in Pa; density in kg/m^3)."""
         inf = math.inf
