@@ -38,6 +38,7 @@ from sarcomere.dynamics.simulation.settings import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.sundials import integrator
 from sarcomere.dynamics.studies import workprecision as wp
+from sarcomere.dynamics.studies.pysource import register_baseline
 
 TARGET = 1e-6
 TOLERANCES = tuple(10.0 ** (-k / 2) for k in range(5, 17))
@@ -399,6 +400,7 @@ def main() -> None:
         "--bdf-only", action="store_true", help="only the BDF step study (10 s), no timings"
     )
     args = parser.parse_args()
+    register_baseline()
     sc = wp.scenarios(3)["step"]
     if args.bdf_only:
         bdf = bdf_steps(sc)
