@@ -231,8 +231,8 @@ def _input_value(m: Model, name: str, raw: object) -> float:
     """An input value in SI (numbers or quantity strings), finite and inside its bounds."""
     var = m.variables[name]
     value = to_si(raw, var.unit, f"inputs.{name}")
-    if not (np.isfinite(value) and var.low <= value <= var.high):
-        raise ParameterError(f"inputs.{name}", raw, f"[{var.low:g}, {var.high:g}] {var.unit}")
+    if not (np.isfinite(value) and var.contains(value)):
+        raise var.refuse(f"inputs.{name}", raw)
     return value
 
 
@@ -318,5 +318,5 @@ def out_of_domain(model: Model, values: np.ndarray, names: list[str] | None = No
     out = np.flatnonzero((row < var.low) | (row > var.high))
     return (
         f"{name} = {row[out[0]]:.4g} {var.unit} is outside its physical domain "
-        f"[{var.low:.4g}, {var.high:.4g}] ({var.description})"
+        f"{var.range_str} ({var.description})"
     )

@@ -145,8 +145,8 @@ class Model:
                 raise ParameterError(key, raw, f"a parameter of model '{self.name}'", hint)
             var = self.variables[key]
             val = to_si(raw, var.unit, key)
-            if not (var.low <= val <= var.high):
-                raise ParameterError(key, raw, f"[{var.low:g}, {var.high:g}] {var.unit}")
+            if not var.contains(val):
+                raise var.refuse(key, raw)
             values[key] = val
         return np.array([values[n] for n in self.param_names], dtype=float)
 

@@ -98,32 +98,33 @@ class YeohMaterial:
 
     def params(self) -> ParameterSet:
         """The material as a :class:`ParameterSet` (C1, C2, C3 in Pa; density in kg/m^3)."""
-        inf = math.inf
         return ParameterSet(
             [
                 Param(
                     "C1",
                     self.C1,
-                    "Pa",
-                    0.0,
-                    inf,
+                    unit="Pa",
+                    low=0.0,
+                    low_open=True,
                     source=self.source,
                     description="Yeoh coefficient 1 (mu0/2)",
                 ),
-                Param("C2", self.C2, "Pa", source=self.source, description="Yeoh coefficient 2"),
+                Param(
+                    "C2", self.C2, unit="Pa", source=self.source, description="Yeoh coefficient 2"
+                ),
                 Param(
                     "C3",
                     self.C3,
-                    "Pa",
+                    unit="Pa",
                     source=self.source,
                     description="Yeoh coefficient 3 (omitted by the paper)",
                 ),
                 Param(
                     "density",
                     self.density,
-                    "kg/m^3",
-                    0.0,
-                    inf,
+                    unit="kg/m^3",
+                    low=0.0,
+                    low_open=True,
                     source=self.source,
                     description="mass density",
                 ),

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from sarcomere.dynamics.assemblies import GROUPS, N_LIMITS
 from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
+from sarcomere.dynamics.params.core import Quantity
 from sarcomere.dynamics.signals import Ramp, Step
 from sarcomere.dynamics.units import to_si
 
@@ -37,16 +38,13 @@ PROBE_RATIOS = (1.25, 0.8)
 
 
 @dataclass(frozen=True)
-class Target:
-    """What a factor name sets: its SI unit, allowed range, and how it is applied."""
+class Target(Quantity):
+    """What a factor name sets: its SI unit and allowed range (a :class:`Quantity`,
+    keywords), and how it is applied."""
 
     name: str
     category: str  # "n", "load", "pressure", "family", "aps", "parameter"
-    unit: str
-    low: float
-    high: float
-    low_open: bool = False
-    high_open: bool = False
+    _: KW_ONLY
     long_name: str = ""
     integer: bool = False
     levels: tuple[float, ...] = ()
@@ -55,11 +53,7 @@ class Target:
         """The allowed values, for messages."""
         if self.levels:
             return "one of " + ", ".join(f"{v:g} {self.unit}" for v in self.levels)
-        lo = "(" if self.low_open or self.low == -math.inf else "["
-        hi = ")" if self.high_open or self.high == math.inf else "]"
-        kind = "whole numbers in " if self.integer else ""
-        unit = "" if self.unit == "1" else f" {self.unit}"
-        text = f"{kind}{lo}{self.low:g}, {self.high:g}{hi}{unit}"
+        text = ("whole numbers in " if self.integer else "") + self.range_str
         return f"{text} ({self.long_name})" if self.category == "relative" else text
 
     def refusal(self, value: float) -> str:
@@ -74,9 +68,7 @@ class Target:
             return any(math.isclose(value, v, rel_tol=1e-9) for v in self.levels)
         if self.integer and value != round(value):
             return False
-        above = value > self.low if self.low_open else value >= self.low
-        below = value < self.high if self.high_open else value <= self.high
-        return above and below
+        return super().contains(value)
 
 
 # ---------------------------------------------------------------------------- models
@@ -181,9 +173,8 @@ class SceneContext:
             return Target(
                 name,
                 "n",
-                "1",
-                low,
-                N_LIMITS[self.fidelity],
+                low=low,
+                high=N_LIMITS[self.fidelity],
                 long_name="APS in the chain",
                 integer=True,
             )
@@ -196,21 +187,26 @@ class SceneContext:
                 raise ParameterError(
                     name, name, "a factor of this scene", "the scene sets load.m in [parameters]"
                 )
-            return Target(name, "load", "kg", 0.0, math.inf, long_name="hanging load (payload)")
+            return Target(name, "load", unit="kg", low=0.0, long_name="hanging load (payload)")
         if name == "pressure":
             self.pressure_signal()
             low, high = dynamic.command_range(self.model, b.overrides)
             return Target(
-                name, "pressure", "Pa", low, high, long_name="regulator command level (gauge)"
+                name,
+                "pressure",
+                unit="Pa",
+                low=low,
+                high=high,
+                long_name="regulator command level (gauge)",
             )
         if name == "family":
             levels = tuple(m.L_r for m in FAMILY)
             return Target(
                 name,
                 "family",
-                "m",
-                min(levels),
-                max(levels),
+                unit="m",
+                low=min(levels),
+                high=max(levels),
                 long_name="calibration family member (its L_r)",
                 levels=levels,
             )
@@ -220,17 +216,18 @@ class SceneContext:
             return Target(
                 name,
                 "aps",
-                meta["unit"],
-                meta["low"],
-                meta["high"],
-                meta["low_open"],
-                meta["high_open"],
-                f"APS {meta['description']} (every unit)",
+                **vars(APSParams.quantity(field)),
+                long_name=f"APS {meta['description']} (every unit)",
             )
         if name in self.model.param_names and name not in STRUCTURAL:
             var = self.model.variables[name]
             return Target(
-                name, "parameter", var.unit, var.low, var.high, long_name=var.description or name
+                name,
+                "parameter",
+                unit=var.unit,
+                low=var.low,
+                high=var.high,
+                long_name=var.description or name,
             )
         why = STRUCTURAL.get(name, "")
         names = [

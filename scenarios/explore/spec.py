@@ -634,12 +634,11 @@ def _relative_target(r: _Reader, path: tuple, target, ctx):
     return Target(
         name,
         "relative",
-        "1",
-        target.low / base,
-        target.high / base,
-        target.low_open,
-        target.high_open,
-        f"multiplier of the scene's {name} = {base:g} {target.unit}",
+        low=target.low / base,
+        high=target.high / base,
+        low_open=target.low_open,
+        high_open=target.high_open,
+        long_name=f"multiplier of the scene's {name} = {base:g} {target.unit}",
     )
 
 
@@ -777,6 +776,6 @@ def _series(r: _Reader, study, ctx) -> SeriesDef | None:
     from .factors import Target
 
     sim = ctx.scene.simulation
-    span = Target("time", "time", "s", sim.start_time, sim.stop_time)
+    span = Target("time", "time", unit="s", low=sim.start_time, high=sim.stop_time)
     times = _values(r, tbl["grid"], (*path, "grid"), span)
     return SeriesDef(tuple(signals), times)

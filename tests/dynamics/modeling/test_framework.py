@@ -108,7 +108,7 @@ def test_connecting_different_port_kinds_is_refused():
 
 
 def test_bad_parameter_names_value_and_range():
-    with pytest.raises(ParameterError, match=r"'mass.m' = -1.0.*\[1e-12, inf\] kg"):
+    with pytest.raises(ParameterError, match=r"'mass.m' = -1.0.*\[1e-12, inf\) kg"):
         sys = System("bad")
         sys.add(Mass("mass", m=-1.0))
 

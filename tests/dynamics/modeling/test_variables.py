@@ -57,7 +57,7 @@ def test_every_kind_maps_onto_fmi_causality_and_variability():
 
 def test_an_unknown_kind_is_refused_naming_the_variable():
     with pytest.raises(ModelError, match=r"variable 'a\.b' has kind 'stat'; one of \["):
-        Var("a.b", "stat", "m")
+        Var("a.b", "stat", unit="m")
 
 
 def test_nominal_defaults_to_the_magnitude_of_start_or_value():
@@ -92,7 +92,7 @@ def test_a_parameter_expression_start_gives_its_default_magnitude_as_nominal():
 @pytest.mark.parametrize("bad", [0.0, -1.0, math.inf, math.nan])
 def test_a_nonpositive_or_nonfinite_nominal_is_a_parameter_error(bad):
     with pytest.raises(ParameterError, match=r"parameter 'x\.nominal' = .* allowed: \(0, inf\) m"):
-        Var("x", Kind.STATE, "m", nominal=bad)
+        Var("x", Kind.STATE, unit="m", nominal=bad)
 
 
 def test_nominal_of_an_unknown_vector_is_refused():
