@@ -1,10 +1,10 @@
 """Variable records of the modelling language: what a flattened variable is.
 
 ``Kind`` names the role of a variable, ``Var`` is the metadata of one variable (kind,
-unit, start, nominal, bounds, source) and its FMI causality and variability;
-``Collected`` gathers every declaration of one system before flattening.
+unit, start, nominal, bounds, source); ``Collected`` gathers every declaration of one
+system before flattening.
 
-FMI mapping (``Var.fmi_causality`` / ``Var.fmi_variability``):
+FMI mapping (applied by ``fmu/description.py``):
 
 ========== =========== ============ ==========================================
 kind       causality   variability  note
@@ -40,16 +40,6 @@ class Kind(StrEnum):
     PARAMETER = "parameter"
     OUTPUT = "output"
     DERIVATIVE = "derivative"
-
-
-_FMI = {
-    Kind.STATE: ("local", "continuous"),
-    Kind.ALGEBRAIC: ("local", "continuous"),
-    Kind.DERIVATIVE: ("local", "continuous"),
-    Kind.INPUT: ("input", "continuous"),
-    Kind.OUTPUT: ("output", "continuous"),
-    Kind.PARAMETER: ("parameter", "fixed"),
-}
 
 
 @dataclass(frozen=True)
@@ -98,16 +88,6 @@ class Var(Quantity):
             raise Quantity(unit=self.unit, low=0.0, low_open=True).refuse(
                 f"{self.name}.nominal", self.nominal
             )
-
-    @property
-    def fmi_causality(self) -> str:
-        """FMI causality: "local", "input", "output" or "parameter"."""
-        return _FMI[self.kind][0]
-
-    @property
-    def fmi_variability(self) -> str:
-        """FMI variability: "continuous", or "fixed" for a parameter."""
-        return _FMI[self.kind][1]
 
 
 @dataclass

@@ -303,26 +303,6 @@ class ParameterSet:
             new.values(), checks=self._checks, derived=self._derived, name=self.name
         )
 
-    # -- docs ------------------------------------------------------------------------
-    def to_table(self) -> list[dict[str, object]]:
-        """Rows for documentation: name, value (SI), unit, range, source, description."""
-        rows = []
-        for p in self._params.values():
-            src = p.source
-            if p.name in self._derived:
-                src = f"derived: {self._derived[p.name].formula}; {src}"
-            rows.append(
-                {
-                    "name": p.name,
-                    "value": p.value,
-                    "unit": p.unit,
-                    "range": p.range_str,
-                    "source": src,
-                    "description": p.description,
-                }
-            )
-        return rows
-
     def __repr__(self) -> str:
         body = ", ".join(f"{p.name}={p.value:.6g} {p.unit}" for p in self._params.values())
         return f"ParameterSet({self.name!r}: {body})"

@@ -24,7 +24,6 @@ Two sets:
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 
 from ..errors import ParameterError
@@ -41,7 +40,6 @@ __all__ = [
     "myosin_height",
 ]
 
-INF = math.inf
 MM = 1e-3
 
 EXPERIMENTAL_SOURCE = "paper, Results: Experimental Setup"

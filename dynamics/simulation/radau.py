@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
 from . import compiled
-from .collocation import radau5_packed, radau5_tableau
+from .collocation import radau5_packed
 from .common import law_dae, method_options, require_ode
 from .settings import InputLaw, Segment, SolverSettings, add_stats, register_method
 
@@ -61,12 +61,6 @@ ROUNDOFF_ATOL, ROUNDOFF_RTOL = 1e-14, 1e-12
 muscle scenes run at rtol 1e-12 / atol 1e-14 and fail at atol 1e-15 (SI units)."""
 _STATS = ("n_steps", "n_rejected", "n_rhs", "n_jac", "n_lu", "n_newton", "n_newton_fail")
 _DEFAULTS = {"first_step": None, "max_step": np.inf, "max_newton": 7}
-
-
-def tableau() -> dict[str, np.ndarray]:
-    """The Radau IIA (3 stages) constants the C integrator takes
-    (:func:`.collocation.radau5_tableau`, the one home of the collocation)."""
-    return radau5_tableau()
 
 
 def _packed() -> np.ndarray:

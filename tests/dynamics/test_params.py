@@ -132,14 +132,6 @@ def test_derived_value_must_match_rule():
     assert ps.with_overrides({"a": 4.0})["b"] == 8.0
 
 
-def test_to_table_rows():
-    rows = experimental_geometry().to_table()
-    assert [r["name"] for r in rows][:3] == ["A", "h_m", "a_ch"]
-    row = rows[1]
-    assert set(row) >= {"name", "value", "unit", "range", "source"}
-    assert row["range"] == "(0, inf) m" and "derived" in row["source"]
-
-
 def test_fem_geometry():
     f = fem_geometry(0.5)
     assert f["h_ch"] == pytest.approx(FEM_H_CH_ESTIMATE_M)

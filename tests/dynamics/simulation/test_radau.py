@@ -17,6 +17,7 @@ from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.component import Component, System
 from sarcomere.dynamics.signals import Sine, Step
 from sarcomere.dynamics.simulation import compiled, radau
+from sarcomere.dynamics.simulation.collocation import radau5_tableau
 from sarcomere.dynamics.simulation.settings import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.simulator import Simulator
@@ -25,7 +26,7 @@ from sarcomere.dynamics.studies import workprecision as wp
 
 # --- the method's constants ---------------------------------------------------------------
 def test_tableau_is_radau_iia_with_hairers_transformation():
-    t = radau.tableau()
+    t = radau5_tableau()
     s6 = math.sqrt(6.0)
     A_published = np.array(  # Hairer & Wanner II, Table IV.5.6
         [
