@@ -106,19 +106,26 @@ CANDIDATES = (
 
 
 @dataclass
-class CalibrationResult:
-    """Fitted parameters, achieved targets, residuals and identifiability."""
+class Fit:
+    """A verified solution of the fit: parameters, achieved targets, relative residuals,
+    status, Newton iterations and accepted continuation steps."""
 
     params: APSParams
     fitted: dict[str, float]
     achieved: dict[str, float]
     residuals: dict[str, float]
-    sensitivities: dict[str, dict[str, float]]
-    singular_values: list[float]
-    not_identifiable: list[str]
     status: str
     iterations: int
     steps: int
+
+
+@dataclass
+class CalibrationResult(Fit):
+    """A :class:`Fit` with the identifiability of the candidates (:func:`sensitivities`)."""
+
+    sensitivities: dict[str, dict[str, float]]
+    singular_values: list[float]
+    not_identifiable: list[str]
 
     def to_dict(self) -> dict:
         """JSON-ready record with provenance."""
@@ -232,20 +239,6 @@ def evaluate(p: APSParams, rest_length: str = "hanging") -> dict[str, float]:
     return _targets(y, p, rest_length)
 
 
-@dataclass
-class Fit:
-    """A verified solution of the fit: parameters, achieved targets, relative residuals,
-    status, Newton iterations and accepted continuation steps."""
-
-    params: APSParams
-    fitted: dict[str, float]
-    achieved: dict[str, float]
-    residuals: dict[str, float]
-    status: str
-    iterations: int
-    steps: int
-
-
 def fit(
     start: APSParams,
     fitted: tuple[str, ...] = tuple(FITTED),
@@ -290,16 +283,7 @@ def calibrate(start: APSParams | None = None, verbose: bool = False) -> Calibrat
     f = fit(start or APSParams.from_paper(), verbose=verbose)
     sens, sv, weak = sensitivities(f.params)
     return CalibrationResult(
-        f.params,
-        f.fitted,
-        f.achieved,
-        f.residuals,
-        sens,
-        sv,
-        weak,
-        f.status,
-        f.iterations,
-        f.steps,
+        **vars(f), sensitivities=sens, singular_values=sv, not_identifiable=weak
     )
 
 

@@ -206,10 +206,6 @@ class PaperResult:
             raise ParameterError("signal", name, "one of " + ", ".join(self.names))
         return getattr(self, name)
 
-    def as_dict(self) -> dict[str, np.ndarray | None]:
-        """All signals by name."""
-        return {n: getattr(self, n) for n in self.names}
-
 
 # --------------------------------------------------------------------------------------
 # Pieces of the model

@@ -238,8 +238,6 @@ class ParameterSet:
         """Return a new dict name -> SI value (a dict, unlike ``Mapping.values``)."""
         return {k: p.value for k, p in self._params.items()}
 
-    as_dict = values
-
     def items(self) -> list[tuple[str, float]]:
         """(name, SI value) pairs in order."""
         return [(k, p.value) for k, p in self._params.items()]
