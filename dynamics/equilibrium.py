@@ -130,9 +130,6 @@ class _Newton:
         self.pattern = (np.array(pattern.row()), np.array(pattern.colind()), pattern.shape)
         self.sig = m.function("signals")
 
-    def residual(self, w, u, p) -> np.ndarray:
-        return self.F(w, u, p)
-
     def jacobian(self, w, u, p) -> sp.csc_matrix:
         rows, colind, shape = self.pattern
         return sp.csc_matrix((self.J(w, u, p), rows, colind), shape=shape)
@@ -142,9 +139,9 @@ class _Newton:
         entry times ``max(|w0_j|, 1e-6)`` (raises :class:`NewtonFailure`)."""
         scale = np.maximum(np.abs(w0), 1e-6)
         return damped_newton(
-            lambda w: (self.residual(w, u, p), self.jacobian(w, u, p)),
+            lambda w: (self.F(w, u, p), self.jacobian(w, u, p)),
             w0,
-            residual=lambda w: self.residual(w, u, p),
+            residual=lambda w: self.F(w, u, p),
             weights=lambda J: row_weights(J, scale),
             tol=tol,
             max_iter=max_iter,
