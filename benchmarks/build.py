@@ -35,7 +35,8 @@ import casadi as cs
 
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.simulation import compiled, radau
-from sarcomere.dynamics.simulation.common import HELD, law_dae
+from sarcomere.dynamics.simulation.common import law_dae
+from sarcomere.dynamics.simulation.settings import HELD
 
 
 def _first_use(model) -> None:
@@ -68,7 +69,7 @@ import sys, time
 tic = time.perf_counter()
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.simulation import radau
-from sarcomere.dynamics.simulation.common import HELD
+from sarcomere.dynamics.simulation.settings import HELD
 model = hanging_load({n}, load_kg=0.05)
 mid = time.perf_counter()
 lib = radau.library(model, HELD)

@@ -40,7 +40,7 @@ from sarcomere.dynamics import (
     solve_equilibrium,
 )
 from sarcomere.dynamics.modeling.component import Component, System
-from sarcomere.dynamics.simulation.common import HELD
+from sarcomere.dynamics.simulation.settings import HELD
 from sarcomere.dynamics.simulation.sundials import integrator
 
 N_STEPS, H = 1000, 0.01

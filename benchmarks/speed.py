@@ -10,7 +10,7 @@ half decades, every point timed as the median of ``--repeats`` warm calls of
 
 Then the CVODES path is taken apart (cold call, integrator, output evaluation,
 restart) and a compiled right-hand side (CasADi ``jit`` with gcc -O2) is measured, and
-the compiled Radau IIA (``radau``) is split into its per-step costs
+the compiled Radau IIA (``radau``) is split into Python and C time
 (:func:`dissect_radau`).
 Last, why BDF needs more steps than Radau (:func:`bdf_steps`): CVODES steps at error 1e-6
 per maximum BDF order, with the exact flow law and its C1 variant, and the angles of the
@@ -34,10 +34,11 @@ import numpy as np
 from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.simulation import radau
-from sarcomere.dynamics.simulation.common import HELD
+from sarcomere.dynamics.simulation.settings import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.sundials import integrator
 from sarcomere.dynamics.studies import workprecision as wp
+from sarcomere.dynamics.studies.pysource import register_baseline
 
 TARGET = 1e-6
 TOLERANCES = tuple(10.0 ** (-k / 2) for k in range(5, 17))
@@ -202,9 +203,8 @@ def dissect_cvodes(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
 def dissect_radau(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
     """Where the time of one ``simulate`` call with ``radau`` goes: ``simulate`` in
     total, the method's share (``meta["wall_time_s"]``), the two compiled integrator
-    calls alone, and inside them the counted RHS, Jacobian, LU and solve calls times
-    their unit costs (:func:`radau.unit_costs`, timed inside the library); the rest of
-    the C time is the integrator's own vector work and outputs."""
+    calls alone and the integrator's counters (the split of the C time into RHS,
+    Jacobian, LU and solves was timed by ``radau.unit_costs``, removed after 0248a69)."""
     model, x0 = sc.setup()
     settings = SolverSettings("radau", rtol, rtol * wp.ATOL_PER_RTOL)
     tic = time.perf_counter()
@@ -239,16 +239,6 @@ def dissect_radau(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
             assert code == 0, code
 
     c_calls = median_wall(direct, repeats)[1]
-    unit = radau.unit_costs(model, HELD, 1.0, x0, np.array([sc.command(1.0)]), p, 0.02)
-    n_attempts = counts["n_steps"] + counts["n_rejected"] + counts["n_newton_fail"]
-    parts = {
-        "rhs": counts["n_rhs"] * unit["rhs"],
-        "jacobian": counts["n_jac"] * unit["jac"],
-        "lu_pairs": counts["n_lu"] * unit["lu"],
-        "newton_solves": counts["n_newton"] * unit["solve"],
-        "error_solves": n_attempts * unit["solve_real"],
-    }
-    parts["integrator_own_work_and_outputs"] = c_calls - sum(parts.values())
     total, method = statistics.median(totals), statistics.median(methods)
     return {
         "rtol": rtol,
@@ -260,9 +250,6 @@ def dissect_radau(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
         "python_around_c_s": method - c_calls,
         "simulate_outside_method_s": total - method,
         "counts": counts,
-        "unit_costs_s": unit,
-        "c_parts_s": parts,
-        "per_step_us": {k: 1e6 * v / counts["n_steps"] for k, v in parts.items()},
         "c_per_step_us": 1e6 * c_calls / counts["n_steps"],
     }
 
@@ -413,6 +400,7 @@ def main() -> None:
         "--bdf-only", action="store_true", help="only the BDF step study (10 s), no timings"
     )
     args = parser.parse_args()
+    register_baseline()
     sc = wp.scenarios(3)["step"]
     if args.bdf_only:
         bdf = bdf_steps(sc)

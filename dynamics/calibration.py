@@ -14,11 +14,11 @@ model's own length at 0 MPa without load (hanging under its own weight and the 1
 in both ratios: the paper's strain ``(L[P, load] - L[0, load]) / L[0, 0]`` is normalised
 by that length, and its 0 g curve ends at -12.5 % = 0.875 - 1. The alternative, ``L'`` the
 undeformed ``n (A + 2 r1')`` (:func:`rest_length_undeformed`, 164.94 mm: the 165 mm the
-paper "measured in advance"), has no physical fit (:func:`rest_length_study`): the two
-length ratios then give an isometric force of 0.48 N or more for any thread stiffness,
-against 0.315 N. So the hanging chain is 170.6 mm against the measured 165 mm: a
-contradiction in the paper's numbers for SPA bodies of about 8.6 g, stated in
-docs/paper.md, "Rest length".
+paper "measured in advance"), has no physical fit (:func:`fit` with ``rest_length =
+"undeformed"``, tests/dynamics/test_calibration.py): the two length ratios then give an
+isometric force of 0.48 N or more for any thread stiffness, against 0.315 N. So the
+hanging chain is 170.6 mm against the measured 165 mm: a contradiction in the paper's
+numbers for SPA bodies of about 8.6 g, stated in docs/paper.md, "Rest length".
 
 Fitted: the effective pneumatic area ``A_p``, the restoring cross-section ``A_r`` and
 the I-band series stiffness ``k_s``, in log space. The three targets and every
@@ -106,19 +106,26 @@ CANDIDATES = (
 
 
 @dataclass
-class CalibrationResult:
-    """Fitted parameters, achieved targets, residuals and identifiability."""
+class Fit:
+    """A verified solution of the fit: parameters, achieved targets, relative residuals,
+    status, Newton iterations and accepted continuation steps."""
 
     params: APSParams
     fitted: dict[str, float]
     achieved: dict[str, float]
     residuals: dict[str, float]
-    sensitivities: dict[str, dict[str, float]]
-    singular_values: list[float]
-    not_identifiable: list[str]
     status: str
     iterations: int
     steps: int
+
+
+@dataclass
+class CalibrationResult(Fit):
+    """A :class:`Fit` with the identifiability of the candidates (:func:`sensitivities`)."""
+
+    sensitivities: dict[str, dict[str, float]]
+    singular_values: list[float]
+    not_identifiable: list[str]
 
     def to_dict(self) -> dict:
         """JSON-ready record with provenance."""
@@ -232,20 +239,6 @@ def evaluate(p: APSParams, rest_length: str = "hanging") -> dict[str, float]:
     return _targets(y, p, rest_length)
 
 
-@dataclass
-class Fit:
-    """A verified solution of the fit: parameters, achieved targets, relative residuals,
-    status, Newton iterations and accepted continuation steps."""
-
-    params: APSParams
-    fitted: dict[str, float]
-    achieved: dict[str, float]
-    residuals: dict[str, float]
-    status: str
-    iterations: int
-    steps: int
-
-
 def fit(
     start: APSParams,
     fitted: tuple[str, ...] = tuple(FITTED),
@@ -290,16 +283,7 @@ def calibrate(start: APSParams | None = None, verbose: bool = False) -> Calibrat
     f = fit(start or APSParams.from_paper(), verbose=verbose)
     sens, sv, weak = sensitivities(f.params)
     return CalibrationResult(
-        f.params,
-        f.fitted,
-        f.achieved,
-        f.residuals,
-        sens,
-        sv,
-        weak,
-        f.status,
-        f.iterations,
-        f.steps,
+        **vars(f), sensitivities=sens, singular_values=sv, not_identifiable=weak
     )
 
 
@@ -433,31 +417,6 @@ def sensitivities(p: APSParams, rel_step: float = 1e-4) -> tuple[dict, list[floa
     sv = np.linalg.svd(S[:, [names.index(k) for k in FITTED]], compute_uv=False).tolist()
     weak = [n for n in names if np.max(np.abs(S[:, names.index(n)])) < 1e-6]
     return sens, sv, weak
-
-
-def rest_length_study(
-    k_s_values: tuple[float, ...] = (694.0, 5e3, 1e5, 1e6), eps_slack: float = 1e-6
-) -> list[dict]:
-    """The evidence against ``L'`` undeformed (docs/paper.md, "Rest length"): for each
-    fixed thread stiffness ``k_s`` [N/m], ``A_p`` and ``A_r`` fitted to the two length
-    ratios with ``L' = n (A + 2 r1')``, and the isometric force [N] and hanging rest
-    length [m] that fit gives. ``eps_slack`` [m] small, so that ``k_s eps_slack`` stays
-    below the experiments' tensions up to large ``k_s``."""
-    rows = []
-    for k_s in k_s_values:
-        start = APSParams.from_paper(k_s=float(k_s), eps_slack=eps_slack)
-        f = fit(start, ("A_p", "A_r"), tuple(TARGETS)[1:], rest_length="undeformed")
-        force = evaluate(f.params, "undeformed")["force_n1_0p1MPa_N"]
-        rows.append(
-            {
-                "k_s_N_per_m": float(k_s),
-                "A_p_m2": f.fitted["A_p"],
-                "A_r_m2": f.fitted["A_r"],
-                "force_n1_0p1MPa_N": force,
-                "rest_length_hanging_n3_m": rest_length_hanging(3, f.params),
-            }
-        )
-    return rows
 
 
 CONCENTRIC_LOADS_KG = (0.0, 0.01, 0.02, 0.05, 0.1)

@@ -130,9 +130,6 @@ class _Newton:
         self.pattern = (np.array(pattern.row()), np.array(pattern.colind()), pattern.shape)
         self.sig = m.function("signals")
 
-    def residual(self, w, u, p) -> np.ndarray:
-        return self.F(w, u, p)
-
     def jacobian(self, w, u, p) -> sp.csc_matrix:
         rows, colind, shape = self.pattern
         return sp.csc_matrix((self.J(w, u, p), rows, colind), shape=shape)
@@ -142,9 +139,9 @@ class _Newton:
         entry times ``max(|w0_j|, 1e-6)`` (raises :class:`NewtonFailure`)."""
         scale = np.maximum(np.abs(w0), 1e-6)
         return damped_newton(
-            lambda w: (self.residual(w, u, p), self.jacobian(w, u, p)),
+            lambda w: (self.F(w, u, p), self.jacobian(w, u, p)),
             w0,
-            residual=lambda w: self.residual(w, u, p),
+            residual=lambda w: self.F(w, u, p),
             weights=lambda J: row_weights(J, scale),
             tol=tol,
             max_iter=max_iter,
@@ -231,8 +228,8 @@ def _input_value(m: Model, name: str, raw: object) -> float:
     """An input value in SI (numbers or quantity strings), finite and inside its bounds."""
     var = m.variables[name]
     value = to_si(raw, var.unit, f"inputs.{name}")
-    if not (np.isfinite(value) and var.low <= value <= var.high):
-        raise ParameterError(f"inputs.{name}", raw, f"[{var.low:g}, {var.high:g}] {var.unit}")
+    if not (np.isfinite(value) and var.contains(value)):
+        raise var.refuse(f"inputs.{name}", raw)
     return value
 
 
@@ -318,5 +315,5 @@ def out_of_domain(model: Model, values: np.ndarray, names: list[str] | None = No
     out = np.flatnonzero((row < var.low) | (row > var.high))
     return (
         f"{name} = {row[out[0]]:.4g} {var.unit} is outside its physical domain "
-        f"[{var.low:.4g}, {var.high:.4g}] ({var.description})"
+        f"{var.range_str} ({var.description})"
     )

@@ -42,7 +42,8 @@ from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import radau
 from sarcomere.dynamics.simulation.collocation import radau5_packed
-from sarcomere.dynamics.simulation.common import HELD, law_dae
+from sarcomere.dynamics.simulation.common import law_dae
+from sarcomere.dynamics.simulation.settings import HELD
 
 CS_RTOL = 1e-8
 """Relative tolerance of a Co-Simulation ``doStep`` when the importer defines none

@@ -332,8 +332,8 @@ def start_point(
         if k not in model.input_names:
             raise ParameterError("inputs", k, f"an input of model '{model.name}'")
         var = model.variables[k]
-        if not (var.low <= float(v) <= var.high):
-            raise ParameterError(k, v, f"[{var.low:g}, {var.high:g}] {var.unit}")
+        if not var.contains(float(v)):
+            raise var.refuse(k, v)
         u[model.input_names.index(k)] = float(v)
     eq = solve_equilibrium(model, dict(zip(model.input_names, u, strict=True)), params)
     return eq.x, u, p

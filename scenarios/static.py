@@ -29,13 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.dynamics.paper import (
-    PaperOptions,
-    paper_static,
-    rest_length,
-    table1_mean_max_force,
-    theta_rest,
-)
+from sarcomere.dynamics.paper import PaperOptions, paper_static, rest_length, theta_rest
+from sarcomere.dynamics.paper_reported import table1_mean_max_force
 from sarcomere.dynamics.params import (
     ParameterSet,
     YeohMaterial,

@@ -28,16 +28,19 @@ from ..modeling import laws
 from ..modeling.component import Builder, Component
 from ..modeling.ports import FLANGE
 from ..params import experimental_geometry, get_material, yeoh_energy
-from ..params.core import format_range
+from ..params.core import Quantity
 from .mechanical import Damper, Fixed, Mass, Node, ViscousNode
 from .pneumatic import THERMAL, Chamber, InstantChamber
 
 
 def _f(default, unit: str, low: float, high: float, source: str, description: str, **kw):
-    """An APSParams field: default [unit], allowed range ``[low, high]`` (``low_open`` /
-    ``high_open`` exclude the bound), source and description."""
-    meta = {"unit": unit, "low": low, "high": high, "source": source, "description": description}
-    return field(default=default, metadata={**meta, "low_open": False, "high_open": False, **kw})
+    """An APSParams field: default [unit], allowed range ``[low, high]`` (a
+    :class:`Quantity`; ``low_open`` / ``high_open`` exclude the bound; ``inf_ok``: inf
+    allowed), source and description."""
+    inf_ok = kw.pop("inf_ok", False)
+    q = Quantity(unit=unit, low=low, high=high, **kw)
+    meta = {"quantity": q, "source": source, "description": description, "inf_ok": inf_ok}
+    return field(default=default, metadata=meta)
 
 
 _POS = {"low_open": True}  # (0, inf)
@@ -49,7 +52,7 @@ class APSParams:
     """Effective parameters of one APS (SI). Geometry defaults: the paper's experimental APS.
 
     Every numeric field carries its unit, allowed range, source and description in its
-    metadata (:meth:`spec`, :meth:`unit`): the one place they are written. Out-of-range
+    metadata (:meth:`quantity`, :meth:`unit`): the one place they are written. Out-of-range
     values raise a :class:`ParameterError` naming the field, the value and the range.
     """
 
@@ -133,18 +136,17 @@ class APSParams:
                 if v not in f.metadata["choices"]:
                     raise ParameterError(f.name, v, f"one of {f.metadata['choices']}")
                 continue
-            if "unit" not in f.metadata:
+            if "quantity" not in f.metadata:
                 continue
-            m = f.metadata
+            q = f.metadata["quantity"]
             ok = (
                 isinstance(v, int | float)
                 and not isinstance(v, bool)
-                and (math.isfinite(v) or (v == math.inf and m.get("inf_ok", False)))
-                and (v > m["low"] if m["low_open"] else v >= m["low"])
-                and (v < m["high"] if m["high_open"] else v <= m["high"])
+                and (math.isfinite(v) or (v == math.inf and f.metadata["inf_ok"]))
+                and q.contains(v)
             )
             if not ok:
-                raise ParameterError(f.name, v, self.spec(f.name))
+                raise q.refuse(f.name, v)
         if self.w0 >= self.l:
             raise ParameterError(
                 "w0",
@@ -156,18 +158,17 @@ class APSParams:
     @classmethod
     def unit(cls, name: str) -> str:
         """SI unit of a numeric field (``"1"``: dimensionless)."""
-        return _field(name).metadata["unit"]
+        return _field(name).metadata["quantity"].unit
 
     @classmethod
-    def spec(cls, name: str) -> str:
-        """Allowed range of a numeric field with its unit, e.g. ``"(0, inf) m"``."""
-        m = _field(name).metadata
-        return format_range(m["low"], m["high"], not m["low_open"], not m["high_open"], m["unit"])
+    def quantity(cls, name: str) -> Quantity:
+        """Unit and allowed range of a numeric field."""
+        return _field(name).metadata["quantity"]
 
     @classmethod
     def numeric_fields(cls) -> tuple[str, ...]:
         """Names of the numeric fields (those with a unit)."""
-        return tuple(f.name for f in fields(cls) if "unit" in f.metadata)
+        return tuple(f.name for f in fields(cls) if "quantity" in f.metadata)
 
     @classmethod
     def from_paper(cls, material: str = "dragonskin_30", **overrides) -> APSParams:
@@ -201,7 +202,7 @@ class APSParams:
 @functools.cache  # a class's fields do not change; every APS asks for a dozen
 def _field(name: str):
     for f in fields(APSParams):
-        if f.name == name and "unit" in f.metadata:
+        if f.name == name and "quantity" in f.metadata:
             return f
     raise ParameterError("APSParams field", name, f"one of {APSParams.numeric_fields()}")
 
@@ -225,13 +226,14 @@ def aps_parameter(b: Builder, p: APSParams, name: str, source: str | None = None
     """Declare the APSParams field ``name`` as a model parameter with the field's value,
     unit, range (closed at its bounds) and source: the one place they are written."""
     m = _field(name).metadata
+    q = m["quantity"]
     return b.parameter(
         name,
         getattr(p, name),
-        m["unit"],
+        q.unit,
         m["description"],
-        low=m["low"] if not m["low_open"] else math.nextafter(m["low"], math.inf),
-        high=m["high"],
+        low=q.low if not q.low_open else math.nextafter(q.low, math.inf),
+        high=q.high,
         source=source or m["source"],
     )
 

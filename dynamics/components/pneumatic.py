@@ -27,22 +27,6 @@ THERMAL = ("isothermal", "adiabatic")
 adiabatic (insulated) chamber."""
 
 
-class PressureSource(Component):
-    """An ideal source of absolute pressure ``p`` [Pa] (a parameter, or the model input
-    ``p`` with ``as_input=True``)."""
-
-    def __init__(self, name: str, p: float = 101325.0, as_input: bool = False) -> None:
-        super().__init__(name)
-        self.p, self.as_input = p, as_input
-
-    def build(self, b: Builder) -> None:
-        if self.as_input:
-            p = b.input("p", "Pa", "absolute pressure", self.p, low=0.0)
-        else:
-            p = b.parameter("p", self.p, "Pa", "absolute pressure", low=0.0)
-        b.equation(b.port("port", PNEUMATIC).p, p)
-
-
 class Regulator(Component):
     """Proportional pressure regulator: commanded gauge pressure, first-order lag.
 
@@ -331,35 +315,3 @@ class InstantChamber(Component):
         b.equation(port.m_flow, 0.0)
         # no air: the stored energy e_gas + p_amb V of the wall law is -(p - p_amb) V
         b.energy("gas", _pressed_wall(b, wall, p, V, -p * V, p_amb, A))
-
-
-class Cap(Component):
-    """A closed pneumatic port: no mass flow."""
-
-    def build(self, b: Builder) -> None:
-        b.equation(b.port("port", PNEUMATIC).m_flow, 0.0)
-
-
-class SealedVolume(Component):
-    """A :class:`Chamber` behind a :class:`Cap`: a gas spring on the flange (position s).
-
-    Parameters as :class:`Chamber`; the air mass is constant, so an isothermal volume
-    keeps ``p V`` constant and an adiabatic one ``p V^gamma``.
-    """
-
-    def __init__(
-        self,
-        name: str,
-        V0: float,
-        A: float,
-        p_start_gauge: float = 0.0,
-        thermal: str = "isothermal",
-        tau_heat: float = math.inf,
-    ) -> None:
-        super().__init__(name)
-        self.chamber = Chamber("chamber", V0, A, p_start_gauge, thermal, tau_heat)  # checks them
-
-    def build(self, b: Builder) -> None:
-        ch = b.add(self.chamber)
-        b.connect(ch.port, b.add(Cap("cap")).port)
-        b.expose("flange", ch.flange)

@@ -15,7 +15,7 @@ import math
 
 import casadi as cs
 
-from ..errors import ModelError, ParameterError
+from ..errors import ModelError
 from .flatten import flatten
 from .labels import NAME, NAME_RULE
 from .model import Model
@@ -101,10 +101,18 @@ class Builder:
         """A named model parameter [unit] with default ``value`` (checked against the range)
         and scaling magnitude ``nominal`` [unit] (default ``|value|``, or 1 for 0)."""
         value = float(value)
-        full = self._full(name)
-        if not (low <= value <= high) or math.isnan(value):
-            raise ParameterError(full, value, f"[{low:g}, {high:g}] {unit}")
-        var = Var(full, Kind.PARAMETER, unit, description, value, low, high, value, source, nominal)
+        var = Var(
+            self._full(name),
+            Kind.PARAMETER,
+            unit=unit,
+            description=description,
+            start=value,
+            low=low,
+            high=high,
+            value=value,
+            source=source,
+            nominal=nominal,
+        )  # refuses a value outside [low, high]
         return self._new(name, var)
 
     def state(
@@ -136,7 +144,17 @@ class Builder:
         start = self._start(full, start)
         self._track_nominal(full, start, nominal)
         return self._new(
-            name, Var(full, kind, unit, description, start, low, high, nominal=nominal)
+            name,
+            Var(
+                full,
+                kind,
+                unit=unit,
+                description=description,
+                start=start,
+                low=low,
+                high=high,
+                nominal=nominal,
+            ),
         )
 
     def _start(self, full: str, start: float | cs.SX) -> float | cs.SX:
@@ -181,8 +199,8 @@ class Builder:
             Var(
                 self._full(pot_name),
                 Kind.ALGEBRAIC,
-                kind.potential_unit,
-                f"{kind.name} {name}: {kind.potential}",
+                unit=kind.potential_unit,
+                description=f"{kind.name} {name}: {kind.potential}",
             ),
         )
         flow = self._declare(
@@ -190,8 +208,8 @@ class Builder:
             Var(
                 self._full(flow_name),
                 Kind.ALGEBRAIC,
-                kind.flow_unit,
-                f"{kind.name} {name}: {kind.flow} (into)",
+                unit=kind.flow_unit,
+                description=f"{kind.name} {name}: {kind.flow} (into)",
             ),
         )
         p = Port(kind, f"{self.path}.{name}" if self.path else name, pot, flow)
@@ -245,7 +263,8 @@ class Builder:
         Used where a transport element needs a velocity (a damper): flattening replaces
         it by ``d expr/dx . dx/dt`` once ``expr`` is known in terms of the states.
         """
-        sym = self._new(name, Var(self._full(name), Kind.DERIVATIVE, unit, description))
+        var = Var(self._full(name), Kind.DERIVATIVE, unit=unit, description=description)
+        sym = self._new(name, var)
         self._c.time_derivatives[sym.name()] = _sx(expr)
         return sym
 
@@ -276,7 +295,13 @@ class Builder:
         if full in self._c.outputs or full in self._c.variables:
             raise ModelError(f"output '{full}' declared twice")
         self._c.variables[full] = Var(
-            full, Kind.OUTPUT, unit, description, low=low, high=high, nominal=nominal
+            full,
+            Kind.OUTPUT,
+            unit=unit,
+            description=description,
+            low=low,
+            high=high,
+            nominal=nominal,
         )
         self._c.outputs[full] = _sx(expr)
 

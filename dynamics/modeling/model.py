@@ -145,8 +145,8 @@ class Model:
                 raise ParameterError(key, raw, f"a parameter of model '{self.name}'", hint)
             var = self.variables[key]
             val = to_si(raw, var.unit, key)
-            if not (var.low <= val <= var.high):
-                raise ParameterError(key, raw, f"[{var.low:g}, {var.high:g}] {var.unit}")
+            if not var.contains(val):
+                raise var.refuse(key, raw)
             values[key] = val
         return np.array([values[n] for n in self.param_names], dtype=float)
 
@@ -295,11 +295,6 @@ class Model:
                 for old in [k for k in cache if k[0] == "signals"][:32]:
                     del cache[old]
         return cache[key]
-
-    @property
-    def energy_names(self) -> list[str]:
-        """Names of the stored-energy terms, in the order of ``function("energy")["terms"]``."""
-        return list(self._energies)
 
     def describe(self) -> str:
         """A one-paragraph summary: sizes and the first variables."""

@@ -1,10 +1,10 @@
 """Variable records of the modelling language: what a flattened variable is.
 
 ``Kind`` names the role of a variable, ``Var`` is the metadata of one variable (kind,
-unit, start, nominal, bounds, source) and its FMI causality and variability;
-``Collected`` gathers every declaration of one system before flattening.
+unit, start, nominal, bounds, source); ``Collected`` gathers every declaration of one
+system before flattening.
 
-FMI mapping (``Var.fmi_causality`` / ``Var.fmi_variability``):
+FMI mapping (applied by ``fmu/description.py``):
 
 ========== =========== ============ ==========================================
 kind       causality   variability  note
@@ -21,12 +21,13 @@ parameter  parameter   fixed        a change needs a new initialisation
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 from enum import StrEnum
 
 import casadi as cs
 
-from ..errors import ModelError, ParameterError
+from ..errors import ModelError
+from ..params.core import Quantity
 from .ports import Port
 
 
@@ -41,35 +42,26 @@ class Kind(StrEnum):
     DERIVATIVE = "derivative"
 
 
-_FMI = {
-    Kind.STATE: ("local", "continuous"),
-    Kind.ALGEBRAIC: ("local", "continuous"),
-    Kind.DERIVATIVE: ("local", "continuous"),
-    Kind.INPUT: ("input", "continuous"),
-    Kind.OUTPUT: ("output", "continuous"),
-    Kind.PARAMETER: ("parameter", "fixed"),
-}
-
-
 @dataclass(frozen=True)
-class Var:
-    """Metadata of one flattened variable.
+class Var(Quantity):
+    """Metadata of one flattened variable: a :class:`~..params.core.Quantity` (unit and
+    range, keywords) with its kind, start and scaling.
 
     ``kind`` is a :class:`Kind` (or its string). ``value`` is the default of a
-    parameter; ``start`` the start value of the rest [unit]: a float, or a CasADi
-    expression of parameter symbols (evaluated by :meth:`Model.x0` and friends at the
-    parameter vector in use). ``nominal`` [unit] is the magnitude for solver scaling,
-    > 0; by default ``|value|`` (parameters) or ``|start|`` (the rest) when that is a
-    nonzero float, else 1.
+    parameter, refused outside its range; ``start`` the start value of the rest [unit]:
+    a float, or a CasADi expression of parameter symbols (evaluated by :meth:`Model.x0`
+    and friends at the parameter vector in use). ``nominal`` [unit] is the magnitude for
+    solver scaling, > 0; by default ``|value|`` (parameters) or ``|start|`` (the rest)
+    when that is a nonzero float, else 1. The range is held closed: an open bound is
+    stored as the float next to it inside, so that the solvers' and the FMU's closed
+    comparisons (``low <= v <= high``) hold as they are.
     """
 
     name: str
     kind: Kind
-    unit: str
+    _: KW_ONLY
     description: str = ""
     start: float | cs.SX = 0.0
-    low: float = -math.inf
-    high: float = math.inf
     value: float = math.nan
     source: str = ""
     nominal: float | None = None
@@ -81,22 +73,21 @@ class Var:
             raise ModelError(
                 f"variable '{self.name}' has kind {self.kind!r}; one of {[k.value for k in Kind]}"
             ) from None
+        for bound, inward in (("low", math.inf), ("high", -math.inf)):
+            value, flag = getattr(self, bound), f"{bound}_open"
+            if getattr(self, flag) and math.isfinite(value):
+                object.__setattr__(self, bound, math.nextafter(value, inward))
+            object.__setattr__(self, flag, False)
+        if self.kind is Kind.PARAMETER and not self.contains(self.value):
+            raise self.refuse(self.name, self.value)
         if self.nominal is None:
             base = self.value if self.kind is Kind.PARAMETER else self.start
             ok = isinstance(base, float | int) and math.isfinite(base) and base != 0.0
             object.__setattr__(self, "nominal", abs(float(base)) if ok else 1.0)
         elif not (0.0 < self.nominal < math.inf):
-            raise ParameterError(f"{self.name}.nominal", self.nominal, f"(0, inf) {self.unit}")
-
-    @property
-    def fmi_causality(self) -> str:
-        """FMI causality: "local", "input", "output" or "parameter"."""
-        return _FMI[self.kind][0]
-
-    @property
-    def fmi_variability(self) -> str:
-        """FMI variability: "continuous", or "fixed" for a parameter."""
-        return _FMI[self.kind][1]
+            raise Quantity(unit=self.unit, low=0.0, low_open=True).refuse(
+                f"{self.name}.nominal", self.nominal
+            )
 
 
 @dataclass

@@ -9,7 +9,7 @@
 """
 
 from .ambient import Ambient
-from .core import Check, Derived, Param, ParameterSet, format_range
+from .core import Check, Derived, Param, ParameterSet, Quantity
 from .geometry import (
     FEM_H_CH_ESTIMATE_M,
     FEM_T_W_OVER_H_CH,
@@ -41,6 +41,7 @@ __all__ = [
     "Derived",
     "Param",
     "ParameterSet",
+    "Quantity",
     "YeohMaterial",
     "anchor_spacing",
     "cauchy_stress",
@@ -48,7 +49,6 @@ __all__ = [
     "check_anchors_fit_thread",
     "experimental_geometry",
     "fem_geometry",
-    "format_range",
     "get_material",
     "monotone_branch",
     "myosin_height",

@@ -8,10 +8,8 @@ metadata and in :meth:`Ambient.params`.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 
-from ..errors import ParameterError
 from .core import Param, ParameterSet
 
 __all__ = ["Ambient"]
@@ -63,13 +61,8 @@ class Ambient:
     kappa: float = _f(1.4, "1", "ideal diatomic gas", "ratio of specific heats")
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, int | float):
-                raise ParameterError(f.name, v, f"(0, inf) {f.metadata['unit']}")
-            if not (math.isfinite(v) and v > 0):
-                raise ParameterError(f.name, v, f"(0, inf) {f.metadata['unit']}")
-            object.__setattr__(self, f.name, float(v))
+        for p in self.params().params:  # each field checked as a Param: finite, > 0
+            object.__setattr__(self, p.name, p.value)
 
     def params(self) -> ParameterSet:
         """The fields as a :class:`ParameterSet` (with units, ranges and sources)."""
@@ -78,9 +71,9 @@ class Ambient:
                 Param(
                     f.name,
                     getattr(self, f.name),
-                    f.metadata["unit"],
-                    0.0,
-                    math.inf,
+                    unit=f.metadata["unit"],
+                    low=0.0,
+                    low_open=True,
                     source=f.metadata["source"],
                     description=f.metadata["description"],
                 )

@@ -1,6 +1,7 @@
 """Parameters with units, ranges and sources, and immutable named sets of them.
 
-A :class:`Param` is one SI value with its unit, its allowed range and where the number
+A :class:`Quantity` is a unit and an allowed range (the one record of them, with the one
+refusal text); a :class:`Param` is one SI value with its quantity and where the number
 comes from. A :class:`ParameterSet` is an ordered, immutable collection of them that
 also knows
 
@@ -26,12 +27,12 @@ import dataclasses
 import difflib
 import math
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 from ..errors import ParameterError
 from ..units import to_si
 
-__all__ = ["Check", "Derived", "Param", "ParameterSet", "format_range"]
+__all__ = ["Check", "Derived", "Param", "ParameterSet", "Quantity"]
 
 Check = Callable[[Mapping[str, float]], None]
 """A cross check: receives ``{name: SI value}`` and raises ParameterError if violated."""
@@ -43,32 +44,58 @@ def _fmt(x: float) -> str:
     return f"{x:.6g}"
 
 
-def format_range(
-    low: float,
-    high: float,
-    low_inclusive: bool,
-    high_inclusive: bool,
-    unit: str = "1",
-) -> str:
-    """Return an interval such as ``"(0, inf) m"`` or ``"[0, 1] 1"``.
+_ABOVE_ZERO = math.nextafter(0.0, 1.0)
 
-    Parameters
+
+@dataclass(frozen=True, kw_only=True)
+class Quantity:
+    """The unit and allowed range of a value: the one record behind a :class:`Param`, a
+    model variable (``modeling.variables.Var``), an ``APSParams`` field and a study
+    factor's target, with the one refusal text (:meth:`refuse`).
+
+    Attributes
     ----------
-    low, high : float
-        Bounds in SI units (may be infinite).
-    low_inclusive, high_inclusive : bool
-        Whether the bounds belong to the interval (ignored for infinite bounds).
     unit : str, default "1"
-        SI unit string appended to the interval ("1" = dimensionless).
+        SI unit string ("m", "Pa", "kg/m^3"; "1" for dimensionless).
+    low, high : float, default -inf, inf
+        Bounds of the range [unit].
+    low_open, high_open : bool, default False
+        Whether a bound is excluded (an infinite bound always reads as open).
     """
-    left = "[" if low_inclusive and math.isfinite(low) else "("
-    right = "]" if high_inclusive and math.isfinite(high) else ")"
-    return f"{left}{_fmt(low)}, {_fmt(high)}{right} {unit}"
+
+    unit: str = "1"
+    low: float = -math.inf
+    high: float = math.inf
+    low_open: bool = False
+    high_open: bool = False
+
+    @property
+    def range_str(self) -> str:
+        """The range as text with its unit: ``"(0, inf) m"``, ``"[0, 1]"`` (no unit when
+        dimensionless). A closed bound at the float next to 0 reads as open at 0 (the
+        same floats)."""
+        low, left = self.low, "(" if self.low_open or math.isinf(self.low) else "["
+        if low == _ABOVE_ZERO and not self.low_open:
+            low, left = 0.0, "("
+        right = ")" if self.high_open or math.isinf(self.high) else "]"
+        unit = "" if self.unit == "1" else f" {self.unit}"
+        return f"{left}{_fmt(low)}, {_fmt(self.high)}{right}{unit}"
+
+    def contains(self, x: float) -> bool:
+        """Whether ``x`` [unit] lies in the range (NaN never does)."""
+        above = x > self.low if self.low_open else x >= self.low
+        below = x < self.high if self.high_open else x <= self.high
+        return bool(above and below)
+
+    def refuse(self, name: str, value: object, reason: str = "") -> ParameterError:
+        """The error refusing ``value`` for ``name``: it names both and the range."""
+        return ParameterError(name, value, self.range_str, reason)
 
 
 @dataclass(frozen=True)
-class Param:
-    """One model parameter: an SI value with unit, allowed range and source.
+class Param(Quantity):
+    """One model parameter: an SI value with unit, allowed range (:class:`Quantity`,
+    keywords) and source.
 
     Attributes
     ----------
@@ -76,12 +103,6 @@ class Param:
         Symbol used everywhere (code, tables, docs), e.g. ``"h_ch"``.
     value : float
         Value in SI units.
-    unit : str, default "1"
-        SI unit string ("m", "Pa", "kg/m^3"; "1" for dimensionless).
-    low, high : float, default -inf, inf
-        Bounds of the allowed range, SI.
-    low_inclusive, high_inclusive : bool, default False
-        Whether the bounds themselves are allowed.
     source : str, default "estimate"
         Where the number comes from: a paper equation or section, a data sheet,
         ``"calibrated against ..."`` or ``"estimate"``.
@@ -96,34 +117,19 @@ class Param:
 
     name: str
     value: float
-    unit: str = "1"
-    low: float = -math.inf
-    high: float = math.inf
-    low_inclusive: bool = False
-    high_inclusive: bool = False
+    _: KW_ONLY
     source: str = "estimate"
     description: str = ""
 
     def __post_init__(self) -> None:
         v = self.value
         if isinstance(v, bool) or not isinstance(v, int | float):
-            raise ParameterError(self.name, v, f"a number in {self.range_str}")
+            raise self.refuse(self.name, v, "not a number")
         object.__setattr__(self, "value", float(v))
         if not math.isfinite(self.value):
-            raise ParameterError(self.name, v, f"a finite number in {self.range_str}")
+            raise self.refuse(self.name, v, "not finite")
         if not self.contains(self.value):
-            raise ParameterError(self.name, v, self.range_str, "outside the allowed range")
-
-    @property
-    def range_str(self) -> str:
-        """Allowed range as text, e.g. ``"(0, inf) m"``."""
-        return format_range(self.low, self.high, self.low_inclusive, self.high_inclusive, self.unit)
-
-    def contains(self, x: float) -> bool:
-        """Return whether ``x`` (SI) lies in the allowed range."""
-        lo_ok = x >= self.low if self.low_inclusive else x > self.low
-        hi_ok = x <= self.high if self.high_inclusive else x < self.high
-        return bool(lo_ok and hi_ok)
+            raise self.refuse(self.name, v, "outside the allowed range")
 
     def with_value(self, value: object) -> Param:
         """Return a copy with a new value (float in SI, or a string with a unit)."""
@@ -232,8 +238,6 @@ class ParameterSet:
         """Return a new dict name -> SI value (a dict, unlike ``Mapping.values``)."""
         return {k: p.value for k, p in self._params.items()}
 
-    as_dict = values
-
     def items(self) -> list[tuple[str, float]]:
         """(name, SI value) pairs in order."""
         return [(k, p.value) for k, p in self._params.items()]
@@ -253,11 +257,6 @@ class ParameterSet:
     def params(self) -> tuple[Param, ...]:
         """All parameters in order."""
         return tuple(self._params.values())
-
-    @property
-    def derived_names(self) -> tuple[str, ...]:
-        """Names of the derived parameters (not settable by override)."""
-        return tuple(self._derived)
 
     # -- overrides -----------------------------------------------------------------
     def with_overrides(self, overrides: Mapping[str, object] | None = None) -> ParameterSet:
@@ -301,26 +300,6 @@ class ParameterSet:
         return ParameterSet(
             new.values(), checks=self._checks, derived=self._derived, name=self.name
         )
-
-    # -- docs ------------------------------------------------------------------------
-    def to_table(self) -> list[dict[str, object]]:
-        """Rows for documentation: name, value (SI), unit, range, source, description."""
-        rows = []
-        for p in self._params.values():
-            src = p.source
-            if p.name in self._derived:
-                src = f"derived: {self._derived[p.name].formula}; {src}"
-            rows.append(
-                {
-                    "name": p.name,
-                    "value": p.value,
-                    "unit": p.unit,
-                    "range": p.range_str,
-                    "source": src,
-                    "description": p.description,
-                }
-            )
-        return rows
 
     def __repr__(self) -> str:
         body = ", ".join(f"{p.name}={p.value:.6g} {p.unit}" for p in self._params.values())

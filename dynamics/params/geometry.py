@@ -24,7 +24,6 @@ Two sets:
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 
 from ..errors import ParameterError
@@ -41,7 +40,6 @@ __all__ = [
     "myosin_height",
 ]
 
-INF = math.inf
 MM = 1e-3
 
 EXPERIMENTAL_SOURCE = "paper, Results: Experimental Setup"
@@ -63,7 +61,7 @@ def _length(name: str, value_m: float, source: str, description: str) -> Param:
         value=value_m,
         unit="m",
         low=0.0,
-        high=INF,
+        low_open=True,
         source=source,
         description=description,
     )
@@ -190,18 +188,17 @@ def fem_geometry(
     ratio = Param(
         "t_w_over_h_ch",
         to_si(t_w_over_h_ch, "1", "t_w_over_h_ch"),
-        "1",
-        0.0,
-        INF,
+        low=0.0,
+        low_open=True,
         source=FEM_SOURCE,
         description="wall thickness over chamber height",
     ).value
     hch = Param(
         "h_ch",
         to_si(h_ch, "m", "h_ch"),
-        "m",
-        0.0,
-        INF,
+        unit="m",
+        low=0.0,
+        low_open=True,
         source="argument of fem_geometry",
     ).value
     s = FEM_SOURCE

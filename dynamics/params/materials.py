@@ -96,39 +96,35 @@ class YeohMaterial:
         if self.density <= 0:
             raise ParameterError(f"{self.slug}.density", self.density, "(0, inf) kg/m^3")
 
-    @property
-    def shear_modulus(self) -> float:
-        """Initial shear modulus ``mu0 = 2 C1``, Pa."""
-        return 2.0 * self.C1
-
     def params(self) -> ParameterSet:
         """The material as a :class:`ParameterSet` (C1, C2, C3 in Pa; density in kg/m^3)."""
-        inf = math.inf
         return ParameterSet(
             [
                 Param(
                     "C1",
                     self.C1,
-                    "Pa",
-                    0.0,
-                    inf,
+                    unit="Pa",
+                    low=0.0,
+                    low_open=True,
                     source=self.source,
                     description="Yeoh coefficient 1 (mu0/2)",
                 ),
-                Param("C2", self.C2, "Pa", source=self.source, description="Yeoh coefficient 2"),
+                Param(
+                    "C2", self.C2, unit="Pa", source=self.source, description="Yeoh coefficient 2"
+                ),
                 Param(
                     "C3",
                     self.C3,
-                    "Pa",
+                    unit="Pa",
                     source=self.source,
                     description="Yeoh coefficient 3 (omitted by the paper)",
                 ),
                 Param(
                     "density",
                     self.density,
-                    "kg/m^3",
-                    0.0,
-                    inf,
+                    unit="kg/m^3",
+                    low=0.0,
+                    low_open=True,
                     source=self.source,
                     description="mass density",
                 ),

@@ -36,9 +36,9 @@ import numpy as np
 from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
 from . import collocation
-from .common import HELD, InputLaw, LawDAE, law_dae, method_options, require_ode, require_step
+from .common import LawDAE, law_dae, method_options, require_ode, require_step
 from .guard import EULER, RK4, ExplicitScheme
-from .settings import Segment, SolverSettings, add_stats, register_method
+from .settings import HELD, InputLaw, Segment, SolverSettings, add_stats, register_method
 
 CHUNK_STEPS = 128
 """Most fixed steps per CasADi call (``mapaccum``); a shorter run uses the next power of

@@ -30,9 +30,9 @@ import numpy as np
 from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
 from . import compiled
-from .collocation import radau5_packed, radau5_tableau
-from .common import InputLaw, law_dae, method_options, require_ode
-from .settings import Segment, SolverSettings, add_stats, register_method
+from .collocation import radau5_packed
+from .common import law_dae, method_options, require_ode
+from .settings import InputLaw, Segment, SolverSettings, add_stats, register_method
 
 SOURCE = Path(__file__).parent / "c" / "radau.c"
 """The integrator's C source (package data)."""
@@ -63,12 +63,6 @@ _STATS = ("n_steps", "n_rejected", "n_rhs", "n_jac", "n_lu", "n_newton", "n_newt
 _DEFAULTS = {"first_step": None, "max_step": np.inf, "max_newton": 7}
 
 
-def tableau() -> dict[str, np.ndarray]:
-    """The Radau IIA (3 stages) constants the C integrator takes
-    (:func:`.collocation.radau5_tableau`, the one home of the collocation)."""
-    return radau5_tableau()
-
-
 def _packed() -> np.ndarray:
     return radau5_packed()
 
@@ -81,8 +75,8 @@ class Library:
     ----------
     n : int
         Number of states.
-    run, costs : ctypes functions
-        ``sm_radau`` and ``sm_radau_costs`` (see ``c/radau.c``).
+    run : ctypes function
+        ``sm_radau`` (see ``c/radau.c``).
     handle : ctypes.CDLL
         The loaded library (kept so it stays loaded).
     build_s : float
@@ -95,7 +89,6 @@ class Library:
 
     n: int
     run: ctypes._CFuncPtr
-    costs: ctypes._CFuncPtr
     handle: ctypes.CDLL
     build_s: float
     path: Path
@@ -188,10 +181,7 @@ def _build(model: Model, law: InputLaw) -> Library:
     fn.restype = ctypes.c_int
     ptr, i32, f64 = ctypes.c_void_p, ctypes.c_int, ctypes.c_double
     fn.argtypes = [i32, ptr, ptr, f64, ptr, i32, ptr, ptr, ptr, ptr, ctypes.c_long, i32, ptr, ptr]
-    costs = handle.sm_radau_costs
-    costs.restype = ctypes.c_int
-    costs.argtypes = [i32, ptr, ptr, f64, ptr, f64, ptr, i32, ptr]
-    return Library(model.nx, fn, costs, handle, time.perf_counter() - tic, path, built)
+    return Library(model.nx, fn, handle, time.perf_counter() - tic, path, built)
 
 
 _TABLEAU = _packed()
@@ -250,38 +240,6 @@ def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
             )
         raise seg.fail(cause, float(t_fail[0]), x)
     return X, np.zeros((len(times), 0))
-
-
-def unit_costs(
-    model: Model,
-    law: InputLaw,
-    t: float,
-    x: np.ndarray,
-    w: np.ndarray,
-    p: np.ndarray,
-    h: float,
-    reps: int = 2000,
-) -> dict[str, float]:
-    """Mean cost [s] of the parts of a step at ``(t, x)``, timed inside the compiled
-    library: ``rhs`` (one right-hand side), ``jac`` (one Jacobian), ``lu`` (the real and
-    the complex LU at step ``h``), ``solve`` (one real and one complex solve: a Newton
-    iteration) and ``solve_real`` (one real solve: the error estimate)."""
-    lib = library(model, law)
-    arrays = [np.ascontiguousarray(a, dtype=float) for a in (w, p, x)]
-    out = np.zeros(5)
-    code = lib.costs(
-        model.nx,
-        *(a.ctypes.data for a in arrays[:2]),
-        float(t),
-        arrays[2].ctypes.data,
-        float(h),
-        _TABLEAU.ctypes.data,
-        int(reps),
-        out.ctypes.data,
-    )
-    if code:
-        raise SolverError(f"radau: {_CAUSES.get(code, code)} at t = {t:g} s")
-    return dict(zip(("rhs", "jac", "lu", "solve", "solve_real"), out.tolist(), strict=True))
 
 
 register_method("radau")(_run)

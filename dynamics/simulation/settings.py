@@ -1,4 +1,5 @@
-"""Solver settings, the method registry and the segment every method integrates.
+"""Solver settings, the method registry and the segment every method integrates (with
+its input law).
 
 A leaf of the simulation package: method modules register themselves here, and the
 :class:`~.simulator.Simulator` looks them up by name.
@@ -15,10 +16,9 @@ import casadi as cs
 import numpy as np
 
 from ..errors import ParameterError, SolverError
-from ..modeling.model import Model
 
 if TYPE_CHECKING:
-    from .common import InputLaw
+    from ..modeling.model import Model
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,67 @@ def freeze(value: object) -> object:
     return value
 
 
+class _Identity:
+    """A cache-key element for an unhashable signal: equal only to the same object (the
+    key holds a reference, so the object's id cannot be reused while the entry lives)."""
+
+    def __init__(self, obj: object) -> None:
+        self.obj = obj
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _Identity) and other.obj is self.obj
+
+    def __hash__(self) -> int:
+        return id(self.obj)
+
+
+def _by_value(sig: object) -> object:
+    try:
+        hash(sig)
+    except TypeError:
+        return _Identity(sig)
+    return sig
+
+
+@dataclass(frozen=True)
+class InputLaw:
+    """How the inputs move over one segment, and what the method's input argument ``w`` is.
+
+    * ``signals is None`` (**held**): every input is constant over the segment and
+      ``w = u`` (one value per input). This is the law of :meth:`Simulator.step` with a
+      constant ``u`` and of piecewise-constant signals (steps, staircases) between their
+      breakpoints: the integrators and step Functions then take ``u`` as an argument.
+    * otherwise (**signals**): one signal per input, evaluated as its CasADi expression
+      of time clamped into ``[a, b_left]`` with ``w = [a, b_left]`` (the segment start
+      and the float just below its end), so a ramp, a sine or a chirp is integrated
+      exactly and a jump at ``b`` never leaks into the segment that ends there.
+    """
+
+    signals: tuple | None = None
+
+    def key(self) -> object:
+        """Value key for caches: None (held) or the signals (by value where hashable)."""
+        return None if self.signals is None else tuple(_by_value(s) for s in self.signals)
+
+    def u_expr(self, t: cs.SX, w: cs.SX) -> cs.SX:
+        if self.signals is None:
+            return w
+        tc = cs.fmin(cs.fmax(t, w[0]), w[1])
+        parts = [cs.SX(sig.casadi(tc)) for sig in self.signals]
+        return cs.vertcat(*parts) if parts else cs.SX(0, 1)
+
+    def size_w(self, nu: int) -> int:
+        return nu if self.signals is None else 2
+
+
+HELD = InputLaw()
+
+
+def segment_w(a: float, b: float) -> np.ndarray:
+    """``w`` of a signals law on ``[a, b)``: ``[a, b_left]``."""
+    return np.array([a, np.nextafter(b, -np.inf)])
+
+
 @dataclass
 class Segment:
     """One call of a method: integrate from ``(t0, x0, z0)`` through ``times``.
@@ -98,7 +159,7 @@ class Segment:
 
 
 RunFn = Callable[[Segment], tuple[np.ndarray, np.ndarray]]
-StepFn = Callable[[Model, SolverSettings], cs.Function]
+StepFn = Callable[["Model", SolverSettings], cs.Function]
 
 
 @dataclass(frozen=True)

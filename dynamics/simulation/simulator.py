@@ -47,8 +47,8 @@ from ..modeling.model import Model
 from ..signals import Staircase, Step
 from ..units import to_si
 from . import fixed_step, guard, radau, scipy_methods, sundials  # noqa: F401  (register the methods)
-from .common import HELD, InputLaw, method_options, require_step, segment_w
-from .settings import METHODS, Segment, SolverSettings
+from .common import method_options, require_step
+from .settings import HELD, METHODS, InputLaw, Segment, SolverSettings, segment_w
 
 CHUNK_POINTS = 1000
 """Most output points per method call: long runs are integrated in pieces of this many
@@ -365,7 +365,7 @@ class Simulator:
         name, var = names[row], m.variables[names[row]]
         raise seg.fail(
             f"left the physical domain: {name} = {S[row, col]:.4g} {var.unit} is outside "
-            f"[{var.low:.4g}, {var.high:.4g}] ({var.description})",
+            f"{var.range_str} ({var.description})",
             float(seg.times[col]),
             X[col],
         )
@@ -378,12 +378,8 @@ class Simulator:
             values = np.asarray(sig(times), dtype=float) * np.ones_like(times)
             bad = np.flatnonzero(~((values >= var.low) & (values <= var.high)))
             if bad.size:
-                raise ParameterError(
-                    name,
-                    f"{values[bad[0]]:g} {var.unit} at t = {times[bad[0]]:g} s",
-                    f"[{var.low:g}, {var.high:g}] {var.unit}",
-                    var.description,
-                )
+                value = f"{values[bad[0]]:g} {var.unit} at t = {times[bad[0]]:g} s"
+                raise var.refuse(name, value, var.description)
 
     def _guard(self, signals: list, times: np.ndarray, bps: list[float]) -> None:
         """The explicit-step stability guard (:mod:`.guard`); the limit is estimated at the

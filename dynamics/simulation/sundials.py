@@ -17,8 +17,8 @@ import numpy as np
 
 from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
-from .common import HELD, InputLaw, law_dae
-from .settings import Segment, SolverSettings, add_stats, register_method
+from .common import law_dae
+from .settings import HELD, InputLaw, Segment, SolverSettings, add_stats, register_method
 
 
 def integrator(

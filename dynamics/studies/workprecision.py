@@ -44,7 +44,7 @@ from ..modeling.model import Model
 from ..results import Result
 from ..signals import Ramp, Step
 from ..simulation.simulate import SolverSettings, simulate
-from . import pysource  # noqa: F401  (registers the scipy_radau_numpy baseline)
+from .pysource import register_baseline
 
 P_CMD = "regulator.p_cmd"
 ATOL_PER_RTOL = 1e-3
@@ -315,7 +315,9 @@ def run_point(sc: Scenario, ref: Reference, settings: SolverSettings, plan: Plan
 def sweep(
     sc: Scenario, ref: Reference, plan: Plan, only: Sequence[str] | None = None
 ) -> list[dict]:
-    """Records for every method of ``plan`` (or only the named ones) on one scenario."""
+    """Records for every method of ``plan`` (or only the named ones) on one scenario (the
+    Python-source baseline registered first)."""
+    register_baseline()
     wanted = only or (*ADAPTIVE, *FIXED)
     out = []
     for m in wanted:

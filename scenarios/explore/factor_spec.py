@@ -196,12 +196,11 @@ def relative_target(r, path: tuple, target, ctx):
     return Target(
         name,
         "relative",
-        "1",
-        target.low / base,
-        target.high / base,
-        target.low_open,
-        target.high_open,
-        f"multiplier of the scene's {name} = {base:g} {target.unit}",
+        low=target.low / base,
+        high=target.high / base,
+        low_open=target.low_open,
+        high_open=target.high_open,
+        long_name=f"multiplier of the scene's {name} = {base:g} {target.unit}",
     )
 
 

@@ -17,7 +17,7 @@ import dataclasses
 import difflib
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 import numpy as np
 
@@ -26,6 +26,7 @@ from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.fidelity import REDUCED_FROM_N
 from sarcomere.dynamics.modeling.model import Model
+from sarcomere.dynamics.params.core import Quantity
 from sarcomere.dynamics.signals import Ramp, Step
 from sarcomere.dynamics.units import to_si
 
@@ -44,16 +45,13 @@ PROBE_RATIOS = (1.25, 0.8)
 
 
 @dataclass(frozen=True)
-class Target:
-    """What a factor name sets: its SI unit, allowed range, and how it is applied."""
+class Target(Quantity):
+    """What a factor name sets: its SI unit and allowed range (a :class:`Quantity`,
+    keywords), and how it is applied."""
 
     name: str
     category: str  # "n", "load", "input", "family", "aps", "parameter" (or "relative")
-    unit: str
-    low: float
-    high: float
-    low_open: bool = False
-    high_open: bool = False
+    _: KW_ONLY
     long_name: str = ""
     integer: bool = False
     levels: tuple[float, ...] = ()
@@ -63,11 +61,7 @@ class Target:
         """The allowed values, for messages."""
         if self.levels:
             return "one of " + ", ".join(f"{v:g} {self.unit}" for v in self.levels)
-        lo = "(" if self.low_open or self.low == -math.inf else "["
-        hi = ")" if self.high_open or self.high == math.inf else "]"
-        kind = "whole numbers in " if self.integer else ""
-        unit = "" if self.unit == "1" else f" {self.unit}"
-        text = f"{kind}{lo}{self.low:g}, {self.high:g}{hi}{unit}"
+        text = ("whole numbers in " if self.integer else "") + self.range_str
         return f"{text} ({self.long_name})" if self.category == "relative" else text
 
     def refusal(self, value: float) -> str:
@@ -82,9 +76,7 @@ class Target:
             return any(math.isclose(value, v, rel_tol=1e-9) for v in self.levels)
         if self.integer and value != round(value):
             return False
-        above = value > self.low if self.low_open else value >= self.low
-        below = value < self.high if self.high_open else value <= self.high
-        return above and below
+        return super().contains(value)
 
 
 # ---------------------------------------------------------------------------- models
@@ -219,21 +211,21 @@ class SceneContext:
             low = 2 * GROUPS + 1 if self.fidelity == "grouped" else 1
             auto = self.level_note != self.fidelity  # n stays where the auto rule runs full
             high = REDUCED_FROM_N - 1 if auto else N_LIMITS[self.fidelity]
-            return Target(name, "n", "1", low, high, long_name="APS in the chain", integer=True)
+            return Target(name, "n", low=low, high=high, long_name="APS in the chain", integer=True)
         if name == "load":
             why = "set-up 'isometric' holds no load" if b.setup != "hanging" else ""
             if "load.m" in b.overrides:
                 why = "the scene sets load.m in [parameters]"
             if why:
                 raise ParameterError(name, name, "a factor of this scene", why)
-            return Target(name, "load", "kg", 0.0, math.inf, long_name="hanging load (payload)")
+            return Target(name, "load", unit="kg", low=0.0, long_name="hanging load (payload)")
         if scene_binding.INPUT_ALIASES.get(name, name) in self.model.input_names:
             return self._input_target(name, scene_binding.INPUT_ALIASES.get(name, name))
         if name == "family":
             levels = tuple(m.L_r for m in FAMILY)
             what = "calibration family member (its L_r)"
             return Target(
-                name, "family", "m", min(levels), max(levels), long_name=what, levels=levels
+                name, "family", unit="m", low=min(levels), high=max(levels), long_name=what, levels=levels
             )
         group, _, field = name.partition(".")
         if group == "aps" and field in APSParams.numeric_fields():
@@ -241,17 +233,18 @@ class SceneContext:
             return Target(
                 name,
                 "aps",
-                meta["unit"],
-                meta["low"],
-                meta["high"],
-                meta["low_open"],
-                meta["high_open"],
-                f"APS {meta['description']} (every unit)",
+                **vars(APSParams.quantity(field)),
+                long_name=f"APS {meta['description']} (every unit)",
             )
         if name in self.model.param_names and name not in STRUCTURAL:
             var = self.model.variables[name]
             return Target(
-                name, "parameter", var.unit, var.low, var.high, long_name=var.description or name
+                name,
+                "parameter",
+                unit=var.unit,
+                low=var.low,
+                high=var.high,
+                long_name=var.description or name,
             )
         why = STRUCTURAL.get(name, "")
         names = [
@@ -284,7 +277,9 @@ class SceneContext:
         if input_name == scene_binding.P_CMD:
             low, high = scene_binding.command_range(self.model, self.binding.overrides)
         long_name = LONG_NAMES.get(input_name, f"level of the step on {input_name}")
-        return Target(name, "input", var.unit, low, high, long_name=long_name, input=input_name)
+        return Target(
+            name, "input", unit=var.unit, low=low, high=high, long_name=long_name, input=input_name
+        )
 
     def base_value(self, name: str, n: int) -> float:
         """The scene's value of model parameter ``name`` (its [parameters] entry, else the

@@ -123,7 +123,7 @@ def paper_points() -> list[tuple[str, str, list[dict[str, float]]]]:
     concentric experiment (n = 3, loads 0-100 g, 0-0.1 MPa) and the isometric one
     (n = 1, 2, 3 at 0.1 MPa, no load: a fixed length)."""
     from sarcomere.dynamics.calibration import CONCENTRIC_LOADS_KG, CONCENTRIC_PRESSURES_PA
-    from sarcomere.dynamics.paper import REPORTED
+    from sarcomere.dynamics.paper_reported import REPORTED
 
     concentric = [
         {"n": 3.0, "load": m, "pressure": p}

@@ -473,6 +473,6 @@ def _series(r: Reader, study, ctx) -> SeriesDef | None:
     from .factors import Target
 
     sim = ctx.scene.simulation
-    span = Target("time", "time", "s", sim.start_time, sim.stop_time)
+    span = Target("time", "time", unit="s", low=sim.start_time, high=sim.stop_time)
     times = factor_spec.read_values(r, tbl["grid"], (*path, "grid"), span)
     return SeriesDef(tuple(signals), times)

@@ -20,7 +20,6 @@ from sarcomere.dynamics.calibration import (
     evaluate,
     family,
     rest_length_hanging,
-    rest_length_study,
     rest_length_undeformed,
 )
 from sarcomere.dynamics.components.aps import APSParams
@@ -144,6 +143,31 @@ def test_rest_length_definitions():
     assert achieved["length_ratio_100g_0MPa"] == pytest.approx(
         hanging["length_ratio_100g_0MPa"] * ratio
     )
+
+
+def rest_length_study(
+    k_s_values: tuple[float, ...] = (694.0, 5e3, 1e5, 1e6), eps_slack: float = 1e-6
+) -> list[dict]:
+    """The evidence against ``L'`` undeformed (docs/paper.md, "Rest length"): for each
+    fixed thread stiffness ``k_s`` [N/m], ``A_p`` and ``A_r`` fitted to the two length
+    ratios with ``L' = n (A + 2 r1')``, and the isometric force [N] and hanging rest
+    length [m] that fit gives. ``eps_slack`` [m] small, so that ``k_s eps_slack`` stays
+    below the experiments' tensions up to large ``k_s``."""
+    rows = []
+    for k_s in k_s_values:
+        start = APSParams.from_paper(k_s=float(k_s), eps_slack=eps_slack)
+        f = calibration.fit(start, ("A_p", "A_r"), tuple(TARGETS)[1:], rest_length="undeformed")
+        force = evaluate(f.params, "undeformed")["force_n1_0p1MPa_N"]
+        rows.append(
+            {
+                "k_s_N_per_m": float(k_s),
+                "A_p_m2": f.fitted["A_p"],
+                "A_r_m2": f.fitted["A_r"],
+                "force_n1_0p1MPa_N": force,
+                "rest_length_hanging_n3_m": rest_length_hanging(3, f.params),
+            }
+        )
+    return rows
 
 
 @pytest.mark.slow

@@ -32,7 +32,7 @@ MM = 1e-3
 # --- Param ------------------------------------------------------------------------------
 def test_param_rejects_value_outside_range_and_names_range():
     with pytest.raises(ParameterError) as err:
-        Param("t_w", 0.0, "m", 0.0, math.inf, source="test")
+        Param("t_w", 0.0, unit="m", low=0.0, low_open=True, source="test")
     msg = str(err.value)
     assert "t_w" in msg and "0.0" in msg and "(0, inf) m" in msg
 
@@ -44,11 +44,11 @@ def test_param_rejects_nan_and_bool():
         Param("x", True)
 
 
-def test_param_inclusive_bounds():
-    p = Param("r", 1.0, "1", 0.0, 1.0, low_inclusive=True, high_inclusive=True)
-    assert p.range_str == "[0, 1] 1"
-    with pytest.raises(ParameterError):
-        Param("r", 1.0, "1", 0.0, 1.0)
+def test_param_closed_and_open_bounds():
+    p = Param("r", 1.0, low=0.0, high=1.0)
+    assert p.range_str == "[0, 1]"  # closed by default; no unit when dimensionless
+    with pytest.raises(ParameterError, match=r"'r' = 1.0 .*allowed: \(0, 1\)$"):
+        Param("r", 1.0, low=0.0, high=1.0, low_open=True, high_open=True)
 
 
 # --- ParameterSet ------------------------------------------------------------------------
@@ -130,14 +130,6 @@ def test_derived_value_must_match_rule():
         ParameterSet([Param("a", 1.0), Param("b", 3.0)], derived={"b": rule})
     ps = ParameterSet([Param("a", 1.0), Param("b", 2.0)], derived={"b": rule})
     assert ps.with_overrides({"a": 4.0})["b"] == 8.0
-
-
-def test_to_table_rows():
-    rows = experimental_geometry().to_table()
-    assert [r["name"] for r in rows][:3] == ["A", "h_m", "a_ch"]
-    row = rows[1]
-    assert set(row) >= {"name", "value", "unit", "range", "source"}
-    assert row["range"] == "(0, inf) m" and "derived" in row["source"]
 
 
 def test_fem_geometry():
@@ -259,3 +251,25 @@ def test_ambient_defaults_and_params():
     assert ps.param("rho0").unit == "kg/m^3" and "6358" in ps.param("rho0").source
     with pytest.raises(ParameterError):
         Ambient(p_amb=-1.0)
+
+
+def test_one_quantity_record_and_one_refusal_text():
+    """Param, the model's Var, the APSParams fields and a study factor's target are one
+    record (Quantity): an APS field, the model parameter it sets and a Param with the
+    same range refuse a value in the same words, the bracket open at 0."""
+    from sarcomere.dynamics.assemblies import hanging_load
+    from sarcomere.dynamics.components.aps import APSParams
+    from sarcomere.dynamics.modeling.variables import Var
+    from sarcomere.dynamics.params import Quantity
+    from sarcomere.scenarios.explore.factors import Target
+
+    assert all(issubclass(c, Quantity) for c in (Param, Var, Target))
+    tail = r" = 0.0 is invalid; allowed: \(0, inf\) N/m$"
+    with pytest.raises(ParameterError, match=r"^parameter 'k_s'" + tail):
+        APSParams(k_s=0.0)
+    with pytest.raises(ParameterError, match=r"^parameter 'myofibril.actin0.k_s'" + tail):
+        hanging_load(1).parameters({"myofibril.actin0.k_s": 0.0})
+    q = APSParams.quantity("k_s")
+    with pytest.raises(ParameterError, match=r"^parameter 'k'" + tail):
+        raise q.refuse("k", 0.0)
+    assert Param("k", 1.0, **vars(q)).range_str == q.range_str == "(0, inf) N/m"

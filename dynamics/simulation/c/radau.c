@@ -20,13 +20,11 @@
  * The method constants (T, T^-1, eigenvalues, nodes, error weights, dense-output matrix)
  * are computed by the Python side and passed in.
  */
-#define _POSIX_C_SOURCE 199309L /* clock_gettime */
 #include <complex.h>
 #include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 int sm_rhs(const double **arg, double **res, int *iw, double *w, int mem);
 int sm_rhs_work(int *sz_arg, int *sz_res, int *sz_iw, int *sz_w);
@@ -558,86 +556,6 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
 done:
     memcpy(x, y, sizeof(double) * n);
     if (code != SM_OK) *t_fail = t;
-    free(dbl), free(cplx), free(ints), free(bytes), free(arg), free(res), free(pt.own);
-    return code;
-}
-
-static double seconds(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-/* What the parts of a step cost, for the benchmark: the mean time [s] over reps of one
- * right-hand side, one Jacobian, one pair of LUs (real and complex, step h), one pair
- * of solves and one real solve, at (t, x), into out[0..4]. Returns an SM_ code. */
-int sm_radau_costs(int n, const double *w, const double *p, double t, const double *x,
-                   double h, const double *cst, int reps, double *out)
-{
-    Tableau tb;
-    memcpy(&tb, cst, sizeof tb);
-    int sz_arg, sz_res, sz_iw, sz_w, a2, r2, i2, w2;
-    sm_rhs_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
-    sm_jac_work(&a2, &r2, &i2, &w2);
-    size_t nn = (size_t)n * n;
-    Pattern pt = jac_pattern(n);
-    double *dbl = malloc(sizeof(double) * (SM_LU_SIZE(n) + 2 * (size_t)n
-                                           + (size_t)(pt.nnz > 0 ? pt.nnz : 0)
-                                           + (size_t)(sz_w > w2 ? sz_w : w2) + 1));
-    double complex *cplx = malloc(sizeof(double complex) * (SM_LU_SIZE(n) + n));
-    int *ints = malloc(sizeof(int) * (2 * SM_FACTOR_INTS(n) + (size_t)(sz_iw > i2 ? sz_iw : i2) + 1));
-    unsigned char *bytes = calloc(2 * nn + 1, 1);
-    const double **arg = malloc(sizeof(double *) * ((sz_arg > a2 ? sz_arg : a2) + 1));
-    double **res = malloc(sizeof(double *) * ((sz_res > r2 ? sz_res : r2) + 1));
-    double stats[ST_N] = {0};
-    int code = SM_OK;
-    if (!dbl || !cplx || !ints || !bytes || !arg || !res || pt.nnz < 0) {
-        code = SM_NO_MEMORY;
-        goto done;
-    }
-    double *LUr = dbl, *f = LUr + SM_LU_SIZE(n), *b = f + n, *jnz = b + n;
-    double *cw = jnz + pt.nnz;
-    double complex *LUc = cplx, *bc = LUc + SM_LU_SIZE(n);
-    Factor fr, fc;
-    int *iw = factor_init(&fc, n, factor_init(&fr, n, ints, bytes), bytes + nn);
-    factor_list_pattern(&fr, n, &pt);
-    factor_list_pattern(&fc, n, &pt);
-    memset(LUr, 0, sizeof(double) * nn);
-    memset(LUc, 0, sizeof(double complex) * nn);
-    Model m = {n, w, p, arg, res, iw, cw, stats, pt, jnz};
-    double tic = seconds();
-    for (int k = 0; k < reps; ++k)
-        if (rhs(&m, t, x, f)) { code = SM_RHS; goto done; }
-    out[0] = (seconds() - tic) / reps;
-    tic = seconds();
-    for (int k = 0; k < reps; ++k)
-        if (jac(&m, t, x)) { code = SM_JAC; goto done; }
-    out[1] = (seconds() - tic) / reps;
-    tic = seconds();
-    for (int k = 0; k < reps; ++k) {
-        fill_real(n, LUr, &fr, &pt, jnz, tb.mu_r / h);
-        fill_complex(n, LUc, &fc, &pt, jnz, (tb.mu_cr + I * tb.mu_ci) / h);
-        if (lu_real(n, LUr, &fr) || lu_complex(n, LUc, &fc)) {
-            code = SM_STEP_TOO_SMALL;
-            goto done;
-        }
-    }
-    out[2] = (seconds() - tic) / reps;
-    tic = seconds();
-    for (int k = 0; k < reps; ++k) {
-        for (int i = 0; i < n; ++i) b[i] = f[i], bc[i] = f[i] + I * f[i];
-        solve_real(n, LUr, &fr, b);
-        solve_complex(n, LUc, &fc, bc);
-    }
-    out[3] = (seconds() - tic) / reps;
-    tic = seconds();
-    for (int k = 0; k < reps; ++k) {
-        for (int i = 0; i < n; ++i) b[i] = f[i];
-        solve_real(n, LUr, &fr, b);
-    }
-    out[4] = (seconds() - tic) / reps;
-done:
     free(dbl), free(cplx), free(ints), free(bytes), free(arg), free(res), free(pt.own);
     return code;
 }

@@ -10,22 +10,52 @@ from sarcomere.dynamics.components.environment import Environment
 from sarcomere.dynamics.components.mechanical import Fixed, Mass
 from sarcomere.dynamics.components.pneumatic import (
     RHO0_ISO,
-    Cap,
     Chamber,
-    PressureSource,
     Regulator,
     Restriction,
-    SealedVolume,
     iso6358_flow,
 )
 from sarcomere.dynamics.errors import ModelError
-from sarcomere.dynamics.modeling.component import System
+from sarcomere.dynamics.modeling.component import Builder, Component, System
+from sarcomere.dynamics.modeling.ports import PNEUMATIC
 from sarcomere.dynamics.params.ambient import Ambient
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 C, B, RL = 2e-9, 0.3, 0.999
 AMB = Ambient()
 P_AMB, R_AIR, T_REF, GAMMA = AMB.p_amb, AMB.R_air, AMB.T_amb, AMB.kappa
+
+
+class PressureSource(Component):
+    """An ideal source of absolute pressure ``p`` [Pa] (a parameter)."""
+
+    def __init__(self, name: str, p: float) -> None:
+        super().__init__(name)
+        self.p = p
+
+    def build(self, b: Builder) -> None:
+        p = b.parameter("p", self.p, "Pa", "absolute pressure", low=0.0)
+        b.equation(b.port("port", PNEUMATIC).p, p)
+
+
+class Cap(Component):
+    """A closed pneumatic port: no mass flow."""
+
+    def build(self, b: Builder) -> None:
+        b.equation(b.port("port", PNEUMATIC).m_flow, 0.0)
+
+
+class SealedVolume(Component):
+    """A :class:`Chamber` behind a :class:`Cap`: a gas spring on the flange (position s)."""
+
+    def __init__(self, name: str, V0: float, A: float, p_start_gauge: float, thermal="isothermal"):
+        super().__init__(name)
+        self.chamber = Chamber("chamber", V0, A, p_start_gauge, thermal)
+
+    def build(self, b: Builder) -> None:
+        ch = b.add(self.chamber)
+        b.connect(ch.port, b.add(Cap("cap")).port)
+        b.expose("flange", ch.flange)
 
 
 def system(name):

@@ -37,27 +37,18 @@ def damped_mass():
     return sys.flatten()
 
 
-def test_every_kind_maps_onto_fmi_causality_and_variability():
-    expected = {
-        Kind.STATE: ("local", "continuous"),
-        Kind.ALGEBRAIC: ("local", "continuous"),
-        Kind.DERIVATIVE: ("local", "continuous"),
-        Kind.INPUT: ("input", "continuous"),
-        Kind.OUTPUT: ("output", "continuous"),
-        Kind.PARAMETER: ("parameter", "fixed"),
-    }
+def test_a_flattened_model_holds_every_kind_as_a_kind():
     model = damped_mass()
     seen = set()
     for var in model.variables.values():
         assert isinstance(var.kind, Kind)
-        assert (var.fmi_causality, var.fmi_variability) == expected[var.kind]
         seen.add(var.kind)
     assert seen == set(Kind)
 
 
 def test_an_unknown_kind_is_refused_naming_the_variable():
     with pytest.raises(ModelError, match=r"variable 'a\.b' has kind 'stat'; one of \["):
-        Var("a.b", "stat", "m")
+        Var("a.b", "stat", unit="m")
 
 
 def test_nominal_defaults_to_the_magnitude_of_start_or_value():
@@ -92,7 +83,7 @@ def test_a_parameter_expression_start_gives_its_default_magnitude_as_nominal():
 @pytest.mark.parametrize("bad", [0.0, -1.0, math.inf, math.nan])
 def test_a_nonpositive_or_nonfinite_nominal_is_a_parameter_error(bad):
     with pytest.raises(ParameterError, match=r"parameter 'x\.nominal' = .* allowed: \(0, inf\) m"):
-        Var("x", Kind.STATE, "m", nominal=bad)
+        Var("x", Kind.STATE, unit="m", nominal=bad)
 
 
 def test_nominal_of_an_unknown_vector_is_refused():

@@ -17,7 +17,8 @@ from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.modeling.component import Component, System
 from sarcomere.dynamics.signals import Sine, Step
 from sarcomere.dynamics.simulation import compiled, radau
-from sarcomere.dynamics.simulation.common import HELD
+from sarcomere.dynamics.simulation.collocation import radau5_tableau
+from sarcomere.dynamics.simulation.settings import HELD
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.dynamics.studies import workprecision as wp
@@ -25,7 +26,7 @@ from sarcomere.dynamics.studies import workprecision as wp
 
 # --- the method's constants ---------------------------------------------------------------
 def test_tableau_is_radau_iia_with_hairers_transformation():
-    t = radau.tableau()
+    t = radau5_tableau()
     s6 = math.sqrt(6.0)
     A_published = np.array(  # Hairer & Wanner II, Table IV.5.6
         [
@@ -289,18 +290,11 @@ def test_compiled_once_per_model_and_input_law(oscillator, monkeypatch):
     assert len(builds) == 2  # a signal: its own library, once
 
 
-def test_unit_costs_are_timed_in_the_library(oscillator):
-    p, x = oscillator.parameters(), oscillator.x0()
-    costs = radau.unit_costs(oscillator, HELD, 0.0, x, np.zeros(0), p, h=1e-2, reps=50)
-    assert set(costs) == {"rhs", "jac", "lu", "solve", "solve_real"}
-    assert all(0 < v < 1e-3 for v in costs.values()), costs
-
-
 _BUILD = """
 import sys
 from sarcomere.dynamics import hanging_load
 from sarcomere.dynamics.simulation import compiled, radau, simulate
-from sarcomere.dynamics.simulation.common import HELD
+from sarcomere.dynamics.simulation.settings import HELD
 if sys.argv[1] == "no-compiler":  # a compile would raise
     compiled._compile = lambda *a: sys.exit("the compiler was invoked")
 model = hanging_load(1, load_kg=0.05)

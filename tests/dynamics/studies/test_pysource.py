@@ -1,5 +1,8 @@
 """Generated Python source equals the CasADi Function it came from."""
 
+import subprocess
+import sys
+
 import casadi as cs
 import numpy as np
 import pytest
@@ -7,7 +10,7 @@ import pytest
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
-from sarcomere.dynamics.studies.pysource import python_function, python_source
+from sarcomere.dynamics.studies.pysource import python_function, python_source, register_baseline
 
 
 def test_model_rhs_and_jacobian_agree_with_casadi():
@@ -40,6 +43,7 @@ def test_source_is_straight_line_python():
 
 
 def test_scipy_radau_on_the_python_rhs_matches_cvodes():
+    assert register_baseline() == "scipy_radau_numpy"
     m = hanging_load(1, load_kg=0.05)
     eq = solve_equilibrium(m, {"regulator.p_cmd": 0.0})
     runs = [
@@ -54,3 +58,17 @@ def test_scipy_radau_on_the_python_rhs_matches_cvodes():
         for meth in ("cvodes", "scipy_radau_numpy")
     ]
     np.testing.assert_allclose(runs[1]["myofibril.length"], runs[0]["myofibril.length"], rtol=1e-6)
+
+
+def test_importing_the_studies_registers_no_method():
+    """The baseline is registered on request (``register_baseline``), never as a side
+    effect of an import: a fresh interpreter importing the studies sees the library's
+    methods only."""
+    code = (
+        "import sarcomere.dynamics.studies.workprecision, sarcomere.dynamics.studies.stability\n"
+        "from sarcomere.dynamics.simulation.settings import METHODS\n"
+        "import sarcomere.dynamics.simulation.simulate\n"
+        "print('scipy_radau_numpy' in METHODS, 'scipy_radau' in METHODS)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "True"]
