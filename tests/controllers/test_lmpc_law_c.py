@@ -8,7 +8,8 @@ import casadi as cs
 import numpy as np
 import pytest
 
-from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, law_c_build
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
+from sarcomere.controllers.qp import law_c_build
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.simulation.compiled import compiler
