@@ -12,9 +12,9 @@ from sarcomere.controllers.loop import run_closed_loop
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.controllers.receding import TENSIONS
 from sarcomere.controllers.rti import radau_residual
-from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 from sarcomere.dynamics import Simulator, hanging_load, isometric, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 
 P = "regulator.p_cmd"
 L = "myofibril.length"

@@ -7,9 +7,9 @@ import pytest
 
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.controllers.receding import TENSIONS
-from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 from sarcomere.dynamics import Simulator, hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 
 P = "regulator.p_cmd"
 L = "myofibril.length"
@@ -103,7 +103,8 @@ def compiled_pair():
     LAPACK's LU for the lifted solves, which the compiled RTI calls too)."""
     model = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
     eq = solve_equilibrium(model, {P: 5e4})
-    s = NMPCSettings(horizon=10, soft_min=((TENSIONS, 0.19),), integral_gain=0.0)  # 10: a shorter build
+    # horizon 10: a shorter build
+    s = NMPCSettings(horizon=10, soft_min=((TENSIONS, 0.19),), integral_gain=0.0)
     c = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(**{**s.__dict__, "compiled": True}))
     py = NonlinearMPC(model, eq.u, 0.01, s)
     return c, py

@@ -10,10 +10,10 @@ from sarcomere.controllers import make_controller, operating_point
 from sarcomere.controllers.base import Controller
 from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
-from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 from sarcomere.controllers.qp import zoh
 from sarcomere.dynamics import Simulator, hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 
 P = "regulator.p_cmd"
 L = "myofibril.length"

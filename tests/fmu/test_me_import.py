@@ -389,7 +389,9 @@ def _cvodes_step(rhs, n: int, dt: float) -> cs.Function:
     return cs.integrator("plant", "cvodes", {"x": X, "p": U, "ode": rhs(X, U)}, 0, dt, opts)
 
 
-def test_the_linear_mpc_on_a_composition_moves_as_on_the_monolithic_model(joined, velocity_law_moves):
+def test_the_linear_mpc_on_a_composition_moves_as_on_the_monolithic_model(
+    joined, velocity_law_moves
+):
     """The project's LinearMPC on the monolithic model, and its velocity-form QP (the same
     class, solver and law) on the composition's linearisation (muscle + load ME FMU),
     each closing the loop on its own plant for five samples: the same moves."""
@@ -416,8 +418,15 @@ def test_the_linear_mpc_on_a_composition_moves_as_on_the_monolithic_model(joined
     Ad, Bd = zoh(A, B, dt)
     lo, hi = np.array([settings.u_min]), np.array([settings.u_max])
     qp = VelocityQP(
-        Ad, Bd, C, np.zeros((0, len(x))), settings.horizon, settings.weight_y,
-        settings.weight_du, np.ones(0), hi - lo,
+        Ad,
+        Bd,
+        C,
+        np.zeros((0, len(x))),
+        settings.horizon,
+        settings.weight_y,
+        settings.weight_du,
+        np.ones(0),
+        hi - lo,
     )  # fmt: skip  (one input, no soft bounds)
     plant = _cvodes_step(composed.rhs, len(x), dt)
     index = composed.signal_names.index("myofibril.length")
