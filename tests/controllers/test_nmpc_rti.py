@@ -58,6 +58,7 @@ def test_an_infeasible_bound_softened_gives_a_finite_command_without_fallback():
         hard, h = venting(NMPCSettings(soft_min=((TENSIONS, 5.0, np.inf),)), 2, solver)
         soft, s = venting(NMPCSettings(soft_min=((TENSIONS, 5.0),)), 2, solver)
         assert h.stats.fallbacks == 2 and hard == [1e5, 1e5]
+        assert h.stats.fallback_fraction == 1.0 and s.stats.fallback_fraction == 0.0
         assert s.stats.fallbacks == 0 and np.all(np.isfinite(soft))
         assert s.slack > 4.0  # N: the plan's largest predicted shortfall of the 5 N
 
