@@ -89,8 +89,12 @@ class OnEstimate(Controller):
         if self.fed:
             estimates = self.ekf.parameters
             self.inner.set_parameters({n: estimates[n] for n in self.fed})
-        if self._uncertain:
-            J = np.array(self._spread(self.ekf.xa[: self.plant.nx], self._u, self.op.p))
+        if self._uncertain:  # at the estimated state and parameters
+            p = self.op.p.copy()
+            for n, v in self.ekf.parameters.items():
+                if n in self.plant.param_names:
+                    p[self.plant.param_names.index(n)] = v
+            J = np.array(self._spread(self.ekf.xa[: self.plant.nx], self._u, p))
             std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, self.ekf.P, J), 0.0))
             self.inner.set_parameters(
                 {f"backoff.{n}": float(s) for n, s in zip(self._uncertain, std, strict=True)}

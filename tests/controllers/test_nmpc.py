@@ -325,3 +325,47 @@ def test_preview_moves_before_a_known_step():
     assert np.allclose(u_blind[:30], 5e4, atol=1.0)  # waits for the step
     assert u_ahead[25] > 6e4  # 80 kPa at 0.25 s: pressurises ahead of it
     assert ahead < 0.5 * blind  # 0.11 mm against 0.30 mm RMS
+
+
+def test_on_an_ekf_the_bounds_are_raised_by_the_estimates_standard_deviation():
+    """``make_nmpc`` on an EKF: ``backoff`` 1 (``EKF_BACKOFF``), and every sample the EKF
+    feeds each bounded tension's standard deviation, ``sqrt(J P J^T)`` (here with ``J``
+    by central differences over the EKF's states and its load), which the prediction
+    subtracts from the tension (the bound raised by it); without an EKF no back-off."""
+    plant = hanging_load(1, load_kg=0.02)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    task = {**TASK, "estimator": "ekf", "noise_std": {L: 2e-5, "regulator.p_out": 200.0}}
+    ctl = make_controller("nmpc", plant, eq, 0.01, task)
+    mpc, ekf = ctl.inner, ctl.ekf
+    threads = ["myofibril.actin0.T", "myofibril.actin1.T"]
+    assert mpc.settings.backoff == 1.0 and mpc.uncertain_signals == threads
+    y = {n: eq[n] for n in ctl.outputs}
+    for k in range(3):
+        ctl.checked(0.01 * k, {**y, L: eq[L] + 1e-4 * k}, {L: eq[L] - 1e-3})
+    sig = plant.signals_function(threads)
+    nx, k_m = plant.nx, plant.param_names.index("load.m")
+
+    def tensions(xa):  # at the estimated state and load
+        p = eq.p.copy()
+        p[k_m] = xa[nx]
+        return np.array(sig(xa[:nx], np.zeros(0), ctl._u, p)).ravel()
+
+    xa = ekf.xa.copy()
+    J = np.zeros((2, len(xa)))
+    for j in range(len(xa)):
+        h = 1e-7 * max(abs(xa[j]), 1e-6)
+        up, down = xa.copy(), xa.copy()
+        up[j] += h
+        down[j] -= h
+        J[:, j] = (tensions(up) - tensions(down)) / (2 * h)
+    std = np.sqrt(np.diag(J @ ekf.P @ J.T))
+    fed = [mpc.parameters[f"backoff.{n}"] for n in threads]
+    assert np.all(std > 0) and fed == pytest.approx(std, rel=1e-4)
+    pb, xi = mpc.problem, xa[:nx] / mpc.problem.xs  # the same states
+    bare = mpc._p.copy()
+    bare[-2:] = 0.0  # the two back-offs, last
+    raised = np.array(pb.T(xi, mpc._p)).ravel()
+    assert raised == pytest.approx(np.array(pb.T(xi, bare)).ravel() - np.array(fed), rel=1e-12)
+    plain = make_controller("nmpc", plant, eq, 0.01, TASK)
+    assert plain.settings.backoff == 0.0 and plain.uncertain_signals == []
+    assert not any(n.startswith("backoff.") for n in plain.runtime_parameters)
