@@ -361,7 +361,7 @@ def _what(controller) -> str:
     """A controller's kind for messages: its slug and solver, or its estimator."""
     if isinstance(controller, OnEstimate):
         return f"{controller.slug} (on an EKF: the estimator is not exported)"
-    solver = getattr(getattr(controller, "settings", None), "solver", None)
+    solver = getattr(controller, "solver", None)  # the converged NMPC's NLP solver
     return f"{getattr(controller, 'slug', type(controller).__name__)}" + (
         f" (solver {solver!r})" if solver else ""
     )

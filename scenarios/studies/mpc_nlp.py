@@ -198,7 +198,7 @@ class ConvergedNMPC(NonlinearMPC):
         if not (isinstance(tol, int | float) and tol > 0):
             raise ParameterError("nmpc.tol", tol, "(0, inf)")
         count("nmpc.max_iter", max_iter, 1, MAX_ITER, "a limit per sample, not a budget")
-        self.nlp_options = (solver, float(tol), max_iter)
+        self.solver, self.nlp_options = solver, (solver, float(tol), max_iter)
         super().__init__(model, u_op, dt, settings, params)
 
     def build_engine(self, pb: Prediction) -> CollocationNLP:
