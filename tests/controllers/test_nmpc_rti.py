@@ -184,3 +184,19 @@ def test_the_sparse_lu_solves_like_a_dense_lu():
     (L,) = fused.lin.call([V, xi, u, p])
     got = np.array(cs.DM(L))[:, : expected.shape[1]]
     assert np.allclose(got, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"max_iter": 10**9}, r"'nmpc\.max_iter' = 1000000000.*integer in \[1, 1000\]"),
+        ({"max_iter": 0}, r"'nmpc\.max_iter' = 0.*integer in \[1, 1000\]"),
+        ({"solver": "rti"}, "nmpc.solver"),
+        ({"tol": 0.0}, "nmpc.tol"),
+    ],
+)
+def test_the_converged_nmpcs_settings_are_checked(kwargs, match):
+    model = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
+    eq = solve_equilibrium(model, {P: 5e4})
+    with pytest.raises(ParameterError, match=match):
+        ConvergedNMPC(model, eq.u, 0.01, **kwargs)
