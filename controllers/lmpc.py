@@ -20,8 +20,8 @@ unknowns) by :class:`VelocityQP` in numpy at each linearisation; one sample at a
 linearisation is one CasADi Function, :func:`velocity_law` (``(memory, x, u_prev, ref,
 p) -> (memory_next, u, ok)``, the QP inside, the condensed matrices in ``p``):
 :meth:`LinearMPC.update` evaluates it every sample (DAQP), and the controller FMU
-generates its C code (DAQP linked statically from the CasADi wheel, :func:`law_c_build`;
-or qrqp, no library at all).
+generates its C code (DAQP linked statically from the CasADi wheel,
+:func:`~.rti_compiled.daqp_build`; or qrqp, no library at all).
 
 Outside the law, between samples: a Kalman filter of one constant disturbance on the
 states read (:mod:`.disturbance`; ``disturbance = "load"`` by default: the load mass), and
@@ -273,7 +273,8 @@ class LinearMPC(RecedingHorizon):
         controller's sizes: :meth:`update` evaluates it every sample with
         ``settings.qp_solver`` (after re-linearising when due, which only changes
         :meth:`law_parameters`); the controller FMU generates C code from it (DAQP:
-        compile with :func:`law_c_build`; qrqp: no library, slower with soft bounds)."""
+        compile with :func:`~.rti_compiled.daqp_build`; qrqp: no library, slower with
+        soft bounds)."""
         s = self.settings
         return velocity_law(
             self.model.nx, len(self.inputs), len(self._soft), s.horizon, solver or s.qp_solver

@@ -15,8 +15,6 @@ import scipy.linalg
 
 from sarcomere.dynamics.errors import ParameterError
 
-from .rti_compiled import daqp_build
-
 QP_SOLVERS = {
     "qrqp": {
         "print_iter": False,
@@ -137,19 +135,6 @@ class VelocityQP:
         ws = np.broadcast_to(self.weight_slack, self.ns)
         parts = (self.H, self._G, self._Gr, self.A, self._Ssx, self.u_scale, ws)
         return np.concatenate([np.ravel(np.asarray(a, float), order="F") for a in parts])
-
-
-def law_c_build(solver: str) -> tuple[list[str], list[str]]:
-    """What compiling :func:`velocity_law`'s generated C with ``solver`` needs: compiler
-    flags and link inputs. DAQP: the include folder and the static library ``libdaqpstat.a``
-    of the installed CasADi wheel; qrqp: nothing."""
-    if solver not in QP_SOLVERS:
-        raise ParameterError("lmpc.qp_solver", solver, f"one of {sorted(QP_SOLVERS)}")
-    if solver == "qrqp":
-        return [], []
-    if solver == "qpoases":
-        raise ParameterError("lmpc.qp_solver", solver, "'daqp' or 'qrqp' for C code")
-    return daqp_build()
 
 
 LAW_TOL = 1e-6

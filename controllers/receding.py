@@ -324,27 +324,26 @@ def check_soft_min(slug: str, declared: object) -> tuple:
         Naming ``<slug>.soft_min`` for another shape, a bound that is not a finite number
         or a penalty that is not a number > 0 (``inf``: a hard bound).
     """
-    where = f"{slug}.soft_min"
+
+    def valid(e) -> bool:
+        return (
+            isinstance(e, Sequence)
+            and not isinstance(e, str)
+            and len(e) in (2, 3)
+            and isinstance(e[0], str)
+            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in e[1:])
+            and math.isfinite(e[1])
+            and (len(e) == 2 or e[2] > 0)
+        )
+
     if isinstance(declared, str) or not isinstance(declared, Sequence):
+        declared = [declared]  # refused below
+    if not all(valid(e) for e in declared):
         raise ParameterError(
-            where, declared, "a list of [signal, bound] or [signal, bound, penalty]"
-        )
-    out = []
-    for entry in declared:
-        ok = (
-            not isinstance(entry, str)
-            and isinstance(entry, Sequence)
-            and len(entry) in (2, 3)
-            and isinstance(entry[0], str)
-            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in entry[1:])
-        )
-        if not ok or not math.isfinite(entry[1]) or (len(entry) == 3 and not entry[2] > 0):
-            raise ParameterError(
-                where, entry, "[signal, bound] or [signal, bound, penalty]: bound finite [SI], "
-                "penalty > 0 (inf: hard)"
-            )  # fmt: skip
-        out.append(tuple(entry))
-    return tuple(out)
+            f"{slug}.soft_min", declared, "[signal, bound] or [signal, bound, penalty] pairs: "
+            "bound finite [SI], penalty > 0 (inf: hard)"
+        )  # fmt: skip
+    return tuple(tuple(e) for e in declared)
 
 
 def soft_bounds(

@@ -22,7 +22,7 @@ import casadi as cs
 import numpy as np
 
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
-from sarcomere.controllers.registry import count
+from sarcomere.controllers.registry import count, positive
 from sarcomere.controllers.rti import Prediction
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
@@ -195,8 +195,7 @@ class ConvergedNMPC(NonlinearMPC):
     ) -> None:
         if solver not in SOLVERS:
             raise ParameterError("nmpc.solver", solver, f"one of {SOLVERS}")
-        if not (isinstance(tol, int | float) and tol > 0):
-            raise ParameterError("nmpc.tol", tol, "(0, inf)")
+        positive("nmpc", "tol", tol)
         count("nmpc.max_iter", max_iter, 1, MAX_ITER, "a limit per sample, not a budget")
         self.solver, self.nlp_options = solver, (solver, float(tol), max_iter)
         super().__init__(model, u_op, dt, settings, params)

@@ -285,3 +285,28 @@ def test_relinearized_on_the_state_distance_and_on_the_input_distance(plant):
     # re-linearised at the first sample whose held command had left the 5 kPa band
     assert mpc.relinearizations == 2
     assert abs(held[-2] - 4e4) > 5e3 and abs(held[-3] - 4e4) <= 5e3
+
+
+@pytest.mark.parametrize(("slug", "penalty"), [("lmpc", 1e4), ("nmpc", 1e6)])
+def test_both_mpcs_take_one_declaration_of_bounds(slug, penalty):
+    """``soft_min`` as a scene file gives it (lists: signal or pattern, bound, optional
+    penalty) means the same to both MPCs, followed by the scene's ``tension_min`` on every
+    thread; the NMPC (one slack per node) refuses two penalties, both an unknown signal."""
+    model = hanging_load(2, load_kg=0.02)
+    eq = solve_equilibrium(model, {P: 4e4})
+    task = {"output": L, "input": P, "u_min": 0.0, "u_max": 1e5, "tension_min": 0.01}
+    declared = [["myofibril.actin2.T", 0.15], ["myofibril.length", 0.03, penalty]]
+    mpc = make_controller(slug, model, eq, 0.01, {**task, "soft_min": declared})
+    threads = [f"myofibril.actin{k}.T" for k in range(3)]
+    assert mpc.bounds == [
+        ("myofibril.actin2.T", 0.15, penalty),
+        ("myofibril.length", 0.03, penalty),
+        *((n, 0.01, penalty) for n in threads),
+    ]
+    with pytest.raises(ParameterError, match=f"{slug}.soft_min"):
+        make_controller(slug, model, eq, 0.01, {**task, "soft_min": [["nope", 1.0]]})
+    with pytest.raises(ParameterError, match=f"{slug}.soft_min"):
+        make_controller(slug, model, eq, 0.01, {**task, "soft_min": [["myofibril.length"]]})
+    if slug == "nmpc":
+        with pytest.raises(ParameterError, match="nmpc.soft_min.*one penalty"):
+            make_controller(slug, model, eq, 0.01, {**task, "soft_min": [[L, 0.03, 1.0]]})
