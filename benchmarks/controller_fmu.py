@@ -33,7 +33,8 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
-from sarcomere.controllers.nmpc import GENERATED_SOLVERS, NMPCSettings, NonlinearMPC
+from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
+from sarcomere.controllers.rti import GENERATED_SOLVERS
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.fmu.controller import export_controller_fmu

@@ -162,7 +162,7 @@ def mpc_prediction() -> dict:
     """The RTI NMPC with each of :data:`MPC_LEVELS` as its prediction model, on the full
     plant of the MPC study's length-control scene and its venting scene."""
     rows = {}
-    settings = NMPCSettings(solver="rti", horizon=mpc_study.HORIZON)
+    settings = NMPCSettings(horizon=mpc_study.HORIZON)
     for level in MPC_LEVELS:
         model = mpc_study._prediction(level)
         runs = [

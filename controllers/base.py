@@ -38,6 +38,14 @@ class ControllerStats:
     solve_times_s: list[float] = field(default_factory=list)
     fallbacks: int = 0
 
+    @property
+    def fallback_fraction(self) -> float:
+        """Fallbacks per sample so far [-] (0 before the first sample): 1.0 is a
+        controller whose own method never succeeded (an NMPC whose hard bound can never
+        hold) and that ran on its safe input only."""
+        n = len(self.solve_times_s)
+        return self.fallbacks / n if n else 0.0
+
 
 class Controller(ABC):
     """A sampled controller: ``update(t, y, r) -> u`` every ``dt`` seconds.

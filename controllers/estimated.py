@@ -10,20 +10,26 @@ estimates (by default the load mass), and its input and output offsets
 (:data:`~.ekf.OFFSETS`), that the inner controller accepts
 (:attr:`~.base.Controller.runtime_parameters`: the NMPC takes all, the LMPC its model's
 parameters) are passed to it every sample through
-:meth:`~.base.Controller.set_parameters`, before it computes its input.
+:meth:`~.base.Controller.set_parameters`, before it computes its input. So is the standard
+deviation of the estimate of each signal the inner controller names in
+``uncertain_signals`` (the NMPC's bounded signals with a ``backoff``: it raises their
+bounds by a multiple of it), as ``backoff.<signal>``: ``sqrt(J P J^T)`` with ``P`` the
+EKF's covariance and ``J`` the signal's derivative by the estimated states and
+parameters.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
+import casadi as cs
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .ekf import EKF
+from .ekf import EKF, OFFSETS
 
 
 class OnEstimate(Controller):
@@ -50,6 +56,16 @@ class OnEstimate(Controller):
         self._signals = plant.signals_function(self._derived)
         accepted = set(inner.runtime_parameters)
         self.fed = [n for n in ekf.disturbances if n in accepted]  # passed to inner
+        self._uncertain = list(getattr(inner, "uncertain_signals", []))
+        if self._uncertain:  # the signals' derivatives by the EKF's augmented state
+            x, u = cs.MX.sym("x", plant.nx), cs.MX.sym("u", plant.u.numel())
+            p = cs.MX.sym("p", plant.p.numel())
+            sig = plant.signals_function(self._uncertain)(x, cs.MX(0, 1), u, p)
+            by = {OFFSETS[0]: cs.jacobian(sig, u), OFFSETS[1]: cs.MX(len(self._uncertain), 1)}
+            Jp = cs.jacobian(sig, p)
+            by.update({n: Jp[:, k] for k, n in enumerate(plant.param_names)})
+            J = cs.horzcat(cs.jacobian(sig, x), *(by[n] for n in ekf.disturbances))
+            self._spread = cs.Function("signal_jacobian", [x, u, p], [J])
         self.reset(dict(zip(plant.input_names, op.u.tolist(), strict=True)))
 
     def reset(self, u0: Mapping[str, float]) -> None:
@@ -73,6 +89,16 @@ class OnEstimate(Controller):
         if self.fed:
             estimates = self.ekf.parameters
             self.inner.set_parameters({n: estimates[n] for n in self.fed})
+        if self._uncertain:  # at the estimated state and parameters
+            p = self.op.p.copy()
+            for n, v in self.ekf.parameters.items():
+                if n in self.plant.param_names:
+                    p[self.plant.param_names.index(n)] = v
+            J = np.array(self._spread(self.ekf.xa[: self.plant.nx], self._u, p))
+            std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, self.ekf.P, J), 0.0))
+            self.inner.set_parameters(
+                {f"backoff.{n}": float(s) for n, s in zip(self._uncertain, std, strict=True)}
+            )
         u = self.inner.checked(t, est, r)
         self.stats.fallbacks = self.inner.stats.fallbacks
         self._u = np.array(

@@ -13,13 +13,15 @@ the loop has integral action (offset-free) without an observer. The cost is
 ``k``: the preview set by :meth:`~.receding.RecedingHorizon.set_preview` when the reference
 is known ahead, else ``r(t)`` held; ``e_k - (r_k - r(t))`` in the increments); input
 bounds and rate limits are hard (``du = 0`` always satisfies them, so the QP is always
-feasible); lower bounds on other signals (e.g. thread tension) are soft, with one slack
-per signal (linear and quadratic penalty). The QP is condensed (only the moves and slacks
-are unknowns). One sample at a fixed linearisation is one CasADi Function,
-:func:`velocity_law` (``(memory, x, u_prev, ref, p) -> (memory_next, u, ok)``, the QP
-inside, its matrices in ``p``): :meth:`LinearMPC.update` evaluates it every sample (DAQP),
-and the controller FMU generates its C code (DAQP linked statically from the CasADi
-wheel, :func:`law_c_build`; or qrqp, no library at all).
+feasible); lower bounds on other signals (``soft_min``, declared as the NMPC's:
+:func:`~.receding.soft_bounds`; e.g. thread tension) are soft, with one slack per signal
+(linear and quadratic penalty). The QP is condensed (only the moves and slacks are
+unknowns) by :class:`VelocityQP` in numpy at each linearisation; one sample at a fixed
+linearisation is one CasADi Function, :func:`velocity_law` (``(memory, x, u_prev, ref,
+p) -> (memory_next, u, ok)``, the QP inside, the condensed matrices in ``p``):
+:meth:`LinearMPC.update` evaluates it every sample (DAQP), and the controller FMU
+generates its C code (DAQP linked statically from the CasADi wheel,
+:func:`~.rti_compiled.daqp_build`; or qrqp, no library at all).
 
 Outside the law, between samples: a Kalman filter of one constant disturbance on the
 states read (:mod:`.disturbance`; ``disturbance = "load"`` by default: the load mass), and
@@ -38,16 +40,16 @@ target did not move, the measured point.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import casadi as cs
-import control as ct
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError, SolverError
-from sarcomere.dynamics.modeling.labels import to_label
+from sarcomere.dynamics.modeling.buffered import BufferedCall
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
@@ -59,17 +61,17 @@ from .disturbance import (
     residual_noise,
 )
 from .ekf import DEFAULT_STD, estimated_parameters
-from .qp import zoh
+from .qp import VelocityQP, velocity_law, zoh
 from .receding import (
-    TENSION,
-    BufferedCall,
     RecedingHorizon,
     check_horizon,
+    check_soft_min,
+    factory_bounds,
     mpc_settings,
+    soft_bounds,
     with_estimator,
 )
 from .registry import positive, register_controller
-from .rti_compiled import daqp_build
 from .target import SteadyTarget
 
 
@@ -93,10 +95,14 @@ class LMPCSettings:
         Regulator command bounds [Pa gauge].
     rate_max : float
         Largest input rate [Pa/s]; a move per sample is at most ``rate_max * dt``.
-    soft_min : tuple of (str, float)
-        Soft lower bounds on signals (e.g. ``(("myofibril.actin1.T", 0.01),)``, SI).
-    weight_slack : float
-        Linear and quadratic penalty on a soft-bound violation [per unit of the signal].
+    soft_min : tuple
+        Soft lower bounds on signals, as the NMPC's (:func:`~.receding.soft_bounds`):
+        entries ``(signal, bound)`` or ``(signal, bound, penalty)``, e.g.
+        ``(("myofibril.actin1.T", 0.01),)`` [SI]; the signal a name or a pattern; the
+        penalty finite (no hard bounds here: a hard bound could make the QP infeasible).
+    soft_penalty : float
+        Linear and quadratic penalty on a soft-bound violation [per unit of the signal],
+        of the bounds declared without one.
     relinearize_m : float
         Re-linearise when the tracked output moved this far from the last point [m].
     relinearize_rel : float
@@ -121,7 +127,7 @@ class LMPCSettings:
         The tracked signal.
     qp_solver : str
         The QP solver :meth:`LinearMPC.update` evaluates the law with: "daqp" (default),
-        "qpoases" or "qrqp" (see :data:`LAW_QP`: DAQP and qrqp generate C code).
+        "qpoases" or "qrqp" (see :data:`~.qp.QP_SOLVERS`: DAQP and qrqp generate C code).
     """
 
     horizon: int = 20
@@ -131,7 +137,7 @@ class LMPCSettings:
     u_max: float = 1.0e5
     rate_max: float = 2.0e6
     soft_min: tuple = ()
-    weight_slack: float = 1.0e4
+    soft_penalty: float = 1.0e4
     relinearize_m: float = 2.0e-3
     relinearize_rel: float = 0.05
     relinearize_x: float = 0.25
@@ -147,7 +153,10 @@ class LMPCSettings:
         positive("lmpc", "weight_y", self.weight_y)
         positive("lmpc", "weight_du", self.weight_du, allow_zero=True)
         positive("lmpc", "rate_max", self.rate_max)
-        positive("lmpc", "weight_slack", self.weight_slack)
+        positive("lmpc", "soft_penalty", self.soft_penalty)
+        object.__setattr__(self, "soft_min", check_soft_min("lmpc", self.soft_min))
+        if any(len(b) == 3 and not math.isfinite(b[2]) for b in self.soft_min):
+            raise ParameterError("lmpc.soft_min", self.soft_min, "finite penalties (soft)")
         positive("lmpc", "relinearize_m", self.relinearize_m)
         positive("lmpc", "relinearize_rel", self.relinearize_rel)
         positive("lmpc", "relinearize_x", self.relinearize_x)
@@ -159,222 +168,6 @@ class LMPCSettings:
             raise ParameterError("lmpc.disturbance", self.disturbance, f"one of {DISTURBANCES}")
         if not self.u_min < self.u_max:
             raise ParameterError("lmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
-
-
-@dataclass
-class VelocityQP:
-    """The condensed QP of one linearisation (see the module docstring).
-
-    Parameters
-    ----------
-    Ad, Bd : numpy.ndarray
-        Discrete-time state and input matrices (nx x nx, nx x nu).
-    C : numpy.ndarray
-        Tracked outputs (ny x nx).
-    Cs : numpy.ndarray
-        Softly bounded signals (ns x nx), may have zero rows.
-    horizon : int
-    weight_y, weight_du, weight_slack : float
-    u_scale : numpy.ndarray
-        Scale of each input [SI]: the QP's unknowns are ``du / u_scale``.
-    solver : casadi.Function or None
-        A conic solver for the sparsities :meth:`sparsities` gives, for :meth:`solve`
-        (None in :class:`LinearMPC`: its law, :func:`velocity_law`, solves the QP).
-    """
-
-    Ad: np.ndarray
-    Bd: np.ndarray
-    C: np.ndarray
-    Cs: np.ndarray
-    horizon: int
-    weight_y: float
-    weight_du: float
-    weight_slack: float
-    u_scale: np.ndarray
-    solver: cs.Function | None
-    H: np.ndarray = field(init=False)
-
-    def __post_init__(self) -> None:
-        nx, nu = self.Bd.shape
-        ny, ns, N = self.C.shape[0], self.Cs.shape[0], self.horizon
-        Phi = np.block([[self.Ad, np.zeros((nx, ny))], [self.C @ self.Ad, np.eye(ny)]])
-        Gam = np.vstack([self.Bd, self.C @ self.Bd]) * self.u_scale[None, :]
-        n = nx + ny
-        Sx = np.zeros((N * n, n))
-        Su = np.zeros((N * n, N * nu))
-        P = np.eye(n)
-        for k in range(N):
-            P = Phi @ P
-            Sx[k * n : (k + 1) * n] = P
-        for j in range(N):
-            blk = Gam
-            for k in range(j, N):
-                Su[k * n : (k + 1) * n, j * nu : (j + 1) * nu] = blk
-                blk = Phi @ blk
-        # the tracking errors e_1..e_N: the last ny rows of every block of n
-        Se_x = Sx.reshape(N, n, n)[:, nx:].reshape(N * ny, n)
-        Se_u = Su.reshape(N, n, N * nu)[:, nx:].reshape(N * ny, N * nu)
-        self.nu, self.ns = nu, ns
-        nv = N * nu + ns
-        H = np.zeros((nv, nv))
-        H[: N * nu, : N * nu] = 2 * (
-            self.weight_y * Se_u.T @ Se_u + self.weight_du * np.diag(np.tile(self.u_scale**2, N))
-        )
-        H[N * nu :, N * nu :] = 2 * self.weight_slack * np.eye(ns)
-        self.H = H
-        self._G = 2 * self.weight_y * Se_u.T @ Se_x  # gradient = G xi0
-        self._Gr = 2 * self.weight_y * Se_u.T  # minus this times the reference ahead
-        # inputs: u_k = u_prev + sum_{j<=k} du_j
-        T = np.kron(np.tril(np.ones((N, N))), np.diag(self.u_scale))
-        # soft signals at k = 1..N: s_0 + Cs (x_k - x_0), x_k - x_0 = sum_{i<=k} dx_i
-        # (cumulative sums of the dx rows: no (N nx) x (N n) summation matrix)
-        cum_x = np.cumsum(Sx.reshape(N, n, n)[:, :nx], axis=0)
-        cum_u = np.cumsum(Su.reshape(N, n, N * nu)[:, :nx], axis=0)
-        self._Ssx = np.einsum("sx,kxj->ksj", self.Cs, cum_x).reshape(N * ns, n)
-        Ssu = np.einsum("sx,kxj->ksj", self.Cs, cum_u).reshape(N * ns, N * nu)
-        A = np.zeros((N * nu + N * ns, nv))
-        A[: N * nu, : N * nu] = T
-        A[N * nu :, : N * nu] = Ssu
-        A[N * nu :, N * nu :] = np.kron(np.ones((N, 1)), np.eye(ns))
-        self.A = A
-
-    def data(self) -> np.ndarray:
-        """The condensed QP as one flat vector (the ``p`` part :func:`law_function` reads):
-        ``H, G, Gr, A, Ssx`` column-major, then ``u_scale`` and ``weight_slack``."""
-        parts = (self.H, self._G, self._Gr, self.A, self._Ssx, self.u_scale, [self.weight_slack])
-        return np.concatenate([np.ravel(np.asarray(a, float), order="F") for a in parts])
-
-    def sparsities(self) -> tuple[cs.Sparsity, cs.Sparsity]:
-        """Dense sparsities of the Hessian and the constraint matrix."""
-        return cs.Sparsity.dense(*self.H.shape), cs.Sparsity.dense(*self.A.shape)
-
-    def solve(
-        self,
-        xi0: np.ndarray,
-        u_prev: np.ndarray,
-        u_lo: np.ndarray,
-        u_hi: np.ndarray,
-        du_max: np.ndarray,
-        soft_gap: np.ndarray,
-        ahead: np.ndarray | None = None,
-    ) -> tuple[np.ndarray | None, bool]:
-        """The moves ``du`` (horizon x nu, SI) and whether the solver succeeded.
-
-        ``soft_gap``: each soft bound minus the signal's present value (ns). ``ahead``: the
-        reference at nodes ``1..horizon`` minus the one in ``xi0``'s error [SI] (horizon x
-        ny; default zero: the reference held over the horizon).
-        """
-        N, nu, ns = self.horizon, self.nu, self.ns
-        grad = self._G @ xi0
-        if ahead is not None:
-            grad = grad - self._Gr @ np.ravel(ahead)
-        g = np.concatenate([grad, np.full(ns, self.weight_slack)])
-        lba = np.concatenate([np.tile(u_lo - u_prev, N), np.tile(soft_gap, N) - self._Ssx @ xi0])
-        uba = np.concatenate([np.tile(u_hi - u_prev, N), np.full(N * ns, np.inf)])
-        lbx = np.concatenate([np.tile(-du_max / self.u_scale, N), np.zeros(ns)])
-        ubx = np.concatenate([np.tile(du_max / self.u_scale, N), np.full(ns, np.inf)])
-        sol = self.solver(h=self.H, g=g, a=self.A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
-        v = np.array(sol["x"]).ravel()
-        ok = bool(self.solver.stats()["success"]) and bool(np.all(np.isfinite(v)))
-        return (v[: N * nu].reshape(N, nu) * self.u_scale if ok else None), ok
-
-
-LAW_QP = {
-    "qrqp": {
-        "print_iter": False,
-        "print_header": False,
-        "print_info": False,
-        "error_on_fail": False,
-        "max_iter": 200,
-    },
-    "daqp": {"error_on_fail": False},
-    "qpoases": {"printLevel": "none", "error_on_fail": False},
-}
-"""QP solvers of :func:`velocity_law`, all with CasADi C code generation. ``daqp``
-(default; DAQP, a dual active-set solver for dense QPs) generates code that includes
-``daqp/api.h`` and links DAQP, whose headers and static library CasADi's wheel ships
-(:func:`law_c_build`: the library is linked into the binary, nothing else to install).
-``qrqp`` (CasADi's own active-set solver) needs nothing at all, but factorises the
-whole KKT system sparsely: on the control-length QP (24 unknowns, 100 rows with four
-soft tension bounds) 8-13 ms interpreted and about 20 ms compiled, against 0.04 ms for the
-compiled DAQP law (without soft bounds qrqp takes 0.05 ms too). The compiled DAQP law
-gives the Python law's commands exactly (same solver, same arithmetic)."""
-
-
-def law_c_build(solver: str) -> tuple[list[str], list[str]]:
-    """What compiling :func:`velocity_law`'s generated C with ``solver`` needs: compiler
-    flags and link inputs. DAQP: the include folder and the static library ``libdaqpstat.a``
-    of the installed CasADi wheel; qrqp: nothing."""
-    if solver not in LAW_QP:
-        raise ParameterError("lmpc.qp_solver", solver, f"one of {sorted(LAW_QP)}")
-    if solver == "qrqp":
-        return [], []
-    if solver == "qpoases":
-        raise ParameterError("lmpc.qp_solver", solver, "'daqp' or 'qrqp' for C code")
-    return daqp_build()
-
-
-LAW_TOL = 1e-6
-"""Largest scaled constraint violation of the QP's answer still accepted [-] (the solver's
-own flag is not reachable from inside a Function)."""
-
-
-def velocity_law(nx: int, nu: int, ns: int, horizon: int, solver: str = "daqp") -> cs.Function:
-    """One sample of the LMPC at a fixed linearisation as one CasADi Function::
-
-        lmpc(memory, x, u_prev, ref, p) -> (memory_next, u, ok)
-
-    ``memory = [x_prev (nx); started (1); plan (horizon nu, column-major nu x horizon)]``:
-    the states at the last sample, whether there was one, and the last plan of inputs [SI];
-    ``x = [states (nx); tracked output (1); soft signals (ns)]`` [SI] as measured now;
-    ``u_prev`` the input held since the last sample [SI]; ``ref`` the reference now
-    (clipped) and at nodes ``1..horizon`` [SI]; ``p = [VelocityQP.data(); u_lo; u_hi;
-    du_max; soft_min]`` (:meth:`LinearMPC.law_parameters`). The QP (``solver``, one of
-    :data:`LAW_QP`) is solved for the moves; ``u`` is the first input of the new plan
-    clipped into the bounds, or, when the answer is not feasible to :data:`LAW_TOL`
-    (``ok = 0``), of the last plan shifted by one sample. Re-linearisation is outside: it
-    changes ``p``.
-    """
-    N, n = horizon, nx + 1
-    nq, nv, na = N * nu, N * nu + ns, N * (nu + ns)
-    mem = cs.MX.sym("memory", nx + 1 + nq)
-    x, u_prev = cs.MX.sym("x", nx + 1 + ns), cs.MX.sym("u_prev", nu)
-    ref = cs.MX.sym("ref", N + 1)
-    sizes = [nv * nv, nq * n, nq * N, na * nv, N * ns * n, nu, 1, nu, nu, nu, ns]
-    p = cs.MX.sym("p", sum(sizes))
-    H, G, Gr, A, Ssx, us, ws, lo, hi, dmax, smin = cs.vertsplit(p, np.cumsum([0, *sizes]).tolist())
-    H, G, Gr = cs.reshape(H, nv, nv), cs.reshape(G, nq, n), cs.reshape(Gr, nq, N)
-    A, Ssx = cs.reshape(A, na, nv), cs.reshape(Ssx, N * ns, n)
-    x_prev, started, plan = mem[:nx], mem[nx], cs.reshape(mem[nx + 1 :], nu, N)
-    dx = cs.if_else(started > 0, x[:nx] - x_prev, cs.MX.zeros(nx))
-    xi0 = cs.vertcat(dx, x[nx] - ref[0])
-    gap = smin - x[nx + 1 :]
-    g = cs.vertcat(cs.mtimes(G, xi0) - cs.mtimes(Gr, ref[1:] - ref[0]), cs.repmat(ws, ns, 1))
-    lba = cs.vertcat(cs.repmat(lo - u_prev, N, 1), cs.repmat(gap, N, 1) - cs.mtimes(Ssx, xi0))
-    uba = cs.vertcat(cs.repmat(hi - u_prev, N, 1), cs.DM.inf(N * ns))
-    lbx = cs.vertcat(cs.repmat(-dmax / us, N, 1), cs.DM.zeros(ns))
-    ubx = cs.vertcat(cs.repmat(dmax / us, N, 1), cs.DM.inf(ns))
-    if solver not in LAW_QP:
-        raise ParameterError("lmpc.qp_solver", solver, f"one of {sorted(LAW_QP)}")
-    qp = cs.conic("lmpc_qp", solver, {"h": H.sparsity(), "a": A.sparsity()}, LAW_QP[solver])
-    v = qp(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)["x"]
-    Av = cs.mtimes(A, v)
-    scale = 1 + cs.fabs(Av)
-    viol = cs.mmax(cs.vertcat((lba - Av) / scale, (Av - uba) / scale, lbx - v, v - ubx, 0))
-    finite = cs.sum1(cs.fabs(v) < cs.inf) == nv  # false for a NaN
-    ok = cs.logic_and(viol <= LAW_TOL, finite)
-    moves = cs.reshape(v[:nq], nu, N) * cs.repmat(us, 1, N)
-    solved = cs.repmat(u_prev, 1, N) + cs.cumsum(moves, 1)
-    shifted = cs.horzcat(plan[:, 1:], plan[:, -1])
-    new = cs.if_else(ok, solved, shifted)
-    u = cs.fmin(cs.fmax(new[:, 0], lo), hi)
-    return cs.Function(
-        "lmpc",
-        [mem, x, u_prev, ref, p],
-        [cs.vertcat(x[:nx], 1, cs.vec(new)), u, ok],
-        ["memory", "x", "u_prev", "ref", "p"],
-        ["memory_next", "u", "ok"],
-    )
 
 
 class LinearMPC(RecedingHorizon):
@@ -430,10 +223,12 @@ class LinearMPC(RecedingHorizon):
     ) -> None:
         s = settings or LMPCSettings()
         names = model.input_names
-        reads = list(dict.fromkeys([*model.state_names, s.output, *(n for n, _ in s.soft_min)]))
+        self.bounds = soft_bounds("lmpc", model, s.soft_min, s.soft_penalty)
+        self._soft = [name for name, _, _ in self.bounds]
+        reads = list(dict.fromkeys([*model.state_names, s.output, *self._soft]))
         super().__init__(model, dt, s, reads, params)
-        self._soft = [name for name, _ in s.soft_min]
-        self._soft_min = np.array([float(v) for _, v in s.soft_min])
+        self._soft_min = np.array([low for _, low, _ in self.bounds])
+        self._penalty = np.array([w for _, _, w in self.bounds])
         self._lin = model.linearization([s.output, *self._soft])
         self._du_max = np.full(len(names), s.rate_max * self.dt)
         self._u_scale = self._u_hi - self._u_lo
@@ -478,7 +273,8 @@ class LinearMPC(RecedingHorizon):
         controller's sizes: :meth:`update` evaluates it every sample with
         ``settings.qp_solver`` (after re-linearising when due, which only changes
         :meth:`law_parameters`); the controller FMU generates C code from it (DAQP:
-        compile with :func:`law_c_build`; qrqp: no library, slower with soft bounds)."""
+        compile with :func:`~.rti_compiled.daqp_build`; qrqp: no library, slower with
+        soft bounds)."""
         s = self.settings
         return velocity_law(
             self.model.nx, len(self.inputs), len(self._soft), s.horizon, solver or s.qp_solver
@@ -508,8 +304,8 @@ class LinearMPC(RecedingHorizon):
         fy, fy_m = (np.array(v, dtype=float).ravel() for v in self._fy(x, ue, self._p))
         _, drift = zoh(A, fy[:nx, None], self.dt)  # one sample's motion of the point itself
         qp = VelocityQP(
-            Ad, Bd, C[:1], C[1:], s.horizon, s.weight_y, s.weight_du, s.weight_slack,
-            self._u_scale, None,
+            Ad, Bd, C[:1], C[1:], s.horizon, s.weight_y, s.weight_du, self._penalty,
+            self._u_scale,
         )  # fmt: skip
         self._y_lin, self._p_lin, self._d_lin = (
             float(fy[nx]) + d_out,
@@ -616,40 +412,6 @@ class LinearMPC(RecedingHorizon):
         self._steady = np.concatenate(self._op)
         self._qp = self._linearize(*self._op)
 
-    def as_iosystem(self) -> ct.NonlinearIOSystem:
-        """The law as a discrete python-control I/O system, in deviations from the point of
-        the last linearisation: inputs ``reference`` and the states and the output (labels
-        as :func:`~.linearize.linearize`: link a plant linearised there with outputs
-        ``state_names + [output]``), output the input; states the last states and input.
-        A linear plant needs no re-linearisation, reference clip or soft bound: none here.
-        """
-        m, n, N, ns = self.model, self.model.nx, self.settings.horizon, len(self._soft)
-        x_op, u_op, _ = self._lin_point
-        p = self.law_parameters()
-        p[len(p) - ns :] = -np.inf  # soft bounds inactive
-        f = self.law_function()
-
-        def law(xs, inp):
-            x_prev, u_prev, x = x_op + xs[:n], u_op + xs[n:], x_op + inp[1 : 1 + n]
-            memory = np.concatenate([x_prev, [1.0], np.tile(u_prev, N)])
-            meas = np.concatenate([x, [inp[1 + n]], np.zeros(ns)])
-            _, u, _ = f(memory, meas, u_prev, np.full(N + 1, inp[0]), p)
-            return np.array(u).ravel()
-
-        return ct.nlsys(
-            lambda t, xs, inp, params: np.concatenate([inp[1 : 1 + n], law(xs, inp) - u_op]),
-            lambda t, xs, inp, params: law(xs, inp) - u_op,
-            inputs=[
-                "reference",
-                *[to_label(v) for v in m.state_names],
-                to_label(self.settings.output),
-            ],
-            outputs=[to_label(v) for v in self.inputs],
-            states=[*[f"last_{to_label(v)}" for v in m.state_names], "last_input"],
-            dt=self.dt,
-            name="lmpc",
-        )
-
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         s = self.settings
         x = np.array([y[n] for n in self.model.state_names], dtype=float)
@@ -664,7 +426,7 @@ class LinearMPC(RecedingHorizon):
             self._p_law = self.law_parameters()
         meas = np.concatenate([x, [out], [y[n] for n in self._soft]])
         refs = np.concatenate([[ref], self.nodes(ref)])
-        self._memory, u, ok = self._law(self._memory, meas, self._u, refs, self._p_law)
+        self._memory, u, ok = self._law.outputs(self._memory, meas, self._u, refs, self._p_law)
         if not ok[0]:
             self.stats.fallbacks += 1
         self._plan = self._memory[self.model.nx + 1 :].reshape(s.horizon, -1)
@@ -676,7 +438,8 @@ def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     """Registry factory of ``lmpc``: linearised on the plant ``model`` itself at ``op``.
 
     Common keys: ``output``, ``input`` (the model's one input), ``u_min``, ``u_max``;
-    ``tension_min`` (if set) becomes a soft lower bound on every thread tension. Own keys:
+    ``tension_min`` (if set) becomes a soft lower bound on every thread tension, after the
+    own key ``soft_min`` (:func:`~.receding.factory_bounds`). Own keys:
     the other :class:`LMPCSettings` fields, ``estimator`` ("none", or "ekf": run on an
     EKF fed the ``measured`` signals, see :mod:`.estimated`) and ``ekf`` (its settings).
     The output's noise (``noise_std``) sets ``output_std`` unless given. On an EKF that
@@ -690,13 +453,10 @@ def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     if est == "ekf" and "disturbance" not in settings:
         fed = set(estimated_parameters(model, ekf_settings)) & set(model.param_names)
         own["disturbance"] = "none" if fed else own["disturbance"]
-    tmin = settings.get("tension_min")
-    soft = own.pop("soft_min")
-    if tmin is not None:
-        soft = (*soft, *((n, float(tmin)) for n in model.signal_names if TENSION.fullmatch(n)))
+    own.pop("soft_min")
     s = LMPCSettings(
         **own,
-        soft_min=tuple(soft),
+        soft_min=factory_bounds(settings, None),
         output=settings["output"],
         u_min=float(settings["u_min"]),
         u_max=float(settings["u_max"]),

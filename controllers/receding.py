@@ -3,21 +3,20 @@
 :class:`RecedingHorizon` holds what :class:`~.lmpc.LinearMPC` and
 :class:`~.nmpc.NonlinearMPC` have in common: the settings checks of a horizon, the sample
 time against the regulator lag, the input bounds, the reachable output range (reference
-clipping), the held input and the plan, and the fallback of a failed solve (the previous
-plan shifted by one sample, else hold). A subclass builds its prediction and, every
-sample, hands its new plan (or ``None`` on a failure) to :meth:`RecedingHorizon.apply`.
-The registry factories share :func:`mpc_settings` and :func:`with_estimator`.
+clipping), the held input and the plan, the parameters fed at run time and the
+reference preview. Both declare lower bounds on signals the same way
+(:func:`soft_bounds`: signal, bound, penalty). The registry factories share
+:func:`mpc_settings`, :func:`factory_bounds` and :func:`with_estimator`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import re
 import warnings
 from collections.abc import Mapping, Sequence
+from fnmatch import fnmatchcase
 
-import casadi as cs
 import numpy as np
 
 from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
@@ -30,10 +29,11 @@ from .ekf import OFFSETS, make_ekf
 from .estimated import OnEstimate
 from .registry import count, own_settings
 
-TENSION = re.compile(r"myofibril\.actin\w*\.T")
-"""Thread tension signals (bounded below by ``tension_min``)."""
+TENSIONS = "myofibril.actin*.T"
+"""Every thread tension (a pattern of :func:`soft_bounds`; bounded below by the scene's
+``tension_min``)."""
 
-COMMON = ("output", "u_min", "u_max", "tension_min")
+COMMON = ("output", "u_min", "u_max")
 """Settings fields the scene sets through the registry's common keys."""
 
 ESTIMATOR_DEFAULTS = {"estimator": "none", "ekf": {}}
@@ -239,22 +239,6 @@ class RecedingHorizon(Controller):
         ahead, self._preview = self._preview, None
         return np.full(self.settings.horizon, ref) if ahead is None else ahead
 
-    def apply(self, plan: np.ndarray | None) -> dict:
-        """The inputs to hold now, by name: the first row of ``plan`` (horizon x nu, SI),
-        clipped into the bounds. ``None`` (a failed solve) counts a fallback and uses the
-        previous plan shifted by one sample (its last input repeated), else holds the last
-        input."""
-        if plan is not None:
-            self._plan = plan
-        else:
-            self.stats.fallbacks += 1
-            if self._plan is not None and len(self._plan) > 1:
-                self._plan = np.vstack([self._plan[1:], self._plan[-1:]])
-            else:
-                self._plan = np.tile(self._u, (self.settings.horizon, 1))
-        self._u = np.clip(self._plan[0], self._u_lo, self._u_hi)
-        return dict(zip(self.inputs, self._u.tolist(), strict=True))
-
 
 def own_defaults(settings_class) -> dict:
     """The defaults of a settings dataclass, without the fields the common keys set."""
@@ -330,33 +314,68 @@ def with_estimator(
     return OnEstimate(ctl, ekf, model, op)
 
 
-class BufferedCall:
-    """Repeated calls of a CasADi Function on numpy arrays through ``Function.buffer``
-    (about 1 us of overhead per call instead of some 30 us of conversions per argument).
-    With ``copy=False`` the outputs returned are the call's own arrays, overwritten by the
-    next call; an input shared (:meth:`share`) with another call's output is read in place."""
+def check_soft_min(slug: str, declared: object) -> tuple:
+    """Lower bounds on signals as declared (a sequence of ``(signal, bound)`` or
+    ``(signal, bound, penalty)``, lists from a scene file too) as a tuple of tuples.
 
-    def __init__(self, F: cs.Function, copy: bool = True) -> None:
-        self.function, self.copy = F, copy
-        self.args = [np.zeros(F.nnz_in(i)) for i in range(F.n_in())]
-        self.res = [np.zeros(F.nnz_out(i)) for i in range(F.n_out())]
-        self.buf, self.trigger = F.buffer()
-        for i, arr in enumerate(self.args):
-            self.buf.set_arg(i, memoryview(arr))
-        for i, arr in enumerate(self.res):
-            self.buf.set_res(i, memoryview(arr))
+    Raises
+    ------
+    ParameterError
+        Naming ``<slug>.soft_min`` for another shape, a bound that is not a finite number
+        or a penalty that is not a number > 0 (``inf``: a hard bound).
+    """
 
-    def share(self, i: int, source: np.ndarray) -> None:
-        """Read input ``i`` from ``source`` (another call's output array): passing that
-        array as the argument then copies nothing."""
-        self.args[i] = source
-        self.buf.set_arg(i, memoryview(source))
+    def valid(e) -> bool:
+        return (
+            isinstance(e, Sequence)
+            and not isinstance(e, str)
+            and len(e) in (2, 3)
+            and isinstance(e[0], str)
+            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in e[1:])
+            and math.isfinite(e[1])
+            and (len(e) == 2 or e[2] > 0)
+        )
 
-    def __call__(self, *args) -> list[np.ndarray]:
-        """Arguments as arrays (column-major flattened); the outputs' nonzeros (copies
-        unless ``copy=False``)."""
-        for arr, value in zip(self.args, args, strict=True):
-            if value is not arr:
-                arr[:] = np.ravel(value, order="F")
-        self.trigger()
-        return [r.copy() for r in self.res] if self.copy else list(self.res)
+    if isinstance(declared, str) or not isinstance(declared, Sequence):
+        declared = [declared]  # refused below
+    if not all(valid(e) for e in declared):
+        raise ParameterError(
+            f"{slug}.soft_min", declared, "[signal, bound] or [signal, bound, penalty] pairs: "
+            "bound finite [SI], penalty > 0 (inf: hard)"
+        )  # fmt: skip
+    return tuple(tuple(e) for e in declared)
+
+
+def soft_bounds(
+    slug: str, model: Model, declared: Sequence, penalty: float
+) -> list[tuple[str, float, float]]:
+    """The lower bounds ``signal >= bound`` of an MPC, one declaration for both MPCs
+    (as do-mpc's ``set_nl_cons``): each entry ``(signal, bound[, penalty])`` of
+    :func:`check_soft_min`, the signal a name or a pattern (``*``, e.g.
+    :data:`TENSIONS`) of ``model``'s signals, the penalty [per unit of the signal] of the
+    violation ``s >= 0`` costing ``penalty (s + s^2)`` (default ``penalty``; ``inf``: a
+    hard bound). Returns one ``(name, bound, penalty)`` per signal matched, in order.
+
+    Raises
+    ------
+    ParameterError
+        For a signal or pattern that matches no signal of ``model``.
+    """
+    out = []
+    for entry in check_soft_min(slug, declared):
+        signal, bound, weight = (*entry, penalty)[:3]
+        names = [n for n in model.signal_names if fnmatchcase(n, signal)]
+        if not names:
+            raise ParameterError(f"{slug}.soft_min", signal, "a signal (or pattern) of the model")
+        out.extend((n, float(bound), float(weight)) for n in names)
+    return out
+
+
+def factory_bounds(settings: Mapping[str, object], tension_default: float | None) -> tuple:
+    """The lower bounds a registry factory gives its MPC: the own key ``soft_min``
+    (default none) and every thread tension (:data:`TENSIONS`) >= the common key
+    ``tension_min`` (``tension_default`` when not given; None: no tension bound)."""
+    declared = tuple(settings.get("soft_min") or ())
+    tmin = settings.get("tension_min")
+    tmin = tension_default if tmin is None else float(tmin)
+    return declared if tmin is None else (*declared, (TENSIONS, tmin))

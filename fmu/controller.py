@@ -38,8 +38,9 @@ import casadi as cs
 from sarcomere.controllers.estimated import OnEstimate
 from sarcomere.controllers.lmpc import LinearMPC
 from sarcomere.controllers.lqi import LQI
-from sarcomere.controllers.nmpc import GENERATED_SOLVERS, NonlinearMPC
+from sarcomere.controllers.nmpc import NonlinearMPC
 from sarcomere.controllers.pid import LAW_PARAMETERS, PID, STATE_NAMES, pid_law
+from sarcomere.controllers.rti import GENERATED_SOLVERS, RealTimeIteration
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
@@ -183,7 +184,7 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     export. Units from the prediction model (``model``, the plant, must have its output and
     input).
     """
-    if not isinstance(nmpc, NonlinearMPC) or nmpc.settings.solver != "rti":
+    if not isinstance(getattr(nmpc, "engine", None), RealTimeIteration):
         raise ParameterError(
             "controller", _what(nmpc), "an NMPC with solver 'rti' (the exported law)"
         )
@@ -360,7 +361,7 @@ def _what(controller) -> str:
     """A controller's kind for messages: its slug and solver, or its estimator."""
     if isinstance(controller, OnEstimate):
         return f"{controller.slug} (on an EKF: the estimator is not exported)"
-    solver = getattr(getattr(controller, "settings", None), "solver", None)
+    solver = getattr(controller, "solver", None)  # the converged NMPC's NLP solver
     return f"{getattr(controller, 'slug', type(controller).__name__)}" + (
         f" (solver {solver!r})" if solver else ""
     )

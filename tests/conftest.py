@@ -56,3 +56,30 @@ def compile_cache(tmp_path_factory):
     mp.setenv("SARCOMERE_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
     yield
     mp.undo()
+
+
+@pytest.fixture(scope="session")
+def velocity_law_moves():
+    """``moves(qp, xi0, u_prev, u_lo, u_hi, du_max, soft_gap, ahead=None, solver="daqp")``:
+    the moves ``du`` (horizon x nu, SI) and ``ok`` of the condensed velocity-form QP
+    ``qp`` (:class:`~sarcomere.controllers.qp.VelocityQP`) as the LMPC runs it: one call
+    of :func:`~sarcomere.controllers.qp.velocity_law` at ``xi0 = [dx; e]`` (the reference
+    0, the soft signals 0 with their bounds ``soft_gap``), ``ahead`` the reference at the
+    nodes (default 0)."""
+    import numpy as np
+
+    from sarcomere.controllers.qp import velocity_law
+
+    def moves(qp, xi0, u_prev, u_lo, u_hi, du_max, soft_gap, ahead=None, solver="daqp"):
+        nu, ns, N = qp.nu, qp.ns, qp.horizon
+        nx = len(xi0) - 1
+        law = velocity_law(nx, nu, ns, N, solver)
+        memory = np.concatenate([np.zeros(nx), [1.0], np.tile(u_prev, N)])
+        x = np.concatenate([xi0, np.zeros(ns)])
+        ref = np.concatenate([[0.0], np.zeros(N) if ahead is None else np.ravel(ahead)])
+        p = np.concatenate([qp.data(), u_lo, u_hi, du_max, soft_gap])
+        mem, _, ok = (np.array(v).ravel() for v in law(memory, x, u_prev, ref, p))
+        plan = mem[nx + 1 :].reshape(N, nu)
+        return np.diff(np.vstack([u_prev, plan]), axis=0), bool(ok[0])
+
+    return moves

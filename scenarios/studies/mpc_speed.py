@@ -1,5 +1,5 @@
 """MPC speed on the length-control scene: the real-time-iteration NMPC, the converged NMPC
-(IPOPT, fatrop), linear MPC and a plain CasADi ``Opti`` formulation, side by side.
+(IPOPT, fatrop: :mod:`.mpc_nlp`), linear MPC and a plain CasADi ``Opti`` formulation, side by side.
 
 **Problem.** n = 3 APS, 20 g, horizon 20, sample time 10 ms. The plant is the full model
 with the exact ISO 6358 flow law and the saturating regulator, integrated by CVODES between
@@ -45,9 +45,12 @@ import numpy as np
 from sarcomere.controllers.base import Controller
 from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
+from sarcomere.controllers.receding import TENSIONS
 from sarcomere.dynamics.assemblies import HOOK_MASS_KG, hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.simulation.simulator import Simulator
+
+from .mpc_nlp import ConvergedNMPC
 
 N_APS, LOAD_KG, DT, HORIZON = 3, 0.02, 0.01, 20
 P_START = 4e4
@@ -246,7 +249,7 @@ def tension_scene(fidelity: str, steps: int = 40) -> dict:
     lowest plant tension seen, and by how much it broke the bound."""
     plant = hanging_load(N_APS, load_kg=LOAD_KG)
     eq = solve_equilibrium(plant, {P_NAME: 1e5})
-    s = NMPCSettings(solver="rti", horizon=HORIZON, tension_min=TENSION_MIN)
+    s = NMPCSettings(horizon=HORIZON, soft_min=((TENSIONS, TENSION_MIN),))
     ctl = NonlinearMPC(_prediction(fidelity), eq.u, DT, s)
     names = [n for n in plant.signal_names if n.startswith("myofibril.actin") and n[-2:] == ".T"]
     sim = Simulator(plant)
@@ -285,9 +288,7 @@ def timed_rti(model, compiled: bool = False, linear_solver: str = "auto"):
     feedback call is the measurement-to-command latency."""
 
     def make(eq):
-        s = NMPCSettings(
-            solver="rti", horizon=HORIZON, compiled=compiled, linear_solver=linear_solver
-        )
+        s = NMPCSettings(horizon=HORIZON, compiled=compiled, linear_solver=linear_solver)
         ctl = NonlinearMPC(model, eq.u, DT, s)
         calls = ctl.engine.calls
         for name in calls:
@@ -370,8 +371,10 @@ def study(out_dir: Path, quick: bool = False) -> dict:
     pred = _prediction()
 
     def nmpc(solver, model=pred):
-        s = NMPCSettings(solver=solver, horizon=HORIZON)
-        return lambda eq: NonlinearMPC(model, eq.u, DT, s)
+        s = NMPCSettings(horizon=HORIZON)
+        if solver == "rti":
+            return lambda eq: NonlinearMPC(model, eq.u, DT, s)
+        return lambda eq: ConvergedNMPC(model, eq.u, DT, s, solver=solver)
 
     variants = {
         "nmpc_rti": timed_rti(pred),

@@ -4,13 +4,12 @@ settings."""
 
 import warnings
 
-import control as ct
 import numpy as np
 import pytest
 
-from sarcomere.controllers import linearize, make_controller
-from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP
-from sarcomere.controllers.qp import qp_solver, zoh
+from sarcomere.controllers import make_controller
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
+from sarcomere.controllers.qp import VelocityQP, zoh
 from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 
@@ -82,18 +81,17 @@ def riccati_first_gain(Phi, Gam, Q, R, N):
     return K
 
 
-def test_condensed_qp_equals_closed_form_lq():
+def test_condensed_qp_equals_closed_form_lq(velocity_law_moves):
     rng = np.random.default_rng(3)
     A = np.array([[-2.0, 1.0, 0.0], [0.0, -1.0, 0.5], [0.3, 0.0, -4.0]])
     B = np.array([[0.0], [1.0], [0.5]])
     C = np.array([[1.0, 0.0, 2.0]])
     Ad, Bd = zoh(A, B, 0.1)
     N, q, r = 12, 3.0, 0.2
-    qp = VelocityQP(Ad, Bd, C, np.zeros((0, 3)), N, q, r, 1.0, np.ones(1), None)
-    qp.solver = qp_solver("daqp", *qp.sparsities())
+    qp = VelocityQP(Ad, Bd, C, np.zeros((0, 3)), N, q, r, np.ones(0), np.ones(1))
     xi0 = rng.normal(size=4)
     big = np.full(1, 1e9)
-    du, ok = qp.solve(xi0, np.zeros(1), -big, big, big, np.zeros(0))
+    du, ok = velocity_law_moves(qp, xi0, np.zeros(1), -big, big, big, np.zeros(0))
     assert ok
     Phi = np.block([[Ad, np.zeros((3, 1))], [C @ Ad, np.eye(1)]])
     Gam = np.vstack([Bd, C @ Bd])
@@ -150,53 +148,50 @@ def test_registry_factory_linearizes_the_plant_with_soft_tension_bounds():
     task = {"output": L, "input": P, "u_min": 0.0, "u_max": 1e5, "tension_min": 0.01}
     mpc = make_controller("lmpc", model, eq, 0.01, {**task, "horizon": 10})
     assert mpc.settings.horizon == 10 and mpc.model is model
-    assert [n for n, _ in mpc.settings.soft_min] == ["myofibril.actin0.T", "myofibril.actin1.T"]
+    assert mpc.settings.soft_min == (("myofibril.actin*.T", 0.01),)
+    assert mpc.bounds == [("myofibril.actin0.T", 0.01, 1e4), ("myofibril.actin1.T", 0.01, 1e4)]
     assert mpc.checked(0.0, measure(mpc, eq), {L: eq[L]})[P] == pytest.approx(3e4, abs=1e-6)
     with pytest.raises(ParameterError, match="lmpc.weight"):
         make_controller("lmpc", model, eq, 0.01, {**task, "weight": 1.0})
 
 
-def test_soft_lower_bound_pulls_the_signal_up_and_is_paid_for():
+def test_soft_lower_bound_pulls_the_signal_up_and_is_paid_for(velocity_law_moves):
+    """The law the LMPC runs (:func:`velocity_law`) with a soft lower bound on a signal:
+    at rest, a bound 0.5 above the signal lifts it onto the bound at the first sample and
+    holds it there (the slack costs 100x the tracking); with the state moving down, the
+    bound holds on the predicted signal at every node (the sign of the measured motion in
+    the bound rows) and binds."""
     Ad, Bd = zoh(np.array([[-1.0]]), np.array([[1.0]]), 0.1)
     C = np.array([[1.0]])
     args = (Ad, Bd, C)
-    free = VelocityQP(*args, np.zeros((0, 1)), 10, 1.0, 0.01, 100.0, np.ones(1), None)
-    soft = VelocityQP(*args, C, 10, 1.0, 0.01, 100.0, np.ones(1), None)
+    free = VelocityQP(*args, np.zeros((0, 1)), 10, 1.0, 0.01, np.ones(0), np.ones(1))
+    soft = VelocityQP(*args, C, 10, 1.0, 0.01, np.full(1, 100.0), np.ones(1))
     big = np.full(1, 1e9)
-    for qp in (free, soft):
-        qp.solver = qp_solver("daqp", *qp.sparsities())
     xi0 = np.zeros(2)  # at rest on the reference
-    du_free, _ = free.solve(xi0, np.zeros(1), -big, big, big, np.zeros(0))
-    du_soft, ok = soft.solve(xi0, np.zeros(1), -big, big, big, np.array([0.5]))
+    du_free, _ = velocity_law_moves(free, xi0, np.zeros(1), -big, big, big, np.zeros(0))
+    du_soft, ok = velocity_law_moves(soft, xi0, np.zeros(1), -big, big, big, np.array([0.5]))
     assert ok and np.allclose(du_free, 0.0)
-    # the bound 0.5 above the present value wins over tracking (slack costs 100x): the
-    # signal is lifted onto it at the first sample and held there (x = u at steady state)
     assert (Bd @ du_soft[0])[0] == pytest.approx(0.5, rel=1e-6)
     assert du_soft.sum() == pytest.approx(0.5, rel=1e-6)
+    # moving down at 0.3 per sample (dx = -0.3) on the reference, bound 0.03 below the
+    # signal: the tracking alone lets it sink below (to -0.069); the bound catches it
+    xi0 = np.array([-0.3, 0.0])
+    du_free, _ = velocity_law_moves(free, xi0, np.zeros(1), -big, big, big, np.zeros(0))
+    du, ok = velocity_law_moves(soft, xi0, np.zeros(1), -big, big, big, np.array([-0.03]))
+
+    def signal(moves):  # s_k - s_0 = x_k - x_0 along the prediction
+        dx, x, out = xi0[0], 0.0, []
+        for m in moves[:, 0]:
+            dx = Ad[0, 0] * dx + Bd[0, 0] * m
+            x += dx
+            out.append(x)
+        return np.array(out)
+
+    assert ok and signal(du_free).min() < -0.03 - 0.02  # unbounded, it sinks below
+    assert signal(du).min() == pytest.approx(-0.03, abs=1e-3)  # bounded: onto the bound
 
 
-def test_as_iosystem_is_the_same_law_as_update(plant):
-    model, eq = plant
-    mpc = LinearMPC(model, eq.x, eq.u, 0.01, LMPCSettings(weight_du=1e-7))  # values below
-    lin = linearize(model, eq, [*model.state_names, L], dt=0.01)
-    loop = ct.interconnect(
-        [lin, mpc.as_iosystem()], inplist=["reference"], outlist=["myofibril__length"]
-    )
-    t = np.arange(100) * 0.01
-    resp = ct.input_output_response(loop, t, np.full(len(t), -2e-4))
-    assert resp.outputs[-1] == pytest.approx(-2e-4, rel=1e-3)  # offset-free
-    # the same linear plant stepped by hand with update(): the same trajectory
-    A, B, C = lin.A, lin.B, lin.C[-1]
-    dx, lengths = np.zeros(model.nx), []
-    for tk in t:
-        lengths.append(C @ dx)
-        y = dict(zip(model.state_names, eq.x + dx, strict=True)) | {L: eq[L] + C @ dx}
-        u = mpc.checked(tk, y, {L: eq[L] - 2e-4})[P]
-        dx = A @ dx + B[:, 0] * (u - 4e4)
-    assert np.allclose(lengths, resp.outputs, rtol=0, atol=1e-10)
-
-
-def test_condensed_qp_tracks_a_reference_per_node():
+def test_condensed_qp_tracks_a_reference_per_node(velocity_law_moves):
     """With ``ahead`` (the reference at each node minus r(t)) the QP's moves minimise
     ``sum q (e_k - ahead_k)^2 + r du_k^2``: least squares on the simulated prediction."""
     rng = np.random.default_rng(4)
@@ -205,11 +200,10 @@ def test_condensed_qp_tracks_a_reference_per_node():
     C = np.array([[1.0, 0.0, 2.0]])
     Ad, Bd = zoh(A, B, 0.1)
     N, q, r = 8, 3.0, 0.2
-    qp = VelocityQP(Ad, Bd, C, np.zeros((0, 3)), N, q, r, 1.0, np.ones(1), None)
-    qp.solver = qp_solver("daqp", *qp.sparsities())
+    qp = VelocityQP(Ad, Bd, C, np.zeros((0, 3)), N, q, r, np.ones(0), np.ones(1))
     xi0, ahead = rng.normal(size=4), rng.normal(size=N)
     big = np.full(1, 1e9)
-    du, ok = qp.solve(xi0, np.zeros(1), -big, big, big, np.zeros(0), ahead)
+    du, ok = velocity_law_moves(qp, xi0, np.zeros(1), -big, big, big, np.zeros(0), ahead)
     assert ok
 
     def errors(moves):  # e_1..e_N of xi+ = [Ad dx + Bd du; e + C (Ad dx + Bd du)]
@@ -291,3 +285,28 @@ def test_relinearized_on_the_state_distance_and_on_the_input_distance(plant):
     # re-linearised at the first sample whose held command had left the 5 kPa band
     assert mpc.relinearizations == 2
     assert abs(held[-2] - 4e4) > 5e3 and abs(held[-3] - 4e4) <= 5e3
+
+
+@pytest.mark.parametrize(("slug", "penalty"), [("lmpc", 1e4), ("nmpc", 1e6)])
+def test_both_mpcs_take_one_declaration_of_bounds(slug, penalty):
+    """``soft_min`` as a scene file gives it (lists: signal or pattern, bound, optional
+    penalty) means the same to both MPCs, followed by the scene's ``tension_min`` on every
+    thread; the NMPC (one slack per node) refuses two penalties, both an unknown signal."""
+    model = hanging_load(2, load_kg=0.02)
+    eq = solve_equilibrium(model, {P: 4e4})
+    task = {"output": L, "input": P, "u_min": 0.0, "u_max": 1e5, "tension_min": 0.01}
+    declared = [["myofibril.actin2.T", 0.15], ["myofibril.length", 0.03, penalty]]
+    mpc = make_controller(slug, model, eq, 0.01, {**task, "soft_min": declared})
+    threads = [f"myofibril.actin{k}.T" for k in range(3)]
+    assert mpc.bounds == [
+        ("myofibril.actin2.T", 0.15, penalty),
+        ("myofibril.length", 0.03, penalty),
+        *((n, 0.01, penalty) for n in threads),
+    ]
+    with pytest.raises(ParameterError, match=f"{slug}.soft_min"):
+        make_controller(slug, model, eq, 0.01, {**task, "soft_min": [["nope", 1.0]]})
+    with pytest.raises(ParameterError, match=f"{slug}.soft_min"):
+        make_controller(slug, model, eq, 0.01, {**task, "soft_min": [["myofibril.length"]]})
+    if slug == "nmpc":
+        with pytest.raises(ParameterError, match="nmpc.soft_min.*one penalty"):
+            make_controller(slug, model, eq, 0.01, {**task, "soft_min": [[L, 0.03, 1.0]]})

@@ -1,16 +1,15 @@
 """The LMPC's law as generated C: compiled with DAQP linked statically from the CasADi
-wheel (:func:`law_c_build`), it is a self-contained library giving the Python LMPC's
-commands and memory exactly."""
+wheel (:func:`~sarcomere.controllers.rti_compiled.daqp_build`), it is a self-contained
+library giving the Python LMPC's commands and memory exactly."""
 
 import subprocess
 
 import casadi as cs
 import numpy as np
-import pytest
 
-from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, law_c_build
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
+from sarcomere.controllers.rti_compiled import daqp_build
 from sarcomere.dynamics import hanging_load, solve_equilibrium
-from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.simulation.compiled import compiler
 
 P = "regulator.p_cmd"
@@ -26,7 +25,7 @@ def test_the_compiled_daqp_law_is_the_python_lmpc(tmp_path):
     gen.add(mpc.law_function())
     gen.generate(f"{tmp_path}/")
     src, lib = tmp_path / "lmpc_law.c", tmp_path / "lmpc_law.so"
-    flags, link = law_c_build("daqp")
+    flags, link = daqp_build()
     cmd = [compiler(), "-O2", "-fPIC", "-shared", str(src), "-o", str(lib), *flags, *link, "-lm"]
     subprocess.run(cmd, check=True, capture_output=True)
     nm = ["nm", "-D", "--undefined-only", str(lib)]
@@ -43,9 +42,3 @@ def test_the_compiled_daqp_law_is_the_python_lmpc(tmp_path):
         assert bool(ok) and float(u_c) == u
         assert np.array_equal(np.array(mem_c).ravel(), mpc.memory)
     assert u > 5e4 + 1e3  # it moved
-
-
-def test_c_build_inputs_name_the_solver():
-    assert law_c_build("qrqp") == ([], [])
-    with pytest.raises(ParameterError, match="lmpc.qp_solver"):
-        law_c_build("qpoases")

@@ -9,9 +9,12 @@ import scipy.linalg
 
 from sarcomere.controllers import make_controller
 from sarcomere.controllers.loop import run_closed_loop
-from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC, radau_residual
+from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
+from sarcomere.controllers.receding import TENSIONS
+from sarcomere.controllers.rti import radau_residual
 from sarcomere.dynamics import Simulator, hanging_load, isometric, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 
 P = "regulator.p_cmd"
 L = "myofibril.length"
@@ -26,7 +29,10 @@ def prediction():
 @pytest.mark.parametrize("solver", ["rti", "ipopt", "fatrop"])
 def test_matched_equilibrium_gives_the_steady_input(prediction, solver):
     model, eq = prediction
-    mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(solver=solver))
+    if solver == "rti":
+        mpc = NonlinearMPC(model, eq.u, 0.01)
+    else:
+        mpc = ConvergedNMPC(model, eq.u, 0.01, solver=solver)
     y = {n: eq[n] for n in mpc.outputs}
     for k in range(3):  # and stays there on the warm-started samples
         u = mpc.checked(0.01 * k, y, {L: eq[L]})
@@ -80,7 +86,7 @@ def closed_loop_min_tension(tension_min):
     plant = hanging_load(1, load_kg=0.02)
     pred = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
     eq = solve_equilibrium(plant, {P: 1e5})
-    mpc = NonlinearMPC(pred, eq.u, 0.01, NMPCSettings(tension_min=tension_min))
+    mpc = NonlinearMPC(pred, eq.u, 0.01, NMPCSettings(soft_min=((TENSIONS, tension_min),)))
     tensions = [n for n in plant.signal_names if n.startswith("myofibril.actin")]
     tensions = [n for n in tensions if n.endswith(".T")]
     sim = Simulator(plant)
@@ -111,7 +117,7 @@ def test_failed_qp_falls_back_to_the_shifted_plan(prediction):
     y = {n: eq[n] for n in good.outputs}
     good.checked(0.0, y, {L: eq[L] - 2e-4})
     plan, memory = good._plan.copy(), good.memory
-    hard = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(tension_min=5.0, soft_constraints=False))
+    hard = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(soft_min=((TENSIONS, 5.0, np.inf),)))
     law, x = hard.law_function(), np.array([eq[n] for n in model.state_names])
     ref, p = np.full(20, eq[L] - 2e-4), hard.parameters.values()
     mem, u, viol, fallback, _ = (np.array(v).ravel() for v in law(memory, x, plan[0], ref, list(p)))
@@ -122,7 +128,7 @@ def test_failed_qp_falls_back_to_the_shifted_plan(prediction):
     assert mem[sl["has_guess"]][0] == 0 and mem[sl["has_plan"]][0] == 1
     assert hard.checked(0.0, y, {L: eq[L]})[P] == eq.u[0]  # no plan yet: hold
     assert hard.stats.fallbacks == 1
-    soft = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(tension_min=5.0))
+    soft = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(soft_min=((TENSIONS, 5.0),)))
     u = soft.checked(0.0, y, {L: eq[L]})[P]
     assert np.isfinite(u) and soft.stats.fallbacks == 0 and soft.slack > 1.0
 
@@ -134,7 +140,7 @@ def test_the_law_function_called_by_hand_gives_the_controllers_commands():
     plant = hanging_load(1, load_kg=0.02)
     pred = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
     eq = solve_equilibrium(plant, {P: 5e4})
-    s = NMPCSettings(tension_min=0.19, integral_gain=0.0)
+    s = NMPCSettings(soft_min=((TENSIONS, 0.19),), integral_gain=0.0)
     mpc = NonlinearMPC(pred, eq.u, 0.01, s)
     sim = Simulator(plant)
     sim.reset(x0=eq.x)
@@ -160,7 +166,9 @@ def test_the_law_function_called_by_hand_gives_the_controllers_commands():
     [
         ({"weight_y": -1.0}, "nmpc.weight_y"),
         ({"horizon": 0}, "nmpc.horizon"),
-        ({"solver": "snopt"}, "nmpc.solver"),
+        ({"soft_min": (("x", 1.0, 0.0),)}, "nmpc.soft_min"),
+        ({"soft_min": "x"}, "nmpc.soft_min"),
+        ({"backoff": -1.0}, "nmpc.backoff"),
         ({"degree": 0}, "nmpc.degree"),
     ],
 )
@@ -274,7 +282,7 @@ def test_the_rti_gets_one_reference_per_node(prediction, monkeypatch):
     model, eq = prediction
     mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(horizon=5, integral_gain=0.0))
     y = {n: eq[n] for n in mpc.outputs}
-    seen, step = [], mpc.engine.calls["feedback"]
+    seen, step = [], mpc.engine.calls["feedback"]  # every output
     monkeypatch.setitem(
         mpc.engine.calls, "feedback", lambda *a: seen.append(np.array(a[4])) or step(*a)
     )
@@ -317,3 +325,47 @@ def test_preview_moves_before_a_known_step():
     assert np.allclose(u_blind[:30], 5e4, atol=1.0)  # waits for the step
     assert u_ahead[25] > 6e4  # 80 kPa at 0.25 s: pressurises ahead of it
     assert ahead < 0.5 * blind  # 0.11 mm against 0.30 mm RMS
+
+
+def test_on_an_ekf_the_bounds_are_raised_by_the_estimates_standard_deviation():
+    """``make_nmpc`` on an EKF: ``backoff`` 1 (``EKF_BACKOFF``), and every sample the EKF
+    feeds each bounded tension's standard deviation, ``sqrt(J P J^T)`` (here with ``J``
+    by central differences over the EKF's states and its load), which the prediction
+    subtracts from the tension (the bound raised by it); without an EKF no back-off."""
+    plant = hanging_load(1, load_kg=0.02)
+    eq = solve_equilibrium(plant, {P: 5e4})
+    task = {**TASK, "estimator": "ekf", "noise_std": {L: 2e-5, "regulator.p_out": 200.0}}
+    ctl = make_controller("nmpc", plant, eq, 0.01, task)
+    mpc, ekf = ctl.inner, ctl.ekf
+    threads = ["myofibril.actin0.T", "myofibril.actin1.T"]
+    assert mpc.settings.backoff == 1.0 and mpc.uncertain_signals == threads
+    y = {n: eq[n] for n in ctl.outputs}
+    for k in range(3):
+        ctl.checked(0.01 * k, {**y, L: eq[L] + 1e-4 * k}, {L: eq[L] - 1e-3})
+    sig = plant.signals_function(threads)
+    nx, k_m = plant.nx, plant.param_names.index("load.m")
+
+    def tensions(xa):  # at the estimated state and load
+        p = eq.p.copy()
+        p[k_m] = xa[nx]
+        return np.array(sig(xa[:nx], np.zeros(0), ctl._u, p)).ravel()
+
+    xa = ekf.xa.copy()
+    J = np.zeros((2, len(xa)))
+    for j in range(len(xa)):
+        h = 1e-7 * max(abs(xa[j]), 1e-6)
+        up, down = xa.copy(), xa.copy()
+        up[j] += h
+        down[j] -= h
+        J[:, j] = (tensions(up) - tensions(down)) / (2 * h)
+    std = np.sqrt(np.diag(J @ ekf.P @ J.T))
+    fed = [mpc.parameters[f"backoff.{n}"] for n in threads]
+    assert np.all(std > 0) and fed == pytest.approx(std, rel=1e-4)
+    pb, xi = mpc.problem, xa[:nx] / mpc.problem.xs  # the same states
+    bare = mpc._p.copy()
+    bare[-2:] = 0.0  # the two back-offs, last
+    raised = np.array(pb.T(xi, mpc._p)).ravel()
+    assert raised == pytest.approx(np.array(pb.T(xi, bare)).ravel() - np.array(fed), rel=1e-12)
+    plain = make_controller("nmpc", plant, eq, 0.01, TASK)
+    assert plain.settings.backoff == 0.0 and plain.uncertain_signals == []
+    assert not any(n.startswith("backoff.") for n in plain.runtime_parameters)

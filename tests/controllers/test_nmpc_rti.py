@@ -6,20 +6,27 @@ import numpy as np
 import pytest
 
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
+from sarcomere.controllers.receding import TENSIONS
 from sarcomere.dynamics import Simulator, hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 
 P = "regulator.p_cmd"
 L = "myofibril.length"
 
 
-def venting(settings: NMPCSettings, samples: int) -> tuple[list[float], NonlinearMPC]:
+def venting(
+    settings: NMPCSettings, samples: int, solver: str = "rti"
+) -> tuple[list[float], NonlinearMPC]:
     """Vent from 0.1 MPa towards the longest length with every thread >= 0.2 N (the
     bound is active: the lowest thread carries 0.206 N at rest) on the exact-law plant."""
     plant = hanging_load(1, load_kg=0.02)
     pred = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
     eq = solve_equilibrium(plant, {P: 1e5})
-    mpc = NonlinearMPC(pred, eq.u, 0.01, settings)
+    if solver == "rti":
+        mpc = NonlinearMPC(pred, eq.u, 0.01, settings)
+    else:
+        mpc = ConvergedNMPC(pred, eq.u, 0.01, settings, solver=solver)
     sim = Simulator(plant)
     sim.reset(x0=eq.x)
     commands = []
@@ -34,9 +41,9 @@ def venting(settings: NMPCSettings, samples: int) -> tuple[list[float], Nonlinea
 def test_soft_bounds_give_the_hard_solution_when_it_is_feasible(solver, samples, rtol):
     """The L1 weight (1e6 1/N) is above the bounds' multipliers, so the exact penalty
     puts no slack where the hard problem is feasible: the same commands, slack 0."""
-    common = {"solver": solver, "tension_min": 0.2, "integral_gain": 0.0}
-    hard, h = venting(NMPCSettings(soft_constraints=False, **common), samples)
-    soft, s = venting(NMPCSettings(**common), samples)
+    hard, h = venting(NMPCSettings(soft_min=((TENSIONS, 0.2, np.inf),), integral_gain=0.0),
+                      samples, solver)  # fmt: skip
+    soft, s = venting(NMPCSettings(soft_min=((TENSIONS, 0.2),), integral_gain=0.0), samples, solver)
     assert h.stats.fallbacks == s.stats.fallbacks == 0
     assert np.ptp(hard) > 5e3  # the bound shaped a real manoeuvre
     assert np.allclose(soft, hard, rtol=rtol, atol=1e-5)  # atol: 1e-10 of the range
@@ -48,9 +55,10 @@ def test_an_infeasible_bound_softened_gives_a_finite_command_without_fallback():
     """5 N on every thread cannot be met: the hard RTI and NLP fall back (hold); soft,
     both move and report the slack."""
     for solver in ("rti", "ipopt"):
-        hard, h = venting(NMPCSettings(solver=solver, tension_min=5.0, soft_constraints=False), 2)
-        soft, s = venting(NMPCSettings(solver=solver, tension_min=5.0), 2)
+        hard, h = venting(NMPCSettings(soft_min=((TENSIONS, 5.0, np.inf),)), 2, solver)
+        soft, s = venting(NMPCSettings(soft_min=((TENSIONS, 5.0),)), 2, solver)
         assert h.stats.fallbacks == 2 and hard == [1e5, 1e5]
+        assert h.stats.fallback_fraction == 1.0 and s.stats.fallback_fraction == 0.0
         assert s.stats.fallbacks == 0 and np.all(np.isfinite(soft))
         assert s.slack > 4.0  # N: the plan's largest predicted shortfall of the 5 N
 
@@ -78,11 +86,11 @@ def test_the_terminal_weight_pulls_the_last_node_to_the_reference():
 @pytest.mark.parametrize(
     ("kwargs", "name"),
     [
-        ({"compiled": True, "solver": "ipopt"}, "nmpc.compiled"),
-        ({"linear_solver": "lu"}, "nmpc.linear_solver"),
-        ({"tension_l1": 0.0}, "nmpc.tension_l1"),
+        ({"compiled": 1}, "nmpc.compiled"),
+        ({"linear_solver": "lapackqr"}, "nmpc.linear_solver"),
+        ({"soft_penalty": 0.0}, "nmpc.soft_penalty"),
         ({"terminal_weight": -1.0}, "nmpc.terminal_weight"),
-        ({"soft_constraints": 1}, "nmpc.soft_constraints"),
+        ({"qp_solver": "hpipm"}, "nmpc.qp_solver"),
     ],
 )
 def test_bad_new_settings_name_the_setting(kwargs, name):
@@ -96,7 +104,8 @@ def compiled_pair():
     LAPACK's LU for the lifted solves, which the compiled RTI calls too)."""
     model = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
     eq = solve_equilibrium(model, {P: 5e4})
-    s = NMPCSettings(horizon=10, tension_min=0.19, integral_gain=0.0)  # 10: a shorter build
+    # horizon 10: a shorter build
+    s = NMPCSettings(horizon=10, soft_min=((TENSIONS, 0.19),), integral_gain=0.0)
     c = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(**{**s.__dict__, "compiled": True}))
     py = NonlinearMPC(model, eq.u, 0.01, s)
     return c, py
@@ -116,7 +125,7 @@ def test_the_compiled_rti_gives_the_casadi_functions_commands(compiled_pair):
         assert a == pytest.approx(b, rel=1e-9, abs=1e-6)
         sim.step({P: a}, 0.01)
     assert compiled.stats.fallbacks == 0
-    assert "external" in compiled.engine.calls["feedback"].function.class_name().lower()
+    assert "external" in compiled.engine.calls["update"].function.class_name().lower()
 
 
 @pytest.mark.slow
@@ -175,3 +184,19 @@ def test_the_sparse_lu_solves_like_a_dense_lu():
     (L,) = fused.lin.call([V, xi, u, p])
     got = np.array(cs.DM(L))[:, : expected.shape[1]]
     assert np.allclose(got, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"max_iter": 10**9}, r"'nmpc\.max_iter' = 1000000000.*integer in \[1, 1000\]"),
+        ({"max_iter": 0}, r"'nmpc\.max_iter' = 0.*integer in \[1, 1000\]"),
+        ({"solver": "rti"}, "nmpc.solver"),
+        ({"tol": 0.0}, "nmpc.tol"),
+    ],
+)
+def test_the_converged_nmpcs_settings_are_checked(kwargs, match):
+    model = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
+    eq = solve_equilibrium(model, {P: 5e4})
+    with pytest.raises(ParameterError, match=match):
+        ConvergedNMPC(model, eq.u, 0.01, **kwargs)

@@ -13,6 +13,7 @@ from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.controllers.qp import zoh
 from sarcomere.dynamics import Simulator, hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 
 P = "regulator.p_cmd"
 L = "myofibril.length"
@@ -32,8 +33,9 @@ def test_a_parameter_set_at_run_time_is_the_one_predicted_with(prediction, solve
     model, eq = prediction
     heavy_load = eq.p[model.param_names.index(M)] + 0.05
     heavy = solve_equilibrium(model, {P: 1.5e5}, {M: heavy_load})
-    settings = NMPCSettings(solver=solver, u_max=3e5, integral_gain=0.0)
-    mpc = NonlinearMPC(model, heavy.u, 0.01, settings)
+    settings = NMPCSettings(u_max=3e5, integral_gain=0.0)
+    cls = NonlinearMPC if solver == "rti" else ConvergedNMPC
+    mpc = cls(model, heavy.u, 0.01, settings)
     y = {n: heavy[n] for n in mpc.outputs}
     nominal = mpc.checked(0.0, y, {L: heavy[L]})[P]
     assert nominal < 1.5e5 - 1e3  # the 20 g prediction wants less pressure
@@ -48,7 +50,7 @@ def test_a_parameter_set_at_run_time_is_the_one_predicted_with(prediction, solve
 
 def test_the_rti_functions_parameter_input_is_the_value_given(prediction):
     model, eq = prediction
-    mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(solver="rti"))
+    mpc = NonlinearMPC(model, eq.u, 0.01, NMPCSettings())
     F = mpc.engine.calls["prepare"]  # the preparation takes the parameters
     i = F.function.name_in().index("p")
     # the model's parameters, then the input and output disturbances
@@ -68,7 +70,7 @@ def test_an_offset_fed_to_the_nmpc_is_the_one_predicted_with(prediction, offset)
     NMPC holds the steady state that has the output on the reference with it: 10 kPa
     less (or the equilibrium 0.2 mm longer, solved independently)."""
     model, eq = prediction
-    settings = NMPCSettings(solver="rti", u_max=3e5, integral_gain=0.0)
+    settings = NMPCSettings(u_max=3e5, integral_gain=0.0)
     if offset == "disturbance.input":
         value, state = 1e4, eq
         u_hold = eq.u[0] - 1e4
@@ -205,7 +207,7 @@ def test_the_integral_does_not_wind_up_while_the_command_moves_at_the_rate_limit
     samples, far from its bounds; the integral of the error is frozen on each of them
     (it grew on every one before), and integrates again once the command is free."""
     model, eq = prediction
-    s = NMPCSettings(solver="rti", u_max=3e5, rate_max=2e5, integral_gain=5.0)
+    s = NMPCSettings(u_max=3e5, rate_max=2e5, integral_gain=5.0)
     mpc = NonlinearMPC(model, eq.u, 0.01, s)
     sim = Simulator(model)
     sim.reset(x0=eq.x)

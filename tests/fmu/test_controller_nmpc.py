@@ -21,6 +21,7 @@ from sarcomere.dynamics import hanging_load, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.fmu.controller import export_controller_fmu
+from sarcomere.scenarios.studies.mpc_nlp import ConvergedNMPC
 
 from .test_controller import Slave, declared_sources, rebuild_errors
 
@@ -187,7 +188,7 @@ def test_controllers_without_an_exported_law_are_refused(plant, tmp_path):
     cases = {
         "on an EKF": make_controller("nmpc", m, lin, DT, {**task, "estimator": "ekf"}),
         "disturbance 'load'": make_controller("lmpc", m, lin, DT, task),
-        "ipopt": NonlinearMPC(pred, op.u, DT, NMPCSettings(horizon=10, solver="ipopt")),
+        "ipopt": ConvergedNMPC(pred, op.u, DT, NMPCSettings(horizon=10), solver="ipopt"),
     }
     qpoases = NonlinearMPC(pred, op.u, DT, NMPCSettings(horizon=10, qp_solver="qpoases"))
     with pytest.raises(ParameterError, match="nmpc.qp_solver.*C code generation"):

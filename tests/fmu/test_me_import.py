@@ -13,8 +13,8 @@ import casadi as cs
 import numpy as np
 import pytest
 
-from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings, VelocityQP
-from sarcomere.controllers.qp import qp_solver, zoh
+from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
+from sarcomere.controllers.qp import VelocityQP, zoh
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.components.chains import Myofibril
@@ -390,7 +390,9 @@ def _cvodes_step(rhs, n: int, dt: float) -> cs.Function:
     return cs.integrator("plant", "cvodes", {"x": X, "p": U, "ode": rhs(X, U)}, 0, dt, opts)
 
 
-def test_the_linear_mpc_on_a_composition_moves_as_on_the_monolithic_model(joined):
+def test_the_linear_mpc_on_a_composition_moves_as_on_the_monolithic_model(
+    joined, velocity_law_moves
+):
     """The project's LinearMPC on the monolithic model, and its velocity-form QP (the same
     class, solver and law) on the composition's linearisation (muscle + load ME FMU),
     each closing the loop on its own plant for five samples: the same moves."""
@@ -416,12 +418,17 @@ def test_the_linear_mpc_on_a_composition_moves_as_on_the_monolithic_model(joined
     A, B, C, _ = lin(x, eq.u)
     Ad, Bd = zoh(A, B, dt)
     lo, hi = np.array([settings.u_min]), np.array([settings.u_max])
-    nv, na = settings.horizon, settings.horizon  # moves; one input, no soft bounds
     qp = VelocityQP(
-        Ad, Bd, C, np.zeros((0, len(x))), settings.horizon, settings.weight_y,
-        settings.weight_du, settings.weight_slack, hi - lo,
-        qp_solver(settings.qp_solver, cs.Sparsity.dense(nv, nv), cs.Sparsity.dense(na, nv)),
-    )  # fmt: skip
+        Ad,
+        Bd,
+        C,
+        np.zeros((0, len(x))),
+        settings.horizon,
+        settings.weight_y,
+        settings.weight_du,
+        np.ones(0),
+        hi - lo,
+    )  # fmt: skip  (one input, no soft bounds)
     plant = _cvodes_step(composed.rhs, len(x), dt)
     index = composed.signal_names.index("myofibril.length")
     u, x_prev, moves = eq.u.copy(), None, []
@@ -429,7 +436,10 @@ def test_the_linear_mpc_on_a_composition_moves_as_on_the_monolithic_model(joined
         length = float(cs.vertcat(*composed.outputs(x, u))[index])
         dx = np.zeros_like(x) if x_prev is None else x - x_prev
         xi = np.concatenate([dx, [length - target["myofibril.length"]]])
-        du, ok = qp.solve(xi, u, lo, hi, np.array([settings.rate_max * dt]), np.zeros(0))
+        du, ok = velocity_law_moves(
+            qp, xi, u, lo, hi, np.array([settings.rate_max * dt]), np.zeros(0),
+            solver=settings.qp_solver,
+        )  # fmt: skip
         assert ok
         u = np.clip(u + du[0], lo, hi)
         moves.append(float(u[0]))

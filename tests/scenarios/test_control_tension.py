@@ -40,3 +40,20 @@ def test_lqi_breaks_the_tension_bound_the_mpcs_hold_it(tmp_path):
         "nmpc": "exact states",
     }
     assert summary["extra"]["tension_min_N"] == pytest.approx(0.2)
+
+
+@pytest.mark.slow
+def test_the_nmpc_on_the_ekf_holds_the_bound_backed_off_by_the_estimates_spread(tmp_path):
+    """On the EKF's estimate the NMPC's bound is raised by one standard deviation of the
+    estimated tension (``backoff``, ``EKF_BACKOFF``): the plant's threads then hold the
+    0.2 N bound to 1 mN; without the back-off (``backoff = 0``, as before) the same
+    controller breaks it by more (1.76 mN in the packaged scene)."""
+    text = _short_tension_scene(("nmpc_ekf",))
+    text += (
+        '\n[control.controllers.nmpc_ekf_bare]\ntype = "nmpc"\nestimator = "ekf"\nbackoff = 0.0\n'
+    )
+    out = run(parse_scenario(text, "tension-ekf.toml"), tmp_path, quiet=True)
+    m = out.metrics
+    assert m["nmpc_ekf_tension_violation_max_mN"] < 1.0, m
+    assert m["nmpc_ekf_bare_tension_violation_max_mN"] > 1.0, m
+    assert m["nmpc_ekf_fallbacks"] == 0, m
