@@ -120,6 +120,7 @@ class LQI(Controller):
         estimator: EKF | None = None,
         feedforward: str = "equilibria",
         rate_max: float | None = None,
+        rate_weight: float | None = None,
     ) -> None:
         reads = estimator.measured if estimator else [*model.state_names, output]
         check_input_bounds("lqi", model, op, {"input": input, "u_min": u_min, "u_max": u_max})
@@ -138,6 +139,10 @@ class LQI(Controller):
         sysd = linearize(model, op, [output], dt=self.dt, inputs=[input])
         self.sysd = sysd
         self.Kx, self.Ki, self.Nx, self.Nu = _design(sysd, weights, self.dt)
+        self.Ku = None  # the gain on the held command, with the rate in the design
+        if rate_weight is not None:
+            rw = positive("lqi", "rate_weight", rate_weight)
+            self.Kx, self.Ku, self.Ki = _rate_design(sysd, weights, self.dt, rw, self.du_max)
         if feedforward not in FEEDFORWARDS:
             raise ParameterError("lqi.feedforward", feedforward, f"one of {FEEDFORWARDS}")
         self._grid = (
@@ -195,7 +200,11 @@ class LQI(Controller):
             x_ss, u_ss = cs.DM(self.Nx) * dr, self.Nu * dr
         else:
             x_ss, u_ss = self.target_function()(dr)
-        v = self.u_op + u_ss - cs.dot(cs.DM(self.Kx), dx - x_ss) - self.Ki * xi
+        if self.Ku is None:
+            v = self.u_op + u_ss - cs.dot(cs.DM(self.Kx), dx - x_ss) - self.Ki * xi
+        else:
+            held = self.Ku * (u_prev - self.u_op - u_ss)
+            v = u_prev - cs.dot(cs.DM(self.Kx), dx - x_ss) - held - self.Ki * xi
         lo, hi = cs.fmax(g[0], u_prev - g[2]), cs.fmin(g[1], u_prev + g[2])
         u = cs.fmin(cs.fmax(v, lo), hi)
         xi_next = xi + self.dt * (dy - dr)
@@ -316,6 +325,30 @@ def _design(sysd: ct.StateSpace, w: LQIWeights, dt: float):
     return K[0, :n], float(K[0, n]), N[:n], float(N[n])
 
 
+def _rate_design(sysd: ct.StateSpace, w: LQIWeights, dt: float, rate_weight: float, du: float):
+    """``Kx, Ku, Ki`` of the design with the move per sample as the input: the state
+    ``[dx; u_prev - u_op; xi]`` (the command held before the sample appended), the input
+    the move ``v = u - u_prev``, weighted ``rate_weight (v / du)^2`` with ``du`` the rate
+    limit's move per sample (the input's own weight ``r_u`` then sits on ``u_prev``);
+    the law is ``u = u_prev - Kx (dx - x_ss) - Ku (u_prev - u_op - u_ss) - Ki xi``."""
+    A, B, C, D = sysd.A, sysd.B, sysd.C, sysd.D
+    n = A.shape[0]
+    Aa = np.block(
+        [
+            [A, B, np.zeros((n, 1))],
+            [np.zeros((1, n)), np.ones((1, 1)), np.zeros((1, 1))],
+            [dt * C, dt * D, np.ones((1, 1))],
+        ]
+    )
+    Ba = np.vstack([B, np.ones((1, 1)), dt * D])
+    Q = np.zeros((n + 2, n + 2))
+    Q[:n, :n] = w.q_y / w.y_scale**2 * C.T @ C
+    Q[n, n] = w.r_u / w.u_scale**2
+    Q[n + 1, n + 1] = w.q_i / w.y_scale**2
+    K, _, _ = ct.dlqr(Aa, Ba, (Q + Q.T) / 2, np.array([[rate_weight / du**2]]))
+    return K[0, :n], float(K[0, n]), float(K[0, n + 1])
+
+
 def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     """Registry factory of ``lqi``. Own settings: the :class:`LQIWeights` fields
     (``y_scale`` default from :data:`Y_SCALES`), ``estimator`` ("none" or "ekf"), the
@@ -329,7 +362,14 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     own = own_settings(
         "lqi",
         settings,
-        {**defaults, "estimator": "none", "ekf": {}, "feedforward": "equilibria", "rate_max": None},
+        {
+            **defaults,
+            "estimator": "none",
+            "ekf": {},
+            "feedforward": "equilibria",
+            "rate_max": None,
+            "rate_weight": None,
+        },
     )
     if own["estimator"] not in ("none", "ekf"):
         raise ParameterError("lqi.estimator", own["estimator"], "'none' or 'ekf'")
@@ -344,7 +384,18 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
         est = make_ekf(model, op, dt, measured, settings.get("noise_std"), own["ekf"])
     u_min, u_max = float(settings["u_min"]), float(settings["u_max"])
     return LQI(
-        dt, model, op, out, inp, u_min, u_max, weights, est, own["feedforward"], own["rate_max"]
+        dt,
+        model,
+        op,
+        out,
+        inp,
+        u_min,
+        u_max,
+        weights,
+        est,
+        own["feedforward"],
+        own["rate_max"],
+        own["rate_weight"],
     )
 
 

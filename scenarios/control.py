@@ -286,7 +286,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         raise sc.error(("control", "controllers"), "no controllers to run")
     settings = _settings(sc, model)
     scale, suffix = UNIT_SCALES.get(unit, (1.0, unit))
-    metrics, results, estimators = {}, {}, {}
+    metrics, results, estimators, status, reasons = {}, {}, {}, {}, {}
     for key, raw in entries.items():
         path = ("control", "controllers", key)
         own = dict(_table(sc, raw, path))
@@ -353,6 +353,9 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         res.meta.update({"controller": slug, "sample_time_s": dt})
         results[key] = res
         estimators[key] = estimator_of(controller, measured)
+        status[key] = run.status
+        if run.status_reason:
+            reasons[key] = run.status_reason
     extra = {
         "operating_point": {"pressure_Pa": p_op, output: y_op},
         "input_limits": {"u_min_Pa": p_min, "u_max_Pa": p_max, "rate_max_Pa_per_s": rate_max},
@@ -360,6 +363,8 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         "reference_known_ahead": preview,
         "tension_min_N": t_min,
         "estimators": estimators,
+        "status": status,
+        "status_reason": reasons,
         "controllers": {k: dict(_table(sc, v, ("control",))) for k, v in entries.items()},
     }
     return RunOutput(
