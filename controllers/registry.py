@@ -129,6 +129,9 @@ def check_input_bounds(
         )
 
 
+MAX_PREVIEW = 200
+"""Most samples of reference preview a PID or LQI takes: the MPCs' longest horizon."""
+
 MIN_SAMPLE_S = 1e-3
 """Shortest sample time [s]: about the time one update of the slowest controller here
 takes (the EKF, 1-2 ms), and a fiftieth of the regulator's lag."""
