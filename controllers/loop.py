@@ -9,7 +9,9 @@ calls :meth:`~.base.Controller.checked` (finite, inside the
 bounds, timed) and holds its input over ``[t_k, t_k + dt)``. A load disturbance changes a
 parameter (``load.m``) at the first sample at or after its time. The result holds, at the
 samples: the reference, the true output, the measured output (with noise), the inputs,
-the regulator and chamber pressures and every thread tension.
+the regulator and chamber pressures and every thread tension; its metrics; and its status
+(:func:`~.metrics.loop_status`: a limit cycle, a divergence or a run that fell back on every
+sample is said, not left to the numbers).
 
 Examples
 --------

@@ -214,10 +214,13 @@ KINDS = {
 
 
 def _kind(default: object) -> str | None:
-    """The kind of :data:`KINDS` a setting with this default takes (None: unchecked)."""
+    """The kind of :data:`KINDS` a setting with this default takes (None: left to the
+    factory)."""
     if isinstance(default, bool):
         return "bool"
-    if isinstance(default, int | float):
+    if isinstance(default, int):
+        return None  # a count: the factory checks it with its range (:func:`count`)
+    if isinstance(default, float):
         return "number"
     if isinstance(default, str):
         return "text"

@@ -38,7 +38,10 @@ controller's preview horizon, or the disturbance:
 ``tension_min``, more than 1 mN for the time:
 :func:`~sarcomere.controllers.metrics.tension_violation`), ``solve_time_median_ms``,
 ``solve_time_p95_ms``, ``fallbacks``, and per sine ``rmse_sine_<f>_mm``, and
-``disturbance_peak_mm`` (largest error from the disturbance to the next event). Where each
+``disturbance_peak_mm`` (largest error from the disturbance to the next event). Each run's
+status ("ok", "limit cycle", "diverged", "all fallback":
+:func:`~sarcomere.controllers.metrics.loop_status`) is in ``summary.json`` (``status``,
+``status_reason``) and a row of the printed table. Where each
 controller gets its states (:func:`estimator_of`) is in the printed header and
 ``summary.json`` (``estimators``). One result (CSV, curves) per key.
 """
