@@ -9,7 +9,9 @@ calls :meth:`~.base.Controller.checked` (finite, inside the
 bounds, timed) and holds its input over ``[t_k, t_k + dt)``. A load disturbance changes a
 parameter (``load.m``) at the first sample at or after its time. The result holds, at the
 samples: the reference, the true output, the measured output (with noise), the inputs,
-the regulator and chamber pressures and every thread tension.
+the regulator and chamber pressures and every thread tension; its metrics; and its status
+(:func:`~.metrics.loop_status`: a limit cycle, a divergence or a run that fell back on every
+sample is said, not left to the numbers).
 
 Examples
 --------
@@ -43,7 +45,7 @@ from sarcomere.dynamics.simulation.settings import SolverSettings
 from sarcomere.dynamics.simulation.simulator import Simulator
 
 from .base import Controller, ControllerStats
-from .metrics import loop_metrics, step_window_end
+from .metrics import loop_metrics, loop_status, step_window_end
 
 
 @dataclass(frozen=True)
@@ -78,11 +80,17 @@ class ClosedLoopResult:
         :func:`~.metrics.loop_metrics` of the run (unprefixed).
     stats : ControllerStats
         The controller's solve times and fallbacks.
+    status : str
+        "ok", "limit cycle", "diverged" or "all fallback" (:func:`~.metrics.loop_status`).
+    status_reason : str
+        What was seen, when the status is not "ok".
     """
 
     result: Result
     metrics: dict[str, float]
     stats: ControllerStats = field(default_factory=ControllerStats)
+    status: str = "ok"
+    status_reason: str = ""
 
 
 def recorded_signals(model: Model, output: str, inputs: list[str]) -> list[str]:
@@ -278,4 +286,13 @@ def run_closed_loop(
         dt,
     )
     metrics["fallbacks"] = float(controller.stats.fallbacks)
-    return ClosedLoopResult(result, metrics, controller.stats)
+    status = loop_status(
+        t,
+        signals[output],
+        refs,
+        [disturbance.time] if disturbance is not None else [],
+        reachable[1] - reachable[0] if reachable is not None else 0.0,
+        controller.stats.fallbacks,
+        unit,
+    )
+    return ClosedLoopResult(result, metrics, controller.stats, *status)

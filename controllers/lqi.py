@@ -23,11 +23,27 @@ generates its C code from it.
 The state comes from the plant (``estimator = "none"``: every state is read by name, the
 full-state case) or from an :class:`~.ekf.EKF` on the measured signals
 (``estimator = "ekf"``).
+
+Three opt-in settings give the LQI what the MPCs are given (the defaults leave the law
+as above):
+
+* ``rate_weight``: the rate limit in the design. The move per sample ``v = u - u_prev`` is
+  the design's input, weighted ``rate_weight (v / (rate_max dt))^2``, and the held command
+  a state (its weight ``r_u``): ``u = u_prev - Kx (dx - x_ss) - Ku (u_prev - u_op - u_ss)
+  - Ki xi``. The default design, whose moves the rate limit only clamps, limit-cycles at
+  n = 8 under 2 MPa/s; this one tracks there.
+* ``load_feedforward``: the target moved by the load estimate, ``x_ss + Sx (m - m_op)``,
+  ``u_ss + Su (m - m_op)`` (``Sx, Su``: the steady state's sensitivity to the load at the
+  operating point's output, from equilibria), the estimate the EKF's (on the EKF) or the
+  NMPC's own filter of it (:class:`~.disturbance.StateDisturbanceFilter`, on the states).
+* ``preview``: the reference that many samples ahead, through the LQ-optimal preview
+  term ``-sum_j G_j w_j`` (``w_j`` the target's change from ``j`` to ``j + 1`` samples
+  ahead, ``G_j = (R + B' S B)^-1 B' (A - B K)'^j S`` of the design's Riccati solution).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import casadi as cs
@@ -40,10 +56,13 @@ from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
-from .ekf import EKF, make_ekf
-from .linearize import linearize
+from .disturbance import StateDisturbanceFilter
+from .ekf import DEFAULT_STD, EKF, make_ekf
+from .linearize import linearize, operating_point
 from .registry import (
+    MAX_PREVIEW,
     check_input_bounds,
+    count,
     max_step,
     own_settings,
     positive,
@@ -120,6 +139,10 @@ class LQI(Controller):
         estimator: EKF | None = None,
         feedforward: str = "equilibria",
         rate_max: float | None = None,
+        rate_weight: float | None = None,
+        load_feedforward: bool = False,
+        preview: int = 0,
+        output_std: float | None = None,
     ) -> None:
         reads = estimator.measured if estimator else [*model.state_names, output]
         check_input_bounds("lqi", model, op, {"input": input, "u_min": u_min, "u_max": u_max})
@@ -137,7 +160,17 @@ class LQI(Controller):
         self.u_op = float(op.u[model.input_names.index(input)])
         sysd = linearize(model, op, [output], dt=self.dt, inputs=[input])
         self.sysd = sysd
-        self.Kx, self.Ki, self.Nx, self.Nu = _design(sysd, weights, self.dt)
+        self.Kx, self.Ki, self.Nx, self.Nu, aug = _design(sysd, weights, self.dt)
+        self.Ku = None  # the gain on the held command, with the rate in the design
+        if rate_weight is not None:
+            rw = positive("lqi", "rate_weight", rate_weight)
+            self.Kx, self.Ku, self.Ki, aug = _rate_design(sysd, weights, dt, rw, self.du_max)
+        self.preview = count("lqi.preview", preview, 0, MAX_PREVIEW, "the MPCs' longest horizon")
+        # the target's part of the state: x (and the held command, with the rate design)
+        self.preview_gains = _preview_gains(*aug, self.preview)[
+            :, : model.nx + (self.Ku is not None)
+        ]
+        self._ahead: list[float] = []
         if feedforward not in FEEDFORWARDS:
             raise ParameterError("lqi.feedforward", feedforward, f"one of {FEEDFORWARDS}")
         self._grid = (
@@ -145,17 +178,103 @@ class LQI(Controller):
             if (feedforward == "equilibria")
             else None
         )
+        self.load = None  # (index in p, dx_ss/dm, du_ss/dm, own filter or None)
+        if load_feedforward:
+            self.load = self._load_feedforward(output_std)
+        self._extended = self.load is not None or self.preview > 0
         self.xi = 0.0
         self.u_last = self.u_op
         self._laws: dict[bool, tuple] = {}
+
+    def _load_feedforward(self, output_std: float | None) -> tuple:
+        """What ``load_feedforward`` needs: the steady state's sensitivity to the load
+        mass at the operating point's output (central differences of equilibria, +-2 g),
+        and the load's estimate: the EKF's (it must estimate ``load.m``) or, on the states
+        read, the NMPC's own Kalman filter of it (:class:`~.disturbance.StateDisturbanceFilter`)."""
+        model, op = self.model, self.op
+        if "load.m" not in model.param_names:
+            raise ParameterError("lqi.load_feedforward", True, "false: the plant holds no load")
+        if self.estimator is not None and "load.m" not in self.estimator.disturbances:
+            raise ParameterError(
+                "lqi.load_feedforward", True, "false, or an EKF that estimates load.m"
+            )
+        k = model.param_names.index("load.m")
+        params = dict(zip(model.param_names, op.p.tolist(), strict=True))
+        ends = []
+        for dm in (-LOAD_STEP, LOAD_STEP):
+            e = operating_point(
+                model,
+                dict(zip(model.input_names, op.u.tolist(), strict=True)),
+                {**params, "load.m": op.p[k] + dm},
+                target=(self.output, self.y_op),
+                input_name=self.input,
+            )
+            ends.append((e.x, e.u[model.input_names.index(self.input)]))
+        sx = (ends[1][0] - ends[0][0]) / (2 * LOAD_STEP)
+        su = float(ends[1][1] - ends[0][1]) / (2 * LOAD_STEP)
+        own = None
+        if self.estimator is None:
+            var = model.variables["load.m"]
+            y_std = output_std or DEFAULT_STD.get(model.unit(self.output), 1e-6)
+            scale = np.maximum(np.abs(self.x_op), 1e-2)
+            own = StateDisturbanceFilter(
+                model, self.output, "load", self.dt, scale, 2e3, y_std, (var.low, var.high)
+            )
+        return k, sx, su, own
+
+    @property
+    def preview_samples(self) -> int:
+        """The reference ahead the law takes (``preview``; 0: ``r(t)`` only)."""
+        return self.preview
+
+    def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
+        if self.preview == 0 or set(values) != {self.output}:
+            super().set_preview(values)
+        self._ahead = [float(v) for v in values[self.output]][: self.preview]
+
+    def feedforward(self, y: Mapping[str, float], x: np.ndarray, dr: float) -> np.ndarray:
+        """The law's ``ff`` this sample: the target's shift by the load estimate
+        ``(dx_ss/dm, du_ss/dm) (m - m_op)``, and the preview's move ``-sum_j G_j w_j``
+        with ``w_j`` the target's change from ``j`` to ``j + 1`` samples ahead."""
+        n = self.model.nx
+        ff = np.zeros(n + 2)
+        if self.load is not None:
+            k, sx, su, own = self.load
+            if own is None:
+                m = self.estimator.parameters["load.m"]
+            else:
+                p = np.concatenate([self.op.p, [0.0, 0.0]])
+                p[k] = self.load_estimate
+                m = own.update(x, np.array([self.u_last]), y[self.output], p)
+            self.load_estimate = m
+            ff[:n], ff[n] = sx * (m - self.op.p[k]), su * (m - self.op.p[k])
+        if self.preview and self._ahead:
+            refs = [dr, *(a - self.y_op for a in self._ahead)]
+            x_ss, u_ss = self._targets(len(refs))(np.array(refs)[None, :])
+            z = np.vstack([np.array(x_ss, float), np.array(u_ss, float)])
+            z = z[: self.preview_gains.shape[1]]
+            w = z[:, :-1] - z[:, 1:]  # the target's change sample to sample
+            ff[n + 1] = -float(np.sum(self.preview_gains[: w.shape[1]] * w.T))
+        return ff
+
+    def _targets(self, count: int) -> cs.Function:
+        """:meth:`target_function` over ``count`` references at once (cached)."""
+        if getattr(self, "_mapped", (0, None))[0] != count:
+            self._mapped = (count, self.target_function().map(count))
+        return self._mapped[1]
 
     def reset(self, u0: Mapping[str, float]) -> None:
         """Integral to zero; the estimator (if any) restarts at the operating point."""
         super().reset(u0)
         self.xi = 0.0
         self.u_last = float(u0[self.input])
+        self._ahead = []
         if self.estimator is not None:
             self.estimator.reset(self.x_op)
+        if self.load is not None:
+            self.load_estimate = float(self.op.p[self.load[0]])
+            if self.load[3] is not None:
+                self.load[3].reset()
 
     def state(self, y: Mapping[str, float]) -> np.ndarray:
         """The state the law uses: read by name, or the estimator's update with ``y``."""
@@ -183,29 +302,54 @@ class LQI(Controller):
         x_ss, u_ss = self.target_function()(dr)
         return np.array(x_ss, dtype=float).ravel(), float(u_ss)
 
-    def law_function(self, linear: bool = False) -> cs.Function:
+    def law_function(self, linear: bool = False, extended: bool = False) -> cs.Function:
         """One sample on deviations: ``lqi(xi, dx, dr, dy, u_prev, g) -> (next xi, u)``
         with ``u_prev`` the command held before the sample and ``g = (u_min, u_max,
         du_max)`` [SI] (``du_max``: the largest change per sample); ``linear`` uses the
-        linear steady-state map whatever the setting (:meth:`target_function` otherwise)."""
+        linear steady-state map whatever the setting (:meth:`target_function` otherwise).
+        ``extended`` adds the input ``ff`` (:meth:`feedforward`: the target's shift by the
+        load estimate, ``n + 1``, and the preview's move).
+
+        Raises
+        ------
+        ParameterError
+            For the law without ``ff`` of an LQI that uses a load estimate or a preview
+            (the exported law takes ``r(t)`` and the states only).
+        """
+        if self._extended and not extended:
+            raise ParameterError(
+                "lqi.load_feedforward/preview",
+                (self.load is not None, self.preview),
+                "(False, 0): the law without feed-forward takes r(t) and the states only",
+            )
         n = self.model.nx
         xi, dr, dy = cs.MX.sym("xi"), cs.MX.sym("dr"), cs.MX.sym("dy")
         dx, u_prev, g = cs.MX.sym("dx", n), cs.MX.sym("u_prev"), cs.MX.sym("g", 3)
+        ff = cs.MX.sym("ff", n + 2)
         if linear:
             x_ss, u_ss = cs.DM(self.Nx) * dr, self.Nu * dr
         else:
             x_ss, u_ss = self.target_function()(dr)
-        v = self.u_op + u_ss - cs.dot(cs.DM(self.Kx), dx - x_ss) - self.Ki * xi
+        if extended:
+            x_ss, u_ss = x_ss + ff[:n], u_ss + ff[n]
+        if self.Ku is None:
+            v = self.u_op + u_ss - cs.dot(cs.DM(self.Kx), dx - x_ss) - self.Ki * xi
+        else:
+            held = self.Ku * (u_prev - self.u_op - u_ss)
+            v = u_prev - cs.dot(cs.DM(self.Kx), dx - x_ss) - held - self.Ki * xi
+        if extended:
+            v = v + ff[n + 1]
         lo, hi = cs.fmax(g[0], u_prev - g[2]), cs.fmin(g[1], u_prev + g[2])
         u = cs.fmin(cs.fmax(v, lo), hi)
         xi_next = xi + self.dt * (dy - dr)
         # held (bound or rate), and integrating would push further out: hold the integral
         wind = cs.logic_and(u != v, cs.fabs(v - self.Ki * (xi_next - xi) - u) > cs.fabs(v - u))
+        ins = [xi, dx, dr, dy, u_prev, g, *([ff] if extended else [])]
         return cs.Function(
             "lqi",
-            [xi, dx, dr, dy, u_prev, g],
+            ins,
             [cs.if_else(wind, xi, xi_next), u],
-            ["xi", "dx", "dr", "dy", "u_prev", "g"],
+            ["xi", "dx", "dr", "dy", "u_prev", "g", *(["ff"] if extended else [])],
             ["next", "u"],
         )
 
@@ -217,11 +361,12 @@ class LQI(Controller):
         dy: float,
         u_prev: float,
         linear: bool = False,
+        ff: np.ndarray | None = None,
     ) -> tuple[float, float]:
-        """One sample of :meth:`law_function`: ``(xi, dx, dr, dy, u_prev) -> (next xi,
-        u)`` [SI]."""
+        """One sample of :meth:`law_function`: ``(xi, dx, dr, dy, u_prev[, ff]) -> (next
+        xi, u)`` [SI]; ``ff`` (:meth:`feedforward`) for an LQI that uses one."""
         if linear not in self._laws:  # bound arrays (Function.buffer): ~1 us per call
-            f = self.law_function(linear)
+            f = self.law_function(linear, self._extended)
             args = [np.zeros(f.nnz_in(i)) for i in range(f.n_in())]
             res = [np.zeros(f.nnz_out(i)) for i in range(f.n_out())]
             buf, trigger = f.buffer()
@@ -231,15 +376,20 @@ class LQI(Controller):
                 buf.set_res(i, memoryview(a))
             args[5][:] = self.u_min[self.input], self.u_max[self.input], self.du_max
             self._laws[linear] = (buf, trigger, args, res)
-        _, trigger, (a_xi, a_dx, a_dr, a_dy, a_u, _), (r_xi, r_u) = self._laws[linear]
+        _, trigger, args, (r_xi, r_u) = self._laws[linear]
+        a_xi, a_dx, a_dr, a_dy, a_u = args[:5]
         a_xi[0], a_dx[:], a_dr[0], a_dy[0], a_u[0] = xi, dx, dr, dy, u_prev
+        if self._extended:
+            args[6][:] = ff
         trigger()
         return float(r_xi[0]), float(r_u[0])
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
-        dx = self.state(y) - self.x_op
+        x = self.state(y)
+        dx = x - self.x_op
         dr, dy = r[self.output] - self.y_op, y[self.output] - self.y_op
-        self.xi, u = self.law(self.xi, dx, dr, dy, self.u_last)
+        ff = self.feedforward(y, x, dr) if self._extended else None
+        self.xi, u = self.law(self.xi, dx, dr, dy, self.u_last, ff=ff)
         self.u_last = u
         return {self.input: u}
 
@@ -256,6 +406,7 @@ class LQI(Controller):
             For a rate-limited LQI (the I/O system carries no held command).
         """
         refuse_rate_limit("lqi", self)
+        self.law_function(True)  # refuses an LQI with feed-forward
         n = self.model.nx
 
         def step(t, x, u, params):
@@ -273,6 +424,9 @@ class LQI(Controller):
             name="lqi",
         )
 
+
+LOAD_STEP = 2e-3
+"""The load change [kg] of the central differences of the steady state's load sensitivity."""
 
 FEEDFORWARDS = ("equilibria", "linear")
 """Where the reference's steady state comes from (see the module docstring)."""
@@ -310,18 +464,56 @@ def _design(sysd: ct.StateSpace, w: LQIWeights, dt: float):
     Q[:n, :n] = w.q_y / w.y_scale**2 * C.T @ C
     Q[n, n] = w.q_i / w.y_scale**2
     R = np.array([[w.r_u / w.u_scale**2]])
-    K, _, _ = ct.dlqr(Aa, Ba, (Q + Q.T) / 2, R)
+    K, S, _ = ct.dlqr(Aa, Ba, (Q + Q.T) / 2, R)
     M = np.block([[A - np.eye(n), B], [C, D]])
     N = np.linalg.solve(M, np.concatenate([np.zeros(n), [1.0]]))
-    return K[0, :n], float(K[0, n]), N[:n], float(N[n])
+    return K[0, :n], float(K[0, n]), N[:n], float(N[n]), (Aa, Ba, R, K, S)
+
+
+def _rate_design(sysd: ct.StateSpace, w: LQIWeights, dt: float, rate_weight: float, du: float):
+    """``Kx, Ku, Ki`` of the design with the move per sample as the input: the state
+    ``[dx; u_prev - u_op; xi]`` (the command held before the sample appended), the input
+    the move ``v = u - u_prev``, weighted ``rate_weight (v / du)^2`` with ``du`` the rate
+    limit's move per sample (the input's own weight ``r_u`` then sits on ``u_prev``);
+    the law is ``u = u_prev - Kx (dx - x_ss) - Ku (u_prev - u_op - u_ss) - Ki xi``."""
+    A, B, C, D = sysd.A, sysd.B, sysd.C, sysd.D
+    n = A.shape[0]
+    Aa = np.block(
+        [
+            [A, B, np.zeros((n, 1))],
+            [np.zeros((1, n)), np.ones((1, 1)), np.zeros((1, 1))],
+            [dt * C, dt * D, np.ones((1, 1))],
+        ]
+    )
+    Ba = np.vstack([B, np.ones((1, 1)), dt * D])
+    Q = np.zeros((n + 2, n + 2))
+    Q[:n, :n] = w.q_y / w.y_scale**2 * C.T @ C
+    Q[n, n] = w.r_u / w.u_scale**2
+    Q[n + 1, n + 1] = w.q_i / w.y_scale**2
+    R = np.array([[rate_weight / du**2]])
+    K, S, _ = ct.dlqr(Aa, Ba, (Q + Q.T) / 2, R)
+    return K[0, :n], float(K[0, n]), float(K[0, n + 1]), (Aa, Ba, R, K, S)
+
+
+def _preview_gains(Aa, Ba, R, K, S, samples: int) -> np.ndarray:
+    """``G_j = (R + B' S B)^-1 B' (A_cl')^j S``, ``j < samples``: the LQ-optimal answer to
+    a known shift ``w_j`` of the target ``j`` samples ahead is ``-sum_j G_j w_j``."""
+    Acl = Aa - Ba @ K
+    first = np.linalg.solve(R + Ba.T @ S @ Ba, Ba.T)  # 1 x na
+    rows, M = [], S
+    for _ in range(samples):
+        rows.append((first @ M)[0])
+        M = Acl.T @ M
+    return np.reshape(rows, (samples, Aa.shape[0]))
 
 
 def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     """Registry factory of ``lqi``. Own settings: the :class:`LQIWeights` fields
     (``y_scale`` default from :data:`Y_SCALES`), ``estimator`` ("none" or "ekf"), the
     EKF's settings under ``ekf`` (a table, see :func:`~.ekf.make_ekf`), ``feedforward``
-    (:data:`FEEDFORWARDS`) and ``rate_max`` (the command's largest rate [input unit/s],
-    None: no limit)."""
+    (:data:`FEEDFORWARDS`), ``rate_max`` (the command's largest rate [input unit/s],
+    None: no limit), and the opt-in ``rate_weight`` (None or > 0), ``load_feedforward``
+    (false) and ``preview`` (samples, 0; see the module docstring)."""
     out, inp = settings["output"], settings["input"]
     unit = model.unit(out)
     w0 = LQIWeights(y_scale=Y_SCALES.get(unit, 1.0))
@@ -329,7 +521,16 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     own = own_settings(
         "lqi",
         settings,
-        {**defaults, "estimator": "none", "ekf": {}, "feedforward": "equilibria", "rate_max": None},
+        {
+            **defaults,
+            "estimator": "none",
+            "ekf": {},
+            "feedforward": "equilibria",
+            "rate_max": None,
+            "rate_weight": None,
+            "load_feedforward": False,
+            "preview": 0,
+        },
     )
     if own["estimator"] not in ("none", "ekf"):
         raise ParameterError("lqi.estimator", own["estimator"], "'none' or 'ekf'")
@@ -344,7 +545,21 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
         est = make_ekf(model, op, dt, measured, settings.get("noise_std"), own["ekf"])
     u_min, u_max = float(settings["u_min"]), float(settings["u_max"])
     return LQI(
-        dt, model, op, out, inp, u_min, u_max, weights, est, own["feedforward"], own["rate_max"]
+        dt,
+        model,
+        op,
+        out,
+        inp,
+        u_min,
+        u_max,
+        weights,
+        est,
+        own["feedforward"],
+        own["rate_max"],
+        own["rate_weight"],
+        own["load_feedforward"],
+        own["preview"],
+        (settings.get("noise_std") or {}).get(out),
     )
 
 

@@ -131,6 +131,65 @@ def solve_times(times_s: list[float]) -> dict[str, float]:
     }
 
 
+FAILED_ERROR = 1.0
+"""A window fails when the RMS tracking error over its last quarter exceeds this multiple
+of the motion asked for (:func:`loop_status`): healthy runs of the packaged scenes stay
+below 0.13 of it, the LQI's limit cycle at n = 8 under the rate limit is 6 times it."""
+
+REACH_FLOOR = 0.02
+"""The motion asked for is at least this fraction of the reachable output range (a
+regulation run whose reference never moves is judged against it)."""
+
+
+def loop_status(
+    t: np.ndarray,
+    y: np.ndarray,
+    r: np.ndarray,
+    events: list[float],
+    reach_span: float,
+    fallbacks: int = 0,
+    unit: str = "",
+) -> tuple[str, str]:
+    """Whether a closed-loop run did its job: ``(status, reason)`` with status ``"ok"``,
+    ``"all fallback"`` (the controller's own method failed on every sample), ``"limit
+    cycle"`` or ``"diverged"`` (reason: empty for "ok", else what was seen, and when).
+
+    The run is cut into windows at the unforeseen ``events`` (a disturbance); each window
+    is judged on its last quarter (after the transients a controller may take): it fails
+    when the RMS of ``y - r`` there exceeds :data:`FAILED_ERROR` times the motion asked
+    for (the reference's peak-to-peak over the run, at least :data:`REACH_FLOOR` of the
+    reachable range ``reach_span``). A failed window whose error changes sign at least
+    4 times (counting only excursions beyond half its RMS, not the noise) and does not
+    grow (its RMS at most twice that of the quarter before) is a limit cycle; any other
+    failure is a divergence. The first failed window is reported.
+    """
+    t, e = np.asarray(t, dtype=float), np.asarray(y, dtype=float) - np.asarray(r, dtype=float)
+    if len(t) and fallbacks >= len(t):
+        return "all fallback", f"the controller fell back on all {len(t)} samples"
+    scale = max(float(np.ptp(r)) if len(t) else 0.0, REACH_FLOOR * reach_span)
+    end = float(t[-1] + (t[-1] - t[-2] if len(t) > 1 else 0.0)) if len(t) else 0.0
+    edges = [0.0, *sorted(x for x in events if 0 < x < end), end]
+    for a, b in zip(edges[:-1], edges[1:], strict=False):
+        tail = (t >= a + 0.75 * (b - a) - 1e-9) & (t < b)
+        before = (t >= a + 0.5 * (b - a) - 1e-9) & (t < a + 0.75 * (b - a) - 1e-9)
+        if not tail.any() or scale <= 0:
+            continue
+        rms = float(np.sqrt(np.mean(e[tail] ** 2)))
+        if rms <= FAILED_ERROR * scale:
+            continue
+        signs = np.sign(e[tail][np.abs(e[tail]) > 0.5 * rms])
+        crossings = int(np.count_nonzero(np.diff(signs)))
+        growing = before.any() and rms > 2 * float(np.sqrt(np.mean(e[before] ** 2)))
+        seen = (
+            f"RMS error {rms:.3g} {unit} over {a + 0.75 * (b - a):.3g}-{b:.3g} s, "
+            f"{rms / scale:.3g} times the motion asked for ({scale:.3g} {unit})"
+        )
+        if crossings >= 4 and not growing:
+            return "limit cycle", f"{seen}, changing sign {crossings} times"
+        return "diverged", seen + (", growing" if growing else "")
+    return "ok", ""
+
+
 def loop_metrics(
     unit: str,
     t: np.ndarray,

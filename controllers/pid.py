@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import astuple, dataclass
 
 import casadi as cs
@@ -51,6 +51,8 @@ from sarcomere.dynamics.modeling.model import Model
 from .base import Controller
 from .linearize import linearize
 from .registry import (
+    MAX_PREVIEW,
+    count,
     max_step,
     number,
     own_settings,
@@ -135,8 +137,11 @@ class PID(Controller):
         u_max: float,
         gains: PIDGains,
         rate_max: float | None = None,
+        preview: int = 0,
     ) -> None:
         super().__init__(dt, [input], [output], {input: u_min}, {input: u_max})
+        self.preview = count("pid.preview", preview, 0, MAX_PREVIEW, "the MPCs' longest horizon")
+        self._ahead: list[float] = []
         for key in ("kp", "ki", "kd"):
             if not math.isfinite(getattr(gains, key)):
                 raise ParameterError(f"pid.{key}", getattr(gains, key), "a finite number")
@@ -161,6 +166,7 @@ class PID(Controller):
     def reset(self, u0: Mapping[str, float]) -> None:
         """Start from the held input ``u0`` (the bias), integral and derivative zero."""
         super().reset(u0)
+        self._ahead = []
         self.bias = self.u_prev = float(u0[self.input])
         self._state = np.zeros(len(STATE_NAMES))
 
@@ -180,9 +186,22 @@ class PID(Controller):
         self._trigger()
         return self._res[0].copy(), float(self._res[1][0])
 
+    @property
+    def preview_samples(self) -> int:
+        """The reference ahead the PID takes (``preview``; 0: ``r(t)`` only)."""
+        return self.preview
+
+    def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
+        if self.preview == 0 or set(values) != {self.output}:
+            super().set_preview(values)
+        self._ahead = [float(v) for v in values[self.output]][: self.preview]
+
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         y_now = y[self.output]
-        self._state, u = self.law(self._state, r[self.output], y_now, self.u_prev, self.bias)
+        # with preview, the reference the plant's lag ahead (the last one handed over)
+        r_now = self._ahead[-1] if self._ahead else r[self.output]
+        self._ahead = []
+        self._state, u = self.law(self._state, r_now, y_now, self.u_prev, self.bias)
         self.u_prev = u
         return {self.input: u}
 
@@ -238,9 +257,11 @@ def make_pid(model: Model, op: Equilibrium, dt: float, settings: dict) -> PID:
     """Registry factory of ``pid``. Own settings: ``kp``, ``ki``, ``kd`` (None: ``kp`` and
     ``ki`` from :func:`imc_gains`, ``kd`` 0), ``closed_loop_s`` (the IMC time constant,
     default 0.15 s), ``tf`` and ``tt`` (see :class:`PIDGains`; ``tt`` None: ``kp / ki``),
-    ``rate_max`` (the command's largest rate [input unit/s], None: no limit)."""
+    ``rate_max`` (the command's largest rate [input unit/s], None: no limit), ``preview``
+    (samples, default 0: with the reference known ahead, the PID tracks the one that many
+    samples ahead, a feed-forward of the plant's lag)."""
     defaults = {"kp": None, "ki": None, "kd": 0.0, "closed_loop_s": 0.15, "tf": 0.02}
-    own = own_settings("pid", settings, {**defaults, "tt": None, "rate_max": None})
+    own = own_settings("pid", settings, {**defaults, "tt": None, "rate_max": None, "preview": 0})
     for key in ("kp", "ki", "tt"):
         if own[key] is not None and not number(own[key]):
             raise ParameterError(f"pid.{key}", own[key], "a finite number, or None")
@@ -256,7 +277,7 @@ def make_pid(model: Model, op: Equilibrium, dt: float, settings: dict) -> PID:
         tt = abs(kp / ki) if ki else 1.0
     gains = PIDGains(float(kp), float(ki), float(own["kd"]), float(own["tf"]), float(tt))
     lo, hi = float(settings["u_min"]), float(settings["u_max"])
-    return PID(dt, out, inp, lo, hi, gains, own["rate_max"])
+    return PID(dt, out, inp, lo, hi, gains, own["rate_max"], own["preview"])
 
 
 register_controller("pid", make_pid)

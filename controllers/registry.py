@@ -129,6 +129,9 @@ def check_input_bounds(
         )
 
 
+MAX_PREVIEW = 200
+"""Most samples of reference preview a PID or LQI takes: the MPCs' longest horizon."""
+
 MIN_SAMPLE_S = 1e-3
 """Shortest sample time [s]: about the time one update of the slowest controller here
 takes (the EKF, 1-2 ms), and a fiftieth of the regulator's lag."""
@@ -211,10 +214,13 @@ KINDS = {
 
 
 def _kind(default: object) -> str | None:
-    """The kind of :data:`KINDS` a setting with this default takes (None: unchecked)."""
+    """The kind of :data:`KINDS` a setting with this default takes (None: left to the
+    factory)."""
     if isinstance(default, bool):
         return "bool"
-    if isinstance(default, int | float):
+    if isinstance(default, int):
+        return None  # a count: the factory checks it with its range (:func:`count`)
+    if isinstance(default, float):
         return "number"
     if isinstance(default, str):
         return "text"

@@ -38,7 +38,10 @@ controller's preview horizon, or the disturbance:
 ``tension_min``, more than 1 mN for the time:
 :func:`~sarcomere.controllers.metrics.tension_violation`), ``solve_time_median_ms``,
 ``solve_time_p95_ms``, ``fallbacks``, and per sine ``rmse_sine_<f>_mm``, and
-``disturbance_peak_mm`` (largest error from the disturbance to the next event). Where each
+``disturbance_peak_mm`` (largest error from the disturbance to the next event). Each run's
+status ("ok", "limit cycle", "diverged", "all fallback":
+:func:`~sarcomere.controllers.metrics.loop_status`) is in ``summary.json`` (``status``,
+``status_reason``) and a row of the printed table. Where each
 controller gets its states (:func:`estimator_of`) is in the printed header and
 ``summary.json`` (``estimators``). One result (CSV, curves) per key.
 """
@@ -288,7 +291,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         raise sc.error(("control", "controllers"), "no controllers to run")
     settings = solver_settings(sc, model)
     scale, suffix = UNIT_SCALES.get(unit, (1.0, unit))
-    metrics, results, estimators = {}, {}, {}
+    metrics, results, estimators, status, reasons = {}, {}, {}, {}, {}
     for key, raw in entries.items():
         path = ("control", "controllers", key)
         own = dict(_table(sc, raw, path))
@@ -355,6 +358,9 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         res.meta.update({"controller": slug, "sample_time_s": dt})
         results[key] = res
         estimators[key] = estimator_of(controller, measured)
+        status[key] = run.status
+        if run.status_reason:
+            reasons[key] = run.status_reason
     extra = {
         "operating_point": {"pressure_Pa": p_op, output: y_op},
         "input_limits": {"u_min_Pa": p_min, "u_max_Pa": p_max, "rate_max_Pa_per_s": rate_max},
@@ -362,6 +368,8 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         "reference_known_ahead": preview,
         "tension_min_N": t_min,
         "estimators": estimators,
+        "status": status,
+        "status_reason": reasons,
         "controllers": {k: dict(_table(sc, v, ("control",))) for k, v in entries.items()},
     }
     return RunOutput(

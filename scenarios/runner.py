@@ -177,6 +177,9 @@ def format_summary(output: RunOutput, checks: dict, out_dir: Path, files: list[P
         ref = f"{check['reference']:>12.6g}" if check else " " * 12
         verdict = ("ok" if check["ok"] else "OFF") if check else ""
         rows.append(f"  {name:<{width}}  {value:>12.6g}  {ref}  {verdict}".rstrip())
+    why = output.extra.get("status_reason", {})
+    for key, status in output.extra.get("status", {}).items():  # closed loops: by run
+        rows.append(f"  {key + '_status':<{width}}  {status:>12}  {why.get(key, '')}".rstrip())
     names = ", ".join(p.name for p in files)
     return "\n".join([head, *rows, f"wrote {out_dir}: {names}"])
 

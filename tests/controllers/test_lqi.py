@@ -163,3 +163,28 @@ def test_rate_limit_is_refused_unless_positive_and_in_the_io_system(setup):
     c = make_controller("lqi", m, op, DT, {**TASK, "rate_max": 2e6})
     with pytest.raises(ParameterError, match=r"'lqi\.rate_max'.*no rate limit"):
         c.as_iosystem()
+
+
+def test_rate_design_gains_solve_the_riccati_equation_of_the_move(setup):
+    """``rate_weight``: the move per sample is the input, the held command a state; the
+    gains are scipy's DARE on that model built here by hand, the loop is stable, and the
+    law's command is ``u_prev - K z`` (a move, clamped to the rate limit)."""
+    m, op, _ = setup
+    c = make_controller("lqi", m, op, DT, {**TASK, "rate_max": 2e6, "rate_weight": 10.0})
+    w, n, du = c.weights, m.nx, 2e6 * DT
+    d = linearize(m, op, [L], dt=DT)
+    Aa = sla.block_diag(np.block([[d.A, d.B], [np.zeros((1, n)), np.ones((1, 1))]]), [[1.0]])
+    Aa[n + 1, :n], Aa[n + 1, n] = DT * d.C[0], DT * d.D[0, 0]
+    Ba = np.vstack([d.B, [[1.0]], DT * d.D])
+    Q = sla.block_diag(
+        w.q_y / w.y_scale**2 * d.C.T @ d.C, [[w.r_u / w.u_scale**2]], [[w.q_i / w.y_scale**2]]
+    )
+    R = np.array([[10.0 / du**2]])
+    S = sla.solve_discrete_are(Aa, Ba, Q, R)
+    K = np.linalg.solve(R + Ba.T @ S @ Ba, Ba.T @ S @ Aa)
+    np.testing.assert_allclose(np.concatenate([c.Kx, [c.Ku, c.Ki]]), K[0], rtol=1e-6)
+    assert np.all(np.abs(np.linalg.eigvals(Aa - Ba @ K)) < 1)
+    u_prev, dx = c.u_op + 3e3, np.full(n, 1e-6)
+    xi, u = c.law(2e-5, dx, 0.0, 0.0, u_prev, linear=True)  # target: the op itself
+    move = -(c.Kx @ dx + c.Ku * 3e3 + c.Ki * 2e-5)
+    assert u == pytest.approx(np.clip(u_prev + move, u_prev - du, u_prev + du), rel=1e-12)

@@ -9,6 +9,7 @@ import pytest
 from sarcomere.controllers.metrics import (
     SETTLING_BAND,
     loop_metrics,
+    loop_status,
     step_response_metrics,
     step_window_end,
     tension_violation,
@@ -90,3 +91,31 @@ def test_loop_metrics_names_and_units():
     assert m["tension_violation_max_mN"] == pytest.approx(10.0)
     assert m["tension_violation_time_s"] == pytest.approx(1.0)
     assert m["solve_time_median_ms"] == pytest.approx(2.0)
+
+
+def test_loop_status_names_limit_cycles_divergence_and_all_fallback():
+    """The status of a run from its error alone (issue 24: a limit cycle was reported as
+    an ordinary row): a decaying error is "ok", a sustained oscillation of 5 times the
+    motion asked for a "limit cycle", a growing one "diverged", and a run that fell back on
+    every sample "all fallback"; a disturbance starts a new window, judged on its own tail."""
+    t = np.arange(0, 10, 0.01)
+    r = np.where(t >= 0.5, -1e-3, 0.0)  # the motion asked for: 1 mm
+    settled = r + 1e-3 * np.exp(-t / 0.2) * np.cos(9 * t)
+    assert loop_status(t, settled, r, [], 0.04) == ("ok", "")
+    cycle = r + 5e-3 * np.sin(2 * np.pi * 1.3 * t)
+    status, why = loop_status(t, cycle, r, [], 0.04, unit="m")
+    assert status == "limit cycle" and "7.5-10 s" in why and "changing sign" in why, why
+    growing = r + 1e-4 * np.exp(t / 1.5) * np.sin(2 * np.pi * 1.3 * t)
+    assert loop_status(t, growing, r, [], 0.04)[0] == "diverged"
+    drifting = r + 0.004 * t  # away for good, no oscillation
+    assert loop_status(t, drifting, r, [], 0.04)[0] == "diverged"
+    # a 10 mm kick at 6 s that is recovered from by the end: ok; held to the end: not
+    kicked = settled + np.where(t >= 6, 1e-2 * np.exp(-(t - 6) / 0.3), 0.0)
+    assert loop_status(t, kicked, r, [6.0], 0.04)[0] == "ok"
+    late = settled + np.where(t >= 6, 1e-2 * np.exp(-(t - 6) / 30), 0.0)
+    assert loop_status(t, late, r, [6.0], 0.04)[0] == "diverged"
+    assert loop_status(t, settled, r, [], 0.04, fallbacks=len(t))[0] == "all fallback"
+    # a regulation run (no motion asked for) is judged against 2 % of the reachable range
+    still = np.zeros_like(t)
+    assert loop_status(t, still + 5e-4 * np.sin(9 * t), still, [], 0.04)[0] == "ok"
+    assert loop_status(t, still + 5e-3 * np.sin(9 * t), still, [], 0.04)[0] == "limit cycle"

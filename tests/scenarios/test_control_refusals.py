@@ -16,9 +16,7 @@ def _short() -> str:
     text = text.replace('step_time = "0.5 s"', 'step_time = "0.2 s"')
     text = re.sub(r"sines = \[.*?\]\n", "", text, flags=re.S)
     text = text.replace('time = "6.25 s"', 'time = "1.3 s"')
-    return re.sub(
-        r"\[control\.controllers\.(lqi|lqi_ekf|lmpc|nmpc|nmpc_ekf)\]\n(\w.*\n)*", "", text
-    )
+    return re.sub(r"\[control\.controllers\.(?!pid\])\w+\]\n(\w.*\n)*", "", text)
 
 
 SINE = 'sine_amplitude = "1 mm"\nsines = [{ frequency = "3 Hz", start = "%s", periods = 1 }]'
