@@ -77,6 +77,17 @@ class APSParams:
         694.00, "N/m", 0, math.inf, _CAL, "series stiffness of an I-band of two thread V's", **_POS
     )
     c_s: float = _f(0.5, "N*s/m", 0, math.inf, "estimate", "damping of a two-V I-band")
+    k_thread: float = _f(
+        5e3,
+        "N/m",
+        0,
+        math.inf,
+        "estimate: the paper's cotton thread, about 10 N at break at about 6 % strain over "
+        "l = 32 mm; at least k_s / (2 sin^2 theta') = 569 N/m (a V's calibrated "
+        "stiffness 2 k_s taken as its thread's alone)",
+        "axial stiffness of one thread (the end stop when it is pulled straight)",
+        **_POS,
+    )
     eps_slack: float = _f(
         1e-5, "m", 0, math.inf, "numerical", "slack regularisation length", **_POS
     )
@@ -206,16 +217,16 @@ def _field(name: str):
     raise ParameterError("APSParams field", name, f"one of {APSParams.numeric_fields()}")
 
 
-THETA_MIN_RAD = 1e-2
-"""Smallest physical thread angle [rad]: below it the thread is taken as pulled straight
-(the taut height r1 is floored there, see :func:`thread_height`)."""
+THREAD_STRAIN_MAX = 0.06
+"""Largest axial strain of a thread pulled straight [1] (estimate: cotton thread breaks
+at 5-10 % elongation): the upper bound of the ``strain`` outputs of :class:`Actin`."""
 
 
 def thread_height(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
     """Taut height ``r1`` [m] of one thread V for expansion ``d`` [m].
 
-    Floored at 1e-4 l (the thread pulled straight): beyond that the geometry has no
-    solution and the equilibrium solver reports it.
+    Floored at 1e-4 l: the thread pulled straight, where its own axial stiffness takes
+    the expansion force (the end stop, :func:`thread_stop`).
     """
     r2 = 0.5 * (w0 + d)
     return cs.sqrt(cs.fmax((0.5 * l) ** 2 - r2**2, (1e-4 * l) ** 2))
@@ -297,12 +308,13 @@ class Actin(Component):
 
     def build(self, b: Builder) -> None:
         p = self.p
-        l, w0, A, k_s, c_s, eps = (
-            aps_parameter(b, p, k) for k in ("l", "w0", "A_band", "k_s", "c_s", "eps_slack")
+        l, w0, A, k_s, c_s, eps, k_t = (
+            aps_parameter(b, p, k)
+            for k in ("l", "w0", "A_band", "k_s", "c_s", "eps_slack", "k_thread")
         )
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         L_geo, L_rest = cs.SX(0), cs.SX(0)
-        exps = []
+        exps, stops = [], []
         for side, present in (("exp_a", self.upper), ("exp_b", self.lower)):
             if present:
                 fl = b.port(side, FLANGE)
@@ -312,11 +324,22 @@ class Actin(Component):
                     f"theta_{side[-1]}",
                     theta,
                     "rad",
-                    "thread angle, cos(theta) = 2 r2 / l (paper); at its lower bound the thread "
-                    "is pulled straight, at its upper bound the anchors meet",
-                    low=THETA_MIN_RAD,
+                    "thread angle, cos(theta) = 2 r2 / l (paper); 0: the thread pulled "
+                    "straight, at its upper bound the anchors meet",
+                    low=0.0,
                     high=0.5 * math.pi,
                 )
+                strain, stop_energy, stop_force = laws.apply(thread_stop, [fl.s, l, w0, k_t])
+                b.output(
+                    f"strain_{side[-1]}",
+                    strain,
+                    "1",
+                    "axial strain of the thread pulled straight (the end stop; 0 while it is "
+                    "bent); at its upper bound the thread breaks",
+                    low=0.0,
+                    high=THREAD_STRAIN_MAX,
+                )
+                stops.append((stop_energy, stop_force))
         self.rest_length = L_rest  # taut length at zero expansion [m], for start values
         per_v = 2.0 / len(exps)  # two V's in series: k_s; one V alone: 2 k_s
         e = fb.s - fa.s - L_geo
@@ -331,12 +354,13 @@ class Actin(Component):
             b.dissipation("damping", dissipation)
         b.equation(fb.f, tension)
         b.equation(fa.f, -tension)
-        for fl in exps:  # generalised force on the expansion: T de/dd
-            b.equation(fl.f, tension * cs.jacobian(e, fl.s))
+        for fl, (_, stop_force) in zip(exps, stops, strict=True):
+            # generalised force on the expansion: T de/dd, and the straight thread's
+            b.equation(fl.f, tension * cs.jacobian(e, fl.s) + stop_force)
         b.output("T", tension, "N", "thread tension (I-band)")
         b.output("e", e, "m", "stretch beyond the taut length (negative: slack)")
         b.output("L_geo", L_geo, "m", "taut length of the I-band")
-        b.energy("elastic", energy)
+        b.energy("elastic", sum((u for u, _ in stops), energy))
 
 
 def _band_side(L_geo, L_rest, d, l, w0, A) -> list:
@@ -348,6 +372,15 @@ def _band_side(L_geo, L_rest, d, l, w0, A) -> list:
         L_rest + 0.5 * A + thread_height(0.0, l, w0),
         cs.acos(cos_theta),
     ]
+
+
+def thread_stop(d, l, w0, k) -> list:
+    """The end stop of one thread (of stiffness ``k`` [N/m]) on its SPA's expansion ``d``
+    [m]: once the anchors are ``w0 + d > l`` apart the thread is straight and stretched
+    by ``delta = w0 + d - l``. Its strain ``delta / l`` [1], energy ``k delta^2 / 2`` [J]
+    and force on the expansion ``k delta`` [N] (all exactly 0 while the thread is bent)."""
+    delta = cs.fmax(w0 + d - l, 0.0)
+    return [delta / l, 0.5 * k * delta**2, k * delta]
 
 
 def _band_tension(e, e_rate, k_s, c_s, eps, per_v: float, damping: str) -> list:
@@ -436,6 +469,8 @@ __all__ = [
     "Actin",
     "THREAD_DAMPING",
     "YeohSpring",
+    "THREAD_STRAIN_MAX",
     "aps_parameter",
     "thread_height",
+    "thread_stop",
 ]
