@@ -221,15 +221,38 @@ THREAD_STRAIN_MAX = 0.06
 """Largest axial strain of a thread pulled straight [1] (estimate: cotton thread breaks
 at 5-10 % elongation): the upper bound of the ``strain`` outputs of :class:`Actin`."""
 
+STOP_LENGTH = 1e-4
+"""Length scale [m] over which a thread goes over onto its end stop (numerical, about
+the stretch ``1 N / k_thread`` at the expansion force's scale): its stretch is
+``c (s(u) - s(-5))``, ``s`` the softplus ``(u + sqrt(u^2 + 1)) / 2`` of
+``u = (w0 + d - l) / c``, from 5 c before straight on (0 before: the bent thread's
+geometry exactly). A loaded V then stays a V near straight instead of locking straight
+(docs/model.md, "End stop")."""
+
+_STOP_FROM = 5.0  # in STOP_LENGTH before straight: where the stretch begins
+
+
+def thread_stretch(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
+    """Stretch [m] of one thread whose anchors are ``w0 + d`` apart: exactly 0 while it is
+    bent (more than ``5 c`` short of straight), then a smooth ramp onto ``w0 + d - l``
+    that stays above it (so the V keeps a height, :func:`thread_height`); ``c`` is
+    :data:`STOP_LENGTH`."""
+    u = (w0 + d - l) / STOP_LENGTH
+    s0 = 0.5 * (math.sqrt(_STOP_FROM**2 + 1.0) - _STOP_FROM)  # softplus(-5)
+    ramp = STOP_LENGTH * (0.5 * (u + cs.sqrt(u**2 + 1.0)) - s0)
+    return cs.if_else(u > -_STOP_FROM, ramp, 0.0)
+
 
 def thread_height(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
-    """Taut height ``r1`` [m] of one thread V for expansion ``d`` [m].
+    """Taut height ``r1`` [m] of one thread V for expansion ``d`` [m]: the legs of the
+    thread, ``l`` long plus its stretch (:func:`thread_stretch`), over the anchors'
+    half-span ``r2 = (w0 + d) / 2``.
 
-    Floored at 1e-4 l: the thread pulled straight, where its own axial stiffness takes
-    the expansion force (the end stop, :func:`thread_stop`).
+    Floored at 1e-4 l (a thread stretched far beyond its breaking strain).
     """
     r2 = 0.5 * (w0 + d)
-    return cs.sqrt(cs.fmax((0.5 * l) ** 2 - r2**2, (1e-4 * l) ** 2))
+    half = 0.5 * (l + thread_stretch(d, l, w0))
+    return cs.sqrt(cs.fmax(half**2 - r2**2, (1e-4 * l) ** 2))
 
 
 def aps_parameter(b: Builder, p: APSParams, name: str, source: str | None = None) -> cs.SX:
@@ -376,11 +399,12 @@ def _band_side(L_geo, L_rest, d, l, w0, A) -> list:
 
 def thread_stop(d, l, w0, k) -> list:
     """The end stop of one thread (of stiffness ``k`` [N/m]) on its SPA's expansion ``d``
-    [m]: once the anchors are ``w0 + d > l`` apart the thread is straight and stretched
-    by ``delta = w0 + d - l``. Its strain ``delta / l`` [1], energy ``k delta^2 / 2`` [J]
-    and force on the expansion ``k delta`` [N] (all exactly 0 while the thread is bent)."""
-    delta = cs.fmax(w0 + d - l, 0.0)
-    return [delta / l, 0.5 * k * delta**2, k * delta]
+    [m]: its strain ``delta / l`` [1] at the stretch ``delta`` of :func:`thread_stretch`,
+    its energy ``k delta^2 / 2`` [J] and its force on the expansion, the energy's
+    gradient [N] (all exactly 0 while the thread is bent)."""
+    delta = thread_stretch(d, l, w0)
+    energy = 0.5 * k * delta**2
+    return [delta / l, energy, cs.gradient(energy, d)]
 
 
 def _band_tension(e, e_rate, k_s, c_s, eps, per_v: float, damping: str) -> list:
@@ -471,6 +495,8 @@ __all__ = [
     "YeohSpring",
     "THREAD_STRAIN_MAX",
     "aps_parameter",
+    "STOP_LENGTH",
     "thread_height",
     "thread_stop",
+    "thread_stretch",
 ]

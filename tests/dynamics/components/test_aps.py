@@ -121,30 +121,30 @@ ADIABATIC = ("*.chamber.tau_heat",)  # 1e12 s: no wall heat (the finite default 
 # -(p - p_amb) V (conserved while the supply pressure is constant, as here); at the
 # regulator's 0.6 MPa every thread is pulled straight, on its end stop (issue 24)
 CHAMBERS = [
-    ("isothermal", "full", 0.05e6),
-    ("adiabatic", "full", 0.05e6),
-    ("isothermal", "instant_pneumatics", 0.05e6),
-    ("isothermal", "full", 0.6e6),
+    ("isothermal", "full", 0.05e6, 0.02),
+    ("adiabatic", "full", 0.05e6, 0.02),
+    ("isothermal", "instant_pneumatics", 0.05e6, 0.02),
+    ("isothermal", "full", 0.6e6, 0.0),  # the bottom thread (the hook's) on its stop
 ]
 STRAINS = ("*.strain_a", "*.strain_b")
 
 
-@pytest.mark.parametrize(("thermal", "fidelity", "p_cmd"), CHAMBERS)
-def test_energy_conserved_with_sealed_chambers_and_no_damping(thermal, fidelity, p_cmd):
+@pytest.mark.parametrize(("thermal", "fidelity", "p_cmd", "load"), CHAMBERS)
+def test_energy_conserved_with_sealed_chambers_and_no_damping(thermal, fidelity, p_cmd, load):
     p = APSParams.from_paper(thermal=thermal)
-    m = hanging_load(2, p, load_kg=0.02, fidelity=fidelity)
+    m = hanging_load(2, p, load_kg=load, fidelity=fidelity)
     res, E, D = _kicked_run(m, SEALED + UNDAMPED, 0.3, 1e-3, _set(m, ADIABATIC, 1e12), p_cmd=p_cmd)
     strains = [k for k in m.signal_names if any(fnmatch(k, s) for s in STRAINS)]
-    assert (min(res[k].min() for k in strains) > 1e-3) == (p_cmd > 0.5e6)  # on the stop
-    kinetic0 = 0.5 * (0.001 + 0.02) * 0.05**2
+    assert (max(res[k].min() for k in strains) > 1e-3) == (p_cmd > 0.5e6)  # on its stop
+    kinetic0 = 0.5 * (0.001 + load) * 0.05**2
     assert np.ptp(E) < 1e-6 * kinetic0
     assert np.max(D) == 0.0
 
 
-@pytest.mark.parametrize(("thermal", "fidelity", "p_cmd"), CHAMBERS)
-def test_dissipation_accounts_for_energy_loss(thermal, fidelity, p_cmd):
+@pytest.mark.parametrize(("thermal", "fidelity", "p_cmd", "load"), CHAMBERS)
+def test_dissipation_accounts_for_energy_loss(thermal, fidelity, p_cmd, load):
     p = APSParams.from_paper(thermal=thermal)
-    m = hanging_load(2, p, load_kg=0.02, fidelity=fidelity)
+    m = hanging_load(2, p, load_kg=load, fidelity=fidelity)
     res, E, D = _kicked_run(m, SEALED, 0.2, 2e-5, _set(m, ADIABATIC, 1e12), p_cmd=p_cmd)
     dissipated = np.sum(0.5 * (D[1:] + D[:-1]) * np.diff(res.index))
     loss = E[0] - E[-1]
@@ -216,27 +216,31 @@ def test_equilibrium_reports_a_thread_stretched_until_it_breaks():
 
 @pytest.mark.parametrize("n", [3, *np.random.default_rng(24).integers(1, 13, 2).tolist()])
 def test_a_step_to_the_regulators_maximum_runs_onto_the_threads_end_stop(n):
-    """Issue 24: at 0.3-0.8 MPa the threads were pulled straight and the run stopped; the
-    straight thread now takes the expansion force through its stiffness ``k_thread``."""
+    """Issue 24: at 0.3-0.8 MPa the threads were pulled straight and the run stopped; a
+    straight thread now takes the expansion force through its stiffness ``k_thread``,
+    and the run settles on the one equilibrium (a loaded V stays a V)."""
     m = hanging_load(n, load_kg=0.0)
     p = APSParams.from_paper()
     rest = solve_equilibrium(m, {P: 0.0})
     p_max = m.variables[P].high
-    res = simulate(m, 1.5, inputs={P: Step(final=p_max, time=0.1)}, x0=rest.x)
-    assert res.final("regulator.p_out") == pytest.approx(p_max, rel=1e-3)
+    res = simulate(m, 10.0, inputs={P: Step(final=p_max, time=0.1)}, x0=rest.x)
+    assert res.final("regulator.p_out") == pytest.approx(p_max, rel=1e-6)
     length = res.final("myofibril.length")
-    assert n * p.A_band < length < 0.6 * rest["myofibril.length"]  # beyond the paper's 60 %
-    on_stop = 0
-    for i in range(1, n + 1):  # a straight thread pair holds its SPA's expansion force
-        delta = p.w0 + res.final(f"myofibril.aps{i}.expansion.s") - p.l
-        assert delta < THREAD_STRAIN_MAX * p.l
-        if delta > 0:
-            on_stop += 1
-            f_exp = res.final(f"myofibril.aps{i}.chamber.p_gauge") * p.A_p - res.final(
-                f"myofibril.aps{i}.yeoh.f"
-            )
-            assert 2 * p.k_thread * delta == pytest.approx(f_exp, rel=1e-4)
-    assert on_stop >= 1
+    assert n * p.A_band < length < 0.65 * rest["myofibril.length"]  # near full contraction
+    # on the equilibrium's branch (a straight-locked one was 6 % shorter): the mean of
+    # the lightly damped chain's swing over its last 2 s
+    swing = res["myofibril.length"][res.index >= 8.0]
+    assert swing.mean() == pytest.approx(
+        solve_equilibrium(m, {P: p_max})["myofibril.length"], rel=1e-4
+    )
+    strains = [k for k in m.signal_names if fnmatch(k, "*.strain_?")]
+    assert max(res[k].max() for k in strains) < THREAD_STRAIN_MAX
+    # the hook's thread (its band carries 1 g) on its stop, holding most of the force
+    strain = res.final(f"myofibril.actin{n}.strain_a")
+    f_exp = res.final(f"myofibril.aps{n}.chamber.p_gauge") * p.A_p - res.final(
+        f"myofibril.aps{n}.yeoh.f"
+    )
+    assert 0.5 * f_exp < 2 * p.k_thread * strain * p.l <= f_exp
 
 
 def test_equilibrium_from_scratch_stays_on_the_physical_branch():
