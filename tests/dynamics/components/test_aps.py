@@ -261,6 +261,9 @@ def test_r1_rest_geometry():
     assert math.degrees(math.acos(p.w0 / p.l)) == pytest.approx(51.32, abs=0.01)
 
 
+@pytest.mark.filterwarnings(
+    "ignore::sarcomere.dynamics.plausibility.PlausibilityWarning"
+)  # weightless bodies
 def test_symmetric_reduction_is_exact_for_weightless_bodies():
     """With weightless bodies every I-band carries one tension and every unit the same
     expansion: one representative unit times n must give the full chain's equilibrium,
