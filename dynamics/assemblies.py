@@ -10,7 +10,9 @@ returns the :class:`~sarcomere.dynamics.modeling.model.Model`. Stable signal nam
 * hanging load: ``load.s`` (m), ``load.m`` (parameter, kg);
 * isometric: ``sensor.f`` (N), the force on the fixture; ``fixture.s0`` (m), its position.
 
-Numeric arguments accept numbers in SI or quantity strings ("50 g", "5 ms").
+Numeric arguments accept numbers in SI or quantity strings ("50 g", "5 ms"). A load or
+APS parameters far from the paper's experiment get a
+:class:`~.plausibility.PlausibilityWarning`.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import functools
 import inspect
 import math
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -47,6 +50,7 @@ from .errors import ParameterError
 from .modeling.component import System
 from .modeling.model import Model
 from .params.ambient import Ambient
+from .plausibility import PlausibilityWarning, implausible_aps, implausible_load
 from .schema import FIDELITIES
 from .units import to_si
 
@@ -153,6 +157,8 @@ def _frame_regulator_chain(
     the regulator (``p_max`` [Pa]: its range's upper end; None: the Regulator's default)."""
     if params is not None and not isinstance(params, APSParams):
         raise ParameterError("params", params, "an APSParams or None (the paper's APS)")
+    for name, why in implausible_aps(params or APSParams.from_paper()).items():
+        warnings.warn(f"params.{name} = {why}", PlausibilityWarning, stacklevel=4)
     tau = _si(regulator_tau, "s", "regulator_tau", 0.0, closed=False)
     g = _si(g, "m/s^2", "g", 0.0, closed=False)
     myo = _chain(n, params or APSParams.from_paper(), fidelity, flow_law, groups)
@@ -189,6 +195,8 @@ def hanging_load(
     None: the Regulator's default (6 bar).
     """
     load = _si(load_kg, "kg", "load_kg", 0.0)
+    if why := implausible_load(load):
+        warnings.warn(f"load_kg = {why}", PlausibilityWarning, stacklevel=3)
     sys, myo, mf = _frame_regulator_chain(
         "hanging",
         n,

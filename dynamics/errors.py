@@ -33,10 +33,16 @@ class ModelError(SarcomereError):
 
 
 class SolverError(SarcomereError, RuntimeError):
-    """A numerical solver failed; says when, in which state and why."""
+    """A numerical solver failed; says when, in which state and why.
+
+    ``partial``: what a simulation computed up to the failure (``simulate``: a
+    :class:`~sarcomere.dynamics.results.Result` of the output points before it, meta
+    ``status = "incomplete"``), or None.
+    """
 
     def __init__(self, message: str, time: float | None = None, state: dict | None = None) -> None:
         self.time, self.state = time, state or {}
+        self.partial: object = None
         parts = [message]
         if time is not None:
             parts.append(f"at t = {time:.6g} s")

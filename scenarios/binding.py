@@ -38,14 +38,15 @@ field for every unit ("aps.k_s" = "400 N/m", "aps.thermal" = "adiabatic"; the ma
 the input's bound and the clamp); any other key is a model parameter path ("load.m",
 "myofibril.tube1.C"; "load.m" beside ``[model.options] load`` is refused). Dimensioned
 values need their unit (a bare ``50`` is refused), and an implausible load or APS geometry
-gets a :class:`~.spec.ScenarioWarning` (:data:`PLAUSIBLE_LOAD_KG`,
-:data:`PLAUSIBLE_GEOMETRY_FACTOR`).
+gets a :class:`~.spec.ScenarioWarning` (the rule of
+:mod:`sarcomere.dynamics.plausibility`, the Python API's too).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -63,6 +64,11 @@ from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SarcomereError
 from sarcomere.dynamics.modeling.model import Model
+from sarcomere.dynamics.plausibility import (
+    PlausibilityWarning,
+    implausible_aps,
+    implausible_load,
+)
 from sarcomere.dynamics.results import Result
 from sarcomere.dynamics.schema import WITHOUT_MODEL
 from sarcomere.dynamics.signals import Table
@@ -86,15 +92,6 @@ INPUT_ALIASES = {"pressure": P_CMD}
 #: Set-up -> options the other set-up reads and this one would ignore.
 SETUP_ONLY = {"hanging": ("fixture_stiffness", "fixture_gap"), "isometric": ("load",)}
 
-
-#: Plausible hanging loads, kg: the paper's are 0 to 100 g and one APS pulls about 0.3 N
-#: (31 g) at 0.1 MPa; a load outside gets a :class:`~.spec.ScenarioWarning` (``load = 50``
-#: without a unit is refused: 50 g or 50 kg?).
-PLAUSIBLE_LOAD_KG = (0.0, 1.0)
-
-#: A geometry field (unit m, or m^2 for areas) more than this factor from the paper's
-#: experimental APS (per length; squared for areas) gets a ScenarioWarning.
-PLAUSIBLE_GEOMETRY_FACTOR = 10.0
 
 #: Where a set-up argument's ParameterError (``exc.name``) is written in the scenario.
 _BUILD_KEYS = {
@@ -145,12 +142,15 @@ class Binding:
             "regulator_p_max": self.regulator_p_max,
         }
         try:
-            if self.setup == "isometric":
-                model = isometric(
-                    n, self.aps, fidelity, self.fixture_stiffness, self.fixture_gap, **common
-                )
-            else:
-                model = hanging_load(n, self.aps, self.load_kg, fidelity, **common)
+            with warnings.catch_warnings():
+                if self.scenario is not None:  # bind warned at the scene's keys
+                    warnings.simplefilter("ignore", PlausibilityWarning)
+                if self.setup == "isometric":
+                    model = isometric(
+                        n, self.aps, fidelity, self.fixture_stiffness, self.fixture_gap, **common
+                    )
+                else:
+                    model = hanging_load(n, self.aps, self.load_kg, fidelity, **common)
         except ParameterError as exc:
             if self.scenario is None:
                 raise
@@ -233,30 +233,16 @@ def _aps_parameter(sc: Scenario, key: str, name: str, raw: object) -> object:
 
 
 def _warn_implausible(sc: Scenario, opts: dict, model_over: dict, aps: APSParams) -> None:
-    """A ScenarioWarning for a load or an APS geometry far outside what the model was
-    made for (:data:`PLAUSIBLE_LOAD_KG`, :data:`PLAUSIBLE_GEOMETRY_FACTOR`)."""
-    low, high = PLAUSIBLE_LOAD_KG
-    why = "the paper's loads are 0 to 100 g; one APS pulls about 0.3 N (31 g) at 0.1 MPa"
+    """A ScenarioWarning for a load or an APS parameter far outside what the model was
+    made for (the rule of :mod:`sarcomere.dynamics.plausibility`)."""
     loads = [(("model", "options", "load"), opts.get("load"))]
     if "load.m" in model_over:
         loads.append((sc.parameter_path("load.m"), _si_or_none(model_over["load.m"], "kg")))
     for path, kg in loads:
-        if kg is not None and not low <= kg <= high:
-            sc.warn(path, f"{kg:.6g} kg is outside the plausible {low:g} to {high:g} kg ({why})")
-    paper = APSParams.from_paper(sc.model.material)
-    f = PLAUSIBLE_GEOMETRY_FACTOR
-    for name in APSParams.numeric_fields():
-        unit = APSParams.unit(name)
-        if unit not in ("m", "m^2") or f"aps.{name}" not in sc.parameters:
-            continue
-        k = f if unit == "m" else f * f
-        ref, value = getattr(paper, name), getattr(aps, name)
-        if not ref / k <= value <= ref * k:
-            sc.warn(
-                sc.parameter_path(f"aps.{name}"),
-                f"{value:.6g} {unit} is more than {k:g} times from the paper's APS "
-                f"({ref:.6g} {unit}); plausible {ref / k:.3g} to {ref * k:.3g} {unit}",
-            )
+        if kg is not None and (why := implausible_load(kg)):
+            sc.warn(path, why)
+    for name, why in implausible_aps(aps).items():
+        sc.warn(sc.parameter_path(f"aps.{name}"), why)
 
 
 def _si_or_none(raw: object, unit: str) -> float | None:

@@ -51,6 +51,9 @@ class RunOutput:
         Result name (file-safe, e.g. ``"main"`` or ``"load_50g"``) to named signals.
     extra : dict
         Anything else worth recording in ``summary.json`` (JSON-serialisable values).
+    incomplete : str, optional
+        Why the run stopped before its end (``summary.json``: ``"status": "incomplete"``
+        and this ``reason``); None for a run that finished.
     """
 
     scenario: str
@@ -60,6 +63,7 @@ class RunOutput:
     metrics: dict[str, float] = field(default_factory=dict)
     results: dict[str, Result] = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+    incomplete: str | None = None
 
 
 def quantity_tag(value: float, unit: str) -> str:
@@ -176,7 +180,9 @@ def write_summary(
     -------
     pathlib.Path
     """
+    status = {} if output.incomplete is None else {"status": "incomplete"}
     summary = {
+        **status,
         "scenario": output.scenario,
         "kind": scenario.kind,
         "fidelity": output.fidelity,
@@ -203,6 +209,7 @@ def write_summary(
             for key, r in output.results.items()
         },
         "extra": output.extra,
+        **({} if output.incomplete is None else {"reason": output.incomplete}),
         "files": sorted(p.name for p in files),
         "scenario_file": scenario.file,
         "sarcomere_version": version(),

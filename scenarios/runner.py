@@ -15,6 +15,7 @@ from collections.abc import Callable
 from importlib import import_module
 from pathlib import Path
 
+from sarcomere.dynamics.errors import SolverError
 from sarcomere.dynamics.results import Result
 
 from .loader import load_scenario
@@ -215,7 +216,9 @@ def run(
     ParameterError
         ``out_dir`` cannot hold the results (a file, under a file, not writable...).
     SolverError
-        The run failed or produced a NaN (naming the signal).
+        The run failed or produced a NaN (naming the signal). A simulation that failed
+        after some output points (its ``partial`` Result) is written first, with
+        ``"status": "incomplete"`` and the ``reason`` in ``summary.json``.
 
     Examples
     --------
@@ -233,12 +236,25 @@ def run(
     out = check_out_dir(Path("out") / sc.name) if out is None else out
     if not quiet and (warning := size_warning(sc)):
         print(warning, file=sys.stderr)
+    failure = None
     with staged(out) as tmp, progress(f"running {sc.name}", enabled=not quiet):
         start = time.perf_counter()
-        output = runner(sc, tmp)
+        try:
+            output = runner(sc, tmp)
+        except SolverError as exc:  # write what was computed, marked incomplete
+            if not isinstance(exc.partial, Result):
+                raise
+            failure = exc
+            output = RunOutput(
+                sc.name,
+                sc.model.fidelity,
+                str(exc.partial.meta.get("method", "")),
+                results={"main": exc.partial},
+                incomplete=str(exc),
+            )
         output.wall_time_s = time.perf_counter() - start
         check_finite(output)
-        checks = evaluate_checks(sc, output.metrics)
+        checks = {} if failure else evaluate_checks(sc, output.metrics)
         results = {key: _selected(sc, key, r) for key, r in output.results.items()}
         report("writing CSV")
         files = write_timeseries(results, tmp)
@@ -249,6 +265,8 @@ def run(
         extra = sorted(p for p in tmp.iterdir() if p not in files)  # the runner's own files
         files = [*files, *extra]
         files.insert(0, write_summary(output, sc, tmp, files, checks))
+    if failure is not None:
+        raise failure
     if not quiet:
         print(format_summary(output, checks, out, files))
     return output

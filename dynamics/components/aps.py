@@ -80,6 +80,17 @@ class APSParams:
         694.00, "N/m", 0, math.inf, _CAL, "series stiffness of an I-band of two thread V's", **_POS
     )
     c_s: float = _f(0.5, "N*s/m", 0, math.inf, "estimate", "damping of a two-V I-band")
+    k_thread: float = _f(
+        5e3,
+        "N/m",
+        0,
+        math.inf,
+        "estimate: the paper's cotton thread, about 10 N at break at about 6 % strain over "
+        "l = 32 mm; at least k_s / (2 sin^2 theta') = 569 N/m (a V's calibrated "
+        "stiffness 2 k_s taken as its thread's alone)",
+        "axial stiffness of one thread (the end stop when it is pulled straight)",
+        **_POS,
+    )
     eps_slack: float = _f(
         1e-5, "m", 0, math.inf, "numerical", "slack regularisation length", **_POS
     )
@@ -207,19 +218,42 @@ def _field(name: str):
     raise ParameterError("APSParams field", name, f"one of {APSParams.numeric_fields()}")
 
 
-THETA_MIN_RAD = 1e-2
-"""Smallest physical thread angle [rad]: below it the thread is taken as pulled straight
-(the taut height r1 is floored there, see :func:`thread_height`)."""
+THREAD_STRAIN_MAX = 0.06
+"""Largest axial strain of a thread pulled straight [1] (estimate: cotton thread breaks
+at 5-10 % elongation): the upper bound of the ``strain`` outputs of :class:`Actin`."""
+
+STOP_LENGTH = 1e-4
+"""Length scale [m] over which a thread goes over onto its end stop (numerical, about
+the stretch ``1 N / k_thread`` at the expansion force's scale): its stretch is
+``c (s(u) - s(-5))``, ``s`` the softplus ``(u + sqrt(u^2 + 1)) / 2`` of
+``u = (w0 + d - l) / c``, from 5 c before straight on (0 before: the bent thread's
+geometry exactly). A loaded V then stays a V near straight instead of locking straight
+(docs/model.md, "End stop")."""
+
+_STOP_FROM = 5.0  # in STOP_LENGTH before straight: where the stretch begins
+
+
+def thread_stretch(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
+    """Stretch [m] of one thread whose anchors are ``w0 + d`` apart: exactly 0 while it is
+    bent (more than ``5 c`` short of straight), then a smooth ramp onto ``w0 + d - l``
+    that stays above it (so the V keeps a height, :func:`thread_height`); ``c`` is
+    :data:`STOP_LENGTH`."""
+    u = (w0 + d - l) / STOP_LENGTH
+    s0 = 0.5 * (math.sqrt(_STOP_FROM**2 + 1.0) - _STOP_FROM)  # softplus(-5)
+    ramp = STOP_LENGTH * (0.5 * (u + cs.sqrt(u**2 + 1.0)) - s0)
+    return cs.if_else(u > -_STOP_FROM, ramp, 0.0)
 
 
 def thread_height(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
-    """Taut height ``r1`` [m] of one thread V for expansion ``d`` [m].
+    """Taut height ``r1`` [m] of one thread V for expansion ``d`` [m]: the legs of the
+    thread, ``l`` long plus its stretch (:func:`thread_stretch`), over the anchors'
+    half-span ``r2 = (w0 + d) / 2``.
 
-    Floored at 1e-4 l (the thread pulled straight): beyond that the geometry has no
-    solution and the equilibrium solver reports it.
+    Floored at 1e-4 l (a thread stretched far beyond its breaking strain).
     """
     r2 = 0.5 * (w0 + d)
-    return cs.sqrt(cs.fmax((0.5 * l) ** 2 - r2**2, (1e-4 * l) ** 2))
+    half = 0.5 * (l + thread_stretch(d, l, w0))
+    return cs.sqrt(cs.fmax(half**2 - r2**2, (1e-4 * l) ** 2))
 
 
 def aps_parameter(b: Builder, p: APSParams, name: str, source: str | None = None) -> cs.SX:
@@ -299,12 +333,13 @@ class Actin(Component):
 
     def build(self, b: Builder) -> None:
         p = self.p
-        l, w0, A, k_s, c_s, eps = (
-            aps_parameter(b, p, k) for k in ("l", "w0", "A_band", "k_s", "c_s", "eps_slack")
+        l, w0, A, k_s, c_s, eps, k_t = (
+            aps_parameter(b, p, k)
+            for k in ("l", "w0", "A_band", "k_s", "c_s", "eps_slack", "k_thread")
         )
         fa, fb = b.port("flange_a", FLANGE), b.port("flange_b", FLANGE)
         L_geo, L_rest = cs.SX(0), cs.SX(0)
-        exps = []
+        exps, stops = [], []
         for side, present in (("exp_a", self.upper), ("exp_b", self.lower)):
             if present:
                 fl = b.port(side, FLANGE)
@@ -314,11 +349,22 @@ class Actin(Component):
                     f"theta_{side[-1]}",
                     theta,
                     "rad",
-                    "thread angle, cos(theta) = 2 r2 / l (paper); at its lower bound the thread "
-                    "is pulled straight, at its upper bound the anchors meet",
-                    low=THETA_MIN_RAD,
+                    "thread angle, cos(theta) = 2 r2 / l (paper); 0: the thread pulled "
+                    "straight, at its upper bound the anchors meet",
+                    low=0.0,
                     high=0.5 * math.pi,
                 )
+                strain, stop_energy, stop_force = laws.apply(thread_stop, [fl.s, l, w0, k_t])
+                b.output(
+                    f"strain_{side[-1]}",
+                    strain,
+                    "1",
+                    "axial strain of the thread pulled straight (the end stop; 0 while it is "
+                    "bent); at its upper bound the thread breaks",
+                    low=0.0,
+                    high=THREAD_STRAIN_MAX,
+                )
+                stops.append((stop_energy, stop_force))
         self.rest_length = L_rest  # taut length at zero expansion [m], for start values
         per_v = 2.0 / len(exps)  # two V's in series: k_s; one V alone: 2 k_s
         e = fb.s - fa.s - L_geo
@@ -333,12 +379,13 @@ class Actin(Component):
             b.dissipation("damping", dissipation)
         b.equation(fb.f, tension)
         b.equation(fa.f, -tension)
-        for fl in exps:  # generalised force on the expansion: T de/dd
-            b.equation(fl.f, tension * cs.jacobian(e, fl.s))
+        for fl, (_, stop_force) in zip(exps, stops, strict=True):
+            # generalised force on the expansion: T de/dd, and the straight thread's
+            b.equation(fl.f, tension * cs.jacobian(e, fl.s) + stop_force)
         b.output("T", tension, "N", "thread tension (I-band)")
         b.output("e", e, "m", "stretch beyond the taut length (negative: slack)")
         b.output("L_geo", L_geo, "m", "taut length of the I-band")
-        b.energy("elastic", energy)
+        b.energy("elastic", sum((u for u, _ in stops), energy))
 
 
 def _band_side(L_geo, L_rest, d, l, w0, A) -> list:
@@ -350,6 +397,16 @@ def _band_side(L_geo, L_rest, d, l, w0, A) -> list:
         L_rest + 0.5 * A + thread_height(0.0, l, w0),
         cs.acos(cos_theta),
     ]
+
+
+def thread_stop(d, l, w0, k) -> list:
+    """The end stop of one thread (of stiffness ``k`` [N/m]) on its SPA's expansion ``d``
+    [m]: its strain ``delta / l`` [1] at the stretch ``delta`` of :func:`thread_stretch`,
+    its energy ``k delta^2 / 2`` [J] and its force on the expansion, the energy's
+    gradient [N] (all exactly 0 while the thread is bent)."""
+    delta = thread_stretch(d, l, w0)
+    energy = 0.5 * k * delta**2
+    return [delta / l, energy, cs.gradient(energy, d)]
 
 
 def _band_tension(e, e_rate, k_s, c_s, eps, per_v: float, damping: str) -> list:
@@ -438,6 +495,10 @@ __all__ = [
     "Actin",
     "THREAD_DAMPING",
     "YeohSpring",
+    "THREAD_STRAIN_MAX",
     "aps_parameter",
+    "STOP_LENGTH",
     "thread_height",
+    "thread_stop",
+    "thread_stretch",
 ]

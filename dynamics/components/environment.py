@@ -17,6 +17,10 @@ from ..params.ambient import Ambient
 ENVIRONMENT = "ambient"
 """Name of the environment component every user looks up."""
 
+POSITIVE = 1e-12
+"""Lower bound of the ambient pressure [Pa], temperature [K] and gas constant
+[J/(kg K)]: each physically > 0 (``ambient.T = 0 K`` is refused)."""
+
 # parameter name -> Ambient field (the one source of the defaults, units and sources)
 _FIELDS = {"p": "p_amb", "T": "T_amb", "R": "R_air", "gamma": "kappa", "g": "g"}
 
@@ -40,7 +44,9 @@ class Environment(Component):
         meta = {f.name: f.metadata for f in dataclasses.fields(Ambient)}
         for local, field_name in _FIELDS.items():
             m = meta[field_name]
-            low = 1.001 if local == "gamma" else 0.0  # gamma = 1 has no internal energy
+            # gamma = 1 has no internal energy; no absolute pressure, temperature or gas
+            # constant is 0 (g may be: a set-up across gravity)
+            low = {"gamma": 1.001, "g": 0.0}.get(local, POSITIVE)
             b.parameter(
                 local,
                 getattr(self.ambient, field_name),
@@ -51,4 +57,4 @@ class Environment(Component):
             )
 
 
-__all__ = ["ENVIRONMENT", "Environment"]
+__all__ = ["ENVIRONMENT", "POSITIVE", "Environment"]

@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
 from ..results import Result
 from ..schema import MAX_VALUES
@@ -88,7 +88,8 @@ def simulate(
     SolverError
         When the method fails, the trajectory leaves the physical domain (names the
         time, the state and the cause) or a returned signal is not finite (names it and
-        the time).
+        the time). Its ``partial`` is the :class:`Result` of the output points before the
+        failure (meta ``status = "incomplete"`` and ``reason``), or None if there are none.
     """
     settings = settings or SolverSettings()
     if not (np.isfinite(t_final) and t_final > 0):
@@ -110,8 +111,28 @@ def simulate(
     _check_size(len(t_out), model, wanted, max_values)
     sim = Simulator(model, settings, x0=x0, z0=z0, params=params, t0=float(t_out[0]))
     tic = _time.perf_counter()
-    X, Z, U = sim.advance(inputs, t_out, progress)
-    wall = _time.perf_counter() - tic
+    try:
+        X, Z, U = sim.advance(inputs, t_out, progress)
+    except SolverError as exc:  # keep what was computed, marked incomplete
+        if isinstance(exc.partial, tuple) and len(exc.partial[0]):
+            exc.partial = _result(sim, wanted, *exc.partial, _time.perf_counter() - tic)
+            exc.partial.meta.update(status="incomplete", reason=str(exc))
+        raise
+    return _result(sim, wanted, t_out, X, Z, U, _time.perf_counter() - tic)
+
+
+def _result(
+    sim: Simulator,
+    wanted: list[str],
+    t_out: np.ndarray,
+    X: np.ndarray,
+    Z: np.ndarray,
+    U: np.ndarray,
+    wall: float,
+) -> Result:
+    """The :class:`Result` of a run of ``sim`` through ``t_out`` (states ``X``, algebraic
+    unknowns ``Z``, inputs ``U``, one row per time; ``wall`` its integration time [s])."""
+    model, settings = sim.model, sim.settings
     S = sim._signals_at(tuple(wanted), X.T, Z.T, U.T)  # bound buffers: no conversions
     values = {name: S[i] for i, name in enumerate(wanted)}
     units = {name: model.unit(name) for name in values}

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ParameterError, SolverError
 from ..modeling.buffered import BufferedCall
 from ..modeling.model import Model
 from ..signals import Staircase, Step
@@ -257,6 +257,11 @@ class Simulator:
         -------
         (numpy.ndarray, numpy.ndarray, numpy.ndarray)
             States, algebraic unknowns and inputs at ``times``, one row per time.
+
+        Raises
+        ------
+        SolverError
+            A piece failed; its ``partial`` holds ``(times, X, Z, U)`` up to the failure.
         """
         if not self._started:
             raise ParameterError(
@@ -300,6 +305,7 @@ class Simulator:
         held = all(isinstance(sig, _HELD_TYPES) for sig in signals)
         law = HELD if held else InputLaw(tuple(signals))
         W = _values(signals, np.array(edges)) if held else None  # one vectorised call
+        done = first  # rows filled: what a failure keeps (SolverError.partial)
         for i, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
             lo = first + int(np.searchsorted(times[first:], a, side="right"))
             hi = first + int(np.searchsorted(times[first:], b, side="right"))
@@ -308,12 +314,17 @@ class Simulator:
             w = W[i] if held else segment_w(a, b)
             for k in range(0, len(seg_times), CHUNK_POINTS):
                 piece = seg_times[k : k + CHUNK_POINTS]
-                Xp, Zp, Up = self._piece(law, w, signals, piece)
+                try:
+                    Xp, Zp, Up = self._piece(law, w, signals, piece)
+                except SolverError as exc:
+                    exc.partial = (times[:done], X[:done], Z[:done], U[:done])
+                    raise
                 n_out = max(min(len(piece), hi - lo - k), 0)  # b may be a breakpoint only
                 rows = slice(lo + k, lo + k + n_out)
                 X[rows], Z[rows], U[rows] = Xp[:n_out], Zp[:n_out], Up[:n_out]
                 if held and n_out == len(piece) and piece[-1] == b:
                     U[rows.stop - 1] = W[i + 1]  # at b itself the input's value from b on
+                done = rows.stop
                 if progress is not None:
                     progress((self._t - t_start) / span if span > 0 else 1.0)
         self._inputs = signals

@@ -1,6 +1,7 @@
 """The set-ups: fixture placement, chain compliance, shared environment, options, arguments."""
 
 import math
+import warnings
 
 import casadi as cs
 import numpy as np
@@ -35,6 +36,9 @@ def test_isometric_sensor_is_attached_to_the_hanging_chain_without_pretension(n)
     assert e0[f"myofibril.actin{n}.e"] == pytest.approx(sp - p.eps_slack**2 / (4 * sp), rel=1e-6)
 
 
+@pytest.mark.filterwarnings(
+    "ignore::sarcomere.dynamics.plausibility.PlausibilityWarning"
+)  # weightless bodies
 def test_identical_units_in_series_give_the_same_isometric_force_for_any_n():
     """One tension through identical units on a rigid fixture: F_n = F_1. Weightless bodies
     make the units identical; what remains is the slack regularisation near the hook's
@@ -46,6 +50,9 @@ def test_identical_units_in_series_give_the_same_isometric_force_for_any_n():
         assert f == pytest.approx(forces[0], rel=2e-3)
 
 
+@pytest.mark.filterwarnings(
+    "ignore::sarcomere.dynamics.plausibility.PlausibilityWarning"
+)  # weightless bodies
 @pytest.mark.parametrize("n", [1, 2, 3])
 def test_chain_compliance_is_n_over_k_s(n):
     """n - 1 inner I-bands (two V's, k_s) and two end bands (one V, 2 k_s): the chain's
@@ -215,3 +222,27 @@ def test_the_split_muscle_and_load_meet_the_sprung_load_equilibrium():
     assert load["mass.s"] == pytest.approx(mono["mass.s"], rel=1e-9)
     with pytest.raises(ParameterError, match="stiffness"):
         spring_mass_load(stiffness="-1 N/m")
+
+
+def test_an_implausible_load_or_aps_parameter_warns_from_python():
+    """Issue 24: `hanging_load(load_kg=50)` (a 2.3 m muscle) and `k_s = 2e-12 N/m` (a
+    9e11 m chain) ran without a word from Python; scenes warned."""
+    from sarcomere.dynamics import PlausibilityWarning
+
+    with pytest.warns(PlausibilityWarning, match=r"load_kg = 50 kg is outside the plaus") as w:
+        hanging_load(1, load_kg=50)
+    assert w[0].filename == __file__  # at the caller's line
+    aps = APSParams.from_paper(k_s=2e-12)
+    with pytest.warns(PlausibilityWarning, match=r"params.k_s = 2e-12 N/m is more than 1000"):
+        hanging_load(1, aps)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        hanging_load(1, APSParams.from_paper(k_s=800.0), load_kg=0.1)  # plausible: silent
+
+
+@pytest.mark.parametrize("name", ["ambient.T", "ambient.p", "ambient.R"])
+def test_an_impossible_ambient_is_refused_naming_the_range(name):
+    """Issue 24: `ambient.T = 0 K` passed."""
+    model = hanging_load(1)
+    with pytest.raises(ParameterError, match=rf"'{name}' = 0.0 .*allowed: \[1e-12, inf\]"):
+        model.parameters({name: 0.0})

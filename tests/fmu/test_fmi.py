@@ -351,9 +351,8 @@ def test_leaving_the_domain_in_a_step_is_an_error_until_reset(step_loaded):
     fmu = fmi.instance()
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
-    # 2000 times the air at rest: the native run (CVODES, rtol 1e-10) leaves the domain
-    # at 0.3 ms (at 200 times it stays inside: theta_b 0.061 rad at 10 ms); steps of
-    # 0.05 ms, so the integrator ends a step there rather than at the singular thread
+    # 2000 times the air at rest: the threads are pulled straight and stretched past
+    # their breaking strain (THREAD_STRAIN_MAX) at 0.35 ms; steps of 0.05 ms
     fmu.setReal([fmi.vr["myofibril.aps1.chamber.m_air"]], [1e-2])
     fmu.exitInitializationMode()
     start = _get(fmu, fmi, LENGTH)
@@ -361,8 +360,9 @@ def test_leaving_the_domain_in_a_step_is_an_error_until_reset(step_loaded):
         for k in range(20):
             good = _get(fmu, fmi, LENGTH)
             fmu.doStep(k * 5e-5, 5e-5)
-    assert k == 5
-    assert "doStep to t = 0.0003 s: myofibril.actin0.theta_b = 0 is outside" in fmi.errors()[-1]
+    assert k == 6
+    msg = "doStep to t = 0.00035 s: myofibril.actin0.strain_b = 0.19"  # the thread breaks
+    assert msg in fmi.errors()[-1]
     assert _get(fmu, fmi, LENGTH) == good != start  # readable at the last good point
     with pytest.raises(FMICallException):
         fmu.doStep(0.0, 0.01)

@@ -178,3 +178,34 @@ stop_time = "0.3 s"
     assert "rise_time_10_90_s" not in out.metrics
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert "below the noise level" in summary["extra"]["metrics_left_out"]["rise_time_10_90_s"]
+
+
+FAILING = """\
+[scenario]
+kind = "transient"
+[model]
+n = 1
+[parameters]
+"aps.A_p" = "1e-4 m^2"
+[inputs.pressure]
+type = "step"
+final = "0.6 MPa"
+time = "0.1 s"
+[simulation]
+stop_time = "0.5 s"
+"""
+
+
+def test_a_run_that_fails_writes_what_it_computed_marked_incomplete(tmp_path, capsys):
+    """Issue 24: a failed run kept nothing; now its outputs up to the failure are
+    written with "status": "incomplete" and the reason, and the CLI still exits 2."""
+    scene = tmp_path / "fail.toml"
+    scene.write_text(FAILING)
+    assert main(["run", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "left the physical domain" in err[0]
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["status"] == "incomplete" and "physical domain" in summary["reason"]
+    main_result = summary["results"]["main"]
+    assert main_result["points"] > 50 and main_result["meta"]["status"] == "incomplete"
+    assert (tmp_path / "o" / "timeseries.csv").is_file()

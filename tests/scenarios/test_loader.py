@@ -422,6 +422,11 @@ def test_aps_thermal_is_a_parameter_and_aps_material_points_to_model_material() 
             'parameters."aps.A_p"',
             "0.001 m^2 is more than 100 times",
         ),
+        (
+            '[parameters]\n"aps.k_s" = "2e-12 N/m"',
+            'parameters."aps.k_s"',
+            "2e-12 N/m is more than 1000 times",
+        ),
     ],
 )
 def test_an_implausible_load_or_geometry_warns_naming_the_value(body, key, needle) -> None:
@@ -433,6 +438,18 @@ def test_an_implausible_load_or_geometry_warns_naming_the_value(body, key, needl
     (warning,) = caught
     assert (warning.filename, warning.lineno) == ("u.toml", 6)
     assert str(warning.message).startswith(f"key '{key}': {needle}")
+
+
+def test_a_scene_warns_once_at_its_key_not_again_from_the_set_up() -> None:
+    """The scene and the Python set-ups share one plausibility rule; a scene's model
+    build does not repeat the warning bind gave at the scene's key."""
+    from sarcomere.scenarios.dynamic import bind
+
+    body = '[model.options]\nload = "2 kg"'
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        bind(parse_scenario(SCENE.format(body=body), "u.toml")).build("full")
+    assert [w.filename for w in caught] == ["u.toml"]
 
 
 @pytest.mark.parametrize("name", list(packaged_scenarios()))

@@ -10,10 +10,11 @@ import pytest
 
 from sarcomere.dynamics.assemblies import hanging_load, isometric
 from sarcomere.dynamics.calibration import TARGETS, evaluate
-from sarcomere.dynamics.components.aps import APSParams
+from sarcomere.dynamics.components.aps import THREAD_STRAIN_MAX, APSParams
 from sarcomere.dynamics.components.chains import Myofibril
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError, SolverError
+from sarcomere.dynamics.signals import Step
 from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 P = "regulator.p_cmd"
@@ -86,18 +87,18 @@ SEALED = ("*.tube*.C",)
 UNDAMPED = ("*.loss.d", "*.actin*.c_s")
 
 
-def _kicked_run(m, patterns, t_final, dt, extra=None):
-    """From the 0.05 MPa equilibrium, kick the load; parameters matching ``patterns``
-    set to 0 (and ``extra`` overrides). Returns the result and the stored energy E [J]
-    and dissipation D [W]."""
-    eq = solve_equilibrium(m, {P: 0.05e6})
+def _kicked_run(m, patterns, t_final, dt, extra=None, p_cmd=0.05e6):
+    """From the equilibrium at ``p_cmd`` [Pa], kick the load; parameters matching
+    ``patterns`` set to 0 (and ``extra`` overrides). Returns the result and the stored
+    energy E [J] and dissipation D [W]."""
+    eq = solve_equilibrium(m, {P: p_cmd})
     x0 = eq.x.copy()
     x0[m.state_names.index("load.v")] = 0.05
     over = {**_set(m, patterns, 0.0), **(extra or {})}
     res = simulate(
         m,
         t_final,
-        inputs={P: 0.05e6},
+        inputs={P: p_cmd},
         x0=x0,
         params=over,
         output_interval=dt,
@@ -107,7 +108,7 @@ def _kicked_run(m, patterns, t_final, dt, extra=None):
     E, D = m.function("energy").map(n)(
         np.array([res[k] for k in m.state_names]),
         np.zeros((0, n)),
-        np.full((1, n), 0.05e6),
+        np.full((1, n), p_cmd),
         np.repeat(m.parameters(over)[:, None], n, 1),
     )[:2]
     return res, np.array(E).ravel(), np.array(D).ravel()
@@ -117,25 +118,34 @@ ADIABATIC = ("*.chamber.tau_heat",)  # 1e12 s: no wall heat (the finite default 
 
 
 # chambers: isothermal and adiabatic air, and the instant level's supply potential
-# -(p - p_amb) V (conserved while the supply pressure is constant, as here)
-CHAMBERS = [("isothermal", "full"), ("adiabatic", "full"), ("isothermal", "instant_pneumatics")]
+# -(p - p_amb) V (conserved while the supply pressure is constant, as here); at the
+# regulator's 0.6 MPa every thread is pulled straight, on its end stop (issue 24)
+CHAMBERS = [
+    ("isothermal", "full", 0.05e6, 0.02),
+    ("adiabatic", "full", 0.05e6, 0.02),
+    ("isothermal", "instant_pneumatics", 0.05e6, 0.02),
+    ("isothermal", "full", 0.6e6, 0.0),  # the bottom thread (the hook's) on its stop
+]
+STRAINS = ("*.strain_a", "*.strain_b")
 
 
-@pytest.mark.parametrize(("thermal", "fidelity"), CHAMBERS)
-def test_energy_conserved_with_sealed_chambers_and_no_damping(thermal, fidelity):
+@pytest.mark.parametrize(("thermal", "fidelity", "p_cmd", "load"), CHAMBERS)
+def test_energy_conserved_with_sealed_chambers_and_no_damping(thermal, fidelity, p_cmd, load):
     p = APSParams.from_paper(thermal=thermal)
-    m = hanging_load(2, p, load_kg=0.02, fidelity=fidelity)
-    _, E, D = _kicked_run(m, SEALED + UNDAMPED, 0.3, 1e-3, _set(m, ADIABATIC, 1e12))
-    kinetic0 = 0.5 * (0.001 + 0.02) * 0.05**2
+    m = hanging_load(2, p, load_kg=load, fidelity=fidelity)
+    res, E, D = _kicked_run(m, SEALED + UNDAMPED, 0.3, 1e-3, _set(m, ADIABATIC, 1e12), p_cmd=p_cmd)
+    strains = [k for k in m.signal_names if any(fnmatch(k, s) for s in STRAINS)]
+    assert (max(res[k].min() for k in strains) > 1e-3) == (p_cmd > 0.5e6)  # on its stop
+    kinetic0 = 0.5 * (0.001 + load) * 0.05**2
     assert np.ptp(E) < 1e-6 * kinetic0
     assert np.max(D) == 0.0
 
 
-@pytest.mark.parametrize(("thermal", "fidelity"), CHAMBERS)
-def test_dissipation_accounts_for_energy_loss(thermal, fidelity):
+@pytest.mark.parametrize(("thermal", "fidelity", "p_cmd", "load"), CHAMBERS)
+def test_dissipation_accounts_for_energy_loss(thermal, fidelity, p_cmd, load):
     p = APSParams.from_paper(thermal=thermal)
-    m = hanging_load(2, p, load_kg=0.02, fidelity=fidelity)
-    res, E, D = _kicked_run(m, SEALED, 0.2, 2e-5, _set(m, ADIABATIC, 1e12))
+    m = hanging_load(2, p, load_kg=load, fidelity=fidelity)
+    res, E, D = _kicked_run(m, SEALED, 0.2, 2e-5, _set(m, ADIABATIC, 1e12), p_cmd=p_cmd)
     dissipated = np.sum(0.5 * (D[1:] + D[:-1]) * np.diff(res.index))
     loss = E[0] - E[-1]
     assert loss > 0
@@ -198,10 +208,39 @@ def test_command_outside_the_regulating_range_is_refused(hang3):
         simulate(hang3, 0.1, inputs={P: -2e5})
 
 
-def test_equilibrium_reports_thread_pulled_straight():
-    m = hanging_load(1, APSParams.from_paper(A_p=1e-4), load_kg=0.0)  # 25 x the pneumatic area
-    with pytest.raises(SolverError, match=r"theta_b = .* outside its physical domain.*straight"):
+def test_equilibrium_reports_a_thread_stretched_until_it_breaks():
+    m = hanging_load(1, APSParams.from_paper(A_p=1e-4), load_kg=0.0)  # 38 x the pneumatic area
+    with pytest.raises(SolverError, match=r"strain_. = .* outside its physical domain.*breaks"):
         solve_equilibrium(m, {P: 6.0e5})
+
+
+@pytest.mark.parametrize("n", [3, *np.random.default_rng(24).integers(1, 13, 2).tolist()])
+def test_a_step_to_the_regulators_maximum_runs_onto_the_threads_end_stop(n):
+    """Issue 24: at 0.3-0.8 MPa the threads were pulled straight and the run stopped; a
+    straight thread now takes the expansion force through its stiffness ``k_thread``,
+    and the run settles on the one equilibrium (a loaded V stays a V)."""
+    m = hanging_load(n, load_kg=0.0)
+    p = APSParams.from_paper()
+    rest = solve_equilibrium(m, {P: 0.0})
+    p_max = m.variables[P].high
+    res = simulate(m, 10.0, inputs={P: Step(final=p_max, time=0.1)}, x0=rest.x)
+    assert res.final("regulator.p_out") == pytest.approx(p_max, rel=1e-6)
+    length = res.final("myofibril.length")
+    assert n * p.A_band < length < 0.65 * rest["myofibril.length"]  # near full contraction
+    # on the equilibrium's branch (a straight-locked one was 6 % shorter): the mean of
+    # the lightly damped chain's swing over its last 2 s
+    swing = res["myofibril.length"][res.index >= 8.0]
+    assert swing.mean() == pytest.approx(
+        solve_equilibrium(m, {P: p_max})["myofibril.length"], rel=1e-4
+    )
+    strains = [k for k in m.signal_names if fnmatch(k, "*.strain_?")]
+    assert max(res[k].max() for k in strains) < THREAD_STRAIN_MAX
+    # the hook's thread (its band carries 1 g) on its stop, holding most of the force
+    strain = res.final(f"myofibril.actin{n}.strain_a")
+    f_exp = res.final(f"myofibril.aps{n}.chamber.p_gauge") * p.A_p - res.final(
+        f"myofibril.aps{n}.yeoh.f"
+    )
+    assert 0.5 * f_exp < 2 * p.k_thread * strain * p.l <= f_exp
 
 
 def test_equilibrium_from_scratch_stays_on_the_physical_branch():
@@ -222,6 +261,9 @@ def test_r1_rest_geometry():
     assert math.degrees(math.acos(p.w0 / p.l)) == pytest.approx(51.32, abs=0.01)
 
 
+@pytest.mark.filterwarnings(
+    "ignore::sarcomere.dynamics.plausibility.PlausibilityWarning"
+)  # weightless bodies
 def test_symmetric_reduction_is_exact_for_weightless_bodies():
     """With weightless bodies every I-band carries one tension and every unit the same
     expansion: one representative unit times n must give the full chain's equilibrium,

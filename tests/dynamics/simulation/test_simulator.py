@@ -222,6 +222,10 @@ def test_simulate_names_the_signal_and_time_where_the_domain_is_left():
         simulate(model, 1.0, {"lag.u": Step(final=1e5, time=0.3)}, output_interval=0.01)
     assert info.value.time == pytest.approx(0.44)
     assert info.value.state["lag.x"] > 0.5e5
+    partial = info.value.partial  # issue 24: what was computed before it is kept
+    assert partial.meta["status"] == "incomplete" and "lag.x" in partial.meta["reason"]
+    np.testing.assert_allclose(partial.index, np.arange(0.0, 0.305, 0.01), atol=1e-12)
+    assert np.all(partial["lag.x"] <= 0.5e5)
 
 
 def test_signals_expanded_over_the_points_equal_the_mapped_ones(monkeypatch):
