@@ -225,7 +225,9 @@ class SceneContext:
             levels = tuple(m.L_r for m in FAMILY)
             what = "calibration family member (its L_r)"
             low, high = min(levels), max(levels)
-            return Target(name, "family", unit="m", low=low, high=high, long_name=what, levels=levels)
+            return Target(
+                name, "family", unit="m", low=low, high=high, long_name=what, levels=levels
+            )
         group, _, field = name.partition(".")
         if group == "aps" and field in APSParams.numeric_fields():
             meta = next(f.metadata for f in dataclasses.fields(APSParams) if f.name == field)
