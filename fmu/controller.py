@@ -191,7 +191,10 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     s, pred = nmpc.settings, nmpc.model
     if s.linear_solver not in GENERATED_SOLVERS:  # LAPACK's are calls, not generated C
         raise ParameterError(
-            "nmpc.linear_solver", s.linear_solver, f"one of {GENERATED_SOLVERS} (generated C)"
+            "nmpc.linear_solver",
+            s.linear_solver,
+            f"one of {GENERATED_SOLVERS} (generated C)",
+            "build the NMPC to export with NMPCSettings(linear_solver='sparse_lu')",
         )
     yu, (uu, lo, hi) = pred.unit(s.output), _bias(nmpc, pred, bias)
     law = nmpc.law_function()
