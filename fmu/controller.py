@@ -91,7 +91,7 @@ def pid_system(pid: PID, model: Model, bias: float, name: str = "pid") -> Sample
         Variable(derivative, uu, "filtered derivative term"),
         Variable(last, yu, "measurement of the last sample"),
         Variable(started, "1", "1 once a sample was taken", low=0.0, high=1.0),
-        Variable("held_command", uu, "command held since the last sample", low=lo, high=hi),
+        _held(uu, lo, hi),
     )
     x = cs.SX.sym("x", len(states))
     u, p = cs.SX.sym("u", 2), cs.SX.sym("p", len(LAW_PARAMETERS))
@@ -102,10 +102,7 @@ def pid_system(pid: PID, model: Model, bias: float, name: str = "pid") -> Sample
         f"PID of {pid.input} on {pid.output}, sampled every {pid.dt:g} s (sarcomere)",
         pid.dt,
         states,
-        (
-            Variable("reference", yu, f"reference of {pid.output}"),
-            Variable("measurement", yu, f"measured {pid.output}"),
-        ),
+        tuple(_inputs(pid.output, model)),
         (Variable("command", uu, f"{pid.input}, held between samples", low=lo, high=hi),),
         tuple(params),
         cs.Function("update", [x, u, p], [cs.vertcat(nxt, cmd)]),
@@ -124,6 +121,33 @@ def _bias(controller, model: Model, bias: float) -> tuple[str, float, float]:
     return uu, lo, hi
 
 
+def _held(uu: str, lo: float, hi: float) -> Variable:
+    """The state holding the command between samples."""
+    return Variable("held_command", uu, "command held since the last sample", low=lo, high=hi)
+
+
+def _inputs(output: str, model: Model, y0: float = 0.0, x0=None, held: str = "") -> list:
+    """The reference (``held``: how it is held) and the measured ``output``, both starting
+    at ``y0``, and, with their start values ``x0``, the plant's states by name."""
+    yu = model.unit(output)
+    inputs = [
+        Variable("reference", yu, f"reference of {output}{held}", y0),
+        Variable("measurement", yu, f"measured {output}", y0),
+    ]
+    for n, v in zip(model.state_names, () if x0 is None else x0, strict=x0 is not None):
+        inputs.append(Variable(n, model.unit(n), f"plant state {n}", float(v)))
+    return inputs
+
+
+def _mpc_inputs(mpc, pred: Model, uname: str, bias: float) -> list:
+    """An exact-state MPC's inputs (:func:`_inputs`) starting at the prediction's
+    equilibrium at ``bias`` under the parameters it predicts with now."""
+    now = {k: v for k, v in mpc.parameters.items() if k in pred.param_names}
+    op = solve_equilibrium(pred, {uname: bias}, now)
+    out = mpc.settings.output
+    return _inputs(out, pred, float(op[out]), op.x, " (held over the horizon)")
+
+
 def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> SampledSystem:
     """A full-state ``lqi`` (no estimator) as a sampled system: inputs the reference, the
     measured output and the plant's states by name; units from ``model``; the command
@@ -135,14 +159,9 @@ def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> Sample
     yu, (uu, lo, hi) = model.unit(lqi.output), _bias(lqi, model, bias)
     states = (
         Variable("integral", f"{yu}*s", "integral of the tracking error (y - r)"),
-        Variable("held_command", uu, "command held since the last sample", low=lo, high=hi),
+        _held(uu, lo, hi),
     )
-    inputs = [  # start values: the design point
-        Variable("reference", yu, f"reference of {lqi.output}", lqi.y_op),
-        Variable("measurement", yu, f"measured {lqi.output}", lqi.y_op),
-    ]
-    for n, x0 in zip(model.state_names, lqi.x_op, strict=True):
-        inputs.append(Variable(n, model.unit(n), f"plant state {n}", float(x0)))
+    inputs = _inputs(lqi.output, model, lqi.y_op, lqi.x_op)  # start values: the design point
     params = (
         Variable("u_min", uu, "lowest command", lo, lo, hi),
         Variable("u_max", uu, "highest command", hi, lo, hi),
@@ -192,7 +211,10 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     s, pred = nmpc.settings, nmpc.model
     if s.linear_solver not in GENERATED_SOLVERS:  # LAPACK's are calls, not generated C
         raise ParameterError(
-            "nmpc.linear_solver", s.linear_solver, f"one of {GENERATED_SOLVERS} (generated C)"
+            "nmpc.linear_solver",
+            s.linear_solver,
+            f"one of {GENERATED_SOLVERS} (generated C)",
+            "build the NMPC to export with NMPCSettings(linear_solver='sparse_lu')",
         )
     yu, (uu, lo, hi) = pred.unit(s.output), _bias(nmpc, pred, bias)
     law = nmpc.law_function()
@@ -204,18 +226,8 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
     integral = s.integral_gain > 0
     if integral:
         states.append(Variable("integral_offset", yu, "integral shift of the reference"))
-    states.append(
-        Variable("held_command", uu, "command held since the last sample", low=lo, high=hi)
-    )
-    now = {k: v for k, v in nmpc.parameters.items() if k in pred.param_names}
-    op = solve_equilibrium(pred, {uname: bias}, now)  # the inputs' start values
-    y_op = float(op[s.output])
-    inputs = [
-        Variable("reference", yu, f"reference of {s.output} (held over the horizon)", y_op),
-        Variable("measurement", yu, f"measured {s.output}", y_op),
-    ]
-    for n, x0 in zip(pred.state_names, op.x, strict=True):
-        inputs.append(Variable(n, pred.unit(n), f"plant state {n}", float(x0)))
+    states.append(_held(uu, lo, hi))
+    inputs = _mpc_inputs(nmpc, pred, uname, bias)
     params = []
     offsets = {  # the run-time inputs of the prediction that are not model parameters
         "disturbance.input": (uu, f"constant disturbance added to {uname} in the prediction"),
@@ -269,24 +281,14 @@ def lmpc_system(lmpc: LinearMPC, model: Model, bias: float, name: str = "lmpc") 
     (tunable) and ``bias`` (fixed). Units from the prediction model."""
     uname = _exportable("lmpc", lmpc, model)
     s, pred = lmpc.settings, lmpc.model
-    yu, (uu, lo, hi) = pred.unit(s.output), _bias(lmpc, pred, bias)
+    uu, lo, hi = _bias(lmpc, pred, bias)
     law, soft = lmpc.law_function(), [n for n, _ in s.soft_min]
     nm = law.nnz_in(0)
     states = [
         Variable(f"memory[{i + 1}]", "1", f"entry {i + 1} of the LMPC's memory") for i in range(nm)
     ]
-    states.append(
-        Variable("held_command", uu, "command held since the last sample", low=lo, high=hi)
-    )
-    now = {k: v for k, v in lmpc.parameters.items() if k in pred.param_names}
-    op = solve_equilibrium(pred, {uname: bias}, now)  # the inputs' start values
-    x_op, y_op = op.x, float(op[s.output])
-    inputs = [
-        Variable("reference", yu, f"reference of {s.output} (held over the horizon)", y_op),
-        Variable("measurement", yu, f"measured {s.output}", y_op),
-    ]
-    for n, x0 in zip(pred.state_names, x_op, strict=True):
-        inputs.append(Variable(n, pred.unit(n), f"plant state {n}", float(x0)))
+    states.append(_held(uu, lo, hi))
+    inputs = _mpc_inputs(lmpc, pred, uname, bias)
     for n in soft:
         inputs.append(Variable(n, pred.unit(n), f"measured {n} (soft lower bound)"))
     p_law = lmpc.law_parameters()

@@ -15,8 +15,9 @@ continuous model (:func:`~.export.build`: generated C, ``model_data``, the FMI w
   (inputs are held over a step); the sample at ``t + h`` belongs to the next step;
 * the outputs after the step are those of the last sample executed (before the first
   sample: the start state's);
-* any ``h > 0`` is accepted: with ``h = T`` each step runs one sample; with ``h < T`` the
-  outputs hold over the steps without an instant; with ``h > T`` (or not a multiple of
+* any ``h > 0`` holding at most :data:`~.export.MAX_SAMPLES` instants is accepted (a
+  longer step is refused with a message): with ``h = T`` each step runs one sample; with
+  ``h < T`` the outputs hold over the steps without an instant; with ``h > T`` (or not a multiple of
   ``T``) every instant in the step runs, all on the same held inputs, so a sample inside
   a step does not see the other participants move. Align the communication points with
   the instants (``T`` a multiple of ``h``) for a sampled controller that sees fresh values.

@@ -11,7 +11,8 @@ start inputs). ``[simulation] output_interval`` is the communication step. ``[co
   and the parameters the scene does not set with the same values; anything else is refused
   naming what differs); default: the model exported during the run into a temporary
   folder (a few seconds of gcc), removed afterwards;
-- ``fmi``: 2 or 3, the FMI version of that export (default 2);
+- ``fmi``: 2 or 3, the FMI version of that export (default 2); with ``fmu``, that file's
+  version (another is refused);
 - ``ordering``: "jacobi" or "gauss-seidel" (default "jacobi"), ``inputs``: "hold" or
   "extrapolate" (default "hold"), see :mod:`sarcomere.fmu.cosim`.
 
@@ -109,10 +110,17 @@ def model_differences(description, model: Model, p: np.ndarray, set_by_scene: Ma
 
 
 def _check_fmu(sc: Scenario, path: Path, model: Model, p: np.ndarray, set_by_scene) -> None:
-    """Refuses an ``fmu`` that is not the scene's model, naming what differs."""
+    """Refuses an ``fmu`` that is not the scene's model, naming what differs, or that is
+    not of the FMI version ``fmi`` names (when given)."""
     with open_fmu(path) as fmu:
         differences = model_differences(fmu.description, model, p, set_by_scene)
-        name = fmu.description.modelName
+        name, version = fmu.description.modelName, fmu.fmi_version
+    if sc.cosim.get("fmi", version) != version:
+        raise sc.error(
+            ("cosim", "fmi"),
+            f"{sc.cosim['fmi']!r}, but {path.name} is an FMI {version}.0 FMU (fmi is the "
+            f"version of the run's own export: remove it, or give {version})",
+        )
     if differences:
         raise sc.error(
             ("cosim", "fmu"),

@@ -1,52 +1,14 @@
 """Scenario kind "cosim" with ``[cosim.participants]``: a system of several participants
 (FMUs and native models) co-simulated by :func:`~sarcomere.fmu.cosim.cosimulate`.
 
-``[simulation]``: ``stop_time``, ``start_time`` and ``output_interval``, the communication
-step (required). ``[solver]``: the native participants' integrator. ``[cosim]``:
-
-- ``participants``: one table per participant, stepped (and started) in the listed order.
-  Each has exactly one of
-  ``fmu = "file.fmu"`` (relative to the scene file), ``scene = "step-50g"`` (a transient
-  scene, a file next to this one or a packaged name, exported during the run; ``fmi``)
-  or ``build``, a model the project builds:
-
-  * ``"muscle"``: :func:`~sarcomere.dynamics.assemblies.force_driven` (inputs
-    ``regulator.p_cmd`` and ``pull.f``, output ``end.s``); keys ``n`` (3), ``fidelity``
-    ("full"), ``as`` ("fmu" or "native", default "fmu"), ``fmi`` (2), ``start`` (a table
-    of start inputs: the FMU's export point and the native start);
-  * ``"load"``: :func:`~sarcomere.dynamics.assemblies.spring_mass_load` (input
-    ``drive.s``, output ``sensor.f``); ``mass``, ``stiffness``, ``damping`` (defaults
-    :data:`~sarcomere.dynamics.assemblies.SPRING_LOAD`), ``as``, ``fmi``, ``start``;
-  * ``"pid"``: the project's PID exported as a controller FMU (inputs ``reference`` and
-    ``measurement``, output ``command``; docs/fmu.md); ``plant`` (a ``build = "muscle"``
-    participant: its model at its start equilibrium designs the gains, and its start
-    command is the bias), ``sample_time``, ``output`` ("myofibril.length"), ``input``
-    ("regulator.p_cmd"), ``u_min`` (0 Pa), ``u_max`` (0.1 MPa), ``gains`` (a table of the
-    PID's own settings, ``controllers/pid.py``), ``fmi``;
-  * ``"nmpc"``: the project's NMPC (real-time iteration) as a controller FMU; its
-    prediction is ``plant`` and ``load`` (a built load) in one model
-    (:func:`~sarcomere.dynamics.assemblies.sprung_load`, smooth flow law, no clamp), its
-    inputs ``reference``, ``measurement`` and every state of that model, each connected
-    from the participant that owns it (added to the connections; the owners expose them);
-    keys as ``"pid"`` but ``gains``, and ``load``, ``settings`` (a table of
-    :class:`~sarcomere.controllers.nmpc.NMPCSettings` fields: ``horizon``, weights,
-    ``rate_max``, ``integral_gain``, ...); the start command is the muscle's;
-  * ``"lmpc"``: the project's LMPC as a controller FMU, as ``"nmpc"``: its model
-    :func:`~sarcomere.dynamics.assemblies.sprung_load` as the plant (exact flow law),
-    linearised at the start and kept there (:data:`FIXED_LINEARISATION`: no
-    re-linearisation, no disturbance filter, no soft bounds), ``settings`` of
-    :class:`~sarcomere.controllers.lmpc.LMPCSettings` (``horizon``, weights, ``rate_max``);
-
-- ``connections``: ``[["source.output", "target.input"], ...]``;
-- ``sources``: a table ``"participant.input" = {signal}`` (the ``[inputs]`` signal
-  tables), sampled at each step's start;
-- ``ordering``, ``inputs``: as the single-FMU form; ``record``: the signals to record
-  (default every participant's inputs and outputs);
-- ``compare = "monolithic-loop"``: also run the same controller on the monolithic model
-  (:func:`~sarcomere.dynamics.assemblies.sprung_load`, the muscle and the load in one
-  model) in the project's sampled loop (:func:`~sarcomere.controllers.loop.run_closed_loop`,
-  CVODES per ``[solver]``); needs one muscle, one load and one controller (pid, nmpc or lmpc)
-  wired as controller -> muscle -> load -> muscle, muscle -> controller.
+The schema (participants by ``fmu``, ``scene`` or ``build``: ``muscle``, ``load`` and the
+controller FMUs ``pid``, ``nmpc``, ``lmpc``; ``connections``, ``sources``, ``ordering``,
+``inputs``, ``record``, ``compare = "monolithic-loop"``) is docs/scenarios.md's (section
+``cosim``); the runs are docs/cosim.md's. A controller's command range (``u_min``,
+``u_max``) must lie inside its plant's input range and hold the start command, checked
+before anything is exported (:func:`~sarcomere.controllers.registry.check_input_bounds`,
+as the ``closed_loop`` kind). ``lmpc`` is kept at its start linearisation
+(:data:`FIXED_LINEARISATION`), so the monolithic loop runs the controller its FMU holds.
 
 Metrics: ``<controller>_tracking_rmse_<unit>``, the RMS of measurement minus reference at
 the communication points; with ``compare``, ``max_error_vs_monolithic_loop_<unit>``, the
@@ -70,7 +32,7 @@ from sarcomere.controllers.base import Controller
 from sarcomere.controllers.lmpc import LinearMPC, LMPCSettings
 from sarcomere.controllers.loop import run_closed_loop
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
-from sarcomere.controllers.pid import make_pid
+from sarcomere.controllers.registry import check_input_bounds, make_controller
 from sarcomere.dynamics.assemblies import (
     FIDELITIES,
     SPRING_LOAD,
@@ -97,32 +59,13 @@ from .signals import signal_from_spec
 from .spec import Scenario, describe, unknown_key
 
 KEYS = ("participants", "connections", "sources", "ordering", "inputs", "compare", "record")
+MPC_KEYS = ("plant", "load", "sample_time", "output", "input", "u_min", "u_max", "settings", "fmi")
 BUILDS = {
     "muscle": ("n", "fidelity", "as", "fmi", "start"),
     "load": ("mass", "stiffness", "damping", "as", "fmi", "start"),
     "pid": ("plant", "sample_time", "output", "input", "u_min", "u_max", "gains", "fmi"),
-    "nmpc": (
-        "plant",
-        "load",
-        "sample_time",
-        "output",
-        "input",
-        "u_min",
-        "u_max",
-        "settings",
-        "fmi",
-    ),
-    "lmpc": (
-        "plant",
-        "load",
-        "sample_time",
-        "output",
-        "input",
-        "u_min",
-        "u_max",
-        "settings",
-        "fmi",
-    ),
+    "nmpc": MPC_KEYS,
+    "lmpc": MPC_KEYS,
 }
 """Project-built participants and their own keys (besides ``build``)."""
 SOURCES = {"fmu": (), "scene": ("fmi",)}
@@ -247,9 +190,23 @@ def _build(sc: Scenario, part: Part) -> None:
     part.start = _start(sc, part, path)
 
 
-def _task(sc: Scenario, part: Part, parts: dict[str, Part]) -> tuple[Part, dict, float]:
-    """A controller participant's plant participant, task (output, input and bounds, SI)
-    and sample time [s]."""
+TASK_KEYS = {"dt": "sample_time", "input": "input", "u_min": "u_min", "u_max": "u_max"}
+"""A controller's settings named by the controllers' errors -> the participant's key."""
+
+
+def _where(path: tuple, kind: str, name: str, own: str) -> tuple:
+    """The participant's key behind a controller's error on ``name`` (``<kind>.<key>``:
+    a task key, else one of its ``own`` table; anything else: the participant)."""
+    key = name.removeprefix(f"{kind}.")
+    if key == name:
+        return path
+    return (*path, TASK_KEYS[key]) if key in TASK_KEYS else (*path, own, key)
+
+
+def _task(sc: Scenario, part: Part, parts: dict[str, Part]) -> tuple:
+    """A controller participant's plant participant, task (output, input and bounds, SI),
+    sample time [s] and the plant's start equilibrium, at which the bounds must hold the
+    start command inside the plant's input range (as the closed loop's)."""
     path = ("cosim", "participants", part.name)
     spec = part.spec
     plant = parts.get(spec.get("plant"))
@@ -269,7 +226,12 @@ def _task(sc: Scenario, part: Part, parts: dict[str, Part]) -> tuple[Part, dict,
     if "sample_time" not in spec:
         raise sc.error((*path, "sample_time"), "a sample time is required, e.g. '10 ms'")
     dt = _quantity(sc, spec["sample_time"], (*path, "sample_time"), "s", 0.0)
-    return plant, task, dt
+    op = solve_equilibrium(m, {**dict(zip(m.input_names, m.u0(), strict=True)), **plant.start})
+    try:
+        check_input_bounds(part.kind, m, op, task)
+    except ParameterError as exc:
+        raise sc.error(_where(path, part.kind, exc.name, ""), describe(exc)) from None
+    return plant, task, dt, op
 
 
 def _table(sc: Scenario, part: Part, key: str) -> Mapping:
@@ -284,17 +246,13 @@ def _table(sc: Scenario, part: Part, key: str) -> Mapping:
 def _pid(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
     """The PID designed on its plant participant's start equilibrium."""
     path = ("cosim", "participants", part.name)
-    plant, task, dt = _task(sc, part, parts)
+    plant, task, dt, op = _task(sc, part, parts)
     m = plant.model
     gains = _table(sc, part, "gains")
-    start = {**dict(zip(m.input_names, m.u0(), strict=True)), **plant.start}
     try:
-        op = solve_equilibrium(m, start)
-        part.controller = make_pid(m, op, dt, {**task, **gains})
+        part.controller = make_controller("pid", m, op, dt, {**task, **gains})
     except ParameterError as exc:  # the PID's own settings are its gains
-        key = exc.name.removeprefix("pid.")
-        where = (*path, "gains", key) if exc.name.startswith("pid.") else path
-        raise sc.error(where, describe(exc)) from None
+        raise sc.error(_where(path, "pid", exc.name, "gains"), describe(exc)) from None
     part.model = m
     part.start = {"bias": float(op.u[m.input_names.index(task["input"])])}
 
@@ -326,7 +284,7 @@ def _mpc(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
     its load in one model (:func:`sprung_load`), started at the command of the muscle's
     start; its states are read from the participants that own them."""
     path = ("cosim", "participants", part.name)
-    plant, task, dt = _task(sc, part, parts)
+    plant, task, dt, plant_op = _task(sc, part, parts)
     load = parts.get(part.spec.get("load"))
     if load is None or load.kind != "load":
         loads = [p.name for p in parts.values() if p.kind == "load"]
@@ -341,8 +299,7 @@ def _mpc(sc: Scenario, part: Part, parts: dict[str, Part]) -> None:
     n, fidelity = plant.spec.get("n", 3), plant.spec.get("fidelity", "full")
     smooth = {"flow_law": "smooth", "saturate": False} if part.kind == "nmpc" else {}
     pred = sprung_load(n, fidelity=fidelity, **smooth, **_load_kw(load.spec))
-    start = {**dict(zip(plant.model.input_names, plant.model.u0(), strict=True)), **plant.start}
-    bias = float(start[task["input"]])
+    bias = float(plant_op.u[plant.model.input_names.index(task["input"])])
     bounds = {"output": task["output"], "u_min": task["u_min"], "u_max": task["u_max"]}
     try:
         op = solve_equilibrium(pred, {task["input"]: bias})
@@ -457,7 +414,11 @@ def _wired(sc: Scenario, parts: list[Part], connections: list[Connection]) -> tu
         raise sc.error(path, f"needs the connections {sorted(wiring)}")
     ratio = ctl.controller.dt / sc.simulation.output_interval
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
-        raise sc.error(path, "needs a sample time that is a whole number of steps")
+        raise sc.error(
+            ("cosim", "participants", ctl.name, "sample_time"),
+            f"{ctl.controller.dt:g} s is not a whole number of communication steps "
+            f'({sc.simulation.output_interval:g} s), as compare = "monolithic-loop" needs',
+        )
     if f"{ctl.name}.reference" not in sc.cosim.get("sources", {}):
         raise sc.error(path, f"needs a source for '{ctl.name}.reference'")
     return mu, lo, ctl

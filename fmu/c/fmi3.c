@@ -116,7 +116,8 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefi
 
 fmi3Status fmi3ExitInitializationMode(fmi3Instance c) {
     CALL(c, "fmi3ExitInitializationMode", SM_INIT);
-    return (fmi3Status)sm_exit_init(inst, inst->cosim ? SM_STEP : SM_EVENT);
+    /* Co-Simulation: event mode first if the importer uses it, else step mode */
+    return (fmi3Status)sm_exit_init(inst, inst->cosim && !inst->event_mode ? SM_STEP : SM_EVENT);
 }
 
 fmi3Status fmi3EnterEventMode(fmi3Instance c) {

@@ -266,3 +266,14 @@ def test_an_fmu_of_another_model_is_refused_before_running(tmp_path, step_fmu, c
         run(given, tmp_path / "out", quiet=True)
     assert "key 'cosim.fmu'" in str(info.value)
     assert not (tmp_path / "out").exists()
+
+
+def test_an_fmi_version_the_given_fmu_does_not_have_is_refused(tmp_path, step_fmu):
+    """``fmi = 3`` with an FMI 2.0 ``fmu`` was silently ignored."""
+    scene = resolve_scenario("cosim-roundtrip").read_text()
+    given = tmp_path / "other.toml"
+    given.write_text(scene.replace("fmi = 2", f'fmu = "{step_fmu}"\nfmi = 3'))
+    message = "key 'cosim.fmi': 3, but step-50g.fmu is an FMI 2.0 FMU"
+    with pytest.raises(ScenarioError, match=message):
+        run(given, tmp_path / "out", quiet=True)
+    assert not (tmp_path / "out").exists()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 
-from sarcomere.dynamics.assemblies import hanging_load
+from sarcomere.dynamics.assemblies import HOOK_MASS_KG, hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.fmu import codegen
 from sarcomere.fmu import export as export_module
@@ -103,6 +103,27 @@ def test_a_tunable_parameter_waits_for_event_mode_in_model_exchange(step_loaded)
     fmu.enterEventMode()
     fmu.setReal([fmi.vr["load.m"]], [0.06])
     assert fmu.getReal([fmi.vr["load.m"]]) == [0.06]
+    fmu.freeInstance()
+
+
+def test_load_m_is_the_whole_end_mass_and_a_massless_end_is_refused(step_loaded):
+    """docs/fmu.md, Variables: ``load.m`` is the mass at the chain's end with the 1 g hook
+    (step-50g: 51 g; a scene's ``load = "0 g"`` is ``load.m`` = 1 g, which runs); 0, a
+    massless end the ODE divides by, is refused naming the range, as in a scene."""
+    fmi = step_loaded
+    (start,) = [v.start for v in fmi.md.modelVariables if v.name == "load.m"]
+    assert float(start) == pytest.approx(0.051, rel=1e-12)
+    fmu = fmi.instance()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    with pytest.raises(FMICallException):
+        fmu.setReal([fmi.vr["load.m"]], [0.0])
+    assert fmi.errors()[-1].startswith("set real: load.m = 0 is outside [9.99")
+    fmu.setReal([fmi.vr["load.m"]], [HOOK_MASS_KG])  # the hook alone: no payload
+    fmu.exitInitializationMode()
+    _command(fmu, fmi, 1e5)
+    fmu.doStep(0.0, 0.05)
+    assert _get(fmu, fmi, LENGTH) < 0.17  # contracting with nothing but the hook
     fmu.freeInstance()
 
 

@@ -140,8 +140,9 @@ def test_fmi3_directional_derivatives(fmi3):
 
 
 def test_event_and_continuous_time_mode_belong_to_their_instances(fmi3):
-    """A Co-Simulation instance has event mode only if instantiated with eventModeUsed, and
-    never continuous-time mode (Model Exchange's)."""
+    """A Co-Simulation instance has event mode only if instantiated with eventModeUsed
+    (then it enters it after initialisation, as the Reference FMUs), and never
+    continuous-time mode (Model Exchange's)."""
     fmu = _started(fmi3.instance())
     with pytest.raises(FMICallException):
         fmu.enterEventMode()
@@ -151,6 +152,9 @@ def test_event_and_continuous_time_mode_belong_to_their_instances(fmi3):
     fmu.doStep(0.0, 0.001)  # still in step mode
     fmu.freeInstance()
     fmu = _started(fmi3.instance(name="events", eventModeUsed=True))
+    with pytest.raises(FMICallException):  # in event mode after initialisation
+        fmu.doStep(0.0, 0.001)
+    assert fmi3.errors[-1] == "doStep is not allowed in event mode"
     fmu.enterEventMode()
     with pytest.raises(FMICallException):
         fmu.fmi3EnterContinuousTimeMode(fmu.component)

@@ -178,6 +178,18 @@ def test_the_co_simulated_time_shows_on_the_progress_line(tmp_path):
             "pid.gains.kq'.*allowed",
         ),
         (('sample_time = "10 ms"\n', ""), "sample_time'.*required"),
+        (  # bug 12: the co-simulation died at 0.13 s on the muscle refusing 0.618 MPa
+            ('sample_time = "10 ms"', 'sample_time = "10 ms"\nu_max = "1 MPa"'),
+            r"key 'cosim.participants.pid.u_max': 1000000.0 is invalid.*\[30000, 600000\] Pa",
+        ),
+        (
+            ('sample_time = "10 ms"', 'sample_time = "10 ms"\nu_min = "40 kPa"'),
+            r"key 'cosim.participants.pid.u_min': .*\[0, 30000\] Pa",
+        ),
+        (
+            ('sample_time = "10 ms"', 'sample_time = "0.5 ms"'),
+            r"key 'cosim.participants.pid.sample_time': .*0.0005",
+        ),
         (('as = "native"\nstart', 'as = "fmi"\nstart'), "participants.muscle.as'"),
         (('["muscle.end.s", "load.drive.s"],', '["muscle.end.s"],'), "key 'cosim.connections'"),
         (('"pid.reference"]', '"pid.nothing"]'), 'sources."pid.nothing"\'.*not an input'),
@@ -202,7 +214,11 @@ def test_schema_errors_are_one_line_and_name_the_key(tmp_path, change, message):
             ' = "monolithic-loop" knows; it needs muscle.end.s -> load.drive.s$',
         ),
         (('"pid.reference"]', '"pid.nothing"]'), "compare'.*needs a source for 'pid.reference'"),
-        (('sample_time = "10 ms"', 'sample_time = "2.5 ms"'), "compare'.*whole number of steps"),
+        (
+            ('sample_time = "10 ms"', 'sample_time = "2.5 ms"'),
+            "key 'cosim.participants.pid.sample_time': 0.0025 s is not a whole number of "
+            "communication steps",
+        ),
         (("[cosim.participants.load]", LOAD2), "compare'.*one load"),
         (('compare = "monolithic-loop"', 'compare = "loop"'), "key 'cosim.compare'"),
     ],
