@@ -84,6 +84,46 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def embedded_workers(requested: int | None, tasks: int) -> tuple[int, str]:
+    """Worker processes of the embedded cluster for ``tasks`` tasks: ``requested``
+    (default: the usable CPUs) capped at the task count, and a warning (``""`` when none)
+    when more are asked for than there are usable CPUs."""
+    cores = default_workers()
+    n = max(1, min(requested or cores, tasks))
+    if requested is None or requested <= cores:
+        return n, ""
+    cap = f"; {n} started (the tasks to run)" if n < requested else ""
+    cpus = (
+        f"{cores} usable CPUs: the workers share them"
+        if cores > 1
+        else "1 usable CPU: the workers share it"
+    )
+    return n, f"warning: --workers {requested} is above the {cpus}{cap}"
+
+
+@contextmanager
+def _silent_distributed() -> Iterator[None]:
+    """distributed's own log lines off (a worker lost, connections closed while the
+    cluster shuts down): the engine reports a lost sample itself (status 2). In this
+    process, and in the worker processes started meanwhile (they read the variable when
+    they import distributed)."""
+    logger = logging.getLogger("distributed")
+    level, env = logger.level, os.environ.get(_LOG_VARIABLE)
+    logger.setLevel(logging.CRITICAL + 1)
+    os.environ[_LOG_VARIABLE] = "critical"
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+        if env is None:
+            os.environ.pop(_LOG_VARIABLE, None)
+        else:
+            os.environ[_LOG_VARIABLE] = env
+
+
+_LOG_VARIABLE = "DASK_LOGGING__DISTRIBUTED"
+
+
 def _scheduler_address(address: str) -> str:
     """``address`` with a scheme (``tcp://`` when none), checked for ``HOST:PORT``."""
     full = address if "://" in address else f"tcp://{address}"
@@ -143,6 +183,13 @@ def cluster_client(
     (default :func:`default_workers`), or of the running cluster at ``scheduler``. The
     dashboard's address is printed on ``stream`` when there is one."""
     address = check_cluster_arguments(workers, scheduler)
+    with _silent_distributed():
+        with _client(address, workers, stream) as client:
+            yield client
+
+
+@contextmanager
+def _client(address: str | None, workers: int | None, stream: TextIO | None):
     from distributed import Client
 
     cluster = None
@@ -205,7 +252,7 @@ def local_cluster(workers: int):
             threads_per_worker=1,
             processes=True,
             dashboard_address=":0",
-            silence_logs=logging.ERROR,
+            silence_logs=logging.CRITICAL + 1,  # the workers' log lines too
             env=WORKER_ENV,
         )
 
@@ -438,6 +485,10 @@ def run_study(
         int(np.count_nonzero(status > 0)),
     )
     label = f"study {getattr(study, 'name', '')}".rstrip()
+    if scheduler is None:
+        workers, warning = embedded_workers(workers, len(chunks))
+        if warning:
+            print(warning, file=out, flush=True)
 
     def on_result(result) -> None:
         counter.add(np.asarray(result.status))

@@ -13,6 +13,9 @@ Guarantees:
 - **One study per store**: opening an existing store with a different definition is
   refused, naming the keys that differ; an ``--out`` folder holding anything else than
   this study's store and the files written beside it is refused.
+- **One writer**: a run holds an exclusive lock on ``--out`` (``fcntl.flock`` on
+  ``.study.lock`` in it) from before the store is made until its outputs are written; a
+  second run on the same folder is refused naming the process that holds it.
 - **Loss-free writes**: a finished task's samples are one chunk of every variable; the
   chunk files are written atomically (Zarr's local store writes a temporary file and
   renames it) and ``status`` last, so a run killed at any instant leaves every chunk
@@ -25,7 +28,8 @@ import json
 import os
 import shutil
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -48,6 +52,9 @@ NOT_COMPUTED, OK, FAILED, WORKER_LOST = -1, 0, 1, 2
 _STATUS_ERROR_BYTES = 1 + 8
 
 _TMP_PREFIX = f".{STORE_NAME}."
+
+#: The lock file of a study's ``--out`` folder (holds the writer's process id).
+LOCK_NAME = ".study.lock"
 
 
 class StoreError(SarcomereError):
@@ -123,7 +130,11 @@ def check_out_folder(out: Path, name: str = "--out") -> Path:
         raise ParameterError(name, str(out), "a folder (new, empty or holding a study.zarr)")
     store = out / STORE_NAME
     if out.is_dir() and not store.exists():
-        others = sorted(p.name for p in out.iterdir() if not p.name.startswith(_TMP_PREFIX))
+        others = sorted(
+            p.name
+            for p in out.iterdir()
+            if not p.name.startswith(_TMP_PREFIX) and p.name != LOCK_NAME
+        )
         if others:
             shown = ", ".join(others[:5]) + (", ..." if len(others) > 5 else "")
             raise ParameterError(
@@ -133,6 +144,32 @@ def check_out_folder(out: Path, name: str = "--out") -> Path:
                 f"it holds {shown} and no {STORE_NAME}",
             )
     return store
+
+
+@contextmanager
+def locked(out: Path) -> Iterator[None]:
+    """Hold the exclusive lock of the study folder ``out`` (made if missing) while the
+    block runs; a StoreError naming the holder's process if another run holds it. The
+    lock goes with the process (a killed run leaves none)."""
+    import fcntl
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise StoreError(
+                f"--out: {out} is in use by process {holder} (another study run writes "
+                "there); wait for it to finish or use another folder"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield
+    finally:
+        os.close(fd)
 
 
 class StudyStore:

@@ -16,7 +16,7 @@ import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError
 
-from .store import Column, StudyStore, check_out_folder, estimated_bytes, series_name
+from .store import Column, StudyStore, check_out_folder, estimated_bytes, locked, series_name
 
 #: Default cap on the store's estimated (uncompressed) size [bytes].
 MAX_STORE_BYTES = 2 * 1024**3
@@ -83,28 +83,28 @@ class Study:
         n = len(design.points)
         self._check_size(n, max_samples, max_store_bytes)
         path = check_out_folder(Path(out))
-        batch = study.batch or None
-        store = StudyStore.open_or_create(path, **self._layout(design, batch))
-        if evaluate is None:
-            from .evaluate import evaluate_batch as evaluate
-        from .engine import run_study
+        with locked(Path(out)):
+            store = StudyStore.open_or_create(path, **self._layout(design, study.batch))
+            if evaluate is None:
+                from .evaluate import evaluate_batch as evaluate
+            from .engine import run_study
 
-        run_study(
-            evaluate,
-            study,
-            store,
-            workers=workers,
-            scheduler=scheduler,
-            progress=progress,
-            points=design.points,
-        )
-        ds = store.read()
-        if design.grid_shape is not None:
-            ds = to_grid(ds, design.factor_names, design.grid_shape)
-        if outputs:
-            from .outputs import write_outputs
+            run_study(
+                evaluate,
+                study,
+                store,
+                workers=workers,
+                scheduler=scheduler,
+                progress=progress,
+                points=design.points,
+            )
+            ds = store.read()
+            if design.grid_shape is not None:
+                ds = to_grid(ds, design.factor_names, design.grid_shape)
+            if outputs:
+                from .outputs import write_outputs
 
-            write_outputs(ds, study, Path(out))
+                write_outputs(ds, study, Path(out))
         return ds
 
     # -- checks and layout ----------------------------------------------------------------
