@@ -141,8 +141,8 @@ def _probe(address: str) -> None:
     scheme, _, rest = address.partition("://")
     if scheme == "tcp":
         host, _, port = rest.rpartition(":")
-        with socket.create_connection((host.strip("[]"), int(port)), CONNECT_TIMEOUT_S):
-            pass
+        with socket.create_connection((host.strip("[]"), int(port)), CONNECT_TIMEOUT_S) as s:
+            _check_greeting(s, address)
     from distributed.core import rpc
 
     async def identity() -> dict:
@@ -159,6 +159,28 @@ def _probe(address: str) -> None:
         kind = pool.submit(ask).result().get("type")
     if kind != "Scheduler":
         raise OSError(f"the server there is a {kind}, not a Dask scheduler")
+
+
+#: Largest first message of a Dask server (its handshake is about 60 bytes).
+_GREETING_MAX_BYTES = 1 << 20
+
+
+def _check_greeting(sock: socket.socket, address: str) -> None:
+    """A Dask server speaks first: an 8-byte little-endian message length, then its
+    handshake. A server that says something else is not one (its first bytes read as
+    a length would ask for exabytes)."""
+    sock.settimeout(CONNECT_TIMEOUT_S)
+    try:
+        head = sock.recv(8, socket.MSG_WAITALL)
+    except TimeoutError:
+        head = b""
+    size = int.from_bytes(head, "little") if len(head) == 8 else 0
+    if not 0 < size <= _GREETING_MAX_BYTES:
+        said = repr(head[:16]) if head else "nothing"
+        raise ClusterError(
+            f"--scheduler: {address} answers but is not a Dask scheduler (it said {said} "
+            f"within {CONNECT_TIMEOUT_S:.0f} s; a scheduler greets with its handshake)"
+        )
 
 
 def check_cluster_arguments(workers: int | None, scheduler: str | None) -> str | None:
@@ -200,6 +222,8 @@ def _client(address: str | None, workers: int | None, stream: TextIO | None):
         try:
             _probe(address)  # a refused port fails at once, not after the timeout
             client = Client(address, timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False)
+        except ClusterError:
+            raise
         except Exception as exc:  # refused, timed out, or not speaking Dask's protocol
             reason = " ".join(f"{type(exc).__name__}: {exc}".split())[:160]
             raise ClusterError(

@@ -9,6 +9,7 @@ runs the packaged studies through the CLI.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -340,3 +341,31 @@ def test_a_study_folder_in_use_is_refused_naming_the_process(tmp_path):
             run(StandIn(), out, workers=1)
         assert sorted(p.name for p in out.iterdir()) == [".study.lock"]
     assert run(StandIn(), out, workers=1).status.size == 12  # free again; the lock file stays
+
+
+def test_a_server_that_is_not_dask_is_named_so(tmp_path):
+    """Issue 24: a non-Dask port (one that greets, as SSH does) was reported as
+    'MemoryError: Unable to allocate 3 EiB'."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def greet() -> None:
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            with conn, contextlib.suppress(OSError):  # the client hangs up
+                conn.sendall(b"SSH-2.0-OpenSSH_9.6\r\n")
+                conn.recv(1024)
+
+    threading.Thread(target=greet, daemon=True).start()
+    try:
+        with pytest.raises(ClusterError, match=f"127.0.0.1:{port} answers but is not a Dask"):
+            with cluster_client(scheduler=f"127.0.0.1:{port}"):
+                pass
+    finally:
+        server.close()
