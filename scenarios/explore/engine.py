@@ -61,6 +61,9 @@ WORKER_ENV = {
     "SARCOMERE_BLAS_THREADS": "1",
 }
 
+#: Progress of a study whose output is not a terminal: a line every this many percent.
+LOG_PERCENT = 5.0
+
 Evaluate = Callable[..., object]
 """``evaluate(study, indices[, points]) -> BatchResult`` (see ``evaluate.evaluate_batch``;
 ``points`` are the batch's rows of the design, passed when the engine has them)."""
@@ -370,10 +373,19 @@ class Progress:
     def __init__(self, total: int, done: int, failed: int) -> None:
         self.total, self.done, self.failed = total, done, failed
         self._start_done, self._t0 = done, time.perf_counter()
+        self._mark = -1
 
     def add(self, status: np.ndarray) -> None:
         self.done += len(status)
         self.failed += int(np.count_nonzero(status != 0))
+
+    def step(self, percent: float) -> bool:
+        """True when the samples done have passed another multiple of ``percent`` % of the
+        total since the last True (or reached the total)."""
+        mark = int(100 * self.done / (percent * self.total)) if self.total else 0
+        passed = mark > self._mark or self.done == self.total
+        self._mark = mark
+        return passed
 
     def text(self) -> str:
         """E.g. ``"120/400 samples, 2 failed, 3.1 /s, 90 s left"``."""
@@ -494,7 +506,8 @@ def run_study(
     points: np.ndarray | None = None,
 ) -> None:
     """Compute every chunk of ``store`` not yet computed, on a cluster made or reached
-    by :func:`cluster_client`, with a progress line on terminals."""
+    by :func:`cluster_client`, with a progress line on terminals (elsewhere, a line every
+    :data:`LOG_PERCENT` % of the samples)."""
     from ..progress import progress as progress_line
     from ..progress import report
 
@@ -514,9 +527,13 @@ def run_study(
         if warning:
             print(warning, file=out, flush=True)
 
+    lines = progress and not out.isatty()  # a batch job's log: a line every few percent
+
     def on_result(result) -> None:
         counter.add(np.asarray(result.status))
         report(counter.text())
+        if lines and counter.step(LOG_PERCENT):
+            print(f"{label}: {counter.text()}", file=out, flush=True)
 
     with cluster_client(workers, scheduler, stream=out if progress else None) as client:
         with progress_line(label, enabled=progress, stream=out, delay=0.5):

@@ -369,3 +369,16 @@ def test_a_server_that_is_not_dask_is_named_so(tmp_path):
                 pass
     finally:
         server.close()
+
+
+def test_progress_lines_when_the_output_is_not_a_terminal(tmp_path, capsys):
+    """Issue 24: a batch job's log showed no progress (the line is for terminals only)."""
+    Study(StandIn()).run(tmp_path / "out", workers=1, evaluate=evaluate, outputs=False)
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("study standin: ")]
+    assert [line.split(",")[0] for line in lines] == [
+        "study standin: 4/12 samples",
+        "study standin: 8/12 samples",
+        "study standin: 12/12 samples",
+    ]
+    assert ", 3 failed, " in lines[-1] and "\r" not in err
