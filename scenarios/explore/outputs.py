@@ -4,8 +4,9 @@
 
 * ``study``, ``kind``, ``base``, ``method``, ``seed``, ``fingerprint``, ``version``;
 * ``samples``: ``total``, ``ok``, ``failed`` (status 1), ``worker_lost`` (status 2),
-  ``not_computed`` (status -1), ``errors`` (each distinct message of the samples that are
-  not ok, with its count), ``failures`` (the first :data:`LISTED_FAILURES` of them with
+  ``not_computed`` (status -1), ``errors`` (the messages of the samples that are not ok,
+  grouped by the message with its numbers as ``#``: the count, the first message and the
+  first samples of each kind), ``failures`` (the first :data:`LISTED_FAILURES` of them with
   their factor values) and ``notes`` (the commonest notes of ok samples: why a metric is
   undefined there);
 * ``metrics``: per metric ``unit``, ``count`` (ok samples with a value), ``undefined`` (ok
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections import Counter
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -34,6 +35,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Failed samples listed with their factor values in ``summary.json``.
 LISTED_FAILURES = 20
+#: Samples listed per kind of failure or note in ``summary.json``.
+LISTED_SAMPLES = 5
 #: Most common notes of ok samples (why a metric is undefined) listed in ``summary.json``.
 LISTED_NOTES = 10
 #: Status codes of the store (interface file) and their names in ``summary.json``.
@@ -69,6 +72,28 @@ def _at(factors: dict[str, np.ndarray], i: int) -> dict[str, float | None]:
     return {name: _num(values[i]) for name, values in factors.items()}
 
 
+_NUMBER = re.compile(r"(?<![\w.])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+
+def grouped(messages) -> list[dict[str, Any]]:
+    """``(sample, message)`` pairs grouped by the message with its numbers as ``#`` (one
+    kind of failure at several times or values is one entry): each with its count, the
+    first message and the first :data:`LISTED_SAMPLES` samples, commonest first.
+
+    >>> [g["message"] for g in grouped([(3, "step too small at t = 0.3 s"), (5, "t = 1e-2")])]
+    ['step too small at t = # s', 't = #']
+    """
+    groups: dict[str, dict[str, Any]] = {}
+    for i, message in messages:
+        key = _NUMBER.sub("#", message)
+        group = groups.setdefault(key, {"message": key, "count": 0, "example": message})
+        group["count"] += 1
+        group.setdefault("samples", [])
+        if len(group["samples"]) < LISTED_SAMPLES:
+            group["samples"].append(int(i))
+    return sorted(groups.values(), key=lambda g: -g["count"])
+
+
 def sample_counts(ds: xr.Dataset, study: Any) -> dict[str, Any]:
     """Counts of the samples by status, the distinct errors and the first failures."""
     status = np.asarray(ds["status"].values).ravel()
@@ -76,11 +101,10 @@ def sample_counts(ds: xr.Dataset, study: Any) -> dict[str, Any]:
     counts |= {name: int(np.sum(status == code)) for code, name in STATUS_NAMES.items()}
     errors = np.asarray(ds["error"].values, dtype=object).ravel() if "error" in ds else None
     bad = np.flatnonzero(status != 0)
-    messages = Counter(str(errors[i]) if errors is not None else "" for i in bad)
-    counts["errors"] = [{"message": m, "count": c} for m, c in messages.most_common()]
-    noted = [str(errors[i]) for i in np.flatnonzero(status == 0)] if errors is not None else []
-    notes = Counter(m for m in noted if m)
-    counts["notes"] = [{"message": m, "count": c} for m, c in notes.most_common(LISTED_NOTES)]
+    text = (lambda i: str(errors[i])) if errors is not None else (lambda i: "")
+    counts["errors"] = grouped((i, text(i)) for i in bad)
+    noted = [] if errors is None else np.flatnonzero(status == 0)
+    counts["notes"] = grouped((i, text(i)) for i in noted if text(i))[:LISTED_NOTES]
     factors = _flat_factors(ds, study, ds["status"])
     counts["failures"] = [
         {
