@@ -2,7 +2,9 @@
 
 ``summary.json`` (SI units, each number with its unit; ``null`` where a value is undefined):
 
-* ``study``, ``kind``, ``base``, ``method``, ``seed``, ``fingerprint``, ``version``;
+* ``study``, ``kind``, ``base``, ``method``, ``seed``, ``fingerprint``, ``results`` (a
+  digest of the results it was written from: a re-run that changed nothing redraws
+  nothing), ``version``;
 * ``samples``: ``total``, ``ok``, ``failed`` (status 1), ``worker_lost`` (status 2),
   ``not_computed`` (status -1), ``errors`` (the messages of the samples that are not ok,
   grouped by the message with its numbers as ``#``: the count, the first message and the
@@ -20,6 +22,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import re
@@ -175,10 +178,12 @@ def sensitivity_summary(result: xr.Dataset) -> dict[str, Any]:
     return out
 
 
-def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Path]:
+def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict, draw: bool) -> list[Path]:
+    """The figures of the study (drawn when ``draw``), and its sensitivity analysis into
+    ``summary`` (also without figures)."""
     metrics = [m.name for m in study.metrics if m.name in ds]
     drawn: list[Path | None] = []
-    if study.kind == "grid":
+    if study.kind == "grid" and draw:
         for metric in metrics:
             path = plots.design_map(ds, study, metric, folder) or plots.design_line(
                 ds, study, metric, folder
@@ -188,9 +193,9 @@ def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Pa
                     f"no map of {metric}: no grid axis varies or no ok sample has a value"
                 )
             drawn.append(path)
-    elif study.kind == "sample":
+    elif study.kind == "sample" and draw:
         drawn.append(plots.histograms(ds, study, metrics, folder))
-    else:
+    elif study.kind == "sensitivity":
         try:
             result = analysis.analyse(ds, study)
         except analysis.AnalysisError as err:
@@ -198,32 +203,54 @@ def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Pa
             summary["warnings"].append(f"sensitivity analysis refused: {err}")
         else:
             summary["sensitivity"] = sensitivity_summary(result)
-            draw = plots.sobol_bars if result.attrs["method"] == "sobol" else plots.morris_plane
-            drawn.append(draw(result, study.name, folder))
+            bars = plots.sobol_bars if result.attrs["method"] == "sobol" else plots.morris_plane
+            drawn.append(bars(result, study.name, folder) if draw else None)
     curves = plots.grid_curves if study.kind == "grid" else plots.envelope
-    for variable in (v for v in ds.data_vars if str(v).startswith("series_")):
+    for variable in (v for v in ds.data_vars if str(v).startswith("series_") and draw):
         drawn.append(curves(ds, study, str(variable), folder))
     return [p for p in drawn if p is not None]
 
 
-def _remove_previous(folder: Path) -> None:
-    """Delete the figures an earlier ``summary.json`` in ``folder`` lists (a resumed study
-    may draw other ones), nothing else."""
-    old = folder / "summary.json"
-    if not old.is_file():
-        return
+def results_digest(ds: xr.Dataset, fingerprint: str, draw: bool) -> str:
+    """SHA-256 of the results (every variable's values) and of what is written from them:
+    equal digests, equal figures and ``summary.json``."""
+    h = hashlib.sha256(f"{fingerprint} plots={draw}".encode())
+    for name in sorted(map(str, ds.variables)):
+        values = ds[name].values
+        h.update(name.encode())
+        h.update(
+            "\0".join(map(str, values.ravel())).encode()
+            if values.dtype == object
+            else values.tobytes()
+        )
+    return h.hexdigest()
+
+
+def _previous(folder: Path) -> dict:
+    """The earlier ``summary.json`` in ``folder`` ({} if none or unreadable)."""
     try:
-        names = json.loads(old.read_text(encoding="utf-8")).get("plots", [])
-    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-        return
-    for name in names:
+        old = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        return {}
+    return old if isinstance(old, dict) else {}
+
+
+def _remove_previous(folder: Path, old: dict) -> None:
+    """Delete the figures an earlier summary (``old``) lists (a resumed study may draw
+    other ones), nothing else."""
+    names = old.get("plots", [])
+    for name in names if isinstance(names, list) else []:
         path = folder / str(name)
         if path.suffix == ".png" and path.parent == folder and path.is_file():
             path.unlink()
 
 
-def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
+def write_outputs(
+    ds: xr.Dataset, study: Any, folder: Path, *, draw: bool = True, force: bool = False
+) -> dict[str, Any]:
     """Write the study's figures and ``summary.json`` into ``folder``; return the summary.
+    Nothing is written when the summary there is of the same results (its ``results``
+    digest) and its figures are all there, unless ``force``.
 
     Parameters
     ----------
@@ -234,6 +261,10 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
         The study definition the results belong to.
     folder : pathlib.Path
         Where to write (created if missing), beside the store.
+    draw : bool
+        Draw the figures (else only ``summary.json``, with the sensitivity analysis).
+    force : bool
+        Write even when nothing changed.
 
     Returns
     -------
@@ -242,7 +273,13 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    _remove_previous(folder)
+    fingerprint = ds.attrs.get("fingerprint") or study.fingerprint()
+    digest = results_digest(ds, fingerprint, draw)
+    old = _previous(folder)
+    there = all((folder / str(name)).is_file() for name in old.get("plots", []))
+    if old.get("results") == digest and there and not force:
+        return old
+    _remove_previous(folder, old)
     design = study.design()
     summary: dict[str, Any] = {
         "study": study.name,
@@ -250,7 +287,8 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
         "base": study.base,
         "method": ds.attrs.get("method", design.method),
         "seed": study.seed,
-        "fingerprint": ds.attrs.get("fingerprint") or study.fingerprint(),
+        "fingerprint": fingerprint,
+        "results": digest,
         "version": ds.attrs.get("version") or _version(),
         "samples": sample_counts(ds, study),
         "metrics": {
@@ -270,7 +308,7 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
             f"({samples['failed']} failed, {samples['worker_lost']} worker lost, "
             f"{samples['not_computed']} not computed): left out of every statistic and figure"
         )
-    summary["plots"] = [p.name for p in _figures(ds, study, folder, summary)]
+    summary["plots"] = [p.name for p in _figures(ds, study, folder, summary, draw)]
     text = json.dumps(summary, indent=2, allow_nan=False)
     (folder / "summary.json").write_text(text + "\n", encoding="utf-8")
     return summary

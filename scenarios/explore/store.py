@@ -219,13 +219,14 @@ class StudyStore:
             cls._create(
                 path, definition, fingerprint, factors, metrics, series, series_time, chunk, attrs
             )
-        store = cls.open(path)
-        store._check_definition(definition, fingerprint)
-        return store
+        return cls.open(path, definition, fingerprint)
 
     @classmethod
-    def open(cls, path: Path) -> StudyStore:
-        """Open an existing store; refuses a folder that is not a study store."""
+    def open(
+        cls, path: Path, definition: dict | None = None, fingerprint: str | None = None
+    ) -> StudyStore:
+        """Open an existing store; refuses a folder that is not a study store, and one of
+        another study than ``definition`` (with ``fingerprint``) when given."""
         import zarr
 
         path = Path(path)
@@ -242,7 +243,10 @@ class StudyStore:
                 f"--out: {path} is a Zarr group but not a sarcomere study store (no "
                 f"'{MARKER}' = {LAYOUT_VERSION} attribute); use a new or empty folder"
             )
-        return cls(path, group)
+        store = cls(path, group)
+        if fingerprint is not None:
+            store._check_definition(definition, fingerprint)
+        return store
 
     @staticmethod
     def _create(path, definition, fingerprint, factors, metrics, series, series_time, chunk, attrs):

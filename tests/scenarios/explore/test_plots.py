@@ -178,6 +178,32 @@ def test_failures_of_one_kind_are_one_entry_with_count_and_example_samples(grid)
     assert errors[0]["example"] == "SolverError: step size too small at t = 4.2e-1 s"
 
 
+def test_outputs_of_unchanged_results_are_not_drawn_again(grid, tmp_path, monkeypatch):
+    """Issue 24: every resume of a finished study redrew every figure."""
+    ds, study = grid
+    ds = ds.isel(n=[2], load=[0, 3]).drop_vars("series_myofibril.length")
+    first = outputs.write_outputs(ds, study, tmp_path)
+    stamps = {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    drawn = []
+    monkeypatch.setattr(plots, "design_map", lambda *args: drawn.append(args[2]))
+    assert outputs.write_outputs(ds, study, tmp_path) == first
+    assert drawn == [] and stamps == {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    outputs.write_outputs(ds, study, tmp_path, force=True)  # --plots-only
+    assert drawn == ["stroke", "rise_time"]
+    changed = ds.assign(stroke=ds.stroke * 1.01)
+    assert outputs.write_outputs(changed, study, tmp_path)["results"] != first["results"]
+    assert drawn == ["stroke", "rise_time"] * 2
+
+
+def test_without_plots_the_summary_alone_and_no_stale_figure(grid, tmp_path):
+    ds, study = grid
+    ds = ds.isel(n=[2], load=[0, 3]).drop_vars("series_myofibril.length")
+    outputs.write_outputs(ds, study, tmp_path)
+    summary = outputs.write_outputs(ds, study, tmp_path, draw=False)  # --no-plots
+    assert summary["plots"] == [] and summary["metrics"]["stroke"]["count"] == 14
+    assert [p.name for p in tmp_path.iterdir()] == ["summary.json"]
+
+
 def test_rewriting_replaces_the_figures_of_the_previous_summary(grid, tmp_path):
     ds, study = grid
     ds = ds.isel(n=[2], load=[0, 3])  # a 2 x 7 map: fewer panels to draw
