@@ -274,14 +274,21 @@ def local_cluster(workers: int):
         "distributed.scheduler.worker-saturation": 1.0,
     }
     with dask.config.set(config), _sigint_ignored():
-        return LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",
-            silence_logs=logging.CRITICAL + 1,  # the workers' log lines too
-            env=WORKER_ENV,
-        )
+        try:
+            return LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",
+                silence_logs=logging.CRITICAL + 1,  # the workers' log lines too
+                env=WORKER_ENV,
+            )
+        except RuntimeError as exc:  # "Nanny failed to start."
+            raise ClusterError(
+                f"the embedded Dask cluster's workers did not start ({exc}); a script that "
+                'runs a study must run it under if __name__ == "__main__": (each worker '
+                "process imports the script again; see docs/studies.md)"
+            ) from None
 
 
 def _wait_for_a_worker(client, address: str) -> None:
