@@ -178,6 +178,7 @@ class StudyStore:
     def __init__(self, path: Path, group) -> None:
         self.path = Path(path)
         self._group = group
+        self._arrays = dict(group.arrays())
         self.n_samples = int(group["status"].shape[0])
         self.chunk = int(group["status"].chunks[0])
 
@@ -348,8 +349,8 @@ class StudyStore:
 
     def write_many(self, chunks: Sequence[tuple[int, object]]) -> None:
         """Write finished tasks' results, each ``(start, result)`` for the chunk starting
-        at ``start``: all values of all chunks concurrently, then their statuses (see the
-        module's guarantees).
+        at ``start``: all values of all chunks, then their statuses (see the module's
+        guarantees).
 
         A result has ``indices`` (exactly the chunk's samples, in order), ``metrics``
         {name: float64}, ``series`` {signal: float64[len, T]}, ``status`` and ``error``.
@@ -379,20 +380,10 @@ class StudyStore:
         return slice(start, stop)
 
     def _set(self, writes: list[tuple[str, slice, np.ndarray]]) -> None:
-        """Write each ``(variable, rows, values)`` concurrently on Zarr's event loop (one
-        at a time, each waits ~2 ms for the loop)."""
-        if not writes:
-            return
-        import asyncio
-
-        from zarr.core.sync import sync
-
-        arrays = {name: self._group[name]._async_array for name, _, _ in writes}
-
-        async def write() -> None:
-            await asyncio.gather(*(arrays[n].setitem(rows, v) for n, rows, v in writes))
-
-        sync(write())
+        """Write each ``(variable, rows, values)`` through Zarr's public array API (one
+        chunk file each, written atomically by Zarr's local store)."""
+        for name, rows, values in writes:
+            self._arrays[name][rows] = values
 
     # -- reading --------------------------------------------------------------------------
     def read(self):
