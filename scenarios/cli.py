@@ -109,6 +109,11 @@ def _study_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-store-mb", metavar="MB", type=_count, help="cap on the store's size [MB] (2147)"
     )
+    plots = parser.add_mutually_exclusive_group()
+    plots.add_argument("--no-plots", action="store_true", help="summary.json without figures")
+    plots.add_argument(
+        "--plots-only", action="store_true", help="draw the figures from the store, compute nothing"
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress line, no summary")
 
 
@@ -119,7 +124,11 @@ def _study(args: argparse.Namespace) -> int:
     caps = {"max_samples": args.max_samples}
     if args.max_store_mb is not None:
         caps["max_store_bytes"] = args.max_store_mb * 1_000_000
-    ds = study.run(args.out, args.workers, args.scheduler, not args.quiet, **caps)
+    if args.plots_only:
+        ds = study.replot(args.out)
+    else:
+        where = (args.out, args.workers, args.scheduler, not args.quiet)
+        ds = study.run(*where, plots=not args.no_plots, **caps)
     if not args.quiet:
         failed = int((ds["status"] != 0).sum())
         print(f"study {study.definition.name}: {ds['status'].size} samples, {failed} failed")

@@ -61,6 +61,9 @@ WORKER_ENV = {
     "SARCOMERE_BLAS_THREADS": "1",
 }
 
+#: Progress of a study whose output is not a terminal: a line every this many percent.
+LOG_PERCENT = 5.0
+
 Evaluate = Callable[..., object]
 """``evaluate(study, indices[, points]) -> BatchResult`` (see ``evaluate.evaluate_batch``;
 ``points`` are the batch's rows of the design, passed when the engine has them)."""
@@ -84,6 +87,46 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def embedded_workers(requested: int | None, tasks: int) -> tuple[int, str]:
+    """Worker processes of the embedded cluster for ``tasks`` tasks: ``requested``
+    (default: the usable CPUs) capped at the task count, and a warning (``""`` when none)
+    when more are asked for than there are usable CPUs."""
+    cores = default_workers()
+    n = max(1, min(requested or cores, tasks))
+    if requested is None or requested <= cores:
+        return n, ""
+    cap = f"; {n} started (the tasks to run)" if n < requested else ""
+    cpus = (
+        f"{cores} usable CPUs: the workers share them"
+        if cores > 1
+        else "1 usable CPU: the workers share it"
+    )
+    return n, f"warning: --workers {requested} is above the {cpus}{cap}"
+
+
+@contextmanager
+def _silent_distributed() -> Iterator[None]:
+    """distributed's own log lines off (a worker lost, connections closed while the
+    cluster shuts down): the engine reports a lost sample itself (status 2). In this
+    process, and in the worker processes started meanwhile (they read the variable when
+    they import distributed)."""
+    logger = logging.getLogger("distributed")
+    level, env = logger.level, os.environ.get(_LOG_VARIABLE)
+    logger.setLevel(logging.CRITICAL + 1)
+    os.environ[_LOG_VARIABLE] = "critical"
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+        if env is None:
+            os.environ.pop(_LOG_VARIABLE, None)
+        else:
+            os.environ[_LOG_VARIABLE] = env
+
+
+_LOG_VARIABLE = "DASK_LOGGING__DISTRIBUTED"
+
+
 def _scheduler_address(address: str) -> str:
     """``address`` with a scheme (``tcp://`` when none), checked for ``HOST:PORT``."""
     full = address if "://" in address else f"tcp://{address}"
@@ -101,8 +144,8 @@ def _probe(address: str) -> None:
     scheme, _, rest = address.partition("://")
     if scheme == "tcp":
         host, _, port = rest.rpartition(":")
-        with socket.create_connection((host.strip("[]"), int(port)), CONNECT_TIMEOUT_S):
-            pass
+        with socket.create_connection((host.strip("[]"), int(port)), CONNECT_TIMEOUT_S) as s:
+            _check_greeting(s, address)
     from distributed.core import rpc
 
     async def identity() -> dict:
@@ -119,6 +162,28 @@ def _probe(address: str) -> None:
         kind = pool.submit(ask).result().get("type")
     if kind != "Scheduler":
         raise OSError(f"the server there is a {kind}, not a Dask scheduler")
+
+
+#: Largest first message of a Dask server (its handshake is about 60 bytes).
+_GREETING_MAX_BYTES = 1 << 20
+
+
+def _check_greeting(sock: socket.socket, address: str) -> None:
+    """A Dask server speaks first: an 8-byte little-endian message length, then its
+    handshake. A server that says something else is not one (its first bytes read as
+    a length would ask for exabytes)."""
+    sock.settimeout(CONNECT_TIMEOUT_S)
+    try:
+        head = sock.recv(8, socket.MSG_WAITALL)
+    except TimeoutError:
+        head = b""
+    size = int.from_bytes(head, "little") if len(head) == 8 else 0
+    if not 0 < size <= _GREETING_MAX_BYTES:
+        said = repr(head[:16]) if head else "nothing"
+        raise ClusterError(
+            f"--scheduler: {address} answers but is not a Dask scheduler (it said {said} "
+            f"within {CONNECT_TIMEOUT_S:.0f} s; a scheduler greets with its handshake)"
+        )
 
 
 def check_cluster_arguments(workers: int | None, scheduler: str | None) -> str | None:
@@ -143,6 +208,13 @@ def cluster_client(
     (default :func:`default_workers`), or of the running cluster at ``scheduler``. The
     dashboard's address is printed on ``stream`` when there is one."""
     address = check_cluster_arguments(workers, scheduler)
+    with _silent_distributed():
+        with _client(address, workers, stream) as client:
+            yield client
+
+
+@contextmanager
+def _client(address: str | None, workers: int | None, stream: TextIO | None):
     from distributed import Client
 
     cluster = None
@@ -153,6 +225,8 @@ def cluster_client(
         try:
             _probe(address)  # a refused port fails at once, not after the timeout
             client = Client(address, timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False)
+        except ClusterError:
+            raise
         except Exception as exc:  # refused, timed out, or not speaking Dask's protocol
             reason = " ".join(f"{type(exc).__name__}: {exc}".split())[:160]
             raise ClusterError(
@@ -200,14 +274,21 @@ def local_cluster(workers: int):
         "distributed.scheduler.worker-saturation": 1.0,
     }
     with dask.config.set(config), _sigint_ignored():
-        return LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",
-            silence_logs=logging.ERROR,
-            env=WORKER_ENV,
-        )
+        try:
+            return LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",
+                silence_logs=logging.CRITICAL + 1,  # the workers' log lines too
+                env=WORKER_ENV,
+            )
+        except RuntimeError as exc:  # "Nanny failed to start."
+            raise ClusterError(
+                f"the embedded Dask cluster's workers did not start ({exc}); a script that "
+                'runs a study must run it under if __name__ == "__main__": (each worker '
+                "process imports the script again; see docs/studies.md)"
+            ) from None
 
 
 def _wait_for_a_worker(client, address: str) -> None:
@@ -299,10 +380,19 @@ class Progress:
     def __init__(self, total: int, done: int, failed: int) -> None:
         self.total, self.done, self.failed = total, done, failed
         self._start_done, self._t0 = done, time.perf_counter()
+        self._mark = -1
 
     def add(self, status: np.ndarray) -> None:
         self.done += len(status)
         self.failed += int(np.count_nonzero(status != 0))
+
+    def step(self, percent: float) -> bool:
+        """True when the samples done have passed another multiple of ``percent`` % of the
+        total since the last True (or reached the total)."""
+        mark = int(100 * self.done / (percent * self.total)) if self.total else 0
+        passed = mark > self._mark or self.done == self.total
+        self._mark = mark
+        return passed
 
     def text(self) -> str:
         """E.g. ``"120/400 samples, 2 failed, 3.1 /s, 90 s left"``."""
@@ -423,7 +513,8 @@ def run_study(
     points: np.ndarray | None = None,
 ) -> None:
     """Compute every chunk of ``store`` not yet computed, on a cluster made or reached
-    by :func:`cluster_client`, with a progress line on terminals."""
+    by :func:`cluster_client`, with a progress line on terminals (elsewhere, a line every
+    :data:`LOG_PERCENT` % of the samples)."""
     from ..progress import progress as progress_line
     from ..progress import report
 
@@ -438,10 +529,18 @@ def run_study(
         int(np.count_nonzero(status > 0)),
     )
     label = f"study {getattr(study, 'name', '')}".rstrip()
+    if scheduler is None:
+        workers, warning = embedded_workers(workers, len(chunks))
+        if warning:
+            print(warning, file=out, flush=True)
+
+    lines = progress and not out.isatty()  # a batch job's log: a line every few percent
 
     def on_result(result) -> None:
         counter.add(np.asarray(result.status))
         report(counter.text())
+        if lines and counter.step(LOG_PERCENT):
+            print(f"{label}: {counter.text()}", file=out, flush=True)
 
     with cluster_client(workers, scheduler, stream=out if progress else None) as client:
         with progress_line(label, enabled=progress, stream=out, delay=0.5):

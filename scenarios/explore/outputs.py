@@ -2,10 +2,13 @@
 
 ``summary.json`` (SI units, each number with its unit; ``null`` where a value is undefined):
 
-* ``study``, ``kind``, ``base``, ``method``, ``seed``, ``fingerprint``, ``version``;
+* ``study``, ``kind``, ``base``, ``method``, ``seed``, ``fingerprint``, ``results`` (a
+  digest of the results it was written from: a re-run that changed nothing redraws
+  nothing), ``version``;
 * ``samples``: ``total``, ``ok``, ``failed`` (status 1), ``worker_lost`` (status 2),
-  ``not_computed`` (status -1), ``errors`` (each distinct message of the samples that are
-  not ok, with its count), ``failures`` (the first :data:`LISTED_FAILURES` of them with
+  ``not_computed`` (status -1), ``errors`` (the messages of the samples that are not ok,
+  grouped by the message with its numbers as ``#``: the count, the first message and the
+  first samples of each kind), ``failures`` (the first :data:`LISTED_FAILURES` of them with
   their factor values) and ``notes`` (the commonest notes of ok samples: why a metric is
   undefined there);
 * ``metrics``: per metric ``unit``, ``count`` (ok samples with a value), ``undefined`` (ok
@@ -19,9 +22,10 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
-from collections import Counter
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -34,6 +38,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Failed samples listed with their factor values in ``summary.json``.
 LISTED_FAILURES = 20
+#: Samples listed per kind of failure or note in ``summary.json``.
+LISTED_SAMPLES = 5
 #: Most common notes of ok samples (why a metric is undefined) listed in ``summary.json``.
 LISTED_NOTES = 10
 #: Status codes of the store (interface file) and their names in ``summary.json``.
@@ -69,6 +75,28 @@ def _at(factors: dict[str, np.ndarray], i: int) -> dict[str, float | None]:
     return {name: _num(values[i]) for name, values in factors.items()}
 
 
+_NUMBER = re.compile(r"(?<![\w.])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+
+def grouped(messages) -> list[dict[str, Any]]:
+    """``(sample, message)`` pairs grouped by the message with its numbers as ``#`` (one
+    kind of failure at several times or values is one entry): each with its count, the
+    first message and the first :data:`LISTED_SAMPLES` samples, commonest first.
+
+    >>> [g["message"] for g in grouped([(3, "step too small at t = 0.3 s"), (5, "t = 1e-2")])]
+    ['step too small at t = # s', 't = #']
+    """
+    groups: dict[str, dict[str, Any]] = {}
+    for i, message in messages:
+        key = _NUMBER.sub("#", message)
+        group = groups.setdefault(key, {"message": key, "count": 0, "example": message})
+        group["count"] += 1
+        group.setdefault("samples", [])
+        if len(group["samples"]) < LISTED_SAMPLES:
+            group["samples"].append(int(i))
+    return sorted(groups.values(), key=lambda g: -g["count"])
+
+
 def sample_counts(ds: xr.Dataset, study: Any) -> dict[str, Any]:
     """Counts of the samples by status, the distinct errors and the first failures."""
     status = np.asarray(ds["status"].values).ravel()
@@ -76,11 +104,10 @@ def sample_counts(ds: xr.Dataset, study: Any) -> dict[str, Any]:
     counts |= {name: int(np.sum(status == code)) for code, name in STATUS_NAMES.items()}
     errors = np.asarray(ds["error"].values, dtype=object).ravel() if "error" in ds else None
     bad = np.flatnonzero(status != 0)
-    messages = Counter(str(errors[i]) if errors is not None else "" for i in bad)
-    counts["errors"] = [{"message": m, "count": c} for m, c in messages.most_common()]
-    noted = [str(errors[i]) for i in np.flatnonzero(status == 0)] if errors is not None else []
-    notes = Counter(m for m in noted if m)
-    counts["notes"] = [{"message": m, "count": c} for m, c in notes.most_common(LISTED_NOTES)]
+    text = (lambda i: str(errors[i])) if errors is not None else (lambda i: "")
+    counts["errors"] = grouped((i, text(i)) for i in bad)
+    noted = [] if errors is None else np.flatnonzero(status == 0)
+    counts["notes"] = grouped((i, text(i)) for i in noted if text(i))[:LISTED_NOTES]
     factors = _flat_factors(ds, study, ds["status"])
     counts["failures"] = [
         {
@@ -151,10 +178,12 @@ def sensitivity_summary(result: xr.Dataset) -> dict[str, Any]:
     return out
 
 
-def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Path]:
+def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict, draw: bool) -> list[Path]:
+    """The figures of the study (drawn when ``draw``), and its sensitivity analysis into
+    ``summary`` (also without figures)."""
     metrics = [m.name for m in study.metrics if m.name in ds]
     drawn: list[Path | None] = []
-    if study.kind == "grid":
+    if study.kind == "grid" and draw:
         for metric in metrics:
             path = plots.design_map(ds, study, metric, folder) or plots.design_line(
                 ds, study, metric, folder
@@ -164,9 +193,9 @@ def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Pa
                     f"no map of {metric}: no grid axis varies or no ok sample has a value"
                 )
             drawn.append(path)
-    elif study.kind == "sample":
+    elif study.kind == "sample" and draw:
         drawn.append(plots.histograms(ds, study, metrics, folder))
-    else:
+    elif study.kind == "sensitivity":
         try:
             result = analysis.analyse(ds, study)
         except analysis.AnalysisError as err:
@@ -174,32 +203,54 @@ def _figures(ds: xr.Dataset, study: Any, folder: Path, summary: dict) -> list[Pa
             summary["warnings"].append(f"sensitivity analysis refused: {err}")
         else:
             summary["sensitivity"] = sensitivity_summary(result)
-            draw = plots.sobol_bars if result.attrs["method"] == "sobol" else plots.morris_plane
-            drawn.append(draw(result, study.name, folder))
+            bars = plots.sobol_bars if result.attrs["method"] == "sobol" else plots.morris_plane
+            drawn.append(bars(result, study.name, folder) if draw else None)
     curves = plots.grid_curves if study.kind == "grid" else plots.envelope
-    for variable in (v for v in ds.data_vars if str(v).startswith("series_")):
+    for variable in (v for v in ds.data_vars if str(v).startswith("series_") and draw):
         drawn.append(curves(ds, study, str(variable), folder))
     return [p for p in drawn if p is not None]
 
 
-def _remove_previous(folder: Path) -> None:
-    """Delete the figures an earlier ``summary.json`` in ``folder`` lists (a resumed study
-    may draw other ones), nothing else."""
-    old = folder / "summary.json"
-    if not old.is_file():
-        return
+def results_digest(ds: xr.Dataset, fingerprint: str, draw: bool) -> str:
+    """SHA-256 of the results (every variable's values) and of what is written from them:
+    equal digests, equal figures and ``summary.json``."""
+    h = hashlib.sha256(f"{fingerprint} plots={draw}".encode())
+    for name in sorted(map(str, ds.variables)):
+        values = ds[name].values
+        h.update(name.encode())
+        h.update(
+            "\0".join(map(str, values.ravel())).encode()
+            if values.dtype == object
+            else values.tobytes()
+        )
+    return h.hexdigest()
+
+
+def _previous(folder: Path) -> dict:
+    """The earlier ``summary.json`` in ``folder`` ({} if none or unreadable)."""
     try:
-        names = json.loads(old.read_text(encoding="utf-8")).get("plots", [])
-    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-        return
-    for name in names:
+        old = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        return {}
+    return old if isinstance(old, dict) else {}
+
+
+def _remove_previous(folder: Path, old: dict) -> None:
+    """Delete the figures an earlier summary (``old``) lists (a resumed study may draw
+    other ones), nothing else."""
+    names = old.get("plots", [])
+    for name in names if isinstance(names, list) else []:
         path = folder / str(name)
         if path.suffix == ".png" and path.parent == folder and path.is_file():
             path.unlink()
 
 
-def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
+def write_outputs(
+    ds: xr.Dataset, study: Any, folder: Path, *, draw: bool = True, force: bool = False
+) -> dict[str, Any]:
     """Write the study's figures and ``summary.json`` into ``folder``; return the summary.
+    Nothing is written when the summary there is of the same results (its ``results``
+    digest) and its figures are all there, unless ``force``.
 
     Parameters
     ----------
@@ -210,6 +261,10 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
         The study definition the results belong to.
     folder : pathlib.Path
         Where to write (created if missing), beside the store.
+    draw : bool
+        Draw the figures (else only ``summary.json``, with the sensitivity analysis).
+    force : bool
+        Write even when nothing changed.
 
     Returns
     -------
@@ -218,7 +273,13 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    _remove_previous(folder)
+    fingerprint = ds.attrs.get("fingerprint") or study.fingerprint()
+    digest = results_digest(ds, fingerprint, draw)
+    old = _previous(folder)
+    there = all((folder / str(name)).is_file() for name in old.get("plots", []))
+    if old.get("results") == digest and there and not force:
+        return old
+    _remove_previous(folder, old)
     design = study.design()
     summary: dict[str, Any] = {
         "study": study.name,
@@ -227,7 +288,8 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
         "fidelity": study.fidelity,
         "method": ds.attrs.get("method", design.method),
         "seed": study.seed,
-        "fingerprint": ds.attrs.get("fingerprint") or study.fingerprint(),
+        "fingerprint": fingerprint,
+        "results": digest,
         "version": ds.attrs.get("version") or _version(),
         "samples": sample_counts(ds, study),
         "metrics": {
@@ -247,7 +309,7 @@ def write_outputs(ds: xr.Dataset, study: Any, folder: Path) -> dict[str, Any]:
             f"({samples['failed']} failed, {samples['worker_lost']} worker lost, "
             f"{samples['not_computed']} not computed): left out of every statistic and figure"
         )
-    summary["plots"] = [p.name for p in _figures(ds, study, folder, summary)]
+    summary["plots"] = [p.name for p in _figures(ds, study, folder, summary, draw)]
     text = json.dumps(summary, indent=2, allow_nan=False)
     (folder / "summary.json").write_text(text + "\n", encoding="utf-8")
     return summary

@@ -13,6 +13,9 @@ Guarantees:
 - **One study per store**: opening an existing store with a different definition is
   refused, naming the keys that differ; an ``--out`` folder holding anything else than
   this study's store and the files written beside it is refused.
+- **One writer**: a run holds an exclusive lock on ``--out`` (``fcntl.flock`` on
+  ``.study.lock`` in it) from before the store is made until its outputs are written; a
+  second run on the same folder is refused naming the process that holds it.
 - **Loss-free writes**: a finished task's samples are one chunk of every variable; the
   chunk files are written atomically (Zarr's local store writes a temporary file and
   renames it) and ``status`` last, so a run killed at any instant leaves every chunk
@@ -25,7 +28,8 @@ import json
 import os
 import shutil
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -48,6 +52,9 @@ NOT_COMPUTED, OK, FAILED, WORKER_LOST = -1, 0, 1, 2
 _STATUS_ERROR_BYTES = 1 + 8
 
 _TMP_PREFIX = f".{STORE_NAME}."
+
+#: The lock file of a study's ``--out`` folder (holds the writer's process id).
+LOCK_NAME = ".study.lock"
 
 
 class StoreError(SarcomereError):
@@ -123,7 +130,11 @@ def check_out_folder(out: Path, name: str = "--out") -> Path:
         raise ParameterError(name, str(out), "a folder (new, empty or holding a study.zarr)")
     store = out / STORE_NAME
     if out.is_dir() and not store.exists():
-        others = sorted(p.name for p in out.iterdir() if not p.name.startswith(_TMP_PREFIX))
+        others = sorted(
+            p.name
+            for p in out.iterdir()
+            if not p.name.startswith(_TMP_PREFIX) and p.name != LOCK_NAME
+        )
         if others:
             shown = ", ".join(others[:5]) + (", ..." if len(others) > 5 else "")
             raise ParameterError(
@@ -135,12 +146,39 @@ def check_out_folder(out: Path, name: str = "--out") -> Path:
     return store
 
 
+@contextmanager
+def locked(out: Path) -> Iterator[None]:
+    """Hold the exclusive lock of the study folder ``out`` (made if missing) while the
+    block runs; a StoreError naming the holder's process if another run holds it. The
+    lock goes with the process (a killed run leaves none)."""
+    import fcntl
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise StoreError(
+                f"--out: {out} is in use by process {holder} (another study run writes "
+                "there); wait for it to finish or use another folder"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield
+    finally:
+        os.close(fd)
+
+
 class StudyStore:
     """An open study store: its path, sample count and chunk (task) size."""
 
     def __init__(self, path: Path, group) -> None:
         self.path = Path(path)
         self._group = group
+        self._arrays = dict(group.arrays())
         self.n_samples = int(group["status"].shape[0])
         self.chunk = int(group["status"].chunks[0])
 
@@ -182,13 +220,14 @@ class StudyStore:
             cls._create(
                 path, definition, fingerprint, factors, metrics, series, series_time, chunk, attrs
             )
-        store = cls.open(path)
-        store._check_definition(definition, fingerprint)
-        return store
+        return cls.open(path, definition, fingerprint)
 
     @classmethod
-    def open(cls, path: Path) -> StudyStore:
-        """Open an existing store; refuses a folder that is not a study store."""
+    def open(
+        cls, path: Path, definition: dict | None = None, fingerprint: str | None = None
+    ) -> StudyStore:
+        """Open an existing store; refuses a folder that is not a study store, and one of
+        another study than ``definition`` (with ``fingerprint``) when given."""
         import zarr
 
         path = Path(path)
@@ -205,7 +244,10 @@ class StudyStore:
                 f"--out: {path} is a Zarr group but not a sarcomere study store (no "
                 f"'{MARKER}' = {LAYOUT_VERSION} attribute); use a new or empty folder"
             )
-        return cls(path, group)
+        store = cls(path, group)
+        if fingerprint is not None:
+            store._check_definition(definition, fingerprint)
+        return store
 
     @staticmethod
     def _create(path, definition, fingerprint, factors, metrics, series, series_time, chunk, attrs):
@@ -307,8 +349,8 @@ class StudyStore:
 
     def write_many(self, chunks: Sequence[tuple[int, object]]) -> None:
         """Write finished tasks' results, each ``(start, result)`` for the chunk starting
-        at ``start``: all values of all chunks concurrently, then their statuses (see the
-        module's guarantees).
+        at ``start``: all values of all chunks, then their statuses (see the module's
+        guarantees).
 
         A result has ``indices`` (exactly the chunk's samples, in order), ``metrics``
         {name: float64}, ``series`` {signal: float64[len, T]}, ``status`` and ``error``.
@@ -338,20 +380,10 @@ class StudyStore:
         return slice(start, stop)
 
     def _set(self, writes: list[tuple[str, slice, np.ndarray]]) -> None:
-        """Write each ``(variable, rows, values)`` concurrently on Zarr's event loop (one
-        at a time, each waits ~2 ms for the loop)."""
-        if not writes:
-            return
-        import asyncio
-
-        from zarr.core.sync import sync
-
-        arrays = {name: self._group[name]._async_array for name, _, _ in writes}
-
-        async def write() -> None:
-            await asyncio.gather(*(arrays[n].setitem(rows, v) for n, rows, v in writes))
-
-        sync(write())
+        """Write each ``(variable, rows, values)`` through Zarr's public array API (one
+        chunk file each, written atomically by Zarr's local store)."""
+        for name, rows, values in writes:
+            self._arrays[name][rows] = values
 
     # -- reading --------------------------------------------------------------------------
     def read(self):

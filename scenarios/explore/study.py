@@ -16,7 +16,15 @@ import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError
 
-from .store import Column, StudyStore, check_out_folder, estimated_bytes, series_name
+from .store import (
+    Column,
+    StoreError,
+    StudyStore,
+    check_out_folder,
+    estimated_bytes,
+    locked,
+    series_name,
+)
 
 #: Default cap on the store's estimated (uncompressed) size [bytes].
 MAX_STORE_BYTES = 2 * 1024**3
@@ -47,6 +55,7 @@ class Study:
         max_store_bytes: int = MAX_STORE_BYTES,
         evaluate=None,
         outputs: bool = True,
+        plots: bool = True,
     ):
         """Compute the study's missing samples into ``out/study.zarr`` and return them.
 
@@ -68,7 +77,10 @@ class Study:
             ``evaluate(study, indices, points) -> BatchResult``, picklable (default
             ``evaluate.evaluate_batch``); ``points`` are the batch's design rows.
         outputs : bool
-            Write the figures and ``summary.json`` beside the store (``outputs.py``).
+            Write ``summary.json`` beside the store (``outputs.py``), and the figures if
+            ``plots``; nothing when they are there for the same results already.
+        plots : bool
+            Draw the figures.
 
         Returns
         -------
@@ -83,28 +95,42 @@ class Study:
         n = len(design.points)
         self._check_size(n, max_samples, max_store_bytes)
         path = check_out_folder(Path(out))
-        batch = study.batch or None
-        store = StudyStore.open_or_create(path, **self._layout(design, batch))
-        if evaluate is None:
-            from .evaluate import evaluate_batch as evaluate
-        from .engine import run_study
+        with locked(Path(out)):
+            store = StudyStore.open_or_create(path, **self._layout(design, study.batch))
+            if evaluate is None:
+                from .evaluate import evaluate_batch as evaluate
+            from .engine import run_study
 
-        run_study(
-            evaluate,
-            study,
-            store,
-            workers=workers,
-            scheduler=scheduler,
-            progress=progress,
-            points=design.points,
-        )
+            run_study(
+                evaluate,
+                study,
+                store,
+                workers=workers,
+                scheduler=scheduler,
+                progress=progress,
+                points=design.points,
+            )
+            return self._results(store, design, Path(out) if outputs else None, plots)
+
+    def replot(self, out: str | Path, plots: bool = True):
+        """Write the figures (if ``plots``) and ``summary.json`` again from the study's
+        store in ``out``, computing nothing; the Dataset as :meth:`run` returns it."""
+        study, out = self.definition, Path(out)
+        path = check_out_folder(out)
+        if not path.exists():
+            raise StoreError(f"--out: {out} holds no {path.name}: nothing to plot")
+        with locked(out):
+            store = StudyStore.open(path, study.definition(), study.fingerprint())
+            return self._results(store, study.design(), out, plots, force=True)
+
+    def _results(self, store, design, out: Path | None, plots: bool, force: bool = False):
         ds = store.read()
         if design.grid_shape is not None:
             ds = to_grid(ds, design.factor_names, design.grid_shape)
-        if outputs:
+        if out is not None:
             from .outputs import write_outputs
 
-            write_outputs(ds, study, Path(out))
+            write_outputs(ds, self.definition, out, draw=plots, force=force)
         return ds
 
     # -- checks and layout ----------------------------------------------------------------

@@ -9,6 +9,7 @@ runs the packaged studies through the CLI.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -16,6 +17,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import cloudpickle
 import numpy as np
@@ -284,3 +286,99 @@ def test_the_cli_store_cap_refuses_before_any_work(tmp_path, capsys):
     assert status != 0
     assert "max_store_bytes' = 1000000" in err and "3.3 MB" in err and "--max-store-mb" in err
     assert not out.exists()
+
+
+def count_workers(study: StandIn, indices: np.ndarray, points: np.ndarray) -> Result:
+    """The stand-in's result, each sample's note = the number of workers of the cluster."""
+    from distributed import get_client
+
+    result = evaluate(study, indices, points)
+    n = len(get_client().scheduler_info()["workers"])
+    return Result(*list(vars(result).values())[:-1], [f"workers={n}"] * len(indices))
+
+
+def test_workers_capped_at_the_tasks_with_a_warning_above_the_cpus(tmp_path, capfd, monkeypatch):
+    """Issue 24, bug 5: --workers 64 on 2 cores started 64 processes for 4 samples."""
+    from sarcomere.scenarios.explore import engine
+
+    monkeypatch.setattr(engine, "default_workers", lambda: 1)
+    ds = Study(StandIn()).run(  # 12 samples in 3 tasks of 4
+        tmp_path / "out", workers=5, progress=False, evaluate=count_workers, outputs=False
+    )
+    assert set(ds.error.values.ravel()) == {"workers=3"}
+    err = capfd.readouterr().err
+    assert "warning: --workers 5 is above the 1 usable CPU: the workers share it" in err
+    assert "3 started (the tasks to run)" in err and "Traceback" not in err
+
+
+def test_a_worker_death_prints_no_log_line(tmp_path):
+    """Issue 24, bug 5: a raw 'distributed.scheduler - ERROR' line, even with --quiet (a
+    process of its own: distributed's log handlers write to the stderr of their import)."""
+    script = (
+        f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "import test_engine as t\n"
+        "if __name__ == '__main__':\n"
+        f"    ds = t.run(t.StandIn(kill=(5,)), {str(tmp_path / 'out')!r}, workers=2)\n"
+        "    print(ds.status.values.ravel().tolist())\n"
+    )
+    (tmp_path / "death.py").write_text(script)
+    done = subprocess.run(
+        [sys.executable, str(tmp_path / "death.py")], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)[5] == 2
+    assert "distributed" not in done.stderr and "Traceback" not in done.stderr, done.stderr
+
+
+def test_a_study_folder_in_use_is_refused_naming_the_process(tmp_path):
+    """Issue 24, bug 4: two runs on one new --out, one died with FileNotFoundError (the
+    other's clean-up removed its temporary store). One writer; the other is refused."""
+    from sarcomere.scenarios.explore.store import locked
+
+    out = tmp_path / "out"
+    with locked(out):
+        with pytest.raises(StoreError, match=f"{out} is in use by process {os.getpid()}"):
+            run(StandIn(), out, workers=1)
+        assert sorted(p.name for p in out.iterdir()) == [".study.lock"]
+    assert run(StandIn(), out, workers=1).status.size == 12  # free again; the lock file stays
+
+
+def test_a_server_that_is_not_dask_is_named_so(tmp_path):
+    """Issue 24: a non-Dask port (one that greets, as SSH does) was reported as
+    'MemoryError: Unable to allocate 3 EiB'."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def greet() -> None:
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            with conn, contextlib.suppress(OSError):  # the client hangs up
+                conn.sendall(b"SSH-2.0-OpenSSH_9.6\r\n")
+                conn.recv(1024)
+
+    threading.Thread(target=greet, daemon=True).start()
+    try:
+        with pytest.raises(ClusterError, match=f"127.0.0.1:{port} answers but is not a Dask"):
+            with cluster_client(scheduler=f"127.0.0.1:{port}"):
+                pass
+    finally:
+        server.close()
+
+
+def test_progress_lines_when_the_output_is_not_a_terminal(tmp_path, capsys):
+    """Issue 24: a batch job's log showed no progress (the line is for terminals only)."""
+    Study(StandIn()).run(tmp_path / "out", workers=1, evaluate=evaluate, outputs=False)
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("study standin: ")]
+    assert [line.split(",")[0] for line in lines] == [
+        "study standin: 4/12 samples",
+        "study standin: 8/12 samples",
+        "study standin: 12/12 samples",
+    ]
+    assert ", 3 failed, " in lines[-1] and "\r" not in err

@@ -136,7 +136,12 @@ def test_grid_outputs_draw_maps_and_summarise_with_factor_values(grid, tmp_path,
     assert (samples["total"], samples["ok"], samples["failed"]) == (84, 83, 1)
     assert samples["failures"][0]["at"] == {"load": 0.02, "pressure": 0.15e6, "n": 3.0}
     assert samples["errors"] == [
-        {"message": "SolverError: step size too small at t = 0.31 s", "count": 1}
+        {
+            "message": "SolverError: step size too small at t = # s",
+            "count": 1,
+            "example": "SolverError: step size too small at t = 0.31 s",
+            "samples": [32],
+        }
     ]
     s = summary["metrics"]["stroke"]
     ok = ds.stroke.values[ds.status.values == 0]
@@ -150,11 +155,54 @@ def test_grid_outputs_draw_maps_and_summarise_with_factor_values(grid, tmp_path,
     assert "1 of 84 samples are not ok" in summary["warnings"][0]
     rise = summary["metrics"]["rise_time"]
     assert (rise["count"], rise["undefined"], s["undefined"]) == (71, 12, 0)
-    assert samples["notes"] == [
-        {"message": "rise_time: the stroke is below the noise level", "count": 12}
+    assert [(n["message"], n["count"]) for n in samples["notes"]] == [
+        ("rise_time: the stroke is below the noise level", 12)
     ]
     note = plots.status_note(ds, "rise_time")
     assert note == "83 of 84 samples ok, 1 failed or missing (left out); rise_time undefined in 12"
+
+
+def test_failures_of_one_kind_are_one_entry_with_count_and_example_samples(grid):
+    """Issue 24: 12 failures of one kind were listed as 12 distinct messages."""
+    ds, study = grid
+    status, error = ds.status.values.copy(), ds.error.values.copy()
+    for k, (i, j) in enumerate([(0, 1), (0, 2), (2, 4)]):
+        status[i, j, 0] = 1
+        error[i, j, 0] = f"SolverError: step size too small at t = {k + 4}.2e-1 s"
+    status[3, 6, 1], error[3, 6, 1] = 1, "ParameterError: 'aps.k_s' = -1 is invalid"
+    ds = ds.assign(status=(ds.status.dims, status), error=(ds.error.dims, error))
+    errors = outputs.sample_counts(ds, study)["errors"]
+    assert [(e["message"], e["count"], e["samples"]) for e in errors] == [
+        ("SolverError: step size too small at t = # s", 4, [3, 6, 32, 54]),
+        ("ParameterError: 'aps.k_s' = # is invalid", 1, [82]),
+    ]
+    assert errors[0]["example"] == "SolverError: step size too small at t = 4.2e-1 s"
+
+
+def test_outputs_of_unchanged_results_are_not_drawn_again(grid, tmp_path, monkeypatch):
+    """Issue 24: every resume of a finished study redrew every figure."""
+    ds, study = grid
+    ds = ds.isel(n=[2], load=[0, 3]).drop_vars("series_myofibril.length")
+    first = outputs.write_outputs(ds, study, tmp_path)
+    stamps = {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    drawn = []
+    monkeypatch.setattr(plots, "design_map", lambda *args: drawn.append(args[2]))
+    assert outputs.write_outputs(ds, study, tmp_path) == first
+    assert drawn == [] and stamps == {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    outputs.write_outputs(ds, study, tmp_path, force=True)  # --plots-only
+    assert drawn == ["stroke", "rise_time"]
+    changed = ds.assign(stroke=ds.stroke * 1.01)
+    assert outputs.write_outputs(changed, study, tmp_path)["results"] != first["results"]
+    assert drawn == ["stroke", "rise_time"] * 2
+
+
+def test_without_plots_the_summary_alone_and_no_stale_figure(grid, tmp_path):
+    ds, study = grid
+    ds = ds.isel(n=[2], load=[0, 3]).drop_vars("series_myofibril.length")
+    outputs.write_outputs(ds, study, tmp_path)
+    summary = outputs.write_outputs(ds, study, tmp_path, draw=False)  # --no-plots
+    assert summary["plots"] == [] and summary["metrics"]["stroke"]["count"] == 14
+    assert [p.name for p in tmp_path.iterdir()] == ["summary.json"]
 
 
 def test_rewriting_replaces_the_figures_of_the_previous_summary(grid, tmp_path):

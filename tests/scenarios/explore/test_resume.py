@@ -97,3 +97,34 @@ def test_a_study_killed_by_sigint_then_sigkill_resumes_to_the_uninterrupted_resu
     for ds in (ref, got):
         ds.attrs.pop("created")
     xr.testing.assert_identical(got, ref)
+
+
+@pytest.mark.slow  # three CLI runs of a 4-sample study
+def test_the_cli_draws_once_and_again_only_when_asked(tmp_path):
+    """Issue 24: a resume of a finished study redrew every figure; --no-plots and
+    --plots-only."""
+    study = tmp_path / "tiny.toml"
+    study.write_text(
+        STUDY.replace("num = 30", "num = 2").replace('"1 s"', '"0.3 s"').replace("batch = 2", "")
+    )
+    out = tmp_path / "out"
+
+    def cli(*extra: str) -> subprocess.CompletedProcess:
+        args = study_cli(study, "--out", out, "--workers", 1, "--quiet", *extra)
+        return subprocess.run(args, env=ENV, capture_output=True, text=True, timeout=300)
+
+    def files() -> dict:
+        return {
+            p.name: p.stat().st_mtime_ns
+            for p in out.iterdir()
+            if p.suffix == ".json" or p.suffix == ".png"
+        }
+
+    missing = cli("--plots-only")
+    assert missing.returncode == 2 and "holds no study.zarr: nothing to plot" in missing.stderr
+    assert cli("--no-plots").returncode == 0
+    assert sorted(files()) == ["summary.json"]
+    assert cli("--plots-only").returncode == 0
+    drawn = files()
+    assert {"map_stroke.png", "map_rise_time.png", "map_peak_tension.png"} <= set(drawn)
+    assert cli().returncode == 0 and files() == drawn  # nothing changed: nothing written
