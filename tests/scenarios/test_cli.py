@@ -329,7 +329,7 @@ def test_bench_says_why_a_metric_is_missing(tmp_path, monkeypatch, capsys) -> No
 
     monkeypatch.setitem(sys.modules, "do_mpc", None)  # not importable
     why = mpc_speed._do_mpc_status()
-    assert why == 'do-mpc not installed (pip install "sarcomere[bench]")'
+    assert why == 'do-mpc not installed: pip install "sarcomere[bench]"'
 
     def study(out_dir, quick=False):
         return {"metrics": {"a_ms": 1.5, "b_ratio": None}, "files": [], "notes": {"b_ratio": why}}
