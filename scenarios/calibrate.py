@@ -79,10 +79,10 @@ def handler(args: argparse.Namespace) -> int:
 
 
 def _write_family(members, out: Path) -> None:
+    """Write the L_r family's fits, its concentric strains and the band plot into ``out``."""
     from sarcomere.dynamics.calibration import CONCENTRIC_LOADS_KG, CONCENTRIC_PRESSURES_PA
     from sarcomere.dynamics.components.aps import APSParams
 
-    """Write the L_r family's fits, its concentric strains and the band plot into ``out``."""
     default_L_r = APSParams.from_paper().L_r
     record = [
         {

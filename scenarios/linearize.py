@@ -4,7 +4,7 @@ The operating point is the equilibrium at the regulator command ``--pressure`` (
 unit, ``'50 kPa'``; default: a closed-loop scene's ``[control] operating_pressure``, a
 transient's pressure at its start time); the outputs are ``--output`` (repeatable; default
 the closed-loop scene's tracked signal, else the length of a hanging chain or the force of
-an isometric one).
+an isometric one). A ``fidelity = "auto"`` scene is linearised at ``full``.
 Written, all or nothing (:func:`~.outdir.staged`):
 
 * ``linearization.json``: the operating point, the names (model names and python-control
@@ -57,7 +57,9 @@ def _pressure(sc, given: str | None) -> float:
     if sc.kind == "transient" and "pressure" in sc.inputs:
         start = sc.simulation.start_time if sc.simulation else 0.0
         return float(sc.inputs["pressure"](start))
-    raise ScenarioError(sc.file, "--pressure", f"kind '{sc.kind}' names no operating pressure")
+    raise ScenarioError(
+        sc.file, "--pressure", f"kind '{sc.kind}' names no operating pressure: give one ('50 kPa')"
+    )
 
 
 def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs=None) -> dict:
@@ -77,7 +79,8 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
             sc.file, "scenario.kind", "'static' is the paper's closed-form model: no dynamics"
         )
     b = bind(sc)
-    fid = fidelity_level(sc, allow_auto=False)
+    fid = fidelity_level(sc, allow_auto=True)
+    fid = "full" if fid == "auto" else fid  # auto picks a run's level; this is exact anyway
     model = b.build(fid)
     if sc.kind == "transient":
         scene_inputs(sc, model)  # the scene's inputs are checked as a run would

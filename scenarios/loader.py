@@ -407,10 +407,8 @@ def _inputs(r: Reader, value: object, base_dir: Path) -> dict:
 def _misspelt(tbl: dict, name: str) -> str | None:
     """Why a signal or axis ``name`` without a ``unit`` is refused when it is named like a
     known variable (``presure``): an unknown name, not a missing unit."""
-    hint = did_you_mean(name, list(KNOWN_UNITS))
-    if "unit" not in tbl and name not in KNOWN_UNITS and hint:
-        return f"unknown key '{name}'{hint} (or give its 'unit')"
-    return None
+    hint = "unit" not in tbl and name not in KNOWN_UNITS and did_you_mean(name, [*KNOWN_UNITS])
+    return f"unknown key '{name}'{hint} (or give its 'unit')" if hint else None
 
 
 def _sweep(r: Reader, value: object) -> tuple[SweepAxis, ...]:

@@ -452,5 +452,5 @@ def _do_mpc_status() -> str:
             warnings.simplefilter("ignore")
             import do_mpc  # noqa: F401
     except ImportError:
-        return 'do-mpc not installed (pip install "sarcomere[bench]")'
+        return 'do-mpc not installed: pip install "sarcomere[bench]"'
     return "installed"

@@ -329,7 +329,7 @@ def test_bench_says_why_a_metric_is_missing(tmp_path, monkeypatch, capsys) -> No
 
     monkeypatch.setitem(sys.modules, "do_mpc", None)  # not importable
     why = mpc_speed._do_mpc_status()
-    assert why == 'do-mpc not installed (pip install "sarcomere[bench]")'
+    assert why == 'do-mpc not installed: pip install "sarcomere[bench]"'
 
     def study(out_dir, quick=False):
         return {"metrics": {"a_ms": 1.5, "b_ratio": None}, "files": [], "notes": {"b_ratio": why}}
@@ -342,3 +342,11 @@ def test_bench_says_why_a_metric_is_missing(tmp_path, monkeypatch, capsys) -> No
     printed = capsys.readouterr().out
     assert "  a_ms = 1.5\n" in printed
     assert f"  b_ratio = None ({why})\n" in printed
+
+
+def test_linearize_takes_an_auto_scene_at_full(tmp_path, capsys) -> None:
+    """``linearize step-50g-auto`` was refused: 'auto' is not one of the levels."""
+    out = tmp_path / "lin"
+    assert main(["linearize", "step-50g-auto", "--out", str(out)]) == 0
+    assert json.loads((out / "summary.json").read_text())["fidelity"] == "full"
+    assert "load (load.s)" in capsys.readouterr().out
