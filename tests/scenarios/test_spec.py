@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from sarcomere.dynamics import schema
-from sarcomere.dynamics.components.aps import CHAIN_LEVELS, INSTANT_LEVELS
+from sarcomere.dynamics.components.chains import CHAIN_LEVELS, INSTANT_LEVELS
 from sarcomere.scenarios import spec
 
 PROBE = """
