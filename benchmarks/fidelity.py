@@ -1,27 +1,26 @@
-"""Scene x fidelity level: error against "full" and end-to-end wall time, and what
+"""Scene x fidelity level: error against "full" and end-to-end time, and what
 ``fidelity = "auto"`` picks, all in one process.
 
 Scenes: the packaged transients (step-50g, step-50g-auto, ramp-50g, sine-sweep-50g,
 vent-0g, and the auto scenes dither-50g-auto, step-50g-n30-auto, ramp-50g-n60-auto,
 cycle-50g-n60-auto) and study variants (a 3 kPa sweep, a 10 s ramp, the step and the
 ramp at n = 10). Levels: the flattened ones (:data:`~sarcomere.dynamics.assemblies.
-FIDELITIES`) run as ``[model] fidelity``; ``linear`` and ``equilibrium_path`` on the
-full model (:mod:`sarcomere.dynamics.fidelity`); on chains of 30 and more only full,
-grouped, symmetric and auto (the others cost many full runs there: quasi_static 7-11 s
-and the full model's equilibrium path 2-13 s at n = 30, static_chain is refused above
-n = 20).
+FIDELITIES`), ``linear`` and ``equilibrium_path`` (on the full model,
+:mod:`sarcomere.dynamics.fidelity`), each run as ``[model] fidelity``; on chains of 30
+and more only full, grouped, symmetric and auto (the others cost many full runs there:
+quasi_static 7-11 s and the full model's equilibrium path 2-13 s at n = 30, static_chain
+is refused above n = 20).
 
 Error: ``max |y - y_full| / span(y_full)`` over the scene's ``[outputs] signals``
 (default ``myofibril.length``), against full at the scene's own solver settings.
-Time, "end to end": the transient runner's own wall time for the scene, what
-``summary.json`` reports as ``wall_time_s`` (bind, build, start equilibrium,
-prediction, solve, output signals and metrics; not Python start-up, file writing or
-plots); for linear and equilibrium_path, build + equilibrium path + the level, as auto
-runs them. Every level of a scene is timed once cold, then in ``--repeats`` rounds that
-run every level once each, so the shared machine's load falls on all of them alike; the
-median is reported, and each level's ratio to full's median. BLAS/LAPACK run with the
-threads the CLI uses (``SARCOMERE_BLAS_THREADS``, default 1; scenarios/threads.py);
-``--blas-threads default`` leaves the libraries' own pools.
+Time, "end to end" (wall, and this process's CPU time, which a loaded machine does not
+inflate): the transient runner's own time for the scene (bind, build, start
+equilibrium, prediction, solve, output signals and metrics; not Python start-up, file
+writing or plots). Every level of a scene is timed once cold, then in ``--repeats``
+rounds that run every level once each, so the shared machine's load falls on all of
+them alike; the median is reported, and each level's ratio to full's median.
+BLAS/LAPACK run with the threads the CLI uses (``SARCOMERE_BLAS_THREADS``, default 1;
+scenarios/threads.py); ``--blas-threads default`` leaves the libraries' own pools.
 
 Usage::
 
@@ -42,10 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sarcomere.dynamics import fidelity as ladder
 from sarcomere.dynamics.assemblies import FIDELITIES
 from sarcomere.dynamics.errors import SarcomereError
-from sarcomere.scenarios import binding, parse_scenario, transient
+from sarcomere.scenarios import parse_scenario, transient
 from sarcomere.scenarios.loader import packaged_scenarios
 from sarcomere.scenarios.threads import limited_blas
 
@@ -92,20 +90,6 @@ def _with_level(text: str, level: str) -> str:
     return text
 
 
-def _ladder_level(text: str, level: str, signals: list[str]):
-    """Run linear or equilibrium_path the way ``auto`` does: build full, path, level."""
-    sc = parse_scenario(_with_level(text, "full"), "scene.toml")
-    b = binding.bind(sc)
-    full = b.build("full")
-    inputs = {binding.INPUT_ALIASES.get(k, k): v for k, v in sc.inputs.items()}
-    grid = binding.time_grid(sc.simulation)
-    name = next(iter(inputs))
-    nodes = ladder.LINEAR_PATH_NODES if level == "linear" else ladder.PATH_NODES
-    path = ladder.equilibrium_path(full, name, inputs[name](grid), b.overrides, nodes)
-    run = ladder.run_linear if level == "linear" else ladder.run_equilibrium_path
-    return run(full, path, inputs, grid, signals), {}
-
-
 def _runner(text: str, level: str):
     """The transient runner on the scene at ``level``: (result, auto report or {})."""
     sc = parse_scenario(_with_level(text, level), "scene.toml")
@@ -139,35 +123,35 @@ def study(
         levels = LONG_CHAIN_LEVELS if long_chain else LEVELS
         if keep:
             levels = tuple(lv for lv in levels if lv in keep or lv == "full")
-        calls, row, walls = {}, {}, {}
+        calls, row, walls, cpus = {}, {}, {}, {}
         for level in levels:
-            if level in ("linear", "equilibrium_path"):
-                calls[level] = lambda t=text, lv=level, s=signals: _ladder_level(t, lv, s)
-            else:
-                calls[level] = lambda t=text, lv=level: _runner(t, lv)
+            calls[level] = lambda t=text, lv=level: _runner(t, lv)
         results = {}
         for level in levels:  # cold: CasADi Functions, imports
             try:
                 results[level] = calls[level]()
-                walls[level] = []
+                walls[level], cpus[level] = [], []
             except SarcomereError as exc:
                 row[level] = {"failed": " ".join(str(exc).split())[:200]}
         for _ in range(repeats):  # rounds of every level: side by side
             for level in walls:
                 gc.collect()  # no level pays for the garbage of the one before
-                tic = time.perf_counter()
+                tic, cpu = time.perf_counter(), time.process_time()
                 results[level] = calls[level]()
                 walls[level].append(time.perf_counter() - tic)
+                cpus[level].append(time.process_time() - cpu)
         ref = results["full"][0]
         for level in walls:
             res, extra = results[level]
             err = max(float(np.max(np.abs(res[n] - ref[n])) / np.ptp(ref[n])) for n in signals)
-            wall = statistics.median(walls[level])
-            row[level] = {"error": err, "wall_time_s": wall, **extra}
+            wall, cpu = statistics.median(walls[level]), statistics.median(cpus[level])
+            row[level] = {"error": err, "wall_time_s": wall, "cpu_time_s": cpu, **extra}
             row[level]["speedup_vs_full"] = statistics.median(walls["full"]) / wall
+            row[level]["cpu_speedup_vs_full"] = statistics.median(cpus["full"]) / cpu
             print(
                 f"{scene:26s} {level:17s} error {err:9.2e} time {wall * 1e3:8.1f} ms "
-                f"x{row[level]['speedup_vs_full']:5.2f} {extra.get('chosen', '')}",
+                f"x{row[level]['speedup_vs_full']:5.2f} cpu {cpu * 1e3:8.1f} ms "
+                f"x{row[level]['cpu_speedup_vs_full']:5.2f} {extra.get('chosen', '')}",
                 flush=True,
             )
         rows[scene] = row
