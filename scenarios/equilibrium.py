@@ -11,11 +11,11 @@ import numpy as np
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
+from sarcomere.dynamics.plausibility import implausible_load
 from sarcomere.dynamics.results import Result
 
 from .binding import (
     P_CMD,
-    PLAUSIBLE_LOAD_KG,
     Binding,
     aps_dict,
     bind,
@@ -69,12 +69,8 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     if axis is not None and axis.name == "load" and min(axis.values) < 0:
         bad = min(axis.values)
         raise sc.error(("sweep", "load", "values"), f"{bad * 1e3:g} g: a load is >= 0 kg")
-    if axis is not None and axis.name == "load" and max(axis.values) > PLAUSIBLE_LOAD_KG[1]:
-        sc.warn(
-            ("sweep", "load"),
-            f"{max(axis.values):.6g} kg is above the plausible {PLAUSIBLE_LOAD_KG[1]:g} kg "
-            "(the paper's loads are 0 to 100 g)",
-        )
+    if axis is not None and axis.name == "load" and (why := implausible_load(max(axis.values))):
+        sc.warn(("sweep", "load"), why)
     cases = axis.values if axis else (None,)
     check_output_size(sc, len(pressures) * len(cases), 5, ("sweep", "pressure"))
     results, metrics = {}, {}
