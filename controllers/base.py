@@ -65,13 +65,13 @@ class Controller(ABC):
         u_min: Mapping[str, float],
         u_max: Mapping[str, float],
     ) -> None:
-        if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
+        if not (finite(dt) and dt > 0):
             raise ParameterError(f"{self.slug}.dt", dt, "(0, inf) s")
         self.dt = float(dt)
         self.inputs, self.outputs = list(inputs), list(outputs)
         for name in self.inputs:
             lo, hi = u_min.get(name), u_max.get(name)
-            if not (_finite(lo) and _finite(hi) and lo < hi):
+            if not (finite(lo) and finite(hi) and lo < hi):
                 raise ParameterError(
                     f"{self.slug}.u_bounds.{name}", (lo, hi), "finite low < high [SI]"
                 )
@@ -142,12 +142,12 @@ class Controller(ABC):
             If the controller returned a missing, non-finite or out-of-bounds input.
         """
         for name in self.outputs:
-            if not _finite(y.get(name)):
+            if not finite(y.get(name)):
                 raise ParameterError(
                     f"{self.slug}.y.{name}", y.get(name), f"a finite measurement at t = {t:g} s"
                 )
         for name, value in r.items():
-            if not _finite(value):
+            if not finite(value):
                 raise ParameterError(
                     f"{self.slug}.r.{name}", value, f"a finite reference at t = {t:g} s"
                 )
@@ -164,7 +164,7 @@ class Controller(ABC):
         return u
 
 
-def _finite(value: object) -> bool:
+def finite(value: object) -> bool:
     """Whether ``value`` is a real, finite number (numpy scalars included, bools not)."""
     try:
         return not isinstance(value, bool) and math.isfinite(value)

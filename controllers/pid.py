@@ -48,13 +48,12 @@ from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
-from .base import Controller
+from .base import Controller, finite
 from .linearize import linearize
 from .registry import (
     MAX_PREVIEW,
     count,
     max_step,
-    number,
     own_settings,
     positive,
     refuse_rate_limit,
@@ -263,7 +262,7 @@ def make_pid(model: Model, op: Equilibrium, dt: float, settings: dict) -> PID:
     defaults = {"kp": None, "ki": None, "kd": 0.0, "closed_loop_s": 0.15, "tf": 0.02}
     own = own_settings("pid", settings, {**defaults, "tt": None, "rate_max": None, "preview": 0})
     for key in ("kp", "ki", "tt"):
-        if own[key] is not None and not number(own[key]):
+        if own[key] is not None and not finite(own[key]):
             raise ParameterError(f"pid.{key}", own[key], "a finite number, or None")
     out, inp = settings["output"], settings["input"]
     kp, ki = own["kp"], own["ki"]
