@@ -104,24 +104,32 @@ class Controller(ABC):
                 f"{self.slug}.parameters", sorted(values), "none: no run-time parameters"
             )
 
+    preview: int = 0
+    """Samples of the reference ahead a controller without its own preview handling takes
+    (a PID's or LQI's ``preview`` setting; 0: ``r(t)`` only)."""
+
+    ahead: tuple[float, ...] = ()
+    """The reference ahead handed over by the last :meth:`set_preview` [SI]."""
+
     @property
     def preview_samples(self) -> int:
-        """How many samples of the reference ahead :meth:`set_preview` takes (0 here: the
-        controller sees ``r(t)`` only; the MPCs take one per node of their horizon)."""
-        return 0
+        """How many samples of the reference ahead :meth:`set_preview` takes (:attr:`preview`
+        here; the MPCs take one per node of their horizon)."""
+        return self.preview
 
     def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
         """The reference ahead for the next :meth:`update` only: by tracked signal, its
         values [SI] at ``t + dt, ..., t + preview_samples dt`` (the loop calls it before
-        every update when the reference is known ahead).
+        every update when the reference is known ahead); kept in :attr:`ahead`.
 
         Raises
         ------
         ParameterError
-            Here for any values: this controller takes no preview.
+            For a controller that takes no preview, or values of more than one signal.
         """
-        if values:
+        if values and (not self.preview or len(values) != 1):
             raise ParameterError(f"{self.slug}.preview", sorted(values), "none: no preview")
+        self.ahead = tuple(float(v) for v in next(iter(values.values()), ()))[: self.preview]
 
     @abstractmethod
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
