@@ -17,6 +17,7 @@ from sarcomere.scenarios.loader import (
     packaged_scenarios,
     parse_scenario,
     resolve_scenario,
+    scenario_from_dict,
 )
 from sarcomere.scenarios.signals import Staircase, Step, Table
 
@@ -443,3 +444,16 @@ def test_every_packaged_scene_loads_and_binds_without_warnings(name: str) -> Non
         sc = load_scenario(name)
         if sc.kind != "static":
             bind(sc)
+
+
+def test_a_parsed_dict_is_checked_as_its_text_is():
+    """A study merges its base with its own tables as dicts and hands the result over (no
+    TOML text written and parsed again)."""
+    import tomllib
+
+    text = packaged_scenarios()["step-50g"].read_text(encoding="utf-8")
+    data = tomllib.loads(text)
+    assert scenario_from_dict(data, "s.toml") == parse_scenario(text, "s.toml")
+    data["model"]["fidelity"] = "ful"
+    with pytest.raises(ScenarioError, match="s.toml: key 'model.fidelity': 'ful' is not one"):
+        scenario_from_dict(data, "s.toml")
