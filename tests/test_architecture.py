@@ -136,3 +136,65 @@ def test_the_library_never_imports_a_study():
     )
     # the CLI's `bench` command is the one door into the studies (scenarios sits above)
     assert [(a, b) for a, b in wrong if not a.startswith("sarcomere.scenarios.")] == []
+
+
+def _imports_all(tree: ast.AST):
+    """Every import node, those under ``if TYPE_CHECKING:`` included."""
+    return [n for n in ast.walk(tree) if isinstance(n, ast.Import | ast.ImportFrom)]
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def test_no_private_name_is_imported_across_modules():
+    """A name with a leading underscore stays in its module: neither ``from m import _x``
+    nor ``m._x`` on an imported module of the library, tests excluded."""
+    wrong = []
+    for module, path in MODULES.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        aliases = {}
+        for node in _imports_all(tree):
+            if isinstance(node, ast.ImportFrom):
+                for a in node.names:
+                    target = _targets(module, ast.ImportFrom(node.module, [a], node.level))
+                    if _private(a.name) and target & set(MODULES) and target != {module}:
+                        wrong.append(f"{module}: from {node.module or '.'} import {a.name}")
+                    full = next(iter(target))
+                    if full in MODULES:
+                        aliases[a.asname or a.name] = full
+            else:
+                for a in node.names:
+                    if a.name in MODULES and a.asname:
+                        aliases[a.asname] = a.name
+        for node in ast.walk(tree):
+            if (
+                isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Name)
+                and node.value.id in aliases
+                and _private(node.attr)
+            ):
+                wrong.append(f"{module}: {node.value.id}.{node.attr}")
+    assert sorted(set(wrong)) == []
+
+
+def test_no_import_cycles_even_for_annotations():
+    """Type-only imports too: a cycle through ``if TYPE_CHECKING:`` is still a knot a
+    reader has to untie."""
+    graph = {}
+    for module, path in MODULES.items():
+        found = set()
+        for node in _imports_all(ast.parse(path.read_text(encoding="utf-8"))):
+            found |= {t for t in _targets(module, node) if t in MODULES}
+        graph[module] = found - {module}
+    assert _cycles(graph) == []
+
+
+def test_no_library_file_over_600_lines():
+    files = [
+        f for pkg in PACKAGES for ext in ("py", "c", "h") for f in (ROOT / pkg).rglob(f"*.{ext}")
+    ]
+    long = {
+        str(f.relative_to(ROOT)): n for f in files if (n := len(f.read_text().splitlines())) > 600
+    }
+    assert long == {}
