@@ -161,11 +161,11 @@ class LQI(Controller):
         self.u_op = float(op.u[model.input_names.index(input)])
         sysd = linearize(model, op, [output], dt=self.dt, inputs=[input])
         self.sysd = sysd
-        self.Kx, self.Ki, self.Nx, self.Nu, aug = _design(sysd, weights, self.dt)
-        self.Ku = None  # the gain on the held command, with the rate in the design
-        if rate_weight is not None:
-            rw = positive("lqi", "rate_weight", rate_weight)
-            self.Kx, self.Ku, self.Ki, aug = _rate_design(sysd, weights, dt, rw, self.du_max)
+        rw = None if rate_weight is None else positive("lqi", "rate_weight", rate_weight)
+        # Ku: the gain on the held command, with the rate in the design (else None)
+        self.Kx, self.Ku, self.Ki, self.Nx, self.Nu, aug = _design(
+            sysd, weights, self.dt, rw, self.du_max
+        )
         self.preview = count("lqi.preview", preview, 0, MAX_PREVIEW, "the MPCs' longest horizon")
         # the target's part of the state: x (and the held command, with the rate design)
         self.preview_gains = _preview_gains(*aug, self.preview)[
@@ -437,46 +437,29 @@ def _equilibria(model: Model, op: Equilibrium, output: str, input: str, lo: floa
     return ys, np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
 
 
-def _design(sysd: ct.StateSpace, w: LQIWeights, dt: float):
-    """``Kx, Ki`` from ``control.dlqr`` on the model with the error integral appended,
-    and the steady-state map ``x_ss = Nx dr``, ``u_ss = Nu dr``."""
+def _design(sysd: ct.StateSpace, w: LQIWeights, dt: float, rate_weight=None, du=None):
+    """``Kx, Ku, Ki`` from ``control.dlqr`` on the model with the error integral
+    appended, the steady-state map ``x_ss = Nx dr``, ``u_ss = Nu dr``, and the design's
+    ``(Aa, Ba, R, K, S)``. With ``rate_weight`` the move per sample ``v = u - u_prev`` is
+    the input, weighted ``rate_weight (v / du)^2`` (``du`` the rate limit's move per
+    sample), and the held command a state ``[dx; u_prev - u_op; xi]`` weighted ``r_u``:
+    ``u = u_prev - Kx (dx - x_ss) - Ku (u_prev - u_op - u_ss) - Ki xi``; else ``Ku`` is
+    None and ``u = u_op + u_ss - Kx (dx - x_ss) - Ki xi``."""
     A, B, C, D = sysd.A, sysd.B, sysd.C, sysd.D
-    n = A.shape[0]
-    Aa = np.block([[A, np.zeros((n, 1))], [dt * C, np.ones((1, 1))]])
-    Ba = np.vstack([B, dt * D])
-    Q = np.zeros((n + 1, n + 1))
+    n, held = A.shape[0], rate_weight is not None
+    Aa, Ba, Q = np.eye(n + 1 + held), np.zeros((n + 1 + held, 1)), np.zeros((n + 1 + held,) * 2)
+    Aa[:n, :n], Aa[-1, :n], Ba[:n], Ba[-1] = A, dt * C, B, dt * D
     Q[:n, :n] = w.q_y / w.y_scale**2 * C.T @ C
-    Q[n, n] = w.q_i / w.y_scale**2
+    Q[-1, -1] = w.q_i / w.y_scale**2
     R = np.array([[w.r_u / w.u_scale**2]])
+    if held:  # the held command: a state the move adds to
+        Aa[:n, n], Aa[-1, n], Ba[n], Q[n, n] = B[:, 0], dt * D[0, 0], 1.0, R[0, 0]
+        R = np.array([[rate_weight / du**2]])
     K, S, _ = ct.dlqr(Aa, Ba, (Q + Q.T) / 2, R)
     M = np.block([[A - np.eye(n), B], [C, D]])
     N = np.linalg.solve(M, np.concatenate([np.zeros(n), [1.0]]))
-    return K[0, :n], float(K[0, n]), N[:n], float(N[n]), (Aa, Ba, R, K, S)
-
-
-def _rate_design(sysd: ct.StateSpace, w: LQIWeights, dt: float, rate_weight: float, du: float):
-    """``Kx, Ku, Ki`` of the design with the move per sample as the input: the state
-    ``[dx; u_prev - u_op; xi]`` (the command held before the sample appended), the input
-    the move ``v = u - u_prev``, weighted ``rate_weight (v / du)^2`` with ``du`` the rate
-    limit's move per sample (the input's own weight ``r_u`` then sits on ``u_prev``);
-    the law is ``u = u_prev - Kx (dx - x_ss) - Ku (u_prev - u_op - u_ss) - Ki xi``."""
-    A, B, C, D = sysd.A, sysd.B, sysd.C, sysd.D
-    n = A.shape[0]
-    Aa = np.block(
-        [
-            [A, B, np.zeros((n, 1))],
-            [np.zeros((1, n)), np.ones((1, 1)), np.zeros((1, 1))],
-            [dt * C, dt * D, np.ones((1, 1))],
-        ]
-    )
-    Ba = np.vstack([B, np.ones((1, 1)), dt * D])
-    Q = np.zeros((n + 2, n + 2))
-    Q[:n, :n] = w.q_y / w.y_scale**2 * C.T @ C
-    Q[n, n] = w.r_u / w.u_scale**2
-    Q[n + 1, n + 1] = w.q_i / w.y_scale**2
-    R = np.array([[rate_weight / du**2]])
-    K, S, _ = ct.dlqr(Aa, Ba, (Q + Q.T) / 2, R)
-    return K[0, :n], float(K[0, n]), float(K[0, n + 1]), (Aa, Ba, R, K, S)
+    Ku = float(K[0, n]) if held else None
+    return K[0, :n], Ku, float(K[0, -1]), N[:n], float(N[n]), (Aa, Ba, R, K, S)
 
 
 def _preview_gains(Aa, Ba, R, K, S, samples: int) -> np.ndarray:

@@ -15,7 +15,10 @@ def _short_tension_scene(keep: tuple[str, ...]) -> str:
     text = text.replace('stop_time = "2.5 s"', 'stop_time = "1.0 s"')
     text = text.replace('step_time = "0.5 s"', 'step_time = "0.2 s"')
     drop = "|".join(
-        k for k in ("pid", "lqi", "lqi_ekf", "lmpc", "nmpc", "nmpc_ekf") if k not in keep
+        k
+        for k in ("pid", "lqi", "lqi_ekf", "lmpc", "nmpc", "nmpc_ekf", "pid_preview")
+        + ("lqi_informed", "lqi_ekf_informed")
+        if k not in keep
     )
     return re.sub(rf"\[control\.controllers\.({drop})\]\n(\w.*\n)*", "", text)
 
