@@ -9,6 +9,7 @@ temperature of 0 K, a mass or a stiffness <= 0) are refused by the parameters' r
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from .components.aps import APSParams
@@ -23,8 +24,9 @@ an area [m^2]) is implausible."""
 
 PLAUSIBLE_FACTOR = 1e3
 """Any other APS parameter with a positive default (stiffnesses, dampings, masses,
-volumes, conductance, material constants) more than this factor from the paper's APS is
-implausible (``k_s = 2e-12 N/m`` hangs a chain 9e11 m long)."""
+volumes, conductance, material constants; not the numerical settings) more than this
+factor from the paper's APS is implausible (``k_s = 2e-12 N/m`` hangs a chain 9e11 m
+long)."""
 
 
 class PlausibilityWarning(UserWarning):
@@ -45,10 +47,12 @@ def implausible_aps(aps: APSParams) -> dict[str, str]:
     same material (:data:`PLAUSIBLE_GEOMETRY_FACTOR`, :data:`PLAUSIBLE_FACTOR`)."""
     paper = APSParams.from_paper(aps.material)
     out = {}
-    for name in APSParams.numeric_fields():
-        unit = APSParams.unit(name)
+    for f in dataclasses.fields(APSParams):
+        name, unit = f.name, f.metadata.get("unit", "1")
+        if unit == "1" or f.metadata["source"].startswith("numerical"):
+            continue  # dimensionless ratios have ranges; numerical settings are free
         ref, value = getattr(paper, name), getattr(aps, name)
-        if unit == "1" or not (0 < ref < math.inf) or value == ref:
+        if not (0 < ref < math.inf) or value == ref:
             continue
         k = {"m": PLAUSIBLE_GEOMETRY_FACTOR, "m^2": PLAUSIBLE_GEOMETRY_FACTOR**2}.get(
             unit, PLAUSIBLE_FACTOR

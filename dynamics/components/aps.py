@@ -244,15 +244,15 @@ def thread_stretch(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
     return cs.if_else(u > -_STOP_FROM, ramp, 0.0)
 
 
-def thread_height(d: cs.SX, l: cs.SX, w0: cs.SX) -> cs.SX:
+def thread_height(d: cs.SX, l: cs.SX, w0: cs.SX, stretch: cs.SX | None = None) -> cs.SX:
     """Taut height ``r1`` [m] of one thread V for expansion ``d`` [m]: the legs of the
-    thread, ``l`` long plus its stretch (:func:`thread_stretch`), over the anchors'
-    half-span ``r2 = (w0 + d) / 2``.
+    thread, ``l`` long plus its ``stretch`` (default :func:`thread_stretch`), over the
+    anchors' half-span ``r2 = (w0 + d) / 2``.
 
     Floored at 1e-4 l (a thread stretched far beyond its breaking strain).
     """
     r2 = 0.5 * (w0 + d)
-    half = 0.5 * (l + thread_stretch(d, l, w0))
+    half = 0.5 * (l + (thread_stretch(d, l, w0) if stretch is None else stretch))
     return cs.sqrt(cs.fmax(half**2 - r2**2, (1e-4 * l) ** 2))
 
 
@@ -344,7 +344,9 @@ class Actin(Component):
             if present:
                 fl = b.port(side, FLANGE)
                 exps.append(fl)
-                L_geo, L_rest, theta = laws.apply(_band_side, [L_geo, L_rest, fl.s, l, w0, A])
+                L_geo, L_rest, theta, dr1, strain, stop_energy, stop_force = laws.apply(
+                    _band_side, [L_geo, L_rest, fl.s, l, w0, A, k_t]
+                )
                 b.output(
                     f"theta_{side[-1]}",
                     theta,
@@ -354,7 +356,6 @@ class Actin(Component):
                     low=0.0,
                     high=0.5 * math.pi,
                 )
-                strain, stop_energy, stop_force = laws.apply(thread_stop, [fl.s, l, w0, k_t])
                 b.output(
                     f"strain_{side[-1]}",
                     strain,
@@ -364,7 +365,7 @@ class Actin(Component):
                     low=0.0,
                     high=THREAD_STRAIN_MAX,
                 )
-                stops.append((stop_energy, stop_force))
+                stops.append((dr1, stop_energy, stop_force))
         self.rest_length = L_rest  # taut length at zero expansion [m], for start values
         per_v = 2.0 / len(exps)  # two V's in series: k_s; one V alone: 2 k_s
         e = fb.s - fa.s - L_geo
@@ -379,34 +380,34 @@ class Actin(Component):
             b.dissipation("damping", dissipation)
         b.equation(fb.f, tension)
         b.equation(fa.f, -tension)
-        for fl, (_, stop_force) in zip(exps, stops, strict=True):
-            # generalised force on the expansion: T de/dd, and the straight thread's
-            b.equation(fl.f, tension * cs.jacobian(e, fl.s) + stop_force)
+        for fl, (dr1, _, stop_force) in zip(exps, stops, strict=True):
+            # generalised force on the expansion: T de/dd = -T dr1/dd, and the thread's stop
+            b.equation(fl.f, tension * -dr1 + stop_force)
         b.output("T", tension, "N", "thread tension (I-band)")
         b.output("e", e, "m", "stretch beyond the taut length (negative: slack)")
         b.output("L_geo", L_geo, "m", "taut length of the I-band")
-        b.energy("elastic", sum((u for u, _ in stops), energy))
+        b.energy("elastic", sum((u for _, u, _ in stops), energy))
 
 
-def _band_side(L_geo, L_rest, d, l, w0, A) -> list:
+def _band_side(L_geo, L_rest, d, l, w0, A, k) -> list:
     """One side of an I-band (its SPA's expansion ``d``): the taut and rest lengths with
-    that side's ``A/2 + r1`` added, and the thread angle, ``cos(theta) = 2 r2 / l``."""
+    that side's ``A/2 + r1`` added, the thread angle, ``cos(theta) = 2 r2 / l``,
+    ``dr1/dd``, and the thread's end stop (stiffness ``k`` [N/m]): its strain
+    ``delta / l`` [1] at the stretch ``delta`` of :func:`thread_stretch`, energy
+    ``k delta^2 / 2`` [J] and force on the expansion [N] (all exactly 0 while the thread
+    is bent)."""
     cos_theta = cs.fmin(cs.fmax((w0 + d) / l, -1.0), 1.0)
+    delta = thread_stretch(d, l, w0)
+    r1 = thread_height(d, l, w0, delta)
     return [
-        L_geo + 0.5 * A + thread_height(d, l, w0),
+        L_geo + 0.5 * A + r1,
         L_rest + 0.5 * A + thread_height(0.0, l, w0),
         cs.acos(cos_theta),
+        cs.jacobian(r1, d),
+        delta / l,
+        0.5 * k * delta**2,
+        k * delta * cs.jacobian(delta, d),
     ]
-
-
-def thread_stop(d, l, w0, k) -> list:
-    """The end stop of one thread (of stiffness ``k`` [N/m]) on its SPA's expansion ``d``
-    [m]: its strain ``delta / l`` [1] at the stretch ``delta`` of :func:`thread_stretch`,
-    its energy ``k delta^2 / 2`` [J] and its force on the expansion, the energy's
-    gradient [N] (all exactly 0 while the thread is bent)."""
-    delta = thread_stretch(d, l, w0)
-    energy = 0.5 * k * delta**2
-    return [delta / l, energy, cs.gradient(energy, d)]
 
 
 def _band_tension(e, e_rate, k_s, c_s, eps, per_v: float, damping: str) -> list:
@@ -499,6 +500,5 @@ __all__ = [
     "aps_parameter",
     "STOP_LENGTH",
     "thread_height",
-    "thread_stop",
     "thread_stretch",
 ]

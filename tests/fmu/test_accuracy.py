@@ -185,11 +185,16 @@ def _model_exchange(scene: str, fmu) -> np.ndarray:
 
 
 def _error(result: np.ndarray, ref: np.ndarray, names) -> tuple[float, str]:
+    """Largest error relative to each output's span; an output that does not move (a
+    thread's strain off its end stop) must not move in the FMU either."""
     span = np.ptp(ref, axis=0)
-    assert np.all(span > 0), [n for n, s in zip(names, span, strict=True) if s == 0]
-    err = np.max(np.abs(result - ref), axis=0) / span
+    still = span == 0
+    np.testing.assert_array_equal(result[:, still], ref[:, still])
+    moving = np.flatnonzero(~still)
+    assert len(moving) > 0.8 * len(names), [n for n, s in zip(names, still, strict=True) if s]
+    err = np.max(np.abs(result[:, moving] - ref[:, moving]), axis=0) / span[moving]
     i = int(np.argmax(err))
-    return float(err[i]), names[i]
+    return float(err[i]), names[moving[i]]
 
 
 def _cases():
