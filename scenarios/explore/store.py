@@ -350,11 +350,6 @@ class StudyStore:
         return out
 
     # -- writing --------------------------------------------------------------------------
-    def write(self, start: int, result) -> None:
-        """Write a finished task's result for the chunk starting at ``start`` (see
-        :meth:`write_many`)."""
-        self.write_many([(start, result)])
-
     def write_many(self, chunks: Sequence[tuple[int, object]]) -> None:
         """Write finished tasks' results, each ``(start, result)`` for the chunk starting
         at ``start``: all values of all chunks, then their statuses (see the module's
