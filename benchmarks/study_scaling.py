@@ -167,7 +167,7 @@ def store_writes(tmp: Path, n: int = 300) -> float:
     parts = [nothing(study, np.array([i])) for i in range(n)]
     tic = time.perf_counter()
     for i, part in enumerate(parts):
-        store.write(i, part)
+        store.write_many([(i, part)])
     one = (time.perf_counter() - tic) / n
     store = _store(study, tmp / "writes8")
     tic = time.perf_counter()

@@ -59,10 +59,10 @@ def measure(chunks: int, series: bool) -> dict:
             )
             for k in range(chunks)
         ]
-        store.write(0, results[0])  # warm: the event loop and the codecs
+        store.write_many([(0, results[0])])  # warm: the event loop and the codecs
         cpu, wall = time.process_time(), time.perf_counter()
         for k in range(1, chunks):
-            store.write(k * CHUNK, results[k])
+            store.write_many([(k * CHUNK, results[k])])
         cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     return {"cpu_ms": cpu / (chunks - 1) * 1e3, "wall_ms": wall / (chunks - 1) * 1e3}
 

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..catalog import version
 from . import analysis, plots
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -50,15 +51,6 @@ def _num(value: Any) -> float | None:
     """A JSON number, None for NaN or infinity."""
     v = float(value)
     return v if math.isfinite(v) else None
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("sarcomere")
-    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
-        return "unknown"
 
 
 def _flat_factors(ds: xr.Dataset, study: Any, like: xr.DataArray) -> dict[str, np.ndarray]:
@@ -290,7 +282,7 @@ def write_outputs(
         "seed": study.seed,
         "fingerprint": fingerprint,
         "results": digest,
-        "version": ds.attrs.get("version") or _version(),
+        "version": ds.attrs.get("version") or version(),
         "samples": sample_counts(ds, study),
         "metrics": {
             m.name: metric_summary(ds, study, m.name) for m in study.metrics if m.name in ds

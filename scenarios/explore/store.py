@@ -350,11 +350,6 @@ class StudyStore:
         return out
 
     # -- writing --------------------------------------------------------------------------
-    def write(self, start: int, result) -> None:
-        """Write a finished task's result for the chunk starting at ``start`` (see
-        :meth:`write_many`)."""
-        self.write_many([(start, result)])
-
     def write_many(self, chunks: Sequence[tuple[int, object]]) -> None:
         """Write finished tasks' results, each ``(start, result)`` for the chunk starting
         at ``start``: all values of all chunks, then their statuses (see the module's
@@ -390,8 +385,8 @@ class StudyStore:
     def _set(self, writes: list[tuple[str, slice, np.ndarray]]) -> None:
         """Write each ``(variable, rows, values)`` through Zarr's public array API from a
         few threads at once (one chunk file each, written atomically by Zarr's local
-        store): as cheap in CPU as one batch on Zarr's event loop, a fifth less than one
-        write after the other (BENCHMARKS.md, "Design studies")."""
+        store): as cheap in CPU as one batch on Zarr's event loop; one write after the
+        other costs 1.2-1.6x (BENCHMARKS.md, "Design studies")."""
 
         def put(write: tuple[str, slice, np.ndarray]) -> None:
             name, rows, values = write

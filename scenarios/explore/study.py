@@ -16,6 +16,7 @@ import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError
 
+from ..catalog import version
 from .store import (
     Column,
     StoreError,
@@ -177,7 +178,7 @@ class Study:
             "kind": study.kind,
             "method": design.method,
             "seed": study.seed,
-            "version": _version(),
+            "version": version(),
         }
         if design.grid_shape is not None:
             attrs["grid_factors"] = json.dumps(list(design.factor_names))
@@ -200,12 +201,6 @@ def _factor_column(factor, name: str) -> Column:
     if factor is None:
         return Column(name, "1", name)
     return Column(name, factor.unit, getattr(factor, "long_name", "") or name)
-
-
-def _version() -> str:
-    from ..catalog import version
-
-    return version()
 
 
 def to_grid(ds, factor_names, grid_shape):

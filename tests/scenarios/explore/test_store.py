@@ -66,7 +66,7 @@ def test_error_texts_come_back_exactly(tmp_path):
         "x" * 5000,
         "",
     ]
-    store.write(0, result(0, 4, texts))
+    store.write_many([(0, result(0, 4, texts))])
     ds = store.read()
     assert list(ds.error.values[:4]) == texts
     assert list(ds.status.values[:4]) == [0, 1, 1, 0]
@@ -82,10 +82,10 @@ class _DiesAtStatus:
 
 def test_a_write_killed_before_its_status_leaves_the_chunk_missing(tmp_path):
     store = make(tmp_path / "study.zarr", series=True)
-    store.write(4, result(4, 8, series=True))
+    store.write_many([(4, result(4, 8, series=True))])
     store._arrays["status"] = _DiesAtStatus()
     with pytest.raises(KeyboardInterrupt):
-        store.write(0, result(0, 4, series=True))
+        store.write_many([(0, result(0, 4, series=True))])
     again = StudyStore.open(tmp_path / "study.zarr")
     assert again.missing_chunks() == [(0, 4), (8, 10)]
     ds = again.read()
@@ -97,7 +97,7 @@ def test_a_write_killed_before_its_status_leaves_the_chunk_missing(tmp_path):
 def test_only_whole_chunks_are_written(tmp_path):
     store = make(tmp_path / "study.zarr")
     with pytest.raises(StoreError, match="not the chunk"):
-        store.write(2, result(2, 6))
+        store.write_many([(2, result(2, 6))])
 
 
 def test_another_definition_is_refused_with_the_differences(tmp_path):
