@@ -55,29 +55,30 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     if len(others) > 1 or (others and others[0].name not in ("n", "load")):
         raise sc.error(("sweep",), "at most one more axis, 'n' or 'load'")
     axis = others[0] if others else None
-    if axis is not None and axis.name == "n":
+    swept = axis.name if axis else None
+    if swept == "n":
         if ("model", "n") in sc.key_lines or sc.model.n != 1:
             raise sc.error(("model", "n"), "[sweep.n] sets n; remove it")
         for v in axis.values:
             check_n(sc, ("sweep", "n", "values"), v, fid)
-    if axis is not None and axis.name == "load" and b.setup == "isometric":
+    if swept == "load" and b.setup == "isometric":
         raise sc.error(("sweep", "load"), "the isometric set-up holds no load; sweep 'n' instead")
-    if axis is not None and axis.name == "load" and "load" in sc.model.options:
+    if swept == "load" and "load" in sc.model.options:
         raise sc.error(("model", "options", "load"), "[sweep.load] sets the load; remove it")
-    if axis is not None and axis.name == "load" and "load.m" in b.overrides:
+    if swept == "load" and "load.m" in b.overrides:
         raise sc.parameter_error("load.m", "[sweep.load] sets the load; remove it")
-    if axis is not None and axis.name == "load" and min(axis.values) < 0:
+    if swept == "load" and min(axis.values) < 0:
         bad = min(axis.values)
         raise sc.error(("sweep", "load", "values"), f"{bad * 1e3:g} g: a load is >= 0 kg")
-    if axis is not None and axis.name == "load" and (why := implausible_load(max(axis.values))):
+    if swept == "load" and (why := implausible_load(max(axis.values))):
         sc.warn(("sweep", "load"), why)
     cases = axis.values if axis else (None,)
     check_output_size(sc, len(pressures) * len(cases), 5, ("sweep", "pressure"))
     results, metrics = {}, {}
     for value in cases:
-        n = round(value) if axis is not None and axis.name == "n" else b.n
-        load = value if axis is not None and axis.name == "load" else b.load_kg
-        prefix = f"n{n}_" if axis is not None and axis.name == "n" else ""
+        n = round(value) if swept == "n" else b.n
+        load = value if swept == "load" else b.load_kg
+        prefix = f"n{n}_" if swept == "n" else ""
         key, res, mets = _equilibrium_case(sc, b, fid, pressures, n, load, prefix)
         results[key] = res
         metrics.update(mets)
