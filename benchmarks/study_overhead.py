@@ -13,8 +13,9 @@ drifts), CPU time (``time.process_time``: every thread of a process) per sample,
 3. and 4. the same study on the engine's embedded cluster of 1 and 2 workers
    (``run_chunks``, results written to a fresh Zarr store): the CPU of every worker
    process (read on the workers) plus that of this process, which runs the client, the
-   scheduler and the store writes ("client"). The workers are warm (model built, library
-   compiled) and the cluster's start is not counted.
+   scheduler and the store writes ("client"). One cluster at a time; the workers are warm
+   (model built, library compiled) and the cluster's start is not counted. The client's
+   CPU while idle (per second of wall time: Dask's periodic work) is printed too.
 """
 
 from __future__ import annotations
@@ -105,6 +106,13 @@ def engine(study, client, tmp: Path, n: int) -> tuple[float, float]:
     return (own + workers) / n, own / n
 
 
+def idle(client, seconds: float = 3.0) -> float:
+    """CPU seconds per second of this process (client and scheduler) with nothing to do."""
+    tic, wall = time.process_time(), time.perf_counter()
+    time.sleep(seconds)
+    return (time.process_time() - tic) / (time.perf_counter() - wall)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=256)
@@ -113,26 +121,28 @@ def main() -> None:
     study = parse_study(STUDY.format(count=args.samples), "overhead.toml")
     evaluate_batch(study, [0])  # warm: compile (or load) radau, probe k_s and C_tube
     rows: dict[str, list] = {"bare": [], "evaluator": [], "1 worker": [], "2 workers": []}
-    load = [os.getloadavg()[0]]
-    with tempfile.TemporaryDirectory() as tmp, cluster_client(1) as one, cluster_client(2) as two:
-        for client in (one, two):
-            client.run(evaluate_batch, study, np.array([0]))  # every worker warm
+    load, idling = [os.getloadavg()[0]], []
+    with tempfile.TemporaryDirectory() as tmp:
         for _ in range(args.rounds):
             rows["bare"].append((bare(study), 0.0))
             rows["evaluator"].append((evaluator(study, args.samples), 0.0))
-            rows["1 worker"].append(engine(study, one, Path(tmp), args.samples))
-            rows["2 workers"].append(engine(study, two, Path(tmp), args.samples))
+            for workers, name in ((1, "1 worker"), (2, "2 workers")):
+                with cluster_client(workers) as client:  # one cluster at a time
+                    client.run(evaluate_batch, study, np.array([0]))  # every worker warm
+                    rows[name].append(engine(study, client, Path(tmp), args.samples))
+                    idling.append(idle(client))
             load.append(os.getloadavg()[0])
     m = statistics.median
-    ref = m(r[0] for r in rows["bare"])
+    ref, own = m(r[0] for r in rows["bare"]), m(r[0] for r in rows["evaluator"])
     print(f"load average (1 min) over the rounds: {min(load):.1f}-{max(load):.1f}")
+    print(f"client process idle: {m(idling) * 1e3:.1f} ms CPU per second of wall time")
     for name, got in rows.items():
-        cpu, own = m(r[0] for r in got), m(r[1] for r in got)
+        cpu, client = m(r[0] for r in got), m(r[1] for r in got)
         spread = f"{min(r[0] for r in got) * 1e3:.2f}-{max(r[0] for r in got) * 1e3:.2f}"
-        client = f", client {own * 1e3:.2f} ms" if own else ""
+        share = f", client {client * 1e3:.2f} ms" if client else ""
         print(
-            f"{name}: {cpu * 1e3:.2f} ms CPU per sample ({spread}), "
-            f"{(cpu / ref - 1) * 100:+.1f} % against bare{client}"
+            f"{name}: {cpu * 1e3:.2f} ms CPU per sample ({spread}), {(cpu / ref - 1) * 100:+.1f} % "
+            f"against bare, {(cpu / own - 1) * 100:+.1f} % against the evaluator{share}"
         )
 
 

@@ -9,7 +9,8 @@ Each round runs one fresh process per interpreter (this one first, then each
 ``--python``, interleaved round by round) that makes a store of ``--chunks`` chunks of 32
 samples (6 metrics; with ``--series``, 2 series of 101 points too) and writes every
 chunk: CPU time of the process (``time.process_time``: all its threads, Zarr's event
-loop included) and wall time per chunk. Medians over the rounds.
+loop included) and wall time per chunk. Medians over the rounds, and the median over the
+rounds of each interpreter's CPU time divided by this one's in the same round.
 """
 
 from __future__ import annotations
@@ -85,10 +86,13 @@ def main() -> None:
             done = subprocess.run(cmd + ["--series"] * args.series, capture_output=True)
             runs[python].append(json.loads(done.stdout.decode().splitlines()[-1]))
     m = statistics.median
+    first = [r["cpu_ms"] for r in runs[sys.executable]]
     for python, rows in runs.items():
         cpu, wall = [r["cpu_ms"] for r in rows], [r["wall_ms"] for r in rows]
+        ratio = m(c / f for c, f in zip(cpu, first, strict=True))  # paired by round
         print(
             f"{python}: CPU {m(cpu):.2f} ms per chunk ({min(cpu):.2f}-{max(cpu):.2f}), "
+            f"{ratio:.2f}x this one's in the same rounds; "
             f"wall {m(wall):.2f} ms ({min(wall):.2f}-{max(wall):.2f})"
         )
 

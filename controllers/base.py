@@ -73,13 +73,13 @@ class Controller(ABC):
         u_min: Mapping[str, float],
         u_max: Mapping[str, float],
     ) -> None:
-        if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
+        if not (finite(dt) and dt > 0):
             raise ParameterError(f"{self.slug}.dt", dt, "(0, inf) s")
         self.dt = float(dt)
         self.inputs, self.outputs = list(inputs), list(outputs)
         for name in self.inputs:
             lo, hi = u_min.get(name), u_max.get(name)
-            if not (_finite(lo) and _finite(hi) and lo < hi):
+            if not (finite(lo) and finite(hi) and lo < hi):
                 raise ParameterError(
                     f"{self.slug}.u_bounds.{name}", (lo, hi), "finite low < high [SI]"
                 )
@@ -112,24 +112,32 @@ class Controller(ABC):
                 f"{self.slug}.parameters", sorted(values), "none: no run-time parameters"
             )
 
+    preview: int = 0
+    """Samples of the reference ahead a controller without its own preview handling takes
+    (a PID's or LQI's ``preview`` setting; 0: ``r(t)`` only)."""
+
+    ahead: tuple[float, ...] = ()
+    """The reference ahead handed over by the last :meth:`set_preview` [SI]."""
+
     @property
     def preview_samples(self) -> int:
-        """How many samples of the reference ahead :meth:`set_preview` takes (0 here: the
-        controller sees ``r(t)`` only; the MPCs take one per node of their horizon)."""
-        return 0
+        """How many samples of the reference ahead :meth:`set_preview` takes (:attr:`preview`
+        here; the MPCs take one per node of their horizon)."""
+        return self.preview
 
     def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
         """The reference ahead for the next :meth:`update` only: by tracked signal, its
         values [SI] at ``t + dt, ..., t + preview_samples dt`` (the loop calls it before
-        every update when the reference is known ahead).
+        every update when the reference is known ahead); kept in :attr:`ahead`.
 
         Raises
         ------
         ParameterError
-            Here for any values: this controller takes no preview.
+            For a controller that takes no preview, or values of more than one signal.
         """
-        if values:
+        if values and (not self.preview or len(values) != 1):
             raise ParameterError(f"{self.slug}.preview", sorted(values), "none: no preview")
+        self.ahead = tuple(float(v) for v in next(iter(values.values()), ()))[: self.preview]
 
     @abstractmethod
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
@@ -150,12 +158,12 @@ class Controller(ABC):
             If the controller returned a missing, non-finite or out-of-bounds input.
         """
         for name in self.outputs:
-            if not _finite(y.get(name)):
+            if not finite(y.get(name)):
                 raise ParameterError(
                     f"{self.slug}.y.{name}", y.get(name), f"a finite measurement at t = {t:g} s"
                 )
         for name, value in r.items():
-            if not _finite(value):
+            if not finite(value):
                 raise ParameterError(
                     f"{self.slug}.r.{name}", value, f"a finite reference at t = {t:g} s"
                 )
@@ -172,7 +180,7 @@ class Controller(ABC):
         return u
 
 
-def _finite(value: object) -> bool:
+def finite(value: object) -> bool:
     """Whether ``value`` is a real, finite number (numpy scalars included, bools not)."""
     try:
         return not isinstance(value, bool) and math.isfinite(value)

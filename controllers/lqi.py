@@ -43,7 +43,7 @@ as above):
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import casadi as cs
@@ -59,6 +59,7 @@ from .base import Controller
 from .disturbance import StateDisturbanceFilter
 from .ekf import DEFAULT_STD, EKF, make_ekf
 from .linearize import linearize, operating_point
+from .receding import BufferedCall
 from .registry import (
     MAX_PREVIEW,
     check_input_bounds,
@@ -170,7 +171,7 @@ class LQI(Controller):
         self.preview_gains = _preview_gains(*aug, self.preview)[
             :, : model.nx + (self.Ku is not None)
         ]
-        self._ahead: list[float] = []
+        self.ahead = ()
         if feedforward not in FEEDFORWARDS:
             raise ParameterError("lqi.feedforward", feedforward, f"one of {FEEDFORWARDS}")
         self._grid = (
@@ -184,7 +185,7 @@ class LQI(Controller):
         self._extended = self.load is not None or self.preview > 0
         self.xi = 0.0
         self.u_last = self.u_op
-        self._laws: dict[bool, tuple] = {}
+        self._laws: dict[bool, BufferedCall] = {}
 
     def _load_feedforward(self, output_std: float | None) -> tuple:
         """What ``load_feedforward`` needs: the steady state's sensitivity to the load
@@ -222,16 +223,6 @@ class LQI(Controller):
             )
         return k, sx, su, own
 
-    @property
-    def preview_samples(self) -> int:
-        """The reference ahead the law takes (``preview``; 0: ``r(t)`` only)."""
-        return self.preview
-
-    def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
-        if self.preview == 0 or set(values) != {self.output}:
-            super().set_preview(values)
-        self._ahead = [float(v) for v in values[self.output]][: self.preview]
-
     def feedforward(self, y: Mapping[str, float], x: np.ndarray, dr: float) -> np.ndarray:
         """The law's ``ff`` this sample: the target's shift by the load estimate
         ``(dx_ss/dm, du_ss/dm) (m - m_op)``, and the preview's move ``-sum_j G_j w_j``
@@ -248,8 +239,8 @@ class LQI(Controller):
                 m = own.update(x, np.array([self.u_last]), y[self.output], p)
             self.load_estimate = m
             ff[:n], ff[n] = sx * (m - self.op.p[k]), su * (m - self.op.p[k])
-        if self.preview and self._ahead:
-            refs = [dr, *(a - self.y_op for a in self._ahead)]
+        if self.preview and self.ahead:
+            refs = [dr, *(a - self.y_op for a in self.ahead)]
             x_ss, u_ss = self._targets(len(refs))(np.array(refs)[None, :])
             z = np.vstack([np.array(x_ss, float), np.array(u_ss, float)])
             z = z[: self.preview_gains.shape[1]]
@@ -268,7 +259,7 @@ class LQI(Controller):
         super().reset(u0)
         self.xi = 0.0
         self.u_last = float(u0[self.input])
-        self._ahead = []
+        self.ahead = ()
         if self.estimator is not None:
             self.estimator.reset(self.x_op)
         if self.load is not None:
@@ -366,23 +357,16 @@ class LQI(Controller):
         """One sample of :meth:`law_function`: ``(xi, dx, dr, dy, u_prev[, ff]) -> (next
         xi, u)`` [SI]; ``ff`` (:meth:`feedforward`) for an LQI that uses one."""
         if linear not in self._laws:  # bound arrays (Function.buffer): ~1 us per call
-            f = self.law_function(linear, self._extended)
-            args = [np.zeros(f.nnz_in(i)) for i in range(f.n_in())]
-            res = [np.zeros(f.nnz_out(i)) for i in range(f.n_out())]
-            buf, trigger = f.buffer()
-            for i, a in enumerate(args):
-                buf.set_arg(i, memoryview(a))
-            for i, a in enumerate(res):
-                buf.set_res(i, memoryview(a))
-            args[5][:] = self.u_min[self.input], self.u_max[self.input], self.du_max
-            self._laws[linear] = (buf, trigger, args, res)
-        _, trigger, args, (r_xi, r_u) = self._laws[linear]
-        a_xi, a_dx, a_dr, a_dy, a_u = args[:5]
+            call = BufferedCall(self.law_function(linear, self._extended))
+            call.args[5][:] = self.u_min[self.input], self.u_max[self.input], self.du_max
+            self._laws[linear] = call
+        call = self._laws[linear]
+        a_xi, a_dx, a_dr, a_dy, a_u = call.args[:5]
         a_xi[0], a_dx[:], a_dr[0], a_dy[0], a_u[0] = xi, dx, dr, dy, u_prev
         if self._extended:
-            args[6][:] = ff
-        trigger()
-        return float(r_xi[0]), float(r_u[0])
+            call.args[6][:] = ff
+        call.trigger()
+        return float(call.res[0][0]), float(call.res[1][0])
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = self.state(y)

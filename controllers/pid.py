@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import astuple, dataclass
 
 import casadi as cs
@@ -48,13 +48,13 @@ from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
-from .base import Controller
+from .base import Controller, finite
 from .linearize import linearize
+from .receding import BufferedCall
 from .registry import (
     MAX_PREVIEW,
     count,
     max_step,
-    number,
     own_settings,
     positive,
     refuse_rate_limit,
@@ -141,7 +141,7 @@ class PID(Controller):
     ) -> None:
         super().__init__(dt, [input], [output], {input: u_min}, {input: u_max})
         self.preview = count("pid.preview", preview, 0, MAX_PREVIEW, "the MPCs' longest horizon")
-        self._ahead: list[float] = []
+        self.ahead = ()
         for key in ("kp", "ki", "kd"):
             if not math.isfinite(getattr(gains, key)):
                 raise ParameterError(f"pid.{key}", getattr(gains, key), "a finite number")
@@ -152,21 +152,13 @@ class PID(Controller):
         self.du_max = max_step("pid", rate_max, self.dt, u_min, u_max)
         self.bias = self.u_prev = 0.0
         self._state = np.zeros(len(STATE_NAMES))
-        # pid_law on bound arrays (Function.buffer): about 1 us per call instead of ~60 us
-        law = pid_law(self.dt)
-        self._args = [np.zeros(law.nnz_in(i)) for i in range(law.n_in())]
-        self._res = [np.zeros(law.nnz_out(i)) for i in range(law.n_out())]
-        self._buffer, self._trigger = law.buffer()
-        for i, a in enumerate(self._args):
-            self._buffer.set_arg(i, memoryview(a))
-        for i, a in enumerate(self._res):
-            self._buffer.set_res(i, memoryview(a))
-        self._args[4][:] = self.law_parameters(0.0)  # gains and bounds; the bias (last) per call
+        self._law = BufferedCall(pid_law(self.dt))  # bound arrays: ~1 us per call, not ~60
+        self._law.args[4][:] = self.law_parameters(0.0)  # the bias (last) set per call
 
     def reset(self, u0: Mapping[str, float]) -> None:
         """Start from the held input ``u0`` (the bias), integral and derivative zero."""
         super().reset(u0)
-        self._ahead = []
+        self.ahead = ()
         self.bias = self.u_prev = float(u0[self.input])
         self._state = np.zeros(len(STATE_NAMES))
 
@@ -181,26 +173,16 @@ class PID(Controller):
         """One sample of :func:`pid_law`: ``(state, r, y, u_prev, bias) -> (next state,
         u)``; ``state`` as :data:`STATE_NAMES` (zeros before the first sample), ``u_prev``
         the command held before the sample."""
-        x, r_in, y_in, u_in, g = self._args
+        x, r_in, y_in, u_in, g = self._law.args
         x[:], r_in[0], y_in[0], u_in[0], g[-1] = state, r, y, u_prev, bias
-        self._trigger()
-        return self._res[0].copy(), float(self._res[1][0])
-
-    @property
-    def preview_samples(self) -> int:
-        """The reference ahead the PID takes (``preview``; 0: ``r(t)`` only)."""
-        return self.preview
-
-    def set_preview(self, values: Mapping[str, Sequence[float]]) -> None:
-        if self.preview == 0 or set(values) != {self.output}:
-            super().set_preview(values)
-        self._ahead = [float(v) for v in values[self.output]][: self.preview]
+        self._law.trigger()
+        return self._law.res[0].copy(), float(self._law.res[1][0])
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         y_now = y[self.output]
         # with preview, the reference the plant's lag ahead (the last one handed over)
-        r_now = self._ahead[-1] if self._ahead else r[self.output]
-        self._ahead = []
+        r_now = self.ahead[-1] if self.ahead else r[self.output]
+        self.ahead = ()
         self._state, u = self.law(self._state, r_now, y_now, self.u_prev, self.bias)
         self.u_prev = u
         return {self.input: u}
@@ -263,7 +245,7 @@ def make_pid(model: Model, op: Equilibrium, dt: float, settings: dict) -> PID:
     defaults = {"kp": None, "ki": None, "kd": 0.0, "closed_loop_s": 0.15, "tf": 0.02}
     own = own_settings("pid", settings, {**defaults, "tt": None, "rate_max": None, "preview": 0})
     for key in ("kp", "ki", "tt"):
-        if own[key] is not None and not number(own[key]):
+        if own[key] is not None and not finite(own[key]):
             raise ParameterError(f"pid.{key}", own[key], "a finite number, or None")
     out, inp = settings["output"], settings["input"]
     kp, ki = own["kp"], own["ki"]

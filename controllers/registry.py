@@ -26,7 +26,7 @@ from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError, SarcomereError
 from sarcomere.dynamics.modeling.model import Model
 
-from .base import Controller
+from .base import Controller, finite
 from .linearize import linearize
 
 Factory = Callable[[Model, Equilibrium, float, dict], Controller]
@@ -106,11 +106,7 @@ def check_input_bounds(
     u_op = float(op.u[model.input_names.index(name)])
     lo, hi = settings["u_min"], settings["u_max"]
     for key, value in (("u_min", lo), ("u_max", hi)):
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, int | float)
-            or not math.isfinite(value)
-        ):
+        if not finite(value):
             raise ParameterError(f"{slug}.{key}", value, f"a finite number [{unit}]")
     low, high = var.low, var.high
     if not low <= lo <= u_op:
@@ -147,7 +143,7 @@ def check_sample_time(slug: str, model: Model, op: Equilibrium, dt: float) -> No
     ParameterError
         Naming ``<slug>.dt``, the value and the range.
     """
-    if not (isinstance(dt, int | float) and math.isfinite(dt)):
+    if not finite(dt):
         raise ParameterError(f"{slug}.dt", dt, "a finite sample time [s]")
     poles = np.linalg.eigvals(linearize(model, op, []).A)
     slowest = float(np.min(np.abs(poles.real))) if len(poles) else 0.0
@@ -234,18 +230,9 @@ def _kind(default: object) -> str | None:
 def _is(value: object, kind: str) -> bool:
     """Whether ``value`` is of ``kind`` (:data:`KINDS`)."""
     if kind == "number":
-        return number(value)
+        return finite(value)
     types = {"text": str, "bool": bool, "table": Mapping, "list": list | tuple}
     return isinstance(value, types[kind])
-
-
-def number(value: object) -> bool:
-    """Whether ``value`` is a finite real number (numpy scalars included, bools not)."""
-    return (
-        isinstance(value, int | float | np.integer | np.floating)
-        and not isinstance(value, bool)
-        and math.isfinite(value)
-    )
 
 
 def max_step(slug: str, rate_max: object, dt: float, u_min: float, u_max: float) -> float:
@@ -293,7 +280,6 @@ def count(name: str, value: object, low: int, high: int, why: str = "") -> int:
 
 def positive(slug: str, key: str, value: object, allow_zero: bool = False) -> float:
     """``value`` as a float > 0 (or >= 0), else a ParameterError naming ``<slug>.<key>``."""
-    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-    if not ok or not (value >= 0 if allow_zero else value > 0):
+    if not finite(value) or not (value >= 0 if allow_zero else value > 0):
         raise ParameterError(f"{slug}.{key}", value, "[0, inf)" if allow_zero else "(0, inf)")
     return float(value)

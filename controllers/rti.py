@@ -95,7 +95,8 @@ class Prediction:
         self.f = cs.Function("f", [xi, cs.vertcat(v, p)], [ode])
         sig = m.signals_function([s.output, *self.bounded])(x, cs.SX(0, 1), u, pm)
         self.y = cs.Function("y", [xi, p], [sig[0] + d_out])
-        T = sig[1:] - s.backoff * p[n_model + 2 :] if self.backoffs else sig[1:]
+        T = sig[1:] if self.bounded else cs.SX(0, 1)
+        T = T - s.backoff * p[n_model + 2 :] if self.backoffs else T
         self.T = cs.Function("T", [xi, p], [T])
         self.res = radau_residual(self.f, self.nx, self.nu + self.np, s.degree)
         self.dt, self.s = dt, s
@@ -411,7 +412,7 @@ class RealTimeIteration:
         dv = s.rate_max * pb.dt / pb.us[0]
         C = _cumulative(N, nu)
         # rows: the input bounds (C dm), then the bounded signals; variable bounds: the rates
-        T_low = cs.repmat(cs.DM(pb.low), N, 1) - D["tb0"] - et_a
+        T_low = cs.repmat(cs.DM(pb.low.reshape(-1, 1)), N, 1) - D["tb0"] - et_a
         lba = cs.vertcat(s.u_min / pb.us[0] - D["Ub"], T_low)
         uba = cs.vertcat(s.u_max / pb.us[0] - D["Ub"], cs.DM.inf(nT * N))
         lbx, ubx = rate - dv, rate + dv

@@ -54,7 +54,13 @@ from .components.aps import APSParams
 from .equilibrium import solve_equilibrium
 from .errors import ParameterError, SolverError
 from .modeling.model import Model
-from .newton import NewtonFailure, damped_newton
+from .newton import (
+    ContinuationFailure,
+    NewtonFailure,
+    NewtonResult,
+    continuation,
+    damped_newton,
+)
 
 P_TEST = 1.0e5  # Pa, the paper's maximum test pressure (0.1 MPa)
 
@@ -348,53 +354,51 @@ MIN_STEP = 1.0 / 1024
 
 
 def _continuation(system: _System, verbose: bool) -> tuple[np.ndarray, _Path]:
-    """Move the targets from ``system.t0`` to ``system.goal`` in steps (the first tries
-    the whole way), each solved by :func:`_newton` from the last solution; a step that
-    fails is halved, a step that succeeds doubles the next."""
-    t_final = system.goal
-    v, frac, step, path = system.v0, 0.0, 1.0, _Path()
-    while frac < 1.0:
-        nxt = min(1.0, frac + step)
-        goal = system.t0 + nxt * (t_final - system.t0)
-        v_new, its, res = _newton(system, v, goal)
-        path.iterations += its
+    """Move the targets from ``system.t0`` to ``system.goal`` (:func:`.newton.continuation`),
+    each step solved by :func:`_newton` from the last solution."""
+    path = _Path()
+
+    def advance(v: np.ndarray, frac: float) -> np.ndarray:
+        try:
+            sol = _newton(system, v, system.t0 + frac * (system.goal - system.t0))
+        except NewtonFailure as failure:
+            sol = failure
+        path.iterations += sol.iterations
+        failed = isinstance(sol, NewtonFailure)
         if verbose:
             print(
-                f"calibration: targets at {100 * nxt:5.1f} %: {its:2d} Newton iterations, "
-                f"scaled residual {res:.2e}" + ("" if v_new is not None else " (halving)")
+                f"calibration: targets at {100 * frac:5.1f} %: {sol.iterations:2d} Newton "
+                f"iterations, scaled residual {sol.residual:.2e}" + (" (halving)" * failed)
             )
-        if v_new is None:
-            step /= 2
-            if step < MIN_STEP:
-                raise SolverError(
-                    f"calibration failed: Newton did not converge (scaled residual {res:.3g} "
-                    f"after {its} iterations); the continuation reached {100 * frac:.3g} % "
-                    f"of the way from the start's targets to the paper's"
-                )
-            continue
-        v, frac, step = v_new, nxt, min(1.0, 2 * step)
-        path.steps += 1
-        path.residual = res
-    return v, path
+        if failed:
+            raise sol
+        path.steps, path.residual = path.steps + 1, sol.residual
+        return sol.x
+
+    try:
+        return continuation(advance, system.v0, MIN_STEP), path
+    except ContinuationFailure as stop:
+        f = stop.failure
+        raise SolverError(
+            f"calibration failed: Newton did not converge (scaled residual {f.residual:.3g} "
+            f"after {f.iterations} iterations); the continuation reached "
+            f"{100 * stop.fraction:.3g} % of the way from the start's targets to the paper's"
+        ) from None
 
 
-def _newton(system: _System, v: np.ndarray, goal: np.ndarray):
+def _newton(system: _System, v: np.ndarray, goal: np.ndarray) -> NewtonResult:
     """Damped Newton (:func:`.newton.damped_newton`) on ``R(v, goal) = 0``: backtracking
     on ``|R|_2`` (a trial point with a non-finite residual or Jacobian counts as worse);
     converged at ``max |R| <= NEWTON_TOL``, or stalled (no more progress) at
-    ``max |R| <= STALL_TOL``. Returns (solution or None, iterations, scaled residual)."""
+    ``max |R| <= STALL_TOL``; raises :class:`.newton.NewtonFailure` otherwise."""
 
     def fun(x):
         R, J = system.residual(x, goal)
         return np.array(R).ravel(), np.array(J)
 
-    try:
-        sol = damped_newton(
-            fun, v, tol=NEWTON_TOL, max_iter=MAX_NEWTON, merit_norm=None, stall_tol=STALL_TOL
-        )
-    except NewtonFailure as f:
-        return None, f.iterations, f.residual
-    return sol.x, sol.iterations, sol.residual
+    return damped_newton(
+        fun, v, tol=NEWTON_TOL, max_iter=MAX_NEWTON, merit_norm=None, stall_tol=STALL_TOL
+    )
 
 
 def sensitivities(p: APSParams, rel_step: float = 1e-4) -> tuple[dict, list[float], list[str]]:

@@ -26,7 +26,14 @@ import scipy.sparse as sp
 from .errors import ParameterError, SolverError
 from .modeling.buffered import BufferedCall
 from .modeling.model import Model
-from .newton import NewtonFailure, damped_newton, row_weights
+from .newton import (
+    ContinuationFailure,
+    NewtonFailure,
+    NewtonResult,
+    continuation,
+    damped_newton,
+    row_weights,
+)
 from .units import to_si
 
 _ARGS = ["x", "z", "u", "p"]
@@ -185,27 +192,24 @@ def solve_equilibrium(
     else:
         w = np.concatenate([guess.x, guess.z])
         u_start, p_start = guess.u, guess.p
-    frac, step = 0.0, 1.0
-    last = (np.inf, 0, "not started")
-    while frac < 1.0:
-        nxt = min(1.0, frac + step)
-        u = u_start + nxt * (u_target - u_start)
-        p = p_start + nxt * (p_target - p_start)
-        try:
-            sol = newton.solve(w, u, p, tol, max_iter)
-            _check_domain(newton, sol.x, u, p)
-        except NewtonFailure as f:
-            last = (f.residual, f.iterations, f.why)
-            step /= 2
-            if step < min_fraction_step:
-                raise SolverError(
-                    f"equilibrium of '{m.name}' not found: {last[2]} (scaled residual "
-                    f"{last[0]:.3g} after {last[1]} Newton iterations); continuation reached "
-                    f"{100 * frac:.3g} % of the way to the target inputs/parameters"
-                ) from None
-            continue
-        w, frac, step = sol.x, nxt, min(1.0, step * 2)
-        last = (sol.residual, sol.iterations, "ok")
+
+    def advance(last: NewtonResult, frac: float) -> NewtonResult:
+        u = u_start + frac * (u_target - u_start)
+        p = p_start + frac * (p_target - p_start)
+        found = newton.solve(last.x, u, p, tol, max_iter)
+        _check_domain(newton, found.x, u, p)
+        return found
+
+    try:
+        sol = continuation(advance, NewtonResult(w, np.inf, 0), min_fraction_step)
+    except ContinuationFailure as stop:
+        f = stop.failure
+        raise SolverError(
+            f"equilibrium of '{m.name}' not found: {f.why} (scaled residual {f.residual:.3g} "
+            f"after {f.iterations} Newton iterations); continuation reached "
+            f"{100 * stop.fraction:.3g} % of the way to the target inputs/parameters"
+        ) from None
+    w = sol.x
     x, z = w[: m.nx], w[m.nx :]
     vals = np.array(newton.sig(x, z, u_target, p_target)).ravel()
     signals = dict(zip(m.signal_names, vals.tolist(), strict=True))
@@ -215,8 +219,8 @@ def solve_equilibrium(
         u_target,
         p_target,
         signals,
-        float(last[0]),
-        int(last[1]),
+        sol.residual,
+        sol.iterations,
     )
 
 

@@ -1,7 +1,7 @@
-"""Damped Newton's method on a square system ``r(x) = 0``: the one home of the Newton
-iteration of the equilibrium (:mod:`.equilibrium`, which adds continuation, domain checks
-and settling on top), the calibration (:mod:`.calibration`) and the MPC target
-calculation (``controllers/target.py``).
+"""Damped Newton's method on a square system ``r(x) = 0``, and the continuation around
+it: the one home of the Newton iteration of the equilibrium (:mod:`.equilibrium`, which
+adds domain checks and settling on top), the calibration (:mod:`.calibration`) and the
+MPC target calculation (``controllers/target.py``).
 
 Each iteration solves ``J dx = -r`` (``scipy.sparse`` or dense ``J``) and backtracks:
 the step ``alpha dx`` is halved until the merit ``|w r|`` (``w``: row weights from the
@@ -114,6 +114,34 @@ def damped_newton(
             return NewtonResult(x, norm, it, stalled=True)
         raise stall
     raise AssertionError("unreachable")  # pragma: no cover
+
+
+class ContinuationFailure(Exception):
+    """A continuation stopped: the fraction of the way reached and the last failure."""
+
+    def __init__(self, fraction: float, failure: NewtonFailure) -> None:
+        super().__init__(failure.why)
+        self.fraction, self.failure = fraction, failure
+
+
+def continuation(advance: Callable[[object, float], object], start: object, min_step: float):
+    """Follow a path from fraction 0 to 1: ``advance(solution, fraction)`` solves at
+    ``fraction`` from the last solution (raising :class:`NewtonFailure` where it cannot).
+    The first step tries the whole way; a failed step is halved, an accepted one doubles
+    the next. Returns the solution at 1; raises :class:`ContinuationFailure` once the step
+    falls below ``min_step``."""
+    solution, frac, step = start, 0.0, 1.0
+    while frac < 1.0:
+        nxt = min(1.0, frac + step)
+        try:
+            solution = advance(solution, nxt)
+        except NewtonFailure as failure:
+            step /= 2
+            if step < min_step:
+                raise ContinuationFailure(frac, failure) from None
+            continue
+        frac, step = nxt, min(1.0, 2 * step)
+    return solution
 
 
 def row_weights(J, scale: np.ndarray) -> np.ndarray:

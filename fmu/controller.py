@@ -209,6 +209,8 @@ def nmpc_system(nmpc: NonlinearMPC, model: Model, bias: float, name: str = "nmpc
         )
     uname = _exportable("nmpc", nmpc, model)
     s, pred = nmpc.settings, nmpc.model
+    if s.backoff:  # fed by an EKF, which is not exported
+        raise ParameterError("nmpc.backoff", s.backoff, "0 (no estimator in the FMU)")
     if s.linear_solver not in GENERATED_SOLVERS:  # LAPACK's are calls, not generated C
         raise ParameterError(
             "nmpc.linear_solver",

@@ -322,7 +322,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
             controller = make_controller(slug, model, op, dt, task)
         except ParameterError as exc:
             raise sc.error(_blamed(exc.name, slug, path), describe(exc)) from None
-        step_next = next(e for e in changes if e > t_step)
+        step_next = next((e for e in changes if e > t_step), stop)
         try:
             run = run_closed_loop(
                 model,

@@ -42,7 +42,7 @@ from sarcomere.fmu.export import FMI_VERSIONS, export_fmu
 from sarcomere.fmu.participants import FmuParticipant
 
 from .binding import scene_inputs
-from .cosim_system import run_system
+from .cosim_system import choice, run_system
 from .export_fmu import scenario_setup
 from .output import RunOutput
 from .runner import register_runner
@@ -52,13 +52,6 @@ from .transient import run_transient
 KEYS = ("fmu", "fmi", "ordering", "inputs")
 NAME = "muscle"
 """The FMU's participant name."""
-
-
-def _choice(sc: Scenario, key: str, choices: tuple, default):
-    value = sc.cosim.get(key, default)
-    if value not in choices:
-        raise sc.error(("cosim", key), f"{value!r}: one of {', '.join(map(str, choices))}")
-    return value
 
 
 PARAM_RTOL = 1e-12
@@ -137,9 +130,9 @@ def run_cosim(sc: Scenario, out_dir: Path) -> RunOutput:
     for key in sc.cosim:
         if key not in KEYS:
             raise sc.error(("cosim", key), unknown_key(key, KEYS))
-    fmi = _choice(sc, "fmi", FMI_VERSIONS, 2)
-    ordering = _choice(sc, "ordering", ORDERINGS, "jacobi")
-    law = _choice(sc, "inputs", INPUT_LAWS, "hold")
+    fmi = choice(sc, sc.cosim, ("cosim",), "fmi", FMI_VERSIONS, 2)
+    ordering = choice(sc, sc.cosim, ("cosim",), "ordering", ORDERINGS, "jacobi")
+    law = choice(sc, sc.cosim, ("cosim",), "inputs", INPUT_LAWS, "hold")
     transient = dataclasses.replace(sc, kind="transient", cosim={})
     model, params, start, experiment = scenario_setup(transient)
     p = model.parameters(params)

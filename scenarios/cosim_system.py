@@ -123,7 +123,8 @@ def _quantity(sc: Scenario, value, path: tuple, unit: str, low: float | None = N
     return v
 
 
-def _choice(sc: Scenario, tbl: Mapping, path: tuple, key: str, choices: tuple, default):
+def choice(sc: Scenario, tbl: Mapping, path: tuple, key: str, choices: tuple, default):
+    """``tbl[key]`` (at ``path``), one of ``choices``, else ``default``; refused naming the key."""
     value = tbl.get(key, default)
     if value not in choices:
         raise sc.error((*path, key), f"{value!r}: one of {', '.join(map(str, choices))}")
@@ -172,7 +173,7 @@ def _build(sc: Scenario, part: Part) -> None:
         n = spec.get("n", 3)
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise sc.error((*path, "n"), f"expected an integer >= 1, got {n!r}")
-        fidelity = _choice(sc, spec, path, "fidelity", FIDELITIES, "full")
+        fidelity = choice(sc, spec, path, "fidelity", FIDELITIES, "full")
         try:
             part.model = force_driven(n, fidelity=fidelity)
         except ParameterError as exc:
@@ -186,7 +187,7 @@ def _build(sc: Scenario, part: Part) -> None:
             part.model = spring_mass_load(**kw)
         except ParameterError as exc:
             raise sc.error((*path, exc.name), describe(exc)) from None
-    part.native = _choice(sc, spec, path, "as", ("fmu", "native"), "fmu") == "native"
+    part.native = choice(sc, spec, path, "as", ("fmu", "native"), "fmu") == "native"
     part.start = _start(sc, part, path)
 
 
@@ -332,7 +333,7 @@ def _export(sc: Scenario, part: Part, folder: Path, stop_time: float) -> None:
     if part.kind == "fmu":
         part.fmu = sc.base_dir / str(part.spec["fmu"])
         return
-    fmi = _choice(sc, part.spec, path, "fmi", FMI_VERSIONS, 2)
+    fmi = choice(sc, part.spec, path, "fmi", FMI_VERSIONS, 2)
     out = folder / f"{part.name}.fmu"
     if part.kind == "scene":
         scene = str(part.spec["scene"])  # a file next to the scene, or a packaged name
@@ -469,8 +470,8 @@ def run_system(sc: Scenario, out_dir: Path) -> RunOutput:
     if sim is None or not sim.output_interval:
         raise sc.error(("simulation",), "needs stop_time and output_interval (the step)")
     step = sim.output_interval
-    ordering = _choice(sc, sc.cosim, ("cosim",), "ordering", ORDERINGS, "jacobi")
-    law = _choice(sc, sc.cosim, ("cosim",), "inputs", INPUT_LAWS, "hold")
+    ordering = choice(sc, sc.cosim, ("cosim",), "ordering", ORDERINGS, "jacobi")
+    law = choice(sc, sc.cosim, ("cosim",), "inputs", INPUT_LAWS, "hold")
     compare = sc.cosim.get("compare")
     if compare is not None and compare not in COMPARE:
         raise sc.error(("cosim", "compare"), f"{compare!r}: one of {', '.join(COMPARE)}")

@@ -51,7 +51,9 @@ def test_preview_term_is_the_first_move_of_the_lq_problem_with_known_targets(pla
     for k in range(H):
         for i in range(k + 1):
             Phi[k * na : (k + 1) * na, i] = blocks[k - i][:, 0]
-    weights = [sla.sqrtm(Q).real] * (H - 1) + [sla.cholesky(S)]
+    root = sla.block_diag(np.sqrt(w.q_y) / w.y_scale * d.C, [[np.sqrt(w.q_i) / w.y_scale]])
+    np.testing.assert_allclose(root.T @ root, Q)  # a factor of the stage weight
+    weights = [root] * (H - 1) + [sla.cholesky(S)]
     Wq = sla.block_diag(*weights)
     lhs = np.vstack([Wq @ Phi, np.sqrt(R[0, 0]) * np.eye(H)])
     rhs = np.concatenate([-Wq @ off, np.zeros(H)])

@@ -369,3 +369,15 @@ def test_on_an_ekf_the_bounds_are_raised_by_the_estimates_standard_deviation():
     plain = make_controller("nmpc", plant, eq, 0.01, TASK)
     assert plain.settings.backoff == 0.0 and plain.uncertain_signals == []
     assert not any(n.startswith("backoff.") for n in plain.runtime_parameters)
+
+
+def test_an_nmpc_without_bounds_on_signals_moves_as_with_inactive_ones(prediction):
+    """``soft_min = ()`` (no bound rows in the QP at all) gives the command of the default
+    thread-tension bounds at 0 N, which are far from active here."""
+    model, eq = prediction
+    y = {n: eq[n] for n in NonlinearMPC(model, eq.u, 0.01).outputs}
+    u = [
+        NonlinearMPC(model, eq.u, 0.01, NMPCSettings(soft_min=s)).checked(0.0, y, {L: eq[L] - 1e-4})
+        for s in ((), NMPCSettings().soft_min)
+    ]
+    assert u[0][P] > 5e4 + 100 and u[0][P] == pytest.approx(u[1][P], rel=1e-9)

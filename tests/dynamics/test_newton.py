@@ -89,3 +89,22 @@ def test_equilibrium_calibration_and_target_use_the_one_newton(calls):
     assert calls.pop(target.__name__) == 1
     calibration.fit(APSParams.from_paper())
     assert calls.pop(calibration.__name__) >= 1
+
+
+def test_continuation_halves_a_failed_step_and_says_how_far_it_got():
+    """Steps beyond 0.3 fail: the path is 1 (fails), 0.5 (fails), 0.25 (the next step
+    doubled), 0.75 (fails), 0.5 (fails), ...; below the smallest step it stops, naming
+    the fraction reached."""
+    tried = []
+
+    def advance(x, frac):
+        tried.append(frac)
+        if frac > 0.3:
+            raise NewtonFailure("too far", 1.0, 3)
+        return frac
+
+    with pytest.raises(newton.ContinuationFailure) as stop:
+        newton.continuation(advance, 0.0, min_step=0.01)
+    assert tried[:5] == [1.0, 0.5, 0.25, 0.75, 0.5] and 0.29 < stop.value.fraction <= 0.3
+    assert stop.value.failure.why == "too far"
+    assert newton.continuation(lambda x, frac: frac, 0.0, min_step=0.01) == 1.0

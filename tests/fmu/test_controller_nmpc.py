@@ -193,6 +193,9 @@ def test_controllers_without_an_exported_law_are_refused(plant, tmp_path):
     qpoases = NonlinearMPC(pred, op.u, DT, NMPCSettings(horizon=10, qp_solver="qpoases"))
     with pytest.raises(ParameterError, match="nmpc.qp_solver.*C code generation"):
         export_controller_fmu(qpoases, m, tmp_path / "x.fmu", U0)
+    backoff = NonlinearMPC(pred, op.u, DT, NMPCSettings(horizon=10, backoff=1.0))
+    with pytest.raises(ParameterError, match="nmpc.backoff"):
+        export_controller_fmu(backoff, m, tmp_path / "x.fmu", U0)
     lapack = NonlinearMPC(pred, op.u, DT, NMPCSettings(horizon=10, linear_solver="lapacklu"))
     with pytest.raises(ParameterError, match="nmpc.linear_solver.*'qr'"):
         export_controller_fmu(lapack, m, tmp_path / "x.fmu", U0)

@@ -350,3 +350,24 @@ def test_linearize_takes_an_auto_scene_at_full(tmp_path, capsys) -> None:
     assert main(["linearize", "step-50g-auto", "--out", str(out)]) == 0
     assert json.loads((out / "summary.json").read_text())["fidelity"] == "full"
     assert "load (load.s)" in capsys.readouterr().out
+
+
+@pytest.mark.slow  # end to end or compiles: the full suite (CI) runs it
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["run", "step-50g", "--quiet"],
+        ["run", "vent-0g", "--quiet"],
+        ["linearize", "control-length"],
+        ["calibrate"],
+    ],
+)
+def test_a_cli_run_raises_no_numpy_warning(tmp_path, capsys, argv) -> None:
+    """Issue 24 saw numpy warnings on the console: a run, a linearisation and the
+    calibration give none (every packaged scene and bench --quick were checked by hand)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert main([*argv, "--out", str(tmp_path / "o")]) == 0
+    assert "Warning" not in capsys.readouterr().err

@@ -18,6 +18,7 @@ from sarcomere.scenarios.loader import (
     packaged_scenarios,
     parse_scenario,
     resolve_scenario,
+    scenario_from_dict,
 )
 from sarcomere.scenarios.signals import Staircase, Step, Table
 
@@ -471,3 +472,16 @@ def test_an_input_in_any_pressure_unit_is_taken_to_pa(tmp_path: Path, unit: str)
     step = sc.inputs["pressure"]
     assert step.unit == "Pa"
     assert step.final == pytest.approx(to_si(f"2 {unit}", "Pa"), rel=1e-12)
+
+
+def test_a_parsed_dict_is_checked_as_its_text_is():
+    """A study merges its base with its own tables as dicts and hands the result over (no
+    TOML text written and parsed again)."""
+    import tomllib
+
+    text = packaged_scenarios()["step-50g"].read_text(encoding="utf-8")
+    data = tomllib.loads(text)
+    assert scenario_from_dict(data, "s.toml") == parse_scenario(text, "s.toml")
+    data["model"]["fidelity"] = "ful"
+    with pytest.raises(ScenarioError, match="s.toml: key 'model.fidelity': 'ful' is not one"):
+        scenario_from_dict(data, "s.toml")
