@@ -52,6 +52,7 @@ import numpy as np
 
 from sarcomere.dynamics.equilibrium import Equilibrium, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.buffered import BufferedCall
 from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
@@ -59,7 +60,6 @@ from .base import Controller
 from .disturbance import StateDisturbanceFilter
 from .ekf import DEFAULT_STD, EKF, make_ekf
 from .linearize import linearize, operating_point
-from .receding import BufferedCall
 from .registry import (
     MAX_PREVIEW,
     check_input_bounds,

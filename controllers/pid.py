@@ -45,12 +45,12 @@ import numpy as np
 
 from sarcomere.dynamics.equilibrium import Equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.dynamics.modeling.buffered import BufferedCall
 from sarcomere.dynamics.modeling.labels import to_label
 from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller, finite
 from .linearize import linearize
-from .receding import BufferedCall
 from .registry import (
     MAX_PREVIEW,
     count,

@@ -244,5 +244,5 @@ def test_an_implausible_load_or_aps_parameter_warns_from_python():
 def test_an_impossible_ambient_is_refused_naming_the_range(name):
     """Issue 24: `ambient.T = 0 K` passed."""
     model = hanging_load(1)
-    with pytest.raises(ParameterError, match=rf"'{name}' = 0.0 .*allowed: \[1e-12, inf\]"):
+    with pytest.raises(ParameterError, match=rf"'{name}' = 0.0 .*allowed: \[1e-12, inf\)"):
         model.parameters({name: 0.0})

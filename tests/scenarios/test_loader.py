@@ -444,7 +444,7 @@ def test_an_implausible_load_or_geometry_warns_naming_the_value(body, key, needl
 def test_a_scene_warns_once_at_its_key_not_again_from_the_set_up() -> None:
     """The scene and the Python set-ups share one plausibility rule; a scene's model
     build does not repeat the warning bind gave at the scene's key."""
-    from sarcomere.scenarios.dynamic import bind
+    from sarcomere.scenarios.binding import bind
 
     body = '[model.options]\nload = "2 kg"'
     with warnings.catch_warnings(record=True) as caught:
