@@ -101,9 +101,11 @@ def _equilibrium_case(sc, b: Binding, fid, pressures, n, load, prefix=""):
     for p in pressures:
         if not rng[0] <= p <= rng[1]:
             raise range_error(sc, ("sweep", "pressure"), float(p), rng)
-    if b.setup == "hanging":
-        over["load.m"] = model.variables["load.m"].value - b.load_kg + load
-    rest = _solve(sc, model, 0.0, {**over, **_no_load(model, b)}, None)
+    unloaded = dict(over)
+    if b.setup == "hanging":  # the end mass without the scene's load, then with this case's
+        unloaded["load.m"] = model.variables["load.m"].value - b.load_kg
+        over["load.m"] = unloaded["load.m"] + load
+    rest = _solve(sc, model, 0.0, unloaded, None)
     base = _solve(sc, model, 0.0, over, rest)
     rows, guess = [], base
     for p in pressures:
@@ -144,12 +146,6 @@ def _equilibrium_case(sc, b: Binding, fid, pressures, n, load, prefix=""):
         f"strain_{prefix}{grams}_{tag_p}": float((L[-1] - L0) / L00),
     }
     return f"{prefix}load_{grams}", res, mets
-
-
-def _no_load(model: Model, b: Binding) -> dict:
-    if b.setup != "hanging":
-        return {}
-    return {"load.m": model.variables["load.m"].value - b.load_kg}
 
 
 register_runner("equilibrium", run_equilibrium)
