@@ -9,7 +9,7 @@ command step (0.01 -> 0.08 MPa at 0.1 s, a communication point of every step stu
 at the communication points shared with the reference: the Gauss-Seidel, extrapolated run
 at a 0.125 ms step.
 
-**Two-way** (:mod:`sarcomere.scenarios.studies.cosim_coupling`, the set-ups of
+**Two-way** (``benchmarks/studies/cosim_coupling.py``, the set-ups of
 :mod:`sarcomere.dynamics.assemblies`): the muscle (1 APS, a 20 g hook) and a 50 g load on
 a spring, split into two native participants (the hook's position drives the spring, its
 tension pulls the hook), command 0.02 -> 0.08 MPa at 20 ms, 0.2 s. The error is
@@ -44,6 +44,7 @@ import matplotlib.ticker
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from studies import cosim_coupling as study  # noqa: E402
 
 from sarcomere.dynamics.assemblies import isometric  # noqa: E402
 from sarcomere.dynamics.simulation.settings import SolverSettings  # noqa: E402
@@ -55,7 +56,6 @@ from sarcomere.fmu import (  # noqa: E402
     export_fmu,
     open_fmu,
 )
-from sarcomere.scenarios.studies import cosim_coupling as study  # noqa: E402
 
 ORDERINGS = ("jacobi", "gauss-seidel")
 COMBOS = [(o, i) for o in ORDERINGS for i in ("hold", "extrapolate")]

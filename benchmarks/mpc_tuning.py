@@ -1,8 +1,8 @@
 """The MPCs' default weights by a stated criterion: a coarse grid on control-length and
 control-tension (BENCHMARKS.md, section "MPC tuning").
 
-The study itself is :mod:`sarcomere.scenarios.studies.mpc_tuning` (installed with the
-package). Usage::
+The study itself is ``benchmarks/studies/mpc_tuning.py`` (not installed with the package).
+Usage::
 
     OPENBLAS_NUM_THREADS=1 nice python benchmarks/mpc_tuning.py --out out/bench/mpc_tuning
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import sys
 
-from sarcomere.scenarios.studies.mpc_tuning import main
+from studies.mpc_tuning import main
 
 if __name__ == "__main__":
     sys.exit(main(sys.argv[1:]))

@@ -55,29 +55,30 @@ def run_equilibrium(sc: Scenario, out_dir: Path) -> RunOutput:
     if len(others) > 1 or (others and others[0].name not in ("n", "load")):
         raise sc.error(("sweep",), "at most one more axis, 'n' or 'load'")
     axis = others[0] if others else None
-    if axis is not None and axis.name == "n":
+    swept = axis.name if axis else None
+    if swept == "n":
         if ("model", "n") in sc.key_lines or sc.model.n != 1:
             raise sc.error(("model", "n"), "[sweep.n] sets n; remove it")
         for v in axis.values:
             check_n(sc, ("sweep", "n", "values"), v, fid)
-    if axis is not None and axis.name == "load" and b.setup == "isometric":
+    if swept == "load" and b.setup == "isometric":
         raise sc.error(("sweep", "load"), "the isometric set-up holds no load; sweep 'n' instead")
-    if axis is not None and axis.name == "load" and "load" in sc.model.options:
+    if swept == "load" and "load" in sc.model.options:
         raise sc.error(("model", "options", "load"), "[sweep.load] sets the load; remove it")
-    if axis is not None and axis.name == "load" and "load.m" in b.overrides:
+    if swept == "load" and "load.m" in b.overrides:
         raise sc.parameter_error("load.m", "[sweep.load] sets the load; remove it")
-    if axis is not None and axis.name == "load" and min(axis.values) < 0:
+    if swept == "load" and min(axis.values) < 0:
         bad = min(axis.values)
         raise sc.error(("sweep", "load", "values"), f"{bad * 1e3:g} g: a load is >= 0 kg")
-    if axis is not None and axis.name == "load" and (why := implausible_load(max(axis.values))):
+    if swept == "load" and (why := implausible_load(max(axis.values))):
         sc.warn(("sweep", "load"), why)
     cases = axis.values if axis else (None,)
     check_output_size(sc, len(pressures) * len(cases), 5, ("sweep", "pressure"))
     results, metrics = {}, {}
     for value in cases:
-        n = round(value) if axis is not None and axis.name == "n" else b.n
-        load = value if axis is not None and axis.name == "load" else b.load_kg
-        prefix = f"n{n}_" if axis is not None and axis.name == "n" else ""
+        n = round(value) if swept == "n" else b.n
+        load = value if swept == "load" else b.load_kg
+        prefix = f"n{n}_" if swept == "n" else ""
         key, res, mets = _equilibrium_case(sc, b, fid, pressures, n, load, prefix)
         results[key] = res
         metrics.update(mets)
@@ -100,9 +101,11 @@ def _equilibrium_case(sc, b: Binding, fid, pressures, n, load, prefix=""):
     for p in pressures:
         if not rng[0] <= p <= rng[1]:
             raise range_error(sc, ("sweep", "pressure"), float(p), rng)
-    if b.setup == "hanging":
-        over["load.m"] = model.variables["load.m"].value - b.load_kg + load
-    rest = _solve(sc, model, 0.0, {**over, **_no_load(model, b)}, None)
+    unloaded = dict(over)
+    if b.setup == "hanging":  # the end mass without the scene's load, then with this case's
+        unloaded["load.m"] = model.variables["load.m"].value - b.load_kg
+        over["load.m"] = unloaded["load.m"] + load
+    rest = _solve(sc, model, 0.0, unloaded, None)
     base = _solve(sc, model, 0.0, over, rest)
     rows, guess = [], base
     for p in pressures:
@@ -143,12 +146,6 @@ def _equilibrium_case(sc, b: Binding, fid, pressures, n, load, prefix=""):
         f"strain_{prefix}{grams}_{tag_p}": float((L[-1] - L0) / L00),
     }
     return f"{prefix}load_{grams}", res, mets
-
-
-def _no_load(model: Model, b: Binding) -> dict:
-    if b.setup != "hanging":
-        return {}
-    return {"load.m": model.variables["load.m"].value - b.load_kg}
 
 
 register_runner("equilibrium", run_equilibrium)

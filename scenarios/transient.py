@@ -68,13 +68,9 @@ def choose_fidelity(sc: Scenario, b: Binding) -> tuple[str, Result, dict]:
     inputs = binding.scene_inputs(sc, cheap)
     binding.check_commands(sc, cheap, b.overrides, inputs, grid)
     care = list(sc.outputs.signals) or ["myofibril.length"]
-    models = {(first, GROUPS): cheap}
 
-    def build(level: str, groups: int = GROUPS) -> Model:
-        key = (level, groups if level == "grouped" else GROUPS)
-        if key not in models:
-            models[key] = b.build(level, groups=groups)
-        return models[key]
+    def build(level: str, groups: int = GROUPS) -> Model:  # the rule builds each once
+        return cheap if (level, groups) == (first, GROUPS) else b.build(level, groups=groups)
 
     scene = ladder.Scene(
         n=b.n,

@@ -2,11 +2,14 @@
 whole session)."""
 
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # `benchmarks.studies`: the studies only benchmarks run
+    sys.path.append(str(ROOT))
 
 
 def _status() -> str:

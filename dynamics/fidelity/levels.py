@@ -86,26 +86,23 @@ class Path:
     operating_point: Equilibrium
     steps: dict = field(default_factory=dict, repr=False)
 
+    def _spline(self, V: np.ndarray, u: np.ndarray, derivative: int = 0) -> np.ndarray:
+        """The rows ``V`` (one per node) on a cubic spline at ``u`` (constant for one node)."""
+        if len(self.nodes) == 1:
+            return np.repeat(V * (derivative == 0), len(u), axis=0)
+        return CubicSpline(self.nodes, V, axis=0)(u, derivative)
+
     def state_slope(self, u: np.ndarray) -> np.ndarray:
         """``dx_eq/du`` of the states at the input values ``u``, shape (len(u), nx)."""
-        X = np.array([e.x for e in self.equilibria])
-        if len(self.nodes) == 1:
-            return np.zeros((len(u), X.shape[1]))
-        return CubicSpline(self.nodes, X, axis=0)(u, 1)
+        return self._spline(np.array([e.x for e in self.equilibria]), u, 1)
 
     def state(self, u: np.ndarray) -> np.ndarray:
         """``x_eq(u)`` at the input values ``u``, shape (len(u), nx)."""
-        X = np.array([e.x for e in self.equilibria])
-        if len(self.nodes) == 1:
-            return np.repeat(X, len(u), axis=0)
-        return CubicSpline(self.nodes, X, axis=0)(u)
+        return self._spline(np.array([e.x for e in self.equilibria]), u)
 
     def static(self, signals: Sequence[str], u: np.ndarray) -> np.ndarray:
         """``y_eq(u)`` of ``signals`` at the input values ``u``, shape (len(u), ny)."""
-        Y = np.array([[e[n] for n in signals] for e in self.equilibria])
-        if len(self.nodes) == 1:
-            return np.repeat(Y, len(u), axis=0)
-        return CubicSpline(self.nodes, Y, axis=0)(u)
+        return self._spline(np.array([[e[n] for n in signals] for e in self.equilibria]), u)
 
 
 def equilibrium_path(

@@ -57,18 +57,17 @@ def defect_error(
     p: np.ndarray,
     signals: Sequence[str],
     y: np.ndarray,
-    corrections: int | None = None,
 ) -> np.ndarray:
     """Estimated error of a level's outputs ``y`` (shape (len(t_out), ny)) per signal,
     relative to the span, from its :class:`Trajectory` by defect correction: the defect
     ``r = f(x, u) - x'`` (the model's ODE at the level's states minus the level's own
     derivative) drives the error ``e' = A e + r`` (``A`` the level's own, ``r`` the mean
     of its values at each step's ends); the defect of the corrected states ``x + e`` is
-    added to the drive and ``e`` recomputed, ``corrections`` times in all (default
-    :data:`CORRECTIONS`). The estimate is ``|g(x + e, u) - y|`` (the outputs of the last
-    corrected states against the level's) plus the last correction's change of those
-    outputs (what the next correction would add, were it no larger: the iteration
-    contracts where the level is near full); infinite where it diverges."""
+    added to the drive and ``e`` recomputed, :data:`CORRECTIONS` times in all. The
+    estimate is ``|g(x + e, u) - y|`` (the outputs of the last corrected states against
+    the level's) plus the last correction's change of those outputs (what the next
+    correction would add, were it no larger: the iteration contracts where the level is
+    near full); infinite where it diverges."""
     if model.nz:
         raise SarcomereError(f"the defect estimate needs an ODE model; '{model.name}' has z")
     N = len(traj.times)
@@ -86,7 +85,7 @@ def defect_error(
     k = traj.keep
     g = model.signals_function(list(signals))
     outputs = []  # g(x + e, u) after each correction
-    for _ in range(CORRECTIONS if corrections is None else corrections):
+    for _ in range(CORRECTIONS):
         X = traj.x + E
         F_right = np.array(f(X.T, z, traj.u_right.T, p)).T  # the ODE just after each time
         F_left = F_right.copy()  # and just before: differs only where an input jumps
@@ -123,25 +122,6 @@ def _span(y: np.ndarray) -> np.ndarray:
     return np.maximum(np.ptp(y, axis=0), 1e-300)
 
 
-def level_defect(
-    level: str,
-    model: Model,
-    path: Path,
-    inputs: Mapping[str, object],
-    t_out: np.ndarray,
-    signals,
-    traj: Trajectory | None = None,
-) -> float:
-    """``level``'s :func:`defect_error`, max over ``signals`` (its :func:`trajectory`,
-    computed when not given)."""
-    signals = list(signals)
-    if traj is None:
-        traj = trajectory(level, model, path, inputs, t_out)
-    y = level_result(level, model, path, traj, t_out, signals)
-    Y = np.column_stack([y[n] for n in signals])
-    return float(np.max(defect_error(model, traj, path.operating_point.p, signals, Y)))
-
-
 def run_level(
     level: str,
     model: Model,
@@ -153,12 +133,14 @@ def run_level(
 ) -> tuple[Result, float]:
     """Run ``level`` (one of :data:`~.levels.LEVELS`) on ``path`` and predict its error
     over ``signals`` (relative to each output's span, max over them): :data:`SAFETY`
-    times its :func:`level_defect`, for ``linear`` at least its
+    times its :func:`defect_error` (max over ``signals``), for ``linear`` at least its
     :func:`static_nonlinearity`; the trajectory computed once. Returns the outputs
     ``keep`` and the prediction."""
     signals = list(signals)
     traj = trajectory(level, model, path, inputs, t_out)
-    defect = level_defect(level, model, path, inputs, t_out, signals, traj)
+    y = level_result(level, model, path, traj, t_out, signals)
+    Y = np.column_stack([y[n] for n in signals])
+    defect = float(np.max(defect_error(model, traj, path.operating_point.p, signals, Y)))
     if level == "linear":
         defect = max(
             defect, float(np.max(static_nonlinearity(model, path, inputs, t_out, signals)))

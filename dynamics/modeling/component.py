@@ -193,24 +193,15 @@ class Builder:
             raise ModelError(f"port '{name}' declared twice in '{self.path}'")
         if not NAME.match(name):
             raise ModelError(f"port name '{name}' in '{self.path}' must be {NAME_RULE}")
-        pot_name, flow_name = f"{name}.{kind.potential}", f"{name}.{kind.flow}"
-        pot = self._declare(
-            pot_name,
-            Var(
-                self._full(pot_name),
-                Kind.ALGEBRAIC,
-                unit=kind.potential_unit,
-                description=f"{kind.name} {name}: {kind.potential}",
-            ),
-        )
-        flow = self._declare(
-            flow_name,
-            Var(
-                self._full(flow_name),
-                Kind.ALGEBRAIC,
-                unit=kind.flow_unit,
-                description=f"{kind.name} {name}: {kind.flow} (into)",
-            ),
+        pot, flow = (
+            self._declare(
+                f"{name}.{var}",
+                Var(self._full(f"{name}.{var}"), Kind.ALGEBRAIC, unit=unit, description=text),
+            )
+            for var, unit, text in (
+                (kind.potential, kind.potential_unit, f"{kind.name} {name}: {kind.potential}"),
+                (kind.flow, kind.flow_unit, f"{kind.name} {name}: {kind.flow} (into)"),
+            )
         )
         p = Port(kind, f"{self.path}.{name}" if self.path else name, pot, flow)
         self.ports[name] = p

@@ -135,12 +135,13 @@ def _resolve(known: dict[str, cs.SX], symbols: dict[str, cs.SX]) -> _Solved:
     return _Solved(list(known), syms, defs)
 
 
-def _linear_coefficient(e: cs.SX, v: cs.SX, others: cs.SX) -> cs.SX | None:
-    """Coefficient of ``v`` if ``e`` is linear in ``v`` with a coefficient free of ``others``."""
+def _linear_solution(e: cs.SX, v: cs.SX, others: cs.SX) -> cs.SX | None:
+    """``v`` solved from ``e = 0``, ``-e(v = 0) / (de/dv)``, if ``e`` is linear in ``v`` with
+    a coefficient free of ``others``; else None."""
     slope = cs.jacobian(e, v)
     if slope.is_zero() or cs.depends_on(slope, cs.vertcat(v, others)):
         return None
-    return slope
+    return -cs.substitute(e, v, cs.SX(0)) / slope
 
 
 def _tear(
@@ -164,10 +165,9 @@ def _tear(
             present = [v for v in unknowns if cs.depends_on(e, v)]
             for v in present:
                 rest = cs.vertcat(*[u for u in unknowns if u is not v])
-                coeff = _linear_coefficient(e, v, rest)
-                if coeff is None:
+                sol = _linear_solution(e, v, rest)
+                if sol is None:
                     continue
-                sol = -cs.substitute(e, v, cs.SX(0)) / coeff
                 eqs = [cs.substitute(x, v, sol) for j, x in enumerate(eqs) if j != i]
                 solved = {k: cs.substitute(x, v, sol) for k, x in solved.items()}
                 solved[v.name()] = sol
@@ -336,10 +336,8 @@ def flatten(name: str, c: Collected) -> Model:
                 continue
             if len(block) == 1:
                 v = c.symbols[unknown_names[var_idx[0]]]
-                slope = cs.jacobian(block[0], v)
-                if not cs.depends_on(slope, v) and not slope.is_zero():
-                    offset = cs.substitute(block[0], v, cs.SX(0))
-                    known[v.name()] = -offset / slope
+                if (sol := _linear_solution(block[0], v, cs.SX(0, 1))) is not None:
+                    known[v.name()] = sol
                     continue
             block_vars = [c.symbols[unknown_names[j]] for j in var_idx]
             block, block_vars = _tear(block, block_vars, known)

@@ -37,7 +37,7 @@ from ..errors import ParameterError, SolverError
 from ..modeling.model import Model
 from . import collocation
 from .common import LawDAE, law_dae, method_options, require_ode, require_step
-from .guard import EULER, RK4, ExplicitScheme
+from .guard import SCHEMES, ExplicitScheme
 from .settings import HELD, InputLaw, Segment, SolverSettings, add_stats, register_method
 
 CHUNK_STEPS = 128
@@ -296,7 +296,7 @@ def _core(
     if method in ("rk4", "euler"):
         require_ode(model, settings)
         method_options(settings, {"on_unstable": "warn"})  # refuse unknown options
-        scheme = {"rk4": RK4, "euler": EULER}[method]
+        scheme = SCHEMES[method]
         key = ("fixed_step", method, law.key())
         build = lambda: _explicit_step(law_dae(model, law), scheme)  # noqa: E731
         per_step = len(scheme.c)

@@ -8,36 +8,28 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ParameterError
+from ..modeling.buffered import BufferedCall
 from .common import LawDAE, law_dae, method_options, require_ode
 from .settings import Segment, add_stats, register_method
 
 
 # --- scipy baselines --------------------------------------------------------------------
-class _Buffered:
-    """Fast repeated calls of a CasADi Function of (t, x, w, p) through its buffer.
-
-    ``Function.buffer`` binds numpy arrays once, so a call costs about 0.1 us of
-    overhead instead of about 30 us for ``F(t, x, w, p)`` with conversions. The input
-    law's argument is set in place: ``call.w[:] = ...``.
-    """
+class _Buffered(BufferedCall):
+    """``f(t, x)`` of a CasADi Function of (t, x, w, p) on bound buffers
+    (:class:`~..modeling.buffered.BufferedCall`), ``p`` fixed; the input law's argument
+    is set in place: ``call.w[:] = ...``. Writes ``t`` and ``x`` alone: about 1 us a call,
+    a third of the general call's."""
 
     def __init__(self, F: cs.Function, p: np.ndarray) -> None:
-        self.F = F
-        self.t = np.zeros(1)
-        self.x = np.zeros(F.size1_in(1))
-        self.w = np.zeros(F.size1_in(2))
-        self.p = np.ascontiguousarray(p, dtype=float)
-        self.out = np.zeros(F.nnz_out(0))
-        self.buf, self.trigger = F.buffer()
-        for i, arr in enumerate((self.t, self.x, self.w, self.p)):
-            self.buf.set_arg(i, memoryview(arr))
-        self.buf.set_res(0, memoryview(self.out))
+        super().__init__(F)
+        self.t, self.x, self.w, p_arg = self.args
+        p_arg[:] = p
 
     def __call__(self, t: float, x: np.ndarray) -> np.ndarray:
         self.t[0] = t
         self.x[:] = x
         self.trigger()
-        return self.out.copy()
+        return self.res[0].copy()
 
 
 class _Plain:

@@ -46,9 +46,7 @@ def integrator(
         try:
             return cs.integrator("F", plugin, dae, 0.0, list(grid), opts)
         except RuntimeError as exc:
-            raise ParameterError(
-                "solver.options", dict(s.options), *_option_hint(str(exc), plugin)
-            ) from None
+            raise _refusal(plugin, "solver.options", dict(s.options), str(exc)) from None
 
     return model.cached(("sundials", settings.key, law.key(), grid), build)
 
@@ -100,11 +98,23 @@ def step_function(model: Model, settings: SolverSettings) -> cs.Function:
 
 
 class UnknownOption(ParameterError):
-    """An option name CasADi's integrator does not have; ``close``: CasADi's nearest."""
+    """An option name (``option``) CasADi's integrator does not have; ``close``: CasADi's
+    nearest names."""
 
-    def __init__(self, name: str, value: object, plugin: str, close: list[str]) -> None:
-        super().__init__(name, value, f"options of casadi.integrator('{plugin}')", "unknown")
+    def __init__(self, name: str, value: object, plugin: str, option: str, close: list) -> None:
+        e_g = f", e.g. {', '.join(close)}" if close else ""
+        allowed = f"options of casadi.integrator('{plugin}'){e_g}"
+        super().__init__(name, value, allowed, f"unknown option '{option}'")
         self.close = close
+
+
+def _refusal(plugin: str, name: str, value: object, text: str) -> ParameterError:
+    """CasADi's refusal ``text`` of integrator options, on one line: an
+    :class:`UnknownOption`, or the value refused (``allowed``: CasADi's last line)."""
+    if bad := re.search(r"Unknown option: (\S+)", text):
+        return UnknownOption(name, value, plugin, bad[1], re.findall(r'^> "(\w+)"', text, re.M))
+    lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
+    return ParameterError(name, value, lines[-1][:200], f"refused by {plugin}")
 
 
 def check_option(plugin: str, key: str, value: object) -> None:
@@ -122,23 +132,7 @@ def check_option(plugin: str, key: str, value: object) -> None:
     try:
         cs.integrator("probe", plugin, {"x": x, "ode": -x}, 0.0, [1.0], {key: value})
     except RuntimeError as exc:
-        text = str(exc)
-        if "Unknown option" in text:
-            raise UnknownOption(key, value, plugin, re.findall(r'> "([^"]+)"', text)) from None
-        lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
-        raise ParameterError(key, value, lines[-1][:200], f"refused by {plugin}") from None
-
-
-def _option_hint(msg: str, plugin: str) -> tuple[str, str]:
-    """(allowed, reason) from CasADi's refusal of an option: the bad name and the
-    closest valid ones, on one line."""
-    bad = re.search(r"Unknown option: (\S+)", msg)
-    close = re.findall(r'^> "(\w+)"', msg, flags=re.M)
-    allowed = f"options of casadi.integrator('{plugin}')" + (
-        f", e.g. {', '.join(close)}" if close else ""
-    )
-    reason = f"unknown option '{bad[1]}'" if bad else msg.strip().splitlines()[0][:200]
-    return allowed, reason
+        raise _refusal(plugin, key, value, str(exc)) from None
 
 
 def _cause(msg: str) -> str:

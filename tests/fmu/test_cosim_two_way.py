@@ -1,4 +1,4 @@
-"""A two-way co-simulation (scenarios/studies/cosim_coupling.py): the muscle and a
+"""A two-way co-simulation (benchmarks/studies/cosim_coupling.py): the muscle and a
 spring-coupled load as two native participants against the same system as one model;
 first-order convergence of the held coupling, and the instability of a stiff spring at a
 large step."""
@@ -10,10 +10,10 @@ import math
 import numpy as np
 import pytest
 
+from benchmarks.studies import cosim_coupling as study
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.fmu import export_fmu, open_fmu
 from sarcomere.fmu.cosim import CosimError
-from sarcomere.scenarios.studies import cosim_coupling as study
 
 pytestmark = pytest.mark.slow  # exports, builds and runs FMUs: the full suite (CI)
 

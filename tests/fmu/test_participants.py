@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.studies import cosim_coupling as study
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.fmu.archive import FmuArchiveError, open_fmu
 from sarcomere.fmu.cosim import Connection, CosimError, cosimulate
 from sarcomere.fmu.participants import FmuParticipant, NativeParticipant, ParticipantError
-from sarcomere.scenarios.studies import cosim_coupling as study
 
 
 def _craft(src: Path, dst: Path, change) -> Path:

@@ -1,12 +1,10 @@
-"""The MPC tuning study's choice rule (scenarios/studies/mpc_tuning.py) on made-up rows,
+"""The MPC tuning study's choice rule (benchmarks/studies/mpc_tuning.py) on made-up rows,
 and the grid's scene text: what the study runs is the packaged scene with its controllers
 replaced."""
 
 import pytest
 
-from sarcomere.controllers.nmpc import NMPCSettings
-from sarcomere.scenarios.loader import parse_scenario
-from sarcomere.scenarios.studies.mpc_tuning import (
+from benchmarks.studies.mpc_tuning import (
     OVERSHOOT_MAX_PCT,
     choose,
     distance_from_defaults,
@@ -15,6 +13,8 @@ from sarcomere.scenarios.studies.mpc_tuning import (
     scene_text,
     score,
 )
+from sarcomere.controllers.nmpc import NMPCSettings
+from sarcomere.scenarios.loader import parse_scenario
 
 LQI = {
     "control-length": {"rmse_mm": 1.0, "overshoot_pct": 18.0},

@@ -26,7 +26,7 @@ than :data:`HORIZON_GAIN` (5 %: a step's cost grows with the horizon).
 
 Usage::
 
-    python -m sarcomere.scenarios.studies.mpc_tuning --out out/bench/mpc_tuning \
+    python benchmarks/mpc_tuning.py --out out/bench/mpc_tuning \
         [--weights-y 1e6 ...] [--weights-du 1e-9 ...] [--horizons 10 20 40]
 
 (a smaller grid for a cheaper run; the grid run is recorded in the JSON)
