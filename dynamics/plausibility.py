@@ -48,7 +48,9 @@ def implausible_aps(aps: APSParams) -> dict[str, str]:
     paper = APSParams.from_paper(aps.material)
     out = {}
     for f in dataclasses.fields(APSParams):
-        name, unit = f.name, f.metadata.get("unit", "1")
+        if "quantity" not in f.metadata:  # text choices (material, thermal)
+            continue
+        name, unit = f.name, f.metadata["quantity"].unit
         if unit == "1" or f.metadata["source"].startswith("numerical"):
             continue  # dimensionless ratios have ranges; numerical settings are free
         ref, value = getattr(paper, name), getattr(aps, name)
