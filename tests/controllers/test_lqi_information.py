@@ -69,6 +69,7 @@ def test_preview_term_is_the_first_move_of_the_lq_problem_with_known_targets(pla
     assert c.checked(0.0, y, {L: op[L]})[P] > op.u[0] + 100  # shorter ahead: more pressure
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_load_feedforward_makes_the_lqi_offset_free_without_its_integral(plant):
     """+30 g hung on the plant at 0.2 s, unknown to the controller: with the load estimate
     as feed-forward (its own filter on the states, or the EKF's) the estimate finds the

@@ -49,6 +49,7 @@ def hold(model, eq, mpc, samples, k_load=None, d_in=0.0, d_out=0.0):
     return np.array(errors), np.array(estimates)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_a_load_step_leaves_no_offset_within_half_a_second(plant):
     """+50 g at 0.2 s: the default NMPC (no EKF: its own filter of the load, no integral)
     is within 2 um of the reference from 0.5 s after the step on and its estimate is the
@@ -73,6 +74,7 @@ def test_a_load_step_leaves_no_offset_within_half_a_second(plant):
 @pytest.mark.parametrize(
     ("kind", "d_in", "d_out", "value"), [("input", 1e4, 0.0, 1e4), ("output", 0.0, 2e-4, 2e-4)]
 )
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_an_input_or_output_offset_is_estimated_and_removed(plant, kind, d_in, d_out, value):
     """10 kPa added to every command (or the length read 0.2 mm long): the estimate is
     that constant, and the command is the 50 kPa equilibrium's minus 10 kPa (or the

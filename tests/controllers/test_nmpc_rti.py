@@ -38,6 +38,7 @@ def venting(
 
 
 @pytest.mark.parametrize(("solver", "samples", "rtol"), [("rti", 15, 1e-9), ("ipopt", 3, 1e-5)])
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_soft_bounds_give_the_hard_solution_when_it_is_feasible(solver, samples, rtol):
     """The L1 weight (1e6 1/N) is above the bounds' multipliers, so the exact penalty
     puts no slack where the hard problem is feasible: the same commands, slack 0."""
@@ -51,6 +52,7 @@ def test_soft_bounds_give_the_hard_solution_when_it_is_feasible(solver, samples,
         assert s.slack == 0.0
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_an_infeasible_bound_softened_gives_a_finite_command_without_fallback():
     """5 N on every thread cannot be met: the hard RTI and NLP fall back (hold); soft,
     both move and report the slack."""

@@ -137,6 +137,7 @@ def load_step_offset(extra, feed=True):
     return _late_error(plant, eq, mpc, 200, 20), mpc, plant, eq
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_the_ekfs_load_estimate_removes_the_offset_without_integral():
     offset, mpc, plant, eq = load_step_offset({})
     assert mpc.fed == [M] and mpc.inner.settings.integral_gain == 0.0  # the default here
@@ -195,6 +196,7 @@ def lmpc_load_step_residual(feed):
     return _late_error(plant, eq, mpc, 300, 50)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_the_lmpc_on_the_ekfs_load_settles_faster():
     """The velocity form is offset-free either way; linearised at the nominal 20 g it is
     still 0.19 mm off 2.5 s after the step, at the estimated 70 g a few micrometres."""

@@ -91,6 +91,7 @@ def test_a_stalled_newton_is_accepted_only_below_the_stall_tolerance(monkeypatch
         calibration.fit(APSParams.from_paper())
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_a_fit_that_does_not_converge_says_how_far_it_got():
     """Far outside the region (A_p x 4, A_r / 4, k_s x 4) the continuation stalls: an
     error naming the residual and the fraction of the way reached, never a result."""

@@ -70,6 +70,7 @@ def test_foh_step_is_exact_for_a_linear_input():
     assert got == pytest.approx(exact, rel=1e-12)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_linear_level_valid_for_a_small_sweep_invalid_for_the_large_step(model):
     small, pred_small = _errors(model, "small chirp")
     step, pred_step = _errors(model, "step-50g")
@@ -81,6 +82,7 @@ def test_linear_level_valid_for_a_small_sweep_invalid_for_the_large_step(model):
     assert step["linear"] <= pred_step["linear"]
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_equilibrium_path_valid_for_the_slow_ramp_invalid_for_the_step(model):
     ramp, pred_ramp = _errors(model, "ramp-50g")
     step, pred_step = _errors(model, "step-50g")
@@ -112,6 +114,7 @@ def test_predictions_bound_the_staircase_that_fooled_them():
         assert 0.09 < error <= predicted  # measured 12.9 % and 20.6 %
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_equilibrium_path_follows_the_ringing_of_a_long_chain():
     """n = 10, 50 g: the load mode rings at 2.9 Hz with damping ratio 0.06 after the
     ramp's corners; the deviation scheduled on the path's nodes follows it (a single
@@ -249,6 +252,7 @@ def test_recurse_filters_runs_of_equal_steps_as_the_loop_does():
         assert np.allclose(recurse(x0, mats, forcing), np.array(loop), rtol=1e-10, atol=1e-10)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_grouped_prediction_is_relative_to_the_response_not_the_statics():
     """Scene s31 of the randomised study (n = 14, 190 g, +/- 3.1 kPa at 4.1 Hz around
     25.6 kPa): above the load mode the length swings 0.64x its static swing, and the

@@ -15,6 +15,10 @@ from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.fmu import codegen
 from sarcomere.fmu import export as export_module
 
+#: Every test here runs an FMU that the session compiles: the fast loop leaves them to
+#: the full suite (README: `-m "not slow"` leaves out the compiling cases).
+pytestmark = pytest.mark.slow
+
 P_CMD = "regulator.p_cmd"
 LENGTH = "myofibril.length"
 

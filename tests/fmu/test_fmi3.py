@@ -14,6 +14,10 @@ from fmpy.validation import validate_fmu
 
 from sarcomere.dynamics.assemblies import isometric
 
+#: Every test here runs an FMU that the session compiles: the fast loop leaves them to
+#: the full suite (README: `-m "not slow"` leaves out the compiling cases).
+pytestmark = pytest.mark.slow
+
 SIGNALS = ["sensor.f", "myofibril.aps1.chamber.p_gauge", "myofibril.actin1.T"]
 
 

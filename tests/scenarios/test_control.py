@@ -150,6 +150,7 @@ def test_force_scene_shortened(tmp_path):
         ("seed = 1", 'seed = 1\npreview = "yes"', "control.preview"),
     ],
 )
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_bad_control_settings_are_refused_by_key(tmp_path, old, new, key):
     text = _short_length_scene().replace(old, new)
     with pytest.raises(ScenarioError, match=re.escape(key.split(".")[-1])):
@@ -189,6 +190,7 @@ def test_other_kinds_refuse_a_control_section(tmp_path):
         run(parse_scenario(text, "x.toml"), tmp_path / "out", quiet=True)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_linearize_command_writes_named_matrices_and_modes(tmp_path, capsys, drawn_png):
     out = tmp_path / "lin"
     assert main(["linearize", "control-length", "--out", str(out)]) == 0
@@ -270,6 +272,7 @@ def test_a_registered_controller_runs_in_the_scene_with_the_common_settings(tmp_
     assert eq["myofibril.length"] == pytest.approx(seen["op"]["myofibril.length"], rel=1e-4)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_a_known_reference_is_previewed_by_the_nmpc(tmp_path):
     """The shortened length scene with the NMPC only: the sine and the step known ahead
         (the default) track better than ``preview = false`` (``r(t)`` held over the horizon): the

@@ -6,9 +6,12 @@ design (``rate_weight``) it tracks, better than the PID under the same limit."""
 import json
 import re
 
+import pytest
+
 from sarcomere.scenarios import parse_scenario, resolve_scenario, run
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_lqi_limit_cycle_at_n8_is_a_status_and_the_rate_design_tracks(tmp_path, capsys):
     text = resolve_scenario("control-length").read_text(encoding="utf-8")
     text = text.replace("n = 3", "n = 8").replace('stop_time = "12.5 s"', 'stop_time = "4 s"')

@@ -23,6 +23,7 @@ def _short_tension_scene(keep: tuple[str, ...]) -> str:
     return re.sub(rf"\[control\.controllers\.({drop})\]\n(\w.*\n)*", "", text)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_lqi_breaks_the_tension_bound_the_mpcs_hold_it(tmp_path):
     sc = parse_scenario(_short_tension_scene(("lqi", "lmpc", "nmpc")), "tension-short.toml")
     assert set(sc.control["controllers"]) == {"lqi", "lmpc", "nmpc"}

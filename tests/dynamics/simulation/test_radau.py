@@ -57,6 +57,7 @@ def test_tableau_is_radau_iia_with_hairers_transformation():
     np.testing.assert_allclose(at_nodes, Z, atol=1e-12)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_order_five_at_the_step_ends(oscillator, oscillator_error):
     """Steps held fixed (first = max step, loose tolerance so none is rejected): the
     error at the end falls as h^5."""
@@ -158,6 +159,7 @@ class Preloaded(Component):
         return cls.F0_N / cls.C_N_M + decay * (np.cos(wd * t) + zeta * w0 / wd * np.sin(wd * t))
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_tight_tolerances_in_si_units_closed_form():
     """rtol 1e-10 / atol 1e-13 and 1e-12 / 1e-14 in SI units against the closed form:
     the error relative to the motion stays within 30 rtol and falls with the tolerance."""
@@ -204,6 +206,7 @@ def test_tight_tolerances_on_the_muscle_track_cvodes(step_reference):
     assert errors[0] > 5 * errors[1] > 25 * errors[2], errors
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_below_the_roundoff_floor_the_failure_says_so(step_reference):
     """atol 1e-15 on the muscle: the velocities' Newton increments cannot get below their
     roundoff floor; the error names it instead of only "failed to converge"."""
@@ -229,6 +232,7 @@ def test_n3_step_against_tight_cvodes():
         assert res.meta[key] > 0, key
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_closed_loop_steps_agree_with_simulate():
     model = hanging_load(1, load_kg=0.05)
     s = SolverSettings("radau", 1e-8, 1e-11)
@@ -342,6 +346,7 @@ def test_cache_key_follows_flags_and_sources(tmp_path, monkeypatch):
     assert compiled.cache_dir() == tmp_path
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_dense_jacobian_from_the_generator_gives_the_same_steps(tmp_path, monkeypatch):
     """``sm_jac`` may return the dense Jacobian (``sparse=False``): same steps, same
     states to roundoff as the sparse one."""
@@ -379,6 +384,7 @@ class Blowup(Component):
         b.der(x, x**2)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_blow_up_is_an_error_near_the_singularity_never_nan():
     sys = System("blowup")
     sys.add(Blowup("b"))

@@ -34,6 +34,7 @@ def test_the_examples_run_as_scripts(block, tmp_path):
     assert int(done.stdout.split()[-1]) > 0
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_a_script_without_the_guard_is_told_why(tmp_path):
     script = tmp_path / "unguarded.py"
     script.write_text(

@@ -169,6 +169,7 @@ def test_a_rerun_computes_only_the_missing_chunks(tmp_path, cluster):
     assert again.identical(full)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_a_sample_that_kills_its_worker_is_retried_once_then_recorded(tmp_path, cluster):
     ds = run(StandIn(kill=(5,)), tmp_path / "out", cluster).stack(sample=("load", "pressure"))
     status = ds.status.values
@@ -179,6 +180,7 @@ def test_a_sample_that_kills_its_worker_is_retried_once_then_recorded(tmp_path, 
     assert not np.isnan(ds.rise_time.values[others]).any()
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_a_different_definition_is_refused_naming_what_differs(tmp_path):
     run(StandIn(), tmp_path / "out", workers=1)  # the embedded cluster of Study.run
     with pytest.raises(StoreError, match=r"pressures\.3: 300000\.0 -> 400000\.0"):
@@ -297,6 +299,7 @@ def count_workers(study: StandIn, indices: np.ndarray, points: np.ndarray) -> Re
     return Result(*list(vars(result).values())[:-1], [f"workers={n}"] * len(indices))
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_workers_capped_at_the_tasks_with_a_warning_above_the_cpus(tmp_path, capfd, monkeypatch):
     """Issue 24, bug 5: --workers 64 on 2 cores started 64 processes for 4 samples."""
     from sarcomere.scenarios.explore import engine
@@ -311,6 +314,7 @@ def test_workers_capped_at_the_tasks_with_a_warning_above_the_cpus(tmp_path, cap
     assert "3 started (the tasks to run)" in err and "Traceback" not in err
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_a_worker_death_prints_no_log_line(tmp_path):
     """Issue 24, bug 5: a raw 'distributed.scheduler - ERROR' line, even with --quiet (a
     process of its own: distributed's log handlers write to the stderr of their import)."""
@@ -330,6 +334,7 @@ def test_a_worker_death_prints_no_log_line(tmp_path):
     assert "distributed" not in done.stderr and "Traceback" not in done.stderr, done.stderr
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_a_study_folder_in_use_is_refused_naming_the_process(tmp_path):
     """Issue 24, bug 4: two runs on one new --out, one died with FileNotFoundError (the
     other's clean-up removed its temporary store). One writer; the other is refused."""
@@ -371,6 +376,7 @@ def test_a_server_that_is_not_dask_is_named_so(tmp_path):
         server.close()
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_progress_lines_when_the_output_is_not_a_terminal(tmp_path, capsys):
     """Issue 24: a batch job's log showed no progress (the line is for terminals only)."""
     Study(StandIn()).run(tmp_path / "out", workers=1, evaluate=evaluate, outputs=False)

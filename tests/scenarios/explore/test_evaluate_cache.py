@@ -7,6 +7,8 @@ import os
 import time
 from pathlib import Path
 
+import pytest
+
 SOURCE = "int sm_answer(void) { return 42; }\n"
 
 
@@ -28,6 +30,7 @@ def _build(folder: str, barrier, slow: float) -> tuple[str, bool, int]:
     return str(path), built, lib.sm_answer()
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_processes_compiling_the_same_library_at_once(tmp_path):
     ctx = multiprocessing.get_context("spawn")
     k = 3

@@ -121,6 +121,7 @@ def montecarlo():
     return ds, study
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_grid_outputs_draw_maps_and_summarise_with_factor_values(grid, tmp_path, drawn_png):
     ds, study = grid
     summary = outputs.write_outputs(ds, study, tmp_path)
@@ -261,6 +262,7 @@ def test_single_axis_grid_draws_a_line(grid, tmp_path, drawn_png):
     drawn_png(path)
 
 
+@pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_montecarlo_envelope_and_histograms(montecarlo, tmp_path, drawn_png):
     ds, study = montecarlo
     summary = outputs.write_outputs(ds, study, tmp_path)
