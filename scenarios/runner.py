@@ -15,7 +15,7 @@ from collections.abc import Callable
 from importlib import import_module
 from pathlib import Path
 
-from sarcomere.dynamics.errors import SolverError
+from sarcomere.dynamics.errors import ParameterError, SolverError
 from sarcomere.dynamics.results import Result
 
 from .loader import load_scenario
@@ -23,7 +23,7 @@ from .outdir import check_out_dir, staged
 from .output import CSV_BYTES_PER_VALUE, RunOutput, check_finite, write_summary, write_timeseries
 from .plots import groups_by_unit, plot_groups
 from .progress import progress, report
-from .spec import Scenario
+from .spec import Scenario, describe
 
 Runner = Callable[[Scenario, Path], RunOutput]
 
@@ -241,6 +241,10 @@ def run(
         start = time.perf_counter()
         try:
             output = runner(sc, tmp)
+        except ParameterError as exc:  # a [solver] setting the method refuses: at its key
+            if not (isinstance(exc.name, str) and exc.name.startswith("solver.")):
+                raise
+            raise sc.error(tuple(exc.name.split(".")), describe(exc)) from None
         except SolverError as exc:  # write what was computed, marked incomplete
             if not isinstance(exc.partial, Result):
                 raise

@@ -53,3 +53,13 @@ def test_max_steps_is_the_settings_field(tmp_path, capsys):
     assert status == 0, err
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["solver"] == "cvodes"
+
+
+@pytest.mark.parametrize("method", ["rk4", "euler"])
+def test_a_fixed_step_method_without_its_step_names_the_key(tmp_path, capsys, method):
+    """Issue 24 (poor): it was "parameter 'solver.step' = None is invalid", no file or line
+    (line 12: the [solver] table that lacks the key)."""
+    status, err = _cli(tmp_path, capsys, method, "")
+    assert status == 2
+    assert "s.toml:12: key 'solver.step'" in err and f"method '{method}' is fixed-step" in err
+    assert len(err.strip().splitlines()) == 1
