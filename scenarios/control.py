@@ -60,7 +60,7 @@ from sarcomere.dynamics.units import to_si
 from .binding import Binding, bind, check_n, fidelity_level, solver_settings
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
-from .spec import Scenario, describe, unknown_key
+from .spec import Scenario, describe, did_you_mean, unknown_key
 
 P_CMD = "regulator.p_cmd"
 RATE_MAX_DEFAULT = "2 MPa/s"
@@ -255,7 +255,8 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     noise = {}
     for name, raw in _table(sc, ctl.get("noise", {}), ("control", "noise")).items():
         if name not in model.signal_names:
-            raise sc.error(("control", "noise", name), "not a signal of the model")
+            hint = did_you_mean(name, [*measured, *model.signal_names])
+            raise sc.error(("control", "noise", name), f"not a signal of the model{hint}")
         if name not in measured:
             raise sc.error(
                 ("control", "noise", name),

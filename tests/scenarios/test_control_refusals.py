@@ -63,6 +63,13 @@ SINE = 'sine_amplitude = "1 mm"\nsines = [{ frequency = "3 Hz", start = "%s", pe
             "control.noise",
             "not measured",
         ),
+        # noise on a misspelt signal: the closest name offered
+        (
+            '"regulator.p_out" = "0.2 kPa"',
+            '"regulator.p_ot" = "0.2 kPa"',
+            "control.noise",
+            "did you mean 'regulator.p_out'",
+        ),
     ],
 )
 def test_unrunnable_scenes_are_refused_by_key(tmp_path, old, new, key, words):
