@@ -88,7 +88,7 @@ class LMPCSettings:
     weight_du : float
         Weight of the squared input move per sample [1/Pa^2]. The default (a 1.8 kPa
         move costs as much as 1 mm of error; chosen by the tuning study
-        :mod:`sarcomere.scenarios.studies.mpc_tuning`) keeps the loop stable when the
+        ``benchmarks/studies/mpc_tuning.py``) keeps the loop stable when the
         plant carries 50 g more than the linearisation (at 1e-8 it cycles between 0.14
         and 0.3 MPa in the control-length scene).
     u_min, u_max : float
