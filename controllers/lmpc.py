@@ -66,7 +66,6 @@ from .receding import (
     RecedingHorizon,
     check_horizon,
     check_soft_min,
-    factory_bounds,
     mpc_settings,
     soft_bounds,
     with_estimator,
@@ -446,23 +445,12 @@ def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     estimates a parameter of the model (by default the load), the estimate is fed to the
     LMPC and ``disturbance`` defaults to "none" (the EKF's estimate, not a second one).
     """
-    own, est, ekf_settings = mpc_settings("lmpc", model, settings, LMPCSettings, {})
-    noise = (settings.get("noise_std") or {}).get(settings["output"])
-    if own["output_std"] is None and noise:
-        own["output_std"] = float(noise)
+    own, est, ekf_settings = mpc_settings("lmpc", model, settings, LMPCSettings, {}, None)
     if est == "ekf" and "disturbance" not in settings:
         fed = set(estimated_parameters(model, ekf_settings)) & set(model.param_names)
         own["disturbance"] = "none" if fed else own["disturbance"]
-    own.pop("soft_min")
-    s = LMPCSettings(
-        **own,
-        soft_min=factory_bounds(settings, None),
-        output=settings["output"],
-        u_min=float(settings["u_min"]),
-        u_max=float(settings["u_max"]),
-    )
     given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
-    ctl = LinearMPC(model, op.x, op.u, dt, s, given)
+    ctl = LinearMPC(model, op.x, op.u, dt, LMPCSettings(**own), given)
     return with_estimator("lmpc", ctl, model, op, dt, settings, est, ekf_settings)
 
 

@@ -66,7 +66,6 @@ from .receding import (
     check_horizon,
     check_soft_min,
     ekf_disturbance,
-    factory_bounds,
     mpc_settings,
     soft_bounds,
     with_estimator,
@@ -418,14 +417,10 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     an EKF ``backoff`` defaults to :data:`EKF_BACKOFF`.
     """
     extra = {"fidelity": DEFAULT_FIDELITY, "disturbance": None}
-    own, est, ekf_settings = mpc_settings("nmpc", model, settings, NMPCSettings, extra)
+    own, est, ekf_settings = mpc_settings("nmpc", model, settings, NMPCSettings, extra, 0.0)
     kind = own.pop("disturbance")
-    own.pop("soft_min")  # with tension_min: factory_bounds
     if est == "ekf":  # the EKF estimates the disturbance: no second estimate
         ekf_settings = ekf_disturbance("nmpc", model, kind, ekf_settings)
-    noise = (settings.get("noise_std") or {}).get(settings["output"])
-    if own["output_std"] is None and noise:
-        own["output_std"] = float(noise)
     given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
     fidelity = own.pop("fidelity")
     smooth = {"fidelity": fidelity, "flow_law": "smooth", "saturate": False}
@@ -454,14 +449,7 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
         own["integral_gain"] = 0.0
     if est == "ekf" and "backoff" not in settings:  # the estimate's uncertainty
         own["backoff"] = EKF_BACKOFF
-    s = NMPCSettings(
-        **own,
-        output=settings["output"],
-        u_min=float(settings["u_min"]),
-        u_max=float(settings["u_max"]),
-        soft_min=factory_bounds(settings, 0.0),
-    )
-    ctl = NonlinearMPC(pred, op.u, dt, s, params)
+    ctl = NonlinearMPC(pred, op.u, dt, NMPCSettings(**own), params)
     return with_estimator("nmpc", ctl, model, op, dt, settings, est, ekf_settings)
 
 

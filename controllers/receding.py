@@ -246,10 +246,18 @@ def own_defaults(settings_class) -> dict:
 
 
 def mpc_settings(
-    slug: str, model: Model, settings: Mapping[str, object], settings_class, extra: Mapping
+    slug: str,
+    model: Model,
+    settings: Mapping[str, object],
+    settings_class,
+    extra: Mapping,
+    tension_default: float | None,
 ) -> tuple[dict, str, Mapping]:
-    """A factory's own settings: the fields of ``settings_class`` not set by the common
-    keys, the ``extra`` keys and :data:`ESTIMATOR_DEFAULTS`; with the input checked.
+    """A factory's settings: the fields of ``settings_class`` not set by the common keys,
+    the ``extra`` keys and :data:`ESTIMATOR_DEFAULTS`; with the input checked, the common
+    keys ``output``, ``u_min``, ``u_max`` added, ``soft_min`` from
+    :func:`factory_bounds` (``tension_default``) and ``output_std`` from the output's
+    noise (``noise_std``) unless given.
     Returns ``(own, estimator, ekf_settings)``, ``own`` without the estimator keys.
 
     Raises
@@ -262,6 +270,15 @@ def mpc_settings(
     )
     if settings["input"] not in model.input_names:
         raise ParameterError(f"{slug}.input", settings["input"], f"one of {model.input_names}")
+    noise = (settings.get("noise_std") or {}).get(settings["output"])
+    if own["output_std"] is None and noise:
+        own["output_std"] = float(noise)
+    own.update(
+        output=settings["output"],
+        u_min=float(settings["u_min"]),
+        u_max=float(settings["u_max"]),
+        soft_min=factory_bounds(settings, tension_default),
+    )
     return own, own.pop("estimator"), own.pop("ekf")
 
 
