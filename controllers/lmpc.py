@@ -64,8 +64,7 @@ from .ekf import DEFAULT_STD, estimated_parameters
 from .qp import VelocityQP, velocity_law, zoh
 from .receding import (
     RecedingHorizon,
-    check_horizon,
-    check_soft_min,
+    check_mpc_settings,
     mpc_settings,
     soft_bounds,
     with_estimator,
@@ -148,25 +147,15 @@ class LMPCSettings:
     qp_solver: str = "daqp"
 
     def __post_init__(self) -> None:
-        check_horizon("lmpc.horizon", self.horizon)
-        positive("lmpc", "weight_y", self.weight_y)
-        positive("lmpc", "weight_du", self.weight_du, allow_zero=True)
-        positive("lmpc", "rate_max", self.rate_max)
-        positive("lmpc", "soft_penalty", self.soft_penalty)
-        object.__setattr__(self, "soft_min", check_soft_min("lmpc", self.soft_min))
+        check_mpc_settings("lmpc", self)
         if any(len(b) == 3 and not math.isfinite(b[2]) for b in self.soft_min):
             raise ParameterError("lmpc.soft_min", self.soft_min, "finite penalties (soft)")
         positive("lmpc", "relinearize_m", self.relinearize_m)
         positive("lmpc", "relinearize_rel", self.relinearize_rel)
         positive("lmpc", "relinearize_x", self.relinearize_x)
         positive("lmpc", "relinearize_u", self.relinearize_u)
-        positive("lmpc", "input_std", self.input_std, allow_zero=True)
-        if self.output_std is not None:
-            positive("lmpc", "output_std", self.output_std)
         if self.disturbance is not None and self.disturbance not in DISTURBANCES:
             raise ParameterError("lmpc.disturbance", self.disturbance, f"one of {DISTURBANCES}")
-        if not self.u_min < self.u_max:
-            raise ParameterError("lmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
 
 
 class LinearMPC(RecedingHorizon):

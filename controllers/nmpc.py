@@ -63,8 +63,7 @@ from .qp import QP_SOLVERS
 from .receding import (
     TENSIONS,
     RecedingHorizon,
-    check_horizon,
-    check_soft_min,
+    check_mpc_settings,
     ekf_disturbance,
     mpc_settings,
     soft_bounds,
@@ -178,18 +177,10 @@ class NMPCSettings:
     def __post_init__(self) -> None:
         if self.disturbance not in DISTURBANCES:
             raise ParameterError("nmpc.disturbance", self.disturbance, f"one of {DISTURBANCES}")
-        positive("nmpc", "input_std", self.input_std, allow_zero=True)
-        if self.output_std is not None:
-            positive("nmpc", "output_std", self.output_std)
-        check_horizon("nmpc.horizon", self.horizon)
+        check_mpc_settings("nmpc", self)
         positive("nmpc", "integral_gain", self.integral_gain, allow_zero=True)
-        positive("nmpc", "weight_y", self.weight_y)
-        positive("nmpc", "weight_du", self.weight_du, allow_zero=True)
-        positive("nmpc", "rate_max", self.rate_max)
         positive("nmpc", "terminal_weight", self.terminal_weight, allow_zero=True)
-        positive("nmpc", "soft_penalty", self.soft_penalty)
         positive("nmpc", "backoff", self.backoff, allow_zero=True)
-        object.__setattr__(self, "soft_min", check_soft_min("nmpc", self.soft_min))
         if not isinstance(self.compiled, bool):
             raise ParameterError("nmpc.compiled", self.compiled, "true or false")
         if self.qp_solver not in QP_SOLVERS:
@@ -198,8 +189,6 @@ class NMPCSettings:
             raise ParameterError(
                 "nmpc.linear_solver", self.linear_solver, f"one of {LINEAR_SOLVERS}"
             )
-        if not self.u_min < self.u_max:
-            raise ParameterError("nmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
         count("nmpc.degree", self.degree, 1, 5, "Radau IIA of order 1 to 9")
 
 

@@ -27,7 +27,7 @@ from .base import Controller
 from .disturbance import RANDOM_WALK, check_disturbance
 from .ekf import OFFSETS, make_ekf
 from .estimated import OnEstimate
-from .registry import count, own_settings
+from .registry import count, own_settings, positive
 
 TENSIONS = "myofibril.actin*.T"
 """Every thread tension (a pattern of :func:`soft_bounds`; bounded below by the scene's
@@ -329,6 +329,23 @@ def with_estimator(
     out = settings["output"] if settings["output"] in measured else None
     ekf = make_ekf(model, op, dt, measured, settings.get("noise_std"), ekf_settings, out)
     return OnEstimate(ctl, ekf, model, op)
+
+
+def check_mpc_settings(slug: str, s) -> None:
+    """The checks both MPCs' settings ``s`` share (``slug``: "lmpc" or "nmpc"): the
+    horizon, the weights, the rate limit, the soft bounds (stored as a tuple of tuples)
+    and their penalty, the filter's noise and the command bounds."""
+    check_horizon(f"{slug}.horizon", s.horizon)
+    positive(slug, "weight_y", s.weight_y)
+    positive(slug, "weight_du", s.weight_du, allow_zero=True)
+    positive(slug, "rate_max", s.rate_max)
+    positive(slug, "soft_penalty", s.soft_penalty)
+    object.__setattr__(s, "soft_min", check_soft_min(slug, s.soft_min))
+    positive(slug, "input_std", s.input_std, allow_zero=True)
+    if s.output_std is not None:
+        positive(slug, "output_std", s.output_std)
+    if not s.u_min < s.u_max:
+        raise ParameterError(f"{slug}.u_max", s.u_max, f"> u_min = {s.u_min:g} Pa")
 
 
 def check_soft_min(slug: str, declared: object) -> tuple:
