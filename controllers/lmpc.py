@@ -64,9 +64,7 @@ from .ekf import DEFAULT_STD, estimated_parameters
 from .qp import VelocityQP, velocity_law, zoh
 from .receding import (
     RecedingHorizon,
-    check_horizon,
-    check_soft_min,
-    factory_bounds,
+    check_mpc_settings,
     mpc_settings,
     soft_bounds,
     with_estimator,
@@ -88,7 +86,7 @@ class LMPCSettings:
     weight_du : float
         Weight of the squared input move per sample [1/Pa^2]. The default (a 1.8 kPa
         move costs as much as 1 mm of error; chosen by the tuning study
-        :mod:`sarcomere.scenarios.studies.mpc_tuning`) keeps the loop stable when the
+        ``benchmarks/studies/mpc_tuning.py``) keeps the loop stable when the
         plant carries 50 g more than the linearisation (at 1e-8 it cycles between 0.14
         and 0.3 MPa in the control-length scene).
     u_min, u_max : float
@@ -149,25 +147,15 @@ class LMPCSettings:
     qp_solver: str = "daqp"
 
     def __post_init__(self) -> None:
-        check_horizon("lmpc.horizon", self.horizon)
-        positive("lmpc", "weight_y", self.weight_y)
-        positive("lmpc", "weight_du", self.weight_du, allow_zero=True)
-        positive("lmpc", "rate_max", self.rate_max)
-        positive("lmpc", "soft_penalty", self.soft_penalty)
-        object.__setattr__(self, "soft_min", check_soft_min("lmpc", self.soft_min))
+        check_mpc_settings("lmpc", self)
         if any(len(b) == 3 and not math.isfinite(b[2]) for b in self.soft_min):
             raise ParameterError("lmpc.soft_min", self.soft_min, "finite penalties (soft)")
         positive("lmpc", "relinearize_m", self.relinearize_m)
         positive("lmpc", "relinearize_rel", self.relinearize_rel)
         positive("lmpc", "relinearize_x", self.relinearize_x)
         positive("lmpc", "relinearize_u", self.relinearize_u)
-        positive("lmpc", "input_std", self.input_std, allow_zero=True)
-        if self.output_std is not None:
-            positive("lmpc", "output_std", self.output_std)
         if self.disturbance is not None and self.disturbance not in DISTURBANCES:
             raise ParameterError("lmpc.disturbance", self.disturbance, f"one of {DISTURBANCES}")
-        if not self.u_min < self.u_max:
-            raise ParameterError("lmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
 
 
 class LinearMPC(RecedingHorizon):
@@ -446,23 +434,12 @@ def make_lmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     estimates a parameter of the model (by default the load), the estimate is fed to the
     LMPC and ``disturbance`` defaults to "none" (the EKF's estimate, not a second one).
     """
-    own, est, ekf_settings = mpc_settings("lmpc", model, settings, LMPCSettings, {})
-    noise = (settings.get("noise_std") or {}).get(settings["output"])
-    if own["output_std"] is None and noise:
-        own["output_std"] = float(noise)
+    own, est, ekf_settings = mpc_settings("lmpc", model, settings, LMPCSettings, {}, None)
     if est == "ekf" and "disturbance" not in settings:
         fed = set(estimated_parameters(model, ekf_settings)) & set(model.param_names)
         own["disturbance"] = "none" if fed else own["disturbance"]
-    own.pop("soft_min")
-    s = LMPCSettings(
-        **own,
-        soft_min=factory_bounds(settings, None),
-        output=settings["output"],
-        u_min=float(settings["u_min"]),
-        u_max=float(settings["u_max"]),
-    )
     given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
-    ctl = LinearMPC(model, op.x, op.u, dt, s, given)
+    ctl = LinearMPC(model, op.x, op.u, dt, LMPCSettings(**own), given)
     return with_estimator("lmpc", ctl, model, op, dt, settings, est, ekf_settings)
 
 

@@ -63,10 +63,8 @@ from .qp import QP_SOLVERS
 from .receding import (
     TENSIONS,
     RecedingHorizon,
-    check_horizon,
-    check_soft_min,
+    check_mpc_settings,
     ekf_disturbance,
-    factory_bounds,
     mpc_settings,
     soft_bounds,
     with_estimator,
@@ -179,18 +177,10 @@ class NMPCSettings:
     def __post_init__(self) -> None:
         if self.disturbance not in DISTURBANCES:
             raise ParameterError("nmpc.disturbance", self.disturbance, f"one of {DISTURBANCES}")
-        positive("nmpc", "input_std", self.input_std, allow_zero=True)
-        if self.output_std is not None:
-            positive("nmpc", "output_std", self.output_std)
-        check_horizon("nmpc.horizon", self.horizon)
+        check_mpc_settings("nmpc", self)
         positive("nmpc", "integral_gain", self.integral_gain, allow_zero=True)
-        positive("nmpc", "weight_y", self.weight_y)
-        positive("nmpc", "weight_du", self.weight_du, allow_zero=True)
-        positive("nmpc", "rate_max", self.rate_max)
         positive("nmpc", "terminal_weight", self.terminal_weight, allow_zero=True)
-        positive("nmpc", "soft_penalty", self.soft_penalty)
         positive("nmpc", "backoff", self.backoff, allow_zero=True)
-        object.__setattr__(self, "soft_min", check_soft_min("nmpc", self.soft_min))
         if not isinstance(self.compiled, bool):
             raise ParameterError("nmpc.compiled", self.compiled, "true or false")
         if self.qp_solver not in QP_SOLVERS:
@@ -199,8 +189,6 @@ class NMPCSettings:
             raise ParameterError(
                 "nmpc.linear_solver", self.linear_solver, f"one of {LINEAR_SOLVERS}"
             )
-        if not self.u_min < self.u_max:
-            raise ParameterError("nmpc.u_max", self.u_max, f"> u_min = {self.u_min:g} Pa")
         count("nmpc.degree", self.degree, 1, 5, "Radau IIA of order 1 to 9")
 
 
@@ -418,14 +406,10 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
     an EKF ``backoff`` defaults to :data:`EKF_BACKOFF`.
     """
     extra = {"fidelity": DEFAULT_FIDELITY, "disturbance": None}
-    own, est, ekf_settings = mpc_settings("nmpc", model, settings, NMPCSettings, extra)
+    own, est, ekf_settings = mpc_settings("nmpc", model, settings, NMPCSettings, extra, 0.0)
     kind = own.pop("disturbance")
-    own.pop("soft_min")  # with tension_min: factory_bounds
     if est == "ekf":  # the EKF estimates the disturbance: no second estimate
         ekf_settings = ekf_disturbance("nmpc", model, kind, ekf_settings)
-    noise = (settings.get("noise_std") or {}).get(settings["output"])
-    if own["output_std"] is None and noise:
-        own["output_std"] = float(noise)
     given = dict(zip(model.param_names, np.asarray(op.p, float), strict=True))
     fidelity = own.pop("fidelity")
     smooth = {"fidelity": fidelity, "flow_law": "smooth", "saturate": False}
@@ -454,14 +438,7 @@ def make_nmpc(model: Model, op: Equilibrium, dt: float, settings: dict) -> Contr
         own["integral_gain"] = 0.0
     if est == "ekf" and "backoff" not in settings:  # the estimate's uncertainty
         own["backoff"] = EKF_BACKOFF
-    s = NMPCSettings(
-        **own,
-        output=settings["output"],
-        u_min=float(settings["u_min"]),
-        u_max=float(settings["u_max"]),
-        soft_min=factory_bounds(settings, 0.0),
-    )
-    ctl = NonlinearMPC(pred, op.u, dt, s, params)
+    ctl = NonlinearMPC(pred, op.u, dt, NMPCSettings(**own), params)
     return with_estimator("nmpc", ctl, model, op, dt, settings, est, ekf_settings)
 
 

@@ -27,7 +27,7 @@ from .base import Controller
 from .disturbance import RANDOM_WALK, check_disturbance
 from .ekf import OFFSETS, make_ekf
 from .estimated import OnEstimate
-from .registry import count, own_settings
+from .registry import count, own_settings, positive
 
 TENSIONS = "myofibril.actin*.T"
 """Every thread tension (a pattern of :func:`soft_bounds`; bounded below by the scene's
@@ -246,10 +246,18 @@ def own_defaults(settings_class) -> dict:
 
 
 def mpc_settings(
-    slug: str, model: Model, settings: Mapping[str, object], settings_class, extra: Mapping
+    slug: str,
+    model: Model,
+    settings: Mapping[str, object],
+    settings_class,
+    extra: Mapping,
+    tension_default: float | None,
 ) -> tuple[dict, str, Mapping]:
-    """A factory's own settings: the fields of ``settings_class`` not set by the common
-    keys, the ``extra`` keys and :data:`ESTIMATOR_DEFAULTS`; with the input checked.
+    """A factory's settings: the fields of ``settings_class`` not set by the common keys,
+    the ``extra`` keys and :data:`ESTIMATOR_DEFAULTS`; with the input checked, the common
+    keys ``output``, ``u_min``, ``u_max`` added, ``soft_min`` from
+    :func:`factory_bounds` (``tension_default``) and ``output_std`` from the output's
+    noise (``noise_std``) unless given.
     Returns ``(own, estimator, ekf_settings)``, ``own`` without the estimator keys.
 
     Raises
@@ -262,6 +270,15 @@ def mpc_settings(
     )
     if settings["input"] not in model.input_names:
         raise ParameterError(f"{slug}.input", settings["input"], f"one of {model.input_names}")
+    noise = (settings.get("noise_std") or {}).get(settings["output"])
+    if own["output_std"] is None and noise:
+        own["output_std"] = float(noise)
+    own.update(
+        output=settings["output"],
+        u_min=float(settings["u_min"]),
+        u_max=float(settings["u_max"]),
+        soft_min=factory_bounds(settings, tension_default),
+    )
     return own, own.pop("estimator"), own.pop("ekf")
 
 
@@ -312,6 +329,23 @@ def with_estimator(
     out = settings["output"] if settings["output"] in measured else None
     ekf = make_ekf(model, op, dt, measured, settings.get("noise_std"), ekf_settings, out)
     return OnEstimate(ctl, ekf, model, op)
+
+
+def check_mpc_settings(slug: str, s) -> None:
+    """The checks both MPCs' settings ``s`` share (``slug``: "lmpc" or "nmpc"): the
+    horizon, the weights, the rate limit, the soft bounds (stored as a tuple of tuples)
+    and their penalty, the filter's noise and the command bounds."""
+    check_horizon(f"{slug}.horizon", s.horizon)
+    positive(slug, "weight_y", s.weight_y)
+    positive(slug, "weight_du", s.weight_du, allow_zero=True)
+    positive(slug, "rate_max", s.rate_max)
+    positive(slug, "soft_penalty", s.soft_penalty)
+    object.__setattr__(s, "soft_min", check_soft_min(slug, s.soft_min))
+    positive(slug, "input_std", s.input_std, allow_zero=True)
+    if s.output_std is not None:
+        positive(slug, "output_std", s.output_std)
+    if not s.u_min < s.u_max:
+        raise ParameterError(f"{slug}.u_max", s.u_max, f"> u_min = {s.u_min:g} Pa")
 
 
 def check_soft_min(slug: str, declared: object) -> tuple:

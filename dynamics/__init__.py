@@ -41,33 +41,6 @@ _HOMES = {
 }
 
 
-__all__ = [
-    "FIDELITIES",
-    "METHODS",
-    "Chirp",
-    "Component",
-    "Equilibrium",
-    "Model",
-    "ModelError",
-    "ParameterError",
-    "PlausibilityWarning",
-    "Ramp",
-    "Result",
-    "SarcomereError",
-    "ScenarioError",
-    "Signal",
-    "Simulator",
-    "Sine",
-    "SolverError",
-    "SolverSettings",
-    "Staircase",
-    "Step",
-    "System",
-    "Table",
-    "hanging_load",
-    "isometric",
-    "simulate",
-    "solve_equilibrium",
-]
+__all__ = sorted(_HOMES)  # every lazily imported name is public
 
 __getattr__, __dir__ = lazy_exports(__name__, _HOMES, __all__)

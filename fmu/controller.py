@@ -126,6 +126,16 @@ def _held(uu: str, lo: float, hi: float) -> Variable:
     return Variable("held_command", uu, "command held since the last sample", low=lo, high=hi)
 
 
+def _limits(uu: str, lo: float, hi: float, du_max: float) -> list:
+    """The parameters ``u_min``, ``u_max`` (start ``lo``, ``hi``) and ``du_max``
+    [input unit ``uu``]."""
+    return [
+        Variable("u_min", uu, "lowest command", lo, lo, hi),
+        Variable("u_max", uu, "highest command", hi, lo, hi),
+        Variable("du_max", uu, "largest change of the command per sample", du_max, 0.0),
+    ]
+
+
 def _inputs(output: str, model: Model, y0: float = 0.0, x0=None, held: str = "") -> list:
     """The reference (``held``: how it is held) and the measured ``output``, both starting
     at ``y0``, and, with their start values ``x0``, the plant's states by name."""
@@ -163,9 +173,7 @@ def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> Sample
     )
     inputs = _inputs(lqi.output, model, lqi.y_op, lqi.x_op)  # start values: the design point
     params = (
-        Variable("u_min", uu, "lowest command", lo, lo, hi),
-        Variable("u_max", uu, "highest command", hi, lo, hi),
-        Variable("du_max", uu, "largest change of the command per sample", lqi.du_max, 0.0),
+        *_limits(uu, lo, hi, lqi.du_max),
         Variable("bias", uu, "command before the first sample", bias, lo, hi),
     )
     x = cs.MX.sym("x", 2)
@@ -295,17 +303,7 @@ def lmpc_system(lmpc: LinearMPC, model: Model, bias: float, name: str = "lmpc") 
         inputs.append(Variable(n, pred.unit(n), f"measured {n} (soft lower bound)"))
     p_law = lmpc.law_parameters()
     nb = 3 * len(lmpc.inputs) + len(soft)  # u_lo, u_hi, du_max, soft_min at the end
-    params = [
-        Variable("u_min", uu, "lowest command", lo, lo, hi),
-        Variable("u_max", uu, "highest command", hi, lo, hi),
-        Variable(
-            "du_max",
-            uu,
-            "largest change of the command per sample",
-            p_law[-nb + 2 * len(lmpc.inputs)],
-            0.0,
-        ),
-    ]
+    params = _limits(uu, lo, hi, p_law[-nb + 2 * len(lmpc.inputs)])
     for n, v in s.soft_min:
         params.append(Variable(f"{n}.soft_min", pred.unit(n), f"soft lower bound of {n}", v))
     params.append(Variable("bias", uu, "command before the first sample", bias, lo, hi))

@@ -111,7 +111,6 @@ class FmuParticipant:
     ) -> None:
         md = fmu.description
         self.name = name
-        self.fmu_path = fmu.path
         self._version = fmu.fmi_version
         reals = [v for v in md.modelVariables if v.type in ("Real", "Float64")]
         self._vr = {v.name: v.valueReference for v in reals}

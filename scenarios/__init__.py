@@ -38,27 +38,6 @@ _HOMES = {
 }
 
 
-__all__ = [
-    "SIGNAL_TYPES",
-    "Chirp",
-    "Ramp",
-    "RunOutput",
-    "Scenario",
-    "Signal",
-    "Sine",
-    "Staircase",
-    "Step",
-    "Study",
-    "Table",
-    "load_scenario",
-    "packaged_scenarios",
-    "parse_scenario",
-    "quantity_tag",
-    "register_runner",
-    "resolve_scenario",
-    "run",
-    "runner_kinds",
-    "signal_from_spec",
-]
+__all__ = sorted(_HOMES)  # every lazily imported name is public
 
 __getattr__, __dir__ = lazy_exports(__name__, _HOMES, __all__)

@@ -55,12 +55,11 @@ from pathlib import Path
 import numpy as np
 
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.dynamics.units import to_si
 
 from .binding import Binding, bind, check_n, fidelity_level, solver_settings
 from .output import RunOutput, quantity_tag
 from .runner import register_runner
-from .spec import Scenario, describe, did_you_mean, unknown_key
+from .spec import Scenario, describe, did_you_mean, quantity, unknown_key
 
 P_CMD = "regulator.p_cmd"
 RATE_MAX_DEFAULT = "2 MPa/s"
@@ -97,30 +96,20 @@ def _table(sc: Scenario, value: object, path: tuple, allowed=None) -> Mapping:
     return value
 
 
-def _quantity(sc: Scenario, value: object, path: tuple, unit: str, low: float | None = None):
-    try:
-        v = to_si(value, unit, ".".join(path), bare_ok=False)
-    except ParameterError as exc:
-        raise sc.error(path, describe(exc)) from None
-    if not math.isfinite(v) or (low is not None and v < low):
-        raise sc.error(path, f"{value!r} is outside [{low:g}, inf) {unit}")
-    return v
-
-
 def _reference(sc: Scenario, tbl: dict, unit: str, y_op: float, stop: float):
     """``r(t)``, the events (times where the reference changes character) and the step;
     a step or a sine that starts at or after the end of the run ``stop`` is refused."""
     path = ("control", "reference")
     _table(sc, tbl, path, REFERENCE_KEYS)
-    step = _quantity(sc, tbl.get("step", 0.0), (*path, "step"), unit)
-    t_step = _quantity(sc, tbl.get("step_time", 0.0), (*path, "step_time"), "s", 0.0)
+    step = quantity(sc, tbl.get("step", 0.0), (*path, "step"), unit)
+    t_step = quantity(sc, tbl.get("step_time", 0.0), (*path, "step_time"), "s", 0.0)
     if step and t_step >= stop:
         raise sc.error(
             (*path, "step_time"),
             f"{t_step:g} s is at or after the end of the run ([simulation] stop_time = "
             f"{stop:g} s): the step would never be taken",
         )
-    amp = _quantity(sc, tbl.get("sine_amplitude", 0.0), (*path, "sine_amplitude"), unit)
+    amp = quantity(sc, tbl.get("sine_amplitude", 0.0), (*path, "sine_amplitude"), unit)
     sines = []
     raw = tbl.get("sines", [])
     if not isinstance(raw, list):
@@ -128,8 +117,8 @@ def _reference(sc: Scenario, tbl: dict, unit: str, y_op: float, stop: float):
     for i, item in enumerate(raw):
         p = (*path, "sines")
         item = _table(sc, item, p, ("frequency", "start", "periods"))
-        f = _quantity(sc, item.get("frequency"), p, "Hz", 0.0)
-        start = _quantity(sc, item.get("start"), p, "s", 0.0)
+        f = quantity(sc, item.get("frequency"), p, "Hz", 0.0)
+        start = quantity(sc, item.get("start"), p, "s", 0.0)
         periods = item.get("periods", 1)
         if f <= 0 or isinstance(periods, bool) or not isinstance(periods, int) or periods < 1:
             raise sc.error(p, f"sine {i + 1}: need frequency > 0 and periods an integer >= 1")
@@ -216,12 +205,10 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
     if output not in model.signal_names:
         raise sc.error(("control", "output"), f"{output!r} is not a signal of the model")
     unit = model.unit(output)
-    dt = _quantity(sc, ctl.get("sample_time", "10 ms"), ("control", "sample_time"), "s", 0.0)
-    p_op = _quantity(
-        sc, ctl.get("operating_pressure"), ("control", "operating_pressure"), "Pa", 0.0
-    )
-    p_min = _quantity(sc, ctl.get("pressure_min", 0.0), ("control", "pressure_min"), "Pa", 0.0)
-    p_max = _quantity(sc, ctl.get("pressure_max", "0.1 MPa"), ("control", "pressure_max"), "Pa")
+    dt = quantity(sc, ctl.get("sample_time", "10 ms"), ("control", "sample_time"), "s", 0.0)
+    p_op = quantity(sc, ctl.get("operating_pressure"), ("control", "operating_pressure"), "Pa", 0.0)
+    p_min = quantity(sc, ctl.get("pressure_min", 0.0), ("control", "pressure_min"), "Pa", 0.0)
+    p_max = quantity(sc, ctl.get("pressure_max", "0.1 MPa"), ("control", "pressure_max"), "Pa")
     high = model.variables[P_CMD].high
     if not (p_min <= p_op <= p_max <= high and 0 < p_op and p_min < p_max):
         # blame the limit that is out of place, else the operating point between them
@@ -233,13 +220,13 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
             "operating_pressure > 0 and pressure_min < pressure_max",
         )
     rate = ("control", "pressure_rate_max")
-    rate_max = _quantity(sc, ctl.get("pressure_rate_max", RATE_MAX_DEFAULT), rate, "Pa/s", 0.0)
+    rate_max = quantity(sc, ctl.get("pressure_rate_max", RATE_MAX_DEFAULT), rate, "Pa/s", 0.0)
     if rate_max <= 0:
         raise sc.error(rate, f"{rate_max:g} Pa/s: expected a rate > 0")
     seed = ctl.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise sc.error(("control", "seed"), f"{seed!r}: expected an integer >= 0")
-    t_min = _quantity(sc, ctl.get("tension_min", 0.0), ("control", "tension_min"), "N")
+    t_min = quantity(sc, ctl.get("tension_min", 0.0), ("control", "tension_min"), "N")
     preview = ctl.get("preview", True)
     if not isinstance(preview, bool):
         raise sc.error(("control", "preview"), f"{preview!r}: expected true or false")
@@ -263,7 +250,7 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
                 f"noise on a signal that is not measured (measured = {measured}): "
                 "add it to [control] measured, or remove its noise",
             )
-        noise[name] = _quantity(sc, raw, ("control", "noise", name), model.unit(name), 0.0)
+        noise[name] = quantity(sc, raw, ("control", "noise", name), model.unit(name), 0.0)
     op = operating_point(model, {P_CMD: p_op}, b.overrides)
     y_op = op[output]
     stop = sc.simulation.stop_time
@@ -275,9 +262,9 @@ def run_closed_loop_scene(sc: Scenario, out_dir: Path) -> RunOutput:
         if "load.m" not in model.param_names:
             raise sc.error(path, "the set-up holds no load to disturb")
         dist = Disturbance(
-            _quantity(sc, d.get("time"), (*path, "time"), "s", 0.0),
+            quantity(sc, d.get("time"), (*path, "time"), "s", 0.0),
             "load.m",
-            _quantity(sc, d.get("load"), (*path, "load"), "kg"),
+            quantity(sc, d.get("load"), (*path, "load"), "kg"),
         )
         try:
             check_disturbance(model, op, dist, stop)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -44,7 +43,6 @@ from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.results import Result
-from sarcomere.dynamics.units import to_si
 from sarcomere.fmu.archive import open_fmu
 from sarcomere.fmu.controller import export_controller_fmu
 from sarcomere.fmu.cosim import INPUT_LAWS, ORDERINGS, Connection, cosimulate
@@ -56,7 +54,7 @@ from .export_fmu import scenario_setup
 from .output import RunOutput
 from .progress import report
 from .signals import signal_from_spec
-from .spec import Scenario, describe, unknown_key
+from .spec import Scenario, describe, quantity, unknown_key
 
 KEYS = ("participants", "connections", "sources", "ordering", "inputs", "compare", "record")
 MPC_KEYS = ("plant", "load", "sample_time", "output", "input", "u_min", "u_max", "settings", "fmi")
@@ -113,16 +111,6 @@ class _StartedNative(NativeParticipant):
         super().start(t0, {**self._given, **inputs})
 
 
-def _quantity(sc: Scenario, value, path: tuple, unit: str, low: float | None = None) -> float:
-    try:
-        v = to_si(value, unit, ".".join(path), bare_ok=False)
-    except ParameterError as exc:
-        raise sc.error(path, describe(exc)) from None
-    if not math.isfinite(v) or (low is not None and v < low):
-        raise sc.error(path, f"{value!r} is outside [{low:g}, inf) {unit}")
-    return v
-
-
 def choice(sc: Scenario, tbl: Mapping, path: tuple, key: str, choices: tuple, default):
     """``tbl[key]`` (at ``path``), one of ``choices``, else ``default``; refused naming the key."""
     value = tbl.get(key, default)
@@ -162,7 +150,7 @@ def _start(sc: Scenario, part: Part, path: tuple) -> dict:
     for key in tbl:
         if key not in m.input_names:
             raise sc.error((*path, "start", key), unknown_key(key, m.input_names))
-    return {k: _quantity(sc, v, (*path, "start", k), m.unit(k)) for k, v in tbl.items()}
+    return {k: quantity(sc, v, (*path, "start", k), m.unit(k)) for k, v in tbl.items()}
 
 
 def _build(sc: Scenario, part: Part) -> None:
@@ -180,9 +168,9 @@ def _build(sc: Scenario, part: Part) -> None:
             raise sc.error((*path, exc.name), describe(exc)) from None
     else:
         keys = (("mass", "mass_kg", "kg"), ("stiffness", "stiffness", "N/m"))
-        kw = {arg: _quantity(sc, spec[k], (*path, k), u, 0.0) for k, arg, u in keys if k in spec}
+        kw = {arg: quantity(sc, spec[k], (*path, k), u, 0.0) for k, arg, u in keys if k in spec}
         if "damping" in spec:
-            kw["damping"] = _quantity(sc, spec["damping"], (*path, "damping"), "N*s/m", 0.0)
+            kw["damping"] = quantity(sc, spec["damping"], (*path, "damping"), "N*s/m", 0.0)
         try:
             part.model = spring_mass_load(**kw)
         except ParameterError as exc:
@@ -223,10 +211,10 @@ def _task(sc: Scenario, part: Part, parts: dict[str, Part]) -> tuple:
     u_unit = m.unit(task["input"])
     for key, default in zip(("u_min", "u_max"), PID_BOUNDS_PA, strict=True):
         given = spec[key] if key in spec else f"{default!r} {u_unit}"  # defaults are SI
-        task[key] = _quantity(sc, given, (*path, key), u_unit)
+        task[key] = quantity(sc, given, (*path, key), u_unit)
     if "sample_time" not in spec:
         raise sc.error((*path, "sample_time"), "a sample time is required, e.g. '10 ms'")
-    dt = _quantity(sc, spec["sample_time"], (*path, "sample_time"), "s", 0.0)
+    dt = quantity(sc, spec["sample_time"], (*path, "sample_time"), "s", 0.0)
     op = solve_equilibrium(m, {**dict(zip(m.input_names, m.u0(), strict=True)), **plant.start})
     try:
         check_input_bounds(part.kind, m, op, task)

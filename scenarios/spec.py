@@ -8,6 +8,7 @@ objects from TOML; the runners of each ``kind`` read them.
 from __future__ import annotations
 
 import difflib
+import math
 import re
 import warnings
 from collections.abc import Mapping, Sequence
@@ -19,6 +20,7 @@ from typing import TYPE_CHECKING
 from sarcomere.dynamics.errors import ParameterError, ScenarioError
 from sarcomere.dynamics.schema import FIDELITIES as MODEL_LEVELS
 from sarcomere.dynamics.schema import MAX_VALUES, WITHOUT_MODEL
+from sarcomere.dynamics.units import to_si
 
 if TYPE_CHECKING:
     from sarcomere.dynamics.signals import Signal
@@ -68,6 +70,18 @@ def unknown_key(key: str, allowed: Sequence[str]) -> str:
 def describe(exc: ParameterError) -> str:
     """A ParameterError's message without its ``parameter 'name' =`` prefix."""
     return str(exc).removeprefix(f"parameter '{exc.name}' = ")
+
+
+def quantity(sc: Scenario, value: object, path: KeyPath, unit: str, low: float | None = None):
+    """``value`` (a scene key at ``path``; a bare non-zero number refused) in SI ``unit``,
+    finite and >= ``low``; else ``sc``'s error at ``path``."""
+    try:
+        v = to_si(value, unit, ".".join(path), bare_ok=False)
+    except ParameterError as exc:
+        raise sc.error(path, describe(exc)) from None
+    if not math.isfinite(v) or (low is not None and v < low):
+        raise sc.error(path, f"{value!r} is outside [{low:g}, inf) {unit}")
+    return v
 
 
 def line_of(key_lines: Mapping[KeyPath, int], path: KeyPath) -> int | None:

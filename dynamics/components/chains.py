@@ -47,6 +47,17 @@ CHAIN_DAMPING = {"full": "tension_only", "quasi_static": "gated", "static_chain"
 massless bodies of "static_chain" have no rates."""
 
 
+def _tube(b: Builder, name: str, p: APSParams, aps: APS, unit, flow_law: str):
+    """Feed ``unit`` (the built ``aps``) through its tube ``name``, an ISO 6358 restriction
+    of ``p``'s tube parameters; returns the tube's free (supply) port."""
+    smooth = FLOW_LAWS[flow_law]
+    tube = b.add(
+        Restriction(name, C=p.C_tube, b=p.b_tube, r_lam=p.r_lam, smooth=smooth, T_b=aps.temperature)
+    )
+    b.connect(tube.port_b, unit.port)
+    return tube.port_a
+
+
 class Myofibril(Component):
     """``n`` APS in series, each fed by its own tube from one manifold port.
 
@@ -92,27 +103,13 @@ class Myofibril(Component):
             aps = APS(f"aps{i + 1}", p, massless_expansion, massless_body, self.instant)
             unit = b.add(aps)
             if self.instant:  # no tube: the chamber takes the manifold's pressure
-                if i == 0:
-                    b.expose("port", unit.port)
-                else:
-                    b.connect(b.ports["port"], unit.port)
-                units.append((aps, unit))
-                continue
-            tube = b.add(
-                Restriction(
-                    f"tube{i + 1}",
-                    C=p.C_tube,
-                    b=p.b_tube,
-                    r_lam=p.r_lam,
-                    smooth=FLOW_LAWS[self.flow_law],
-                    T_b=aps.temperature,
-                )
-            )
-            b.connect(tube.port_b, unit.port)
-            if i == 0:
-                b.expose("port", tube.port_a)
+                port = unit.port
             else:
-                b.connect(b.ports["port"], tube.port_a)
+                port = _tube(b, f"tube{i + 1}", p, aps, unit, self.flow_law)
+            if i == 0:
+                b.expose("port", port)
+            else:
+                b.connect(b.ports["port"], port)
             units.append((aps, unit))
         damping = CHAIN_DAMPING[self.level]
         bands = [Actin("actin0", self.params[0], upper=False, lower=True, damping=damping)]
@@ -253,18 +250,7 @@ class SymmetricMyofibril(Component):
         n, p = self.n, self.p
         aps = APS("aps1", replace(p, m_body=0.0), massless_body=True)
         unit = b.add(aps)
-        tube = b.add(
-            Restriction(
-                "tube1",
-                C=p.C_tube,
-                b=p.b_tube,
-                r_lam=p.r_lam,
-                smooth=FLOW_LAWS[self.flow_law],
-                T_b=aps.temperature,
-            )
-        )
-        b.connect(tube.port_b, unit.port)
-        b.expose("port", tube.port_a)
+        b.expose("port", _tube(b, "tube1", p, aps, unit, self.flow_law))
         band_c = Actin("actin", p, True, True)
         band = b.add(band_c)
         b.connect(band.flange_b, unit.body)

@@ -98,36 +98,17 @@ class YeohMaterial:
 
     def params(self) -> ParameterSet:
         """The material as a :class:`ParameterSet` (C1, C2, C3 in Pa; density in kg/m^3)."""
+        positive = {"low": 0.0, "low_open": True}
+        rows = (  # name, unit, bounds, description
+            ("C1", "Pa", positive, "Yeoh coefficient 1 (mu0/2)"),
+            ("C2", "Pa", {}, "Yeoh coefficient 2"),
+            ("C3", "Pa", {}, "Yeoh coefficient 3 (omitted by the paper)"),
+            ("density", "kg/m^3", positive, "mass density"),
+        )
         return ParameterSet(
             [
-                Param(
-                    "C1",
-                    self.C1,
-                    unit="Pa",
-                    low=0.0,
-                    low_open=True,
-                    source=self.source,
-                    description="Yeoh coefficient 1 (mu0/2)",
-                ),
-                Param(
-                    "C2", self.C2, unit="Pa", source=self.source, description="Yeoh coefficient 2"
-                ),
-                Param(
-                    "C3",
-                    self.C3,
-                    unit="Pa",
-                    source=self.source,
-                    description="Yeoh coefficient 3 (omitted by the paper)",
-                ),
-                Param(
-                    "density",
-                    self.density,
-                    unit="kg/m^3",
-                    low=0.0,
-                    low_open=True,
-                    source=self.source,
-                    description="mass density",
-                ),
+                Param(n, getattr(self, n), unit=u, source=self.source, description=text, **bounds)
+                for n, u, bounds, text in rows
             ],
             name=self.slug,
         )

@@ -120,36 +120,21 @@ static fmi2Status no_such(fmi2Component c, const char* function, size_t nvr) {
     return fmi2Error;
 }
 
-fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          fmi2Integer value[]) {
-    (void)vr, (void)value;
-    return no_such(c, "fmi2GetInteger", nvr);
-}
-fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          fmi2Boolean value[]) {
-    (void)vr, (void)value;
-    return no_such(c, "fmi2GetBoolean", nvr);
-}
-fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                         fmi2String value[]) {
-    (void)vr, (void)value;
-    return no_such(c, "fmi2GetString", nvr);
-}
-fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          const fmi2Integer value[]) {
-    (void)vr, (void)value;
-    return no_such(c, "fmi2SetInteger", nvr);
-}
-fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          const fmi2Boolean value[]) {
-    (void)vr, (void)value;
-    return no_such(c, "fmi2SetBoolean", nvr);
-}
-fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                         const fmi2String value[]) {
-    (void)vr, (void)value;
-    return no_such(c, "fmi2SetString", nvr);
-}
+#define NO_SUCH_TYPE(Name, Type)                                                         \
+    fmi2Status fmi2Get##Name(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, \
+                             Type value[]) {                                             \
+        (void)vr, (void)value;                                                           \
+        return no_such(c, "fmi2Get" #Name, nvr);                                         \
+    }                                                                                    \
+    fmi2Status fmi2Set##Name(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, \
+                             const Type value[]) {                                       \
+        (void)vr, (void)value;                                                           \
+        return no_such(c, "fmi2Set" #Name, nvr);                                         \
+    }
+
+NO_SUCH_TYPE(Integer, fmi2Integer)
+NO_SUCH_TYPE(Boolean, fmi2Boolean)
+NO_SUCH_TYPE(String, fmi2String)
 
 /* --- FMU state: handles checked against the registry of live states (instance.c) ------ */
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* FMUstate) {

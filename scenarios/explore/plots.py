@@ -200,28 +200,12 @@ def _contour_panel(ax, ds, study, da, failed, x, y, levels, where):
     )
     lost = failed.transpose(y, x).values
     gap = ~np.isfinite(z) & ~lost
-    if lost.any():
-        ax.plot(
-            gx[lost],
-            gy[lost],
-            "x",
-            color="red",
-            ms=7,
-            mew=1.5,
-            label="failed sample",
-            clip_on=False,
-        )
-    if gap.any():
-        ax.plot(
-            gx[gap],
-            gy[gap],
-            "+",
-            color="0.2",
-            ms=7,
-            mew=1.2,
-            label="undefined value",
-            clip_on=False,
-        )
+    for mask, mark, color, mew, what in (
+        (lost, "x", "red", 1.5, "failed sample"),
+        (gap, "+", "0.2", 1.2, "undefined value"),
+    ):
+        if mask.any():
+            ax.plot(gx[mask], gy[mask], mark, color=color, ms=7, mew=mew, label=what, clip_on=False)
     _marks(ax, ds, study, x, y, where, xs, ys)
     ax.set_xlabel(label(ds, study, x))
     ax.set_ylabel(label(ds, study, y))

@@ -334,6 +334,16 @@ def _states_outside_the_domain(fmu, fmi):
     fmu.exitInitializationMode()
 
 
+def _get_an_integer(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.getInteger([1])
+
+
+def _set_a_string(fmu, fmi):
+    _start(fmu, None, fmi)
+    fmu.setString([1], ["x"])
+
+
 def _no_equilibrium(fmu, fmi):
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
@@ -359,6 +369,8 @@ def _no_equilibrium(fmu, fmi):
         (_garbage_state, "refused (wrong size)"),
         (_states_outside_the_domain, "myofibril.aps1.yeoh.lambda = -1.5 is outside"),
         (_no_equilibrium, "equilibrium not found: scaled residual"),
+        (_get_an_integer, "fmi2GetInteger: this FMU has no variables of that type"),
+        (_set_a_string, "fmi2SetString: this FMU has no variables of that type"),
     ],
 )
 def test_misuse_is_an_error_with_a_message(step_loaded, misuse, message):
