@@ -325,7 +325,11 @@ def with_estimator(
         return ctl
     if estimator != "ekf":
         raise ParameterError(f"{slug}.estimator", estimator, "'none' or 'ekf'")
-    measured = settings.get("measured") or [settings["output"], "regulator.p_out"]
+    measured = settings.get("measured")
+    if measured is None:
+        measured = [settings["output"], "regulator.p_out"]
+    elif not measured:  # an empty list is a mistake, not a request for the defaults
+        raise ParameterError(f"{slug}.measured", measured, "at least one signal for the EKF")
     out = settings["output"] if settings["output"] in measured else None
     ekf = make_ekf(model, op, dt, measured, settings.get("noise_std"), ekf_settings, out)
     return OnEstimate(ctl, ekf, model, op)

@@ -143,3 +143,12 @@ def test_an_operating_point_at_a_bound_is_accepted(plant, p_op):
     c = make_controller("pid", m, op, DT, TASK)
     c.reset({P: p_op})
     assert c.checked(0.0, {L: op[L]}, {L: op[L]})[P] == pytest.approx(p_op, abs=1e-6)
+
+
+@pytest.mark.parametrize("slug", ["lqi", "lmpc", "nmpc"])
+def test_an_empty_measured_list_for_an_ekf_is_refused_not_replaced(plant, slug):
+    """Issue 24 (poor): ``measured = []`` with an EKF silently took the default signals."""
+    m, op = plant
+    task = {**TASK, "estimator": "ekf", "measured": []}
+    with pytest.raises(ParameterError, match=rf"'{slug}\.measured' = \[\].*at least one signal"):
+        make_controller(slug, m, op, DT, task)
