@@ -218,6 +218,18 @@ def make_ekf(
     return EKF(model, op, dt, meas, std, own["input_std"], dist_std, substeps, output)
 
 
+def measured_signals(slug: str, settings: Mapping[str, object], output: str) -> list[str]:
+    """The signals a controller's EKF reads: ``settings["measured"]``, by default the
+    tracked ``output`` and ``regulator.p_out``; an empty list is refused (a mistake, not a
+    request for the default)."""
+    measured = settings.get("measured")
+    if measured is None:
+        return [output, "regulator.p_out"]
+    if not measured:
+        raise ParameterError(f"{slug}.measured", measured, "at least one signal for the EKF")
+    return list(measured)
+
+
 def default_disturbances(model: Model) -> dict[str, float]:
     """The parameters :func:`make_ekf` estimates unless told otherwise, with their
     random-walk intensity [SI/sqrt(s)]: the load mass (2 g/sqrt(s)) where the model has one."""

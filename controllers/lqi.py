@@ -58,7 +58,7 @@ from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
 from .disturbance import StateDisturbanceFilter
-from .ekf import DEFAULT_STD, EKF, make_ekf
+from .ekf import DEFAULT_STD, EKF, make_ekf, measured_signals
 from .linearize import linearize, operating_point
 from .registry import (
     MAX_PREVIEW,
@@ -504,11 +504,7 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     weights = LQIWeights(**{k: float(own[k]) for k in defaults})
     est = None
     if own["estimator"] == "ekf":
-        measured = settings.get("measured")
-        if measured is None:
-            measured = [out, "regulator.p_out"]
-        elif not measured:
-            raise ParameterError("lqi.measured", measured, "at least one signal for the EKF")
+        measured = measured_signals("lqi", settings, out)
         est = make_ekf(model, op, dt, measured, settings.get("noise_std"), own["ekf"])
     u_min, u_max = float(settings["u_min"]), float(settings["u_max"])
     return LQI(

@@ -25,7 +25,7 @@ from sarcomere.dynamics.modeling.model import Model
 
 from .base import Controller
 from .disturbance import RANDOM_WALK, check_disturbance
-from .ekf import OFFSETS, make_ekf
+from .ekf import OFFSETS, make_ekf, measured_signals
 from .estimated import OnEstimate
 from .registry import count, own_settings, positive
 
@@ -325,11 +325,7 @@ def with_estimator(
         return ctl
     if estimator != "ekf":
         raise ParameterError(f"{slug}.estimator", estimator, "'none' or 'ekf'")
-    measured = settings.get("measured")
-    if measured is None:
-        measured = [settings["output"], "regulator.p_out"]
-    elif not measured:  # an empty list is a mistake, not a request for the defaults
-        raise ParameterError(f"{slug}.measured", measured, "at least one signal for the EKF")
+    measured = measured_signals(slug, settings, settings["output"])
     out = settings["output"] if settings["output"] in measured else None
     ekf = make_ekf(model, op, dt, measured, settings.get("noise_std"), ekf_settings, out)
     return OnEstimate(ctl, ekf, model, op)
