@@ -132,13 +132,16 @@ class NMPCSettings:
     compiled : bool
         Run the RTI as generated C, compiled with gcc and cached on disk
         (:mod:`.rti_compiled`): the linearisation, the condensing, the feedback and the
-        update, with the lifted linear solves as the sparse LU of :mod:`.sparse_lu`
-        (``linear_solver`` "auto"). Default false (BENCHMARKS.md, section 5: measured
-        compile time against the time saved).
+        update, with the lifted linear solves as the kept sparse LU of :mod:`.sparse_lu`
+        (``linear_solver`` "auto"; only the small per-interval Functions are generated
+        once, the horizon's loops call them). Default false (BENCHMARKS.md, section 5:
+        measured compile time against the time saved).
     linear_solver : str
-        Linear solver of the lifted Radau equations: "lapacklu", "qr"
-        (CasADi's sparse QR), "sparse_lu" (:mod:`.sparse_lu`, SX expressions fused with
-        the Jacobians; with "qr" the ones that generate C: use it for a law to export) or
+        Linear solver of the lifted Radau equations (:mod:`.rti_lift`): "lapacklu", "qr"
+        (CasADi's sparse QR; both solve every sensitivity in the preparation),
+        "sparse_lu" (:mod:`.sparse_lu`, the factors as SX expressions with the Jacobians,
+        kept, each use solving only the right-hand sides it needs; with "qr" the ones
+        that generate C: use it for a law to export) or
         "auto" (default: "sparse_lu" when compiled, else LAPACK LU, the faster in
         CasADi's virtual machine).
     disturbance : str

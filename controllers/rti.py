@@ -20,16 +20,18 @@ from sarcomere.dynamics.modeling.buffered import BufferedCall
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
-from . import sparse_lu
 from .ekf import OFFSETS
 from .qp import qp_solver
 from .rti_compiled import compiled_functions
+from .rti_lift import DenseLift, FactoredLift
 
 LINEAR_SOLVERS = ("auto", "lapacklu", "qr", "sparse_lu")
-"""Linear solvers of the RTI's lifted Radau equations: LAPACK's dense LU (the fastest in
-CasADi's virtual machine), CasADi's own sparse QR (generates C, slowly), or the sparse LU
-written out as SX expressions with the Jacobians (:mod:`.sparse_lu`: generates C, the
-fastest compiled); "auto": "sparse_lu" when ``compiled``, else "lapacklu"."""
+"""Linear solvers of the RTI's lifted Radau equations (:mod:`.rti_lift`): LAPACK's dense
+LU or CasADi's own sparse QR (generates C, slowly) of every sensitivity in the
+preparation (:class:`~.rti_lift.DenseLift`), or the sparse LU written out as SX
+expressions with the Jacobians and kept (:mod:`.sparse_lu`, :class:`~.rti_lift.
+FactoredLift`: generates C, the fastest compiled); "auto": "sparse_lu" when ``compiled``,
+else "lapacklu" (the faster in CasADi's virtual machine: BENCHMARKS.md, section 5)."""
 
 GENERATED_SOLVERS = ("qr", "sparse_lu")
 """The linear solvers whose law generates C (LAPACK's have no code generation)."""
@@ -108,9 +110,10 @@ class RealTimeIteration:
 
     The guess holds the node states, the inputs and the collocation states of every
     interval. Per interval the Radau equations ``R(V, x, v) = 0`` are linearised once at
-    the guess (one Newton step, the "lifted" integrator): ``dV = dV0 + S [dx; dv]`` with
-    ``dV0 = -R_V^{-1} R`` and ``S = -R_V^{-1} [R_x, R_v]`` from one factorisation, so
-    the interval's end is ``x_end + dx_end`` linear in ``(dx, dv)``. The node gaps, the
+    the guess (one Newton step, the "lifted" integrator):
+    ``dV = -R_V^{-1} (R + R_x dx + R_v dv)`` from one factorisation (:attr:`lift`,
+    :mod:`.rti_lift`: every sensitivity solved in the preparation, or the factors kept),
+    so the interval's end is ``x_end + dx_end`` linear in ``(dx, dv)``. The node gaps, the
     tracking and move residuals (Gauss-Newton) and the linearised lower bounds of the
     bounded signals are condensed onto the corrections of the input moves ``dm`` (the QP's
     variables: the rate limits are then bounds), with one slack per node shared by the
@@ -125,9 +128,9 @@ class RealTimeIteration:
       measured state and the previous input held.
     * :attr:`feedback` ``(data, memory, x, u_prev, ref) -> (u, violation, fallback,
       slack, step)``: the affine update of the QP's gradient and bounds (the measured
-      state's distance from the guess carried through the intervals' end sensitivities
-      and the outputs' Jacobians: 2N matrix-vector products, cheaper than the N matrix
-      products that would condense it in the preparation), the QP and the command: the
+      state's distance from the guess carried through the intervals' ends (``N`` products
+      or solves with one right-hand side) and the outputs' Jacobians, cheaper than the N
+      matrix products that would condense it in the preparation), the QP and the command: the
       measurement-to-command latency.
     * :attr:`update` ``(data, memory, x, u_prev, step) -> memory_next``: the next guess
       (the corrected trajectory shifted by one sample) and the plan, after the command.
@@ -177,7 +180,7 @@ class RealTimeIteration:
             ["memory_next", "u", "violation", "fallback", "slack"],
         )
         parts = [self.prepare, self.feedback, self.update]
-        if pb.s.compiled and self.solve is None:  # all in C
+        if pb.s.compiled and isinstance(self.lift, FactoredLift):  # all in C
             built = compiled_functions(parts, "nmpc_rti")
             parts = [built[f.name()] for f in parts]
         elif pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
@@ -226,28 +229,19 @@ class RealTimeIteration:
             self.data_p = p.copy()
 
     def _lifts(self, pb: Prediction) -> None:
-        """The per-interval linearisation, its linear solves (both mapped over the horizon)
-        and the outputs' linearisation."""
-        nx, nu, d, N = pb.nx, pb.nu, pb.s.degree, pb.s.horizon
-        V, xi, v = cs.SX.sym("V", nx * d), cs.SX.sym("xi", nx), cs.SX.sym("v", nu)
-        ps = cs.SX.sym("p", pb.np)
-        R = pb.res(xi, V, cs.vertcat(v, ps), pb.dt)
-        RV, RB = cs.jacobian(R, V), cs.horzcat(R, cs.jacobian(R, cs.vertcat(xi, v)))
+        """The per-interval linearisation and its solves (:mod:`.rti_lift`, mapped over
+        the horizon) and the outputs' linearisation."""
+        nx, N = pb.nx, pb.s.horizon
         linsol = pb.s.linear_solver
         if linsol == "auto":
             linsol = "sparse_lu" if pb.s.compiled else "lapacklu"
-        if linsol == "sparse_lu":  # the solve as expressions, with the Jacobians: no call
-            order = sparse_lu.block_order(np.array(cs.DM(RV.sparsity(), 1)) != 0, nx, d)
-            L = -sparse_lu.solve(RV, RB, order)
-            self.lin = cs.Function("radau_lift", [V, xi, v, ps], cs.cse([L])).map(N)
-            self.solve = None
+        if linsol == "sparse_lu":  # the factors as expressions, with the Jacobians
+            self.lift = FactoredLift(pb, N)
         else:
-            # common subexpressions of both Jacobians merged: 5114 instead of 6077
-            self.lin = cs.Function("radau_lin", [V, xi, v, ps], cs.cse([RV, RB])).map(N)
             if linsol.startswith("lapack"):
                 _one_blas_thread()
-            A, B = cs.MX.sym("RV", RV.sparsity()), cs.MX.sym("RB", RB.sparsity())
-            self.solve = cs.Function("lift_solve", [A, B], [-cs.solve(A, B, linsol)]).map(N)
+            self.lift = DenseLift(pb, linsol, N)
+        xi, ps = cs.SX.sym("xi", nx), cs.SX.sym("p", pb.np)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
         self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
 
@@ -268,9 +262,9 @@ class RealTimeIteration:
         p = cs.MX.sym("p", pb.np)
         Xb, Ub, Vb = self._guess(mem, x / pb.xs, u / pb.us)
         P = cs.repmat(p, 1, N)
-        lifted = self.lin.call([Vb, Xb[:, :N], Ub, P])  # [RV, RB], or [L] (fused)
+        lifted = self.lift.lin.call([Vb, Xb[:, :N], Ub, P])
         YT, CYT = self.outs(Xb[:, 1:], P)
-        names = ["Xb", "Ub", "Vb", *(["RV", "RB"] if self.solve else ["L"]), "YT", "CYT"]
+        names = ["Xb", "Ub", "Vb", *self.lift.head_names, "YT", "CYT"]
         return cs.Function(
             "nmpc_head",
             [mem, x, u, p],
@@ -285,32 +279,26 @@ class RealTimeIteration:
         p = cs.MX.sym("p", self.pb.np)
         inline = not head.is_a("External")  # CasADi's own: one graph, no calls between
         Xb, Ub, Vb, *lifted, YT, CYT = head.call([mem, x, u, p], inline, False)
-        L = self.solve(*lifted) if self.solve else lifted[0]
-        (data,) = tail.call([Xb, Ub, Vb, L, YT, CYT], inline, False)
+        lifted = self.lift.between(lifted)
+        (data,) = tail.call([Xb, Ub, Vb, *lifted, YT, CYT], inline, False)
         return cs.Function(
             "nmpc_prepare", [mem, x, u, p], [data], ["memory", "x", "u_prev", "p"], ["data"]
         )
 
     def _tail_function(self, head: cs.Function) -> cs.Function:
-        """(Xb, Ub, Vb, L, YT, CYT) -> data: the condensed QP, affine in the measurement;
-        ``L = [dV0, S]`` per interval (the lifted solves)."""
+        """(Xb, Ub, Vb, *lifted, YT, CYT) -> data: the condensed QP, affine in the
+        measurement; ``lifted`` the lift's data (:mod:`.rti_lift`)."""
         pb, N = self.pb, self.N
         s, nx, nu = pb.s, pb.nx, pb.nu
-        nq, w = N * nu, 1 + nx + nu
+        nq = N * nu
         Xb, Ub, Vb = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("Xb", "Ub", "Vb"))
         YT, CYT = (cs.MX.sym(n, head.sparsity_out(n)) for n in ("YT", "CYT"))
-        L = cs.MX.sym("L", nx * pb.s.degree, N * w)
+        lifted = self.lift.symbols()
+        D = dict(zip(self.lift.names, lifted, strict=True))
         # node k's state correction: dX_k = c_k + Phi_k a0 + G_k du, a0 = x0 - Xb_0; the
         # part in a0 is left to the feedback (:meth:`_measured`: 20 products with a vector
         # there instead of 20 matrix products here)
-        c, G = cs.MX(nx, 1), cs.MX(nx, nq)
-        cc, GG = [c], [G]
-        for k in range(N):
-            Lk = L[-nx:, k * w : (k + 1) * w]  # the interval's end
-            Ak, Bk = Lk[:, 1 : 1 + nx], Lk[:, 1 + nx :]
-            c = Vb[-nx:, k] + Lk[:, 0] + cs.mtimes(Ak, c) - Xb[:, k + 1]
-            G = cs.mtimes(Ak, G) + _at(Bk, k, N, nu)
-            cc.append(c), GG.append(G)
+        cc, GG = self.lift.condense(D, Xb, Vb, nq)
         # every node's output rows times its corrections at once: the outputs' Jacobians
         # as one block-diagonal matrix (their nonzeros in the same order)
         ny = 1 + len(pb.bounded)
@@ -344,16 +332,16 @@ class RealTimeIteration:
             "Ub": Ubv,
             "Xb": Xb,
             "Vb": Vb,
-            "L": L,
+            **D,
         }
         self.data_shapes = {k: v.shape for k, v in data.items()}
         flat = cs.densify(cs.vertcat(*(cs.vec(v) for v in data.values())))
         ok = _finite(flat)  # a linearisation that is not finite is a failed sample
         return cs.Function(
             "nmpc_tail",
-            [Xb, Ub, Vb, L, YT, CYT],
+            [Xb, Ub, Vb, *lifted, YT, CYT],
             [cs.vertcat(flat, ok)],
-            ["Xb", "Ub", "Vb", "L", "YT", "CYT"],
+            ["Xb", "Ub", "Vb", *self.lift.names, "YT", "CYT"],
             ["data"],
         )
 
@@ -386,10 +374,10 @@ class RealTimeIteration:
         """The nodes' tracked outputs and bounded signals moved by the measured state's distance
         ``a0`` from the guess (scaled): ``a0`` through the intervals' end sensitivities
         (``L``), then the outputs' Jacobians (``CYT``)."""
-        nx, w, N = self.pb.nx, 1 + self.pb.nx + self.pb.nu, self.N
+        nx, N = self.pb.nx, self.N
         dx, out = a0, []
         for k in range(N):
-            dx = cs.mtimes(D["L"][-nx:, k * w + 1 : k * w + 1 + nx], dx)
+            dx = self.lift.carry(D, k, dx)
             out.append(cs.mtimes(D["CYT"][:, k * nx : (k + 1) * nx], dx))
         ry, rT = self._rows()
         ya = cs.vertcat(*out)
@@ -457,18 +445,17 @@ class RealTimeIteration:
         shifted by one sample (the next guess) and the plan."""
         pb, N = self.pb, self.N
         nx, nu = pb.nx, pb.nu
-        nq, w = N * nu, 1 + nx + nu
+        nq = N * nu
         data = self._data_symbol()
         mem, x, u_prev = (cs.MX.sym(n, k) for n, k in self._io()[:3])
         step = cs.MX.sym("step", nq + 1)
         D = self._unpack(data)
         dm, ok = step[:nq], step[nq]
         du = cs.reshape(cs.mtimes(_cumulative(N, nu), dm), nu, N)
-        Xb, Vb, L = D["Xb"], D["Vb"], D["L"]
+        Xb, Vb = D["Xb"], D["Vb"]
         dX, dV = [x / pb.xs - D["Xb0"]], []
         for k in range(N):
-            Lk = L[:, k * w : (k + 1) * w]
-            dV.append(Lk[:, 0] + cs.mtimes(Lk[:, 1:], cs.vertcat(dX[k], du[:, k])))
+            dV.append(self.lift.stages(D, k, dX[k], du[:, k]))
             dX.append(Vb[-nx:, k] + dV[k][-nx:] - Xb[:, k + 1])
         X, V = Xb + cs.horzcat(*dX), Vb + cs.horzcat(*dV)
         U = cs.reshape(D["Ub"], nu, N) + du
@@ -495,12 +482,6 @@ def _one_blas_thread() -> None:
     path = Path(cs.__file__).parent / "libcasadi-tp-openblas.so.0"
     if path.is_file():
         ctypes.CDLL(str(path)).openblas_set_num_threads(1)
-
-
-def _at(M: cs.MX, k: int, N: int, nu: int) -> cs.MX:
-    """``M`` placed at input block ``k`` of ``N`` blocks of ``nu`` columns, zeros elsewhere."""
-    r = M.shape[0]
-    return cs.horzcat(cs.MX(r, k * nu), M, cs.MX(r, (N - k - 1) * nu))
 
 
 def _moves(N: int, nu: int) -> cs.DM:

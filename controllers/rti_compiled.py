@@ -1,9 +1,10 @@
 """The NMPC real-time iteration's CasADi Functions generated to C, compiled and cached.
 
 :func:`compiled_functions` turns pure CasADi Functions (the RTI's ``nmpc_prepare``,
-``nmpc_feedback`` and ``nmpc_update`` with the lifted solves as the sparse LU of
-:mod:`.sparse_lu`; with a LAPACK solver, the linearisation ``nmpc_head`` and condensing
-``nmpc_tail`` around it; or a whole law built with a code-generable linear solver,
+``nmpc_feedback`` and ``nmpc_update`` with the kept sparse LU of :mod:`.sparse_lu`, whose
+per-interval Functions are generated once and called in loops; with a LAPACK solver, the
+linearisation ``nmpc_head`` and condensing ``nmpc_tail`` around it; or a whole law built
+with a code-generable linear solver,
 ``"sparse_lu"`` or ``"qr"``) into one shared library:
 ``casadi.CodeGenerator`` writes the C, gcc compiles it with :data:`CFLAGS`, and the
 library lives in the disk cache of :mod:`sarcomere.dynamics.simulation.compiled` (keyed

@@ -1,15 +1,17 @@
-"""A sparse LU solve of the Radau collocation Jacobian written out as CasADi SX expressions.
+"""A sparse LU of the Radau collocation Jacobian written out as CasADi SX expressions.
 
-The RTI's lifted solve ``R_V^{-1} [R, R_x, R_v]`` per interval (:mod:`.nmpc`) has a
-54 x 54 matrix at n = 3, degree 3, with 387 of its 2916 entries structurally nonzero:
+The RTI's lifted solves ``R_V^{-1} B`` per interval (:mod:`.rti_lift`) have a
+54 x 54 matrix at n = 3, degree 3, with 387 of its 2916 entries structurally nonzero
+(159 x 159 with 1269 at n = 10):
 ``R_V = h blockdiag(J_1 .. J_d) - D kron I`` (``J_j`` the ODE's Jacobian at collocation point
 ``j``, ``D`` the Radau differentiation matrix). Ordered state by state (a state's ``d``
 collocation values together) the matrix is ``J``'s pattern of ``d x d`` blocks, and
 Gaussian elimination in a minimum-degree order of that pattern fills little.
-:func:`solve` eliminates in that order on the structural nonzeros only and returns the
-solution as SX expressions: the same Function then holds the Jacobians and the solve, it
-generates to C (CasADi's LAPACK solvers do not), and compiled it runs about 3x faster than
-the Jacobians plus LAPACK's dense LU.
+:class:`Factors` eliminates in that order on the structural nonzeros only and returns the
+factors' values as SX expressions (the same Function then holds the Jacobians and the
+factorisation; it generates to C, CasADi's LAPACK solvers do not), and the solve with one
+right-hand side as a small SX Function of those values, mapped over as many right-hand
+sides as a use needs: the factorisation is made once per interval and kept.
 
 No pivoting: the pivots are the diagonal ``d x d`` blocks' (``h J_ii - D``, dominated by
 ``D``'s well-conditioned entries for the stiff states' negative ``J_ii``). A zero pivot
@@ -48,34 +50,57 @@ def _rows(M: cs.SX, order: list[int] | None = None) -> list[dict[int, cs.SX]]:
     return rows
 
 
-def solve(A: cs.SX, B: cs.SX, order: list[int]) -> cs.SX:
-    """``A^{-1} B`` by Gaussian elimination without pivoting, rows and columns of ``A`` in
-    ``order``, on structural nonzeros only (dense result)."""
-    n = A.shape[0]
-    a, b = _rows(A, order), _rows(B)
-    U, rhs = [a[o] for o in order], [b[o] for o in order]
-    for k in range(n):  # forward elimination, the right-hand sides along
-        inv = 1 / U[k][k]
-        for i in range(k + 1, n):
-            if k not in U[i]:
-                continue
-            m = U[i].pop(k) * inv
+class Factors:
+    """The sparse LU of ``A`` (rows and columns in ``order``, no pivoting, structural
+    nonzeros only) as a vector of SX expressions, :attr:`values`, and the elimination's
+    pattern, to solve with any right-hand side later: :meth:`solve_function`.
+
+    ``values`` holds, step by step, the multipliers of the rows eliminated, the upper
+    factor's row beyond the pivot and the pivot's inverse; their positions are recorded
+    in :attr:`lower` and :attr:`upper` (plain integers: no expression kept)."""
+
+    def __init__(self, A: cs.SX, order: list[int]) -> None:
+        n, a = A.shape[0], _rows(A, order)
+        U, values = [a[o] for o in order], []
+        self.order, self.lower, self.upper = order, [], []
+        for k in range(n):  # forward elimination
+            inv, steps = 1 / U[k][k], []
+            for i in range(k + 1, n):
+                if k not in U[i]:
+                    continue
+                m = U[i].pop(k) * inv
+                for c, v in U[k].items():
+                    if c > k:
+                        U[i][c] = U[i].get(c, 0) - m * v
+                steps.append((i, len(values)))
+                values.append(m)
+            self.lower.append(steps)
+            row = []
             for c, v in U[k].items():
                 if c > k:
-                    U[i][c] = U[i].get(c, 0) - m * v
-            for c, v in rhs[k].items():
-                rhs[i][c] = rhs[i].get(c, 0) - m * v
-    X: list[dict[int, cs.SX]] = [{} for _ in range(n)]
-    for k in reversed(range(n)):  # back substitution
-        row = dict(rhs[k])
-        for c, v in U[k].items():
-            if c > k:
-                for j, x in X[c].items():
-                    row[j] = row.get(j, 0) - v * x
-        inv = 1 / U[k][k]
-        X[k] = {j: x * inv for j, x in row.items()}
-    out = cs.SX.zeros(n, B.shape[1])
-    for k, row in enumerate(X):
-        for j, x in row.items():
-            out[order[k], j] = x
-    return out
+                    row.append((c, len(values)))
+                    values.append(v)
+            self.upper.append((row, len(values)))
+            values.append(inv)
+        self.values = cs.vertcat(*values)
+
+    def solve_function(self, name: str = "lu_solve") -> cs.Function:
+        """``(values, b) -> A^{-1} b`` for one column ``b`` as an SX Function (map it for
+        several)."""
+        n = len(self.order)
+        v, b = cs.SX.sym("values", self.values.numel()), cs.SX.sym("b", n)
+        y = [b[o] for o in self.order]
+        for k, steps in enumerate(self.lower):  # L y = P b
+            for i, j in steps:
+                y[i] = y[i] - v[j] * y[k]
+        x: list = [None] * n
+        for k in reversed(range(n)):  # U x = y
+            row, inv = self.upper[k]
+            acc = y[k]
+            for c, j in row:
+                acc = acc - v[j] * x[c]
+            x[k] = acc * v[inv]
+        out = cs.SX.zeros(n)
+        for k, xk in enumerate(x):
+            out[self.order[k]] = xk
+        return cs.Function(name, [v, b], [out], ["values", "b"], ["x"])

@@ -267,7 +267,7 @@ def _prediction(fidelity: str = "full"):
                         saturate=False)  # fmt: skip
 
 
-class _Timed:
+class Timed:
     """A callable that records the wall time (``times``) and this thread's CPU time
     (``cpu``) of each call of ``f`` [s]: on a shared machine the wall time also counts the
     time the process waited for a core."""
@@ -292,7 +292,7 @@ def timed_rti(model, compiled: bool = False, linear_solver: str = "auto"):
         ctl = NonlinearMPC(model, eq.u, DT, s)
         calls = ctl.engine.calls
         for name in calls:
-            calls[name] = _Timed(calls[name])
+            calls[name] = Timed(calls[name])
         return ctl
 
     return make

@@ -157,10 +157,11 @@ def test_the_law_with_a_generated_solver_generates_self_contained_c(linear_solve
 
 
 def test_the_sparse_lu_solves_like_a_dense_lu():
-    """The SX sparse LU (no pivoting, block minimum-degree order) against numpy's dense
-    LU with pivoting: on a random sparse system with a dominant diagonal, and on the
-    Radau collocation Jacobian of the 3-APS model (54 x 54, degree 3) at a perturbed state,
-    where the lifted sensitivities' entries span 1e-6 to 1e3."""
+    """The SX sparse LU (no pivoting, block minimum-degree order), factorised once and
+    solved per column, against numpy's dense LU with pivoting: on a random sparse system
+    with a dominant diagonal, and on the Radau collocation Jacobian of the 3-APS model
+    (54 x 54, degree 3) at a perturbed state, where the lifted sensitivities' entries span
+    1e-6 to 1e3 (the dense lift's LAPACK solve as the reference)."""
     import casadi as cs
 
     from sarcomere.controllers import sparse_lu
@@ -168,11 +169,13 @@ def test_the_sparse_lu_solves_like_a_dense_lu():
     rng = np.random.default_rng(3)
     A = np.where(rng.random((12, 12)) < 0.3, rng.normal(size=(12, 12)), 0.0) + 5 * np.eye(12)
     B = rng.normal(size=(12, 4))
-    Asx, Bsx = cs.SX.sym("A", cs.DM(A).sparsity()), cs.SX.sym("B", 12, 4)
+    Asx = cs.SX.sym("A", cs.DM(A).sparsity())
     order = sparse_lu.block_order(A != 0, 4, 3)
     assert sorted(order) == list(range(12))
-    f = cs.Function("f", [Asx, Bsx], [sparse_lu.solve(Asx, Bsx, order)])
-    assert np.allclose(np.array(f(cs.DM(A), B)), np.linalg.solve(A, B), rtol=1e-12, atol=1e-12)
+    lu = sparse_lu.Factors(Asx, order)
+    values = cs.Function("v", [Asx], [lu.values])(cs.DM(A))
+    got = np.array(lu.solve_function().map(4)(values, B))
+    assert np.allclose(got, np.linalg.solve(A, B), rtol=1e-12, atol=1e-12)
 
     model = hanging_load(3, load_kg=0.02, flow_law="smooth", saturate=False)
     eq = solve_equilibrium(model, {P: 5e4})
@@ -180,11 +183,12 @@ def test_the_sparse_lu_solves_like_a_dense_lu():
     xs = np.asarray(eq.x) / eng.pb.xs
     xi = xs * (1 + 0.01 * rng.normal(size=xs.size))
     V, u, p = np.tile(xs, 3), np.array([0.7]), np.asarray(NonlinearMPC(model, eq.u, 0.01)._p)
-    RV, RB = (np.array(cs.DM(m)) for m in eng.lin.call([V, xi, u, p])[:2])
+    RV, RB = (np.array(cs.DM(m)) for m in eng.lift.lin.call([V, xi, u, p])[:2])
     expected = -np.linalg.solve(RV[:, :54], RB[:, : RB.shape[1] // eng.N])
-    fused = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(linear_solver="sparse_lu")).engine
-    (L,) = fused.lin.call([V, xi, u, p])
-    got = np.array(cs.DM(L))[:, : expected.shape[1]]
+    lift = NonlinearMPC(model, eq.u, 0.01, NMPCSettings(linear_solver="sparse_lu")).engine.lift
+    F, R, RX, RU = (np.array(cs.DM(m))[:, 0] for m in lift.lin.call([V, xi, u, p]))
+    rhs = np.hstack([R[:, None], cs.DM(lift.spx, RX).full(), cs.DM(lift.spu, RU).full()])
+    got = -np.array(lift.solve.map(rhs.shape[1])(F, rhs))
     assert np.allclose(got, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
 
 
@@ -202,3 +206,37 @@ def test_the_converged_nmpcs_settings_are_checked(kwargs, match):
     eq = solve_equilibrium(model, {P: 5e4})
     with pytest.raises(ParameterError, match=match):
         ConvergedNMPC(model, eq.u, 0.01, **kwargs)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("n", [3, 10])
+def test_the_factored_lift_gives_the_dense_lifts_law(n):
+    """The law with the kept sparse factors (``linear_solver = "sparse_lu"``: the moves'
+    directions carried forward, one solve per interval in the feedback and the update)
+    against the law with LAPACK's solves of every sensitivity (``"lapacklu"``, the law
+    before): the same inputs (fixed seed: states around random equilibria, random
+    references, the dense law's memory fed to both) give commands within 1e-6 of the
+    input range and the same next guess."""
+    model = hanging_load(n, load_kg=0.02, flow_law="smooth", saturate=False)
+    rng = np.random.default_rng(27)
+    s = NMPCSettings(soft_min=((TENSIONS, 0.19),), integral_gain=0.0)
+    eq = solve_equilibrium(model, {P: 5e4})
+    dense = NonlinearMPC(
+        model, eq.u, 0.01, NMPCSettings(**{**s.__dict__, "linear_solver": "lapacklu"})
+    )
+    factored = NonlinearMPC(
+        model, eq.u, 0.01, NMPCSettings(**{**s.__dict__, "linear_solver": "sparse_lu"})
+    )
+    old, new = dense.law_function(), factored.law_function()
+    memory, u_prev, p = np.zeros(dense.engine.n_memory), eq.u.copy(), dense._p
+    xs, span = dense.problem.xs, dense.clip.high - dense.clip.low
+    for _ in range(8):
+        at = solve_equilibrium(model, {P: rng.uniform(2e4, 8e4)})
+        x = np.asarray(at.x) + 2e-3 * xs * rng.normal(size=model.nx)
+        ref = dense.clip.low + span * rng.uniform(0.2, 0.8) + np.zeros(s.horizon)
+        a = [np.array(v).ravel() for v in old(memory, x, u_prev, ref, p)]
+        b = [np.array(v).ravel() for v in new(memory, x, u_prev, ref, p)]
+        assert a[3][0] == b[3][0] == 0  # no fallback in either
+        assert b[1][0] == pytest.approx(a[1][0], abs=1e-6 * (s.u_max - s.u_min))
+        assert np.allclose(b[0], a[0], rtol=1e-6, atol=1e-8)
+        memory, u_prev = a[0], a[1]
