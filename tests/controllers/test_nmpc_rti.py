@@ -102,8 +102,8 @@ def test_bad_new_settings_name_the_setting(kwargs, name):
 
 @pytest.fixture(scope="module")
 def compiled_pair():
-    """One compiled build per session (cached on disk) and its CasADi twin (both with
-    LAPACK's LU for the lifted solves, which the compiled RTI calls too)."""
+    """One compiled build per session (cached on disk; "auto": the kept sparse LU) and its
+    CasADi twin ("auto": LAPACK's LU of every sensitivity): two lifts, one law."""
     model = hanging_load(1, load_kg=0.02, flow_law="smooth", saturate=False)
     eq = solve_equilibrium(model, {P: 5e4})
     # horizon 10: a shorter build
