@@ -4,7 +4,7 @@ packages' ``__all__`` (``apigen.py``), the example gallery (``examples/plot_*.py
 Build (warnings are errors, every cross reference checked, offline)::
 
     sphinx-build -W --keep-going -n docs docs/_build/html
-    sphinx-build -W --keep-going -n -D plot_gallery=0 docs docs/_build/html  # no examples run
+    sphinx-build -W --keep-going -n -D plot_gallery=0 docs docs/_build/fast  # no examples run
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 import apigen  # noqa: E402  (beside this file)
+import landing  # noqa: E402
 
 project = "sarcomere"
 author = "the sarcomere authors"
@@ -35,12 +36,19 @@ extensions = [
     "sphinx.ext.autosummary",
     "numpydoc",
     "sphinx.ext.mathjax",
-    "sphinx.ext.viewcode",
     "sphinx_gallery.gen_gallery",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
-exclude_patterns = ["_build", "tests", "gallery/*.ipynb", "gallery/*.py", "**.zip", "**.json"]
+exclude_patterns = [
+    "_build",
+    "_generated",
+    "tests",
+    "gallery/*.ipynb",
+    "gallery/*.py",
+    "**.zip",
+    "**.json",
+]
 templates_path = ["_templates"]
 nitpicky = True
 suppress_warnings: list[str] = []
@@ -85,11 +93,13 @@ os.environ.setdefault("MPLBACKEND", "agg")
 # --- HTML ----------------------------------------------------------------------------------
 html_theme = "pydata_sphinx_theme"
 html_title = f"sarcomere {release}"
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+html_favicon = "_static/favicon.svg"  # else every page asks for /favicon.ico (a 404)
+html_context = {"default_mode": "auto"}  # else the theme's script logs "invalid theme mode"
 html_theme_options = {
     "navigation_with_keys": False,
     "show_toc_level": 2,
-    "header_links_before_dropdown": 6,
+    "header_links_before_dropdown": 3,  # the pages' titles are long
     "secondary_sidebar_items": ["page-toc"],
     "footer_start": ["copyright"],
     "footer_end": [],
@@ -214,6 +224,7 @@ def process_docstring(app, what, name, obj, options, lines):
 
 
 def setup(app):
+    landing.draw(HERE / "_generated" / "landing-step-50g.png")
     app.connect("autodoc-process-docstring", process_docstring)
     app.connect("autodoc-process-signature", process_signature)
     apigen.write_api(HERE / "api")
