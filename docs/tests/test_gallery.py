@@ -1,5 +1,6 @@
 """The gallery was executed: every ``examples/plot_*.py`` has its page with the figures it
-drew (a fast build, ``-D plot_gallery=0``, has none and fails here)."""
+drew (a fast build, ``-D plot_gallery=0``, runs no example: from a clean tree its pages
+have no figure and fail here; after a full build it reuses that build's pages)."""
 
 from __future__ import annotations
 
