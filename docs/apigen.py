@@ -14,6 +14,7 @@ from __future__ import annotations
 import pkgutil
 import re
 from importlib import import_module
+from importlib.util import find_spec
 from pathlib import Path
 
 #: The top-level packages, in the order of the layers (docs/architecture.md).
@@ -35,8 +36,7 @@ _ALL = re.compile(r"^__all__\s*[:=]", re.MULTILINE)
 
 
 def _source_defines_all(name: str) -> bool:
-    spec = import_module(name).__spec__
-    origin = getattr(spec, "origin", None)
+    origin = getattr(find_spec(name), "origin", None)  # the module is not run
     return bool(origin and origin.endswith(".py") and _ALL.search(Path(origin).read_text()))
 
 
