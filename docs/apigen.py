@@ -120,7 +120,7 @@ def write_api(out: Path) -> list[str]:
         (out / f"{module}.rst").write_text("\n".join(page))
         index += [f":doc:`{module}`", "-" * (len(module) + 7), "", _summary(module), ""]
         targets = [f"{module}.{n}" for n in own] + [t for _, t in aliases]
-        index += [".. autosummary::", "", *(f"   {t}" for t in targets), ""]
+        index += [".. autosummary::", "", *(f"   ~{t}" for t in targets), ""]  # short names
     (out / "index.rst").write_text("\n".join(index))
     return list(modules)
 
