@@ -17,8 +17,12 @@ the averaged equilibrium of the held duty, without any switched simulation:
 * **each signal's ripple**: the averaged model's linearisation ``G(s)`` from the command
   to the signal, summed over the square wave's harmonics,
   ``sum_k |G(j k w)| 2 |sin(k pi d)| / (k pi)`` (a bound of the peak deviation).
-* **each signal's mean shift**: the pressure's shift times the signal's static
-  sensitivity to the pressure (two equilibria at ``d +- 0.01``).
+* **each signal's mean shift**: second-order averaging on the whole model: the period
+  mean of the ODE's and the signal's second-order terms along the harmonic responses
+  ``Z_k = [X_k; U_k]``, ``sum_k q(Re Z_k) + q(Im Z_k)`` with ``q(v) = v' H v`` (CasADi's
+  second directional derivatives), moves the orbit's mean by ``dx = -A^-1 drive`` and
+  the signal by ``C dx`` plus its own term; bounded by the same sums of magnitudes,
+  ``|C A^-1| |drive| + |direct|`` (no cancellation; :data:`SAFETY`).
 
 The predicted error of a signal is :data:`SAFETY` times its mean shift plus its ripple;
 ``auto`` takes the
@@ -33,6 +37,7 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+import casadi as cs
 import numpy as np
 
 from ..equilibrium import solve_equilibrium
@@ -45,13 +50,11 @@ command and like 1/k^2 or faster through the model's first-order lags)."""
 
 SAFETY = 3.5
 """Factor on the predicted error: measured/estimated (the largest deviation of the
-switched run from the averaged equilibrium once periodic) was 0.8-3.0 on the hose and
-chamber pressures and the length over duty 0.3/0.5/0.7 x 20/50/100 Hz (n = 3, 20 g,
-``benchmarks/pwm_ripple.py``); the mean shift through the tubes' nonlinear flow, which
-the valve-side estimate leaves out, is most of the rest; 3.5 leaves 15 % on 3.0."""
-
-DUTY_STEP = 0.01
-"""Duty step [1] of the static sensitivities (central differences of equilibria)."""
+switched run from the averaged equilibrium once periodic, 1.3-1.5 s after the start)
+was 0.09-2.33 on the hose and chamber pressures and the length over duty 0.2-0.8 x
+20/50/100 Hz (n = 3, 20 g, ``benchmarks/pwm_ripple.py``); 3.5 leaves 50 % on 2.33. The
+mean shift is a bound (the terms' magnitudes summed): the signed second-order sum crossed
+zero near duty 0.41 where the measured shift did not (ratio 6.4 there)."""
 
 _CHAMBER_V = re.compile(r"\.chamber\.V$")
 
@@ -147,50 +150,68 @@ def predict(
         return float(sig(xs, eq.z, np.array([d]), p)[iq])
 
     p_hose, h = eq[f"{valve}_hose.p"], 1e-3
-    # the net valve flow at each opening: value, slope and curvature in the hose pressure
-    q = {o: [flow(o, 1 + k * h) for k in (-1, 0, 1)] for o in (0.0, 1.0)}
+    # each phase's net valve flow at the hose pressure: value and slope there
+    q = {o: [flow(o, 1 + k * h) for k in (-1, 0, 1)] for o in (1.0, 0.0)}
     g = {o: (v[2] - v[0]) / (2 * h * p_hose) for o, v in q.items()}
-    curv = {o: (v[2] - 2 * v[1] + v[0]) / (h * p_hose) ** 2 for o, v in q.items()}
-    phases = [p_hose - q[o][1] / g[o] if o else p_hose - q[o][1] / g[o] for o in (1.0, 0.0)]
     T = pwm.period
-    pp, _ = _periodic(d, T, phases[0], -C / g[1.0], phases[1], -C / g[0.0])
+    a_on, a_off = (p_hose - q[o][1] / g[o] for o in (1.0, 0.0))
+    pp, _ = _periodic(d, T, a_on, -C / g[1.0], a_off, -C / g[0.0])
     out = RipplePrediction(d, T, -C / g[1.0], -C / g[0.0], pp, 0.0)
-    flow_terms = (
-        d * g[1.0] + (1 - d) * g[0.0],  # q_p at the mean opening
-        d * curv[1.0] + (1 - d) * curv[0.0],  # q_pp (the flow is linear in the opening)
-        g[1.0] - g[0.0],  # q_xp
-    )
-    _signal_errors(model, name, eq, p, d, T, signals, out, params, valve, flow_terms)
+    _signal_errors(model, name, eq, p, d, T, signals, out, params, f"{valve}_hose.p")
     return out
 
 
-def _signal_errors(model, name, eq, p, d, T, signals, out, params, valve, flow_terms) -> None:
+def _second_order(model: Model, names: list[str]) -> cs.Function:
+    """``(x, u, p, v) -> (v' H_f v, v' H_y v)``: the second derivative of the ODE and of
+    the signals ``names`` along ``v`` in ``[x; u]`` (cached on the model)."""
+
+    def build() -> cs.Function:
+        w = cs.vertcat(model.x, model.u)
+        v = cs.SX.sym("v", w.numel())
+        idx = [model.signal_names.index(n) for n in names]
+        y = model.function("signals")(model.x, cs.SX(0, 1), model.u, model.p)[idx]
+        second = [cs.jtimes(cs.jtimes(e, w, v), w, v) for e in (model.ode, y)]
+        return cs.Function("second", [model.x, model.u, model.p, v], second)
+
+    return model.cached(("ripple_second_order", *names), build)
+
+
+def _signal_errors(model, name, eq, p, d, T, signals, out, params, p_name) -> None:
     """Fill ``out.mean_shift``, ``out.error`` and ``out.span`` (module docstring)."""
-    p_name, x_name = f"{valve}_hose.p", f"{valve}.x"
-    names = list(dict.fromkeys([*signals, p_name, x_name]))
+    if model.nz:
+        raise ParameterError(
+            "fidelity", model.name, "a level without algebraic unknowns for the ripple"
+        )
+    names = list(dict.fromkeys([*signals, p_name]))
     A, B, Cm, D = (np.array(M) for M in model.linearization(names)(eq.x, eq.z, [d], p))
+    second = _second_order(model, names)
     w = 2 * math.pi / T
     eye = np.eye(A.shape[0])
-    ripple, cross = np.zeros(len(names)), np.zeros((2,))
+    ripple = np.zeros(len(names))
+    drive, direct = np.zeros(A.shape[0]), np.zeros(len(names))
+    drive_abs, direct_abs = np.zeros(A.shape[0]), np.zeros(len(names))
     for k in range(1, HARMONICS + 1):
-        # the square wave's k-th complex coefficient (pulse on [0, d T)); its conjugate
-        # pair doubles the sums below
+        # the pulse's k-th complex coefficient (on over [0, d T)) and the response to it
         U = (1.0 - np.exp(-2j * math.pi * k * d)) / (2j * math.pi * k)
-        Y = (Cm @ np.linalg.solve(1j * k * w * eye - A, B) + D)[:, 0] * U
-        ripple += 2.0 * np.abs(Y)
-        P, X = Y[names.index(p_name)], Y[names.index(x_name)]
-        cross += 2.0 * np.real([P * np.conj(P), X * np.conj(P)])
-    # the mean of the nonlinear valve flow over a period vanishes:
-    # q_p <dp> + q_pp <dp^2>/2 + q_xp <dx dp> = 0
-    q_p, q_pp, q_xp = flow_terms
-    out.mean_shift = -(0.5 * q_pp * cross[0] + q_xp * cross[1]) / q_p
-    lo, hi = max(d - DUTY_STEP, 0.0), min(d + DUTY_STEP, 1.0)
-    e_lo, e_hi = (solve_equilibrium(model, {name: v}, params, guess=eq) for v in (lo, hi))
+        X = np.linalg.solve(1j * k * w * eye - A, B[:, 0] * U)
+        ripple += 2.0 * np.abs(Cm @ X + D[:, 0] * U)
+        # the period mean of the second-order terms: sum_k q(Re Z_k) + q(Im Z_k)
+        Z = np.concatenate([X, [U]])
+        for part in (Z.real, Z.imag):
+            f2, y2 = (np.array(v).ravel() for v in second(eq.x, [d], p, part))
+            drive += f2
+            direct += y2
+            drive_abs += np.abs(f2)
+            direct_abs += np.abs(y2)
+    # the mean shift of the periodic orbit: A dx + drive = 0, dy = C dx + direct; its
+    # bound takes every term's magnitude (no cancellation between the harmonics, the
+    # states or the terms: the signed sum crosses zero where the true shift does not)
+    G0 = Cm @ np.linalg.inv(A)
+    out.mean_shift = float((-G0 @ drive + direct)[names.index(p_name)])
+    shift = np.abs(G0) @ drive_abs + direct_abs
     ends = [solve_equilibrium(model, {name: v}, params, guess=eq) for v in (0.0, 1.0)]
-    dp = e_hi[p_name] - e_lo[p_name]
     for i, n in enumerate(names[: len(signals)]):
-        sens = (e_hi[n] - e_lo[n]) / dp if dp else 0.0
-        out.error[n] = SAFETY * (abs(sens * out.mean_shift) + ripple[i])
+        out.error[n] = SAFETY * (abs(shift[i]) + ripple[i])
         out.span[n] = abs(ends[1][n] - ends[0][n])
 
 
