@@ -145,7 +145,11 @@ class PulseTrain:
         b = np.asarray(duty_bps, dtype=float)
         moved = np.floor(b / T) * T + self._duty(b) * T
         edges = np.concatenate([starts, offs, b, moved]) + delay
-        return sorted({float(e) for e in edges if t0 < e < tf})
+        out: list[float] = []
+        for e in sorted({float(e) for e in edges if t0 < e < tf}):
+            if not out or e - out[-1] > 1e-12 * (1.0 + abs(e)):  # one instant, to rounding
+                out.append(e)
+        return out
 
     def casadi(self, t):
         raise _mixed()

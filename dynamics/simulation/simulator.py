@@ -166,6 +166,7 @@ class Simulator:
         self._inputs = [_Const(float(v)) for v in u_start]
         self._u = u_start.copy()
         self._limit: tuple | None = None
+        self._pwm_history = False  # a PWM's duty before the first advance: held as given
         self.stats: dict = {}
         self._started = True
 
@@ -359,7 +360,9 @@ class Simulator:
                     "the PWM samples the duty as it comes, and its command is integrated "
                     "held between its edges",
                 )
-            out[i] = pwm.law(given[i], self._inputs[i], self._t)
+            before = self._inputs[i] if self._pwm_history else given[i]
+            out[i] = pwm.law(given[i], before, self._t)
+        self._pwm_history = True
         return out
 
     def _piece(
