@@ -17,6 +17,9 @@ kind "closed_loop" (the regulator plant); the valve plant is the same set-up wit
   20-100 Hz);
 - ``nmpc_frequency``: the PWM frequency of the NMPC run (default 50 Hz; ``"0 Hz"``: none);
 - ``points_per_period``: output points per sample (default 20: the ripple resolved);
+- ``tolerance``: of the valve level's ``auto`` rule (default 0.01 of the output's range
+  over duty 0-1): ``summary.json`` ``extra.valve_auto`` says which level it picks at
+  ``averaged_frequency`` and why (:func:`~sarcomere.dynamics.fidelity.ripple.choose_level`);
 - ``averaged_frequency``: the frequency (one of ``frequencies``, default 50 Hz) whose PI
   also runs on the averaged valve;
 - ``[control.disturbance]``: ``load`` (added mass) at ``time``;
@@ -48,7 +51,7 @@ from scipy.optimize import brentq
 
 from sarcomere.controllers import make_controller, operating_point
 from sarcomere.dynamics.errors import ParameterError
-from sarcomere.dynamics.fidelity.ripple import predict
+from sarcomere.dynamics.fidelity.ripple import choose_level
 from sarcomere.dynamics.results import Result
 from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.dynamics.supply import ValveOptions
@@ -66,6 +69,7 @@ KEYS = (
     "frequencies",
     "nmpc_frequency",
     "averaged_frequency",
+    "tolerance",
     "points_per_period",
     "disturbance",
     "valve",
@@ -186,6 +190,9 @@ def run_pwm_hold(sc: Scenario, out_dir: Path) -> RunOutput:
     if not freqs or any(not 20.0 <= f <= 100.0 for f in freqs):
         raise sc.error((*path, "frequencies"), f"{freqs} Hz: give PWM frequencies in [20, 100] Hz")
     f_nmpc = quantity(sc, ctl.get("nmpc_frequency", "50 Hz"), (*path, "nmpc_frequency"), "Hz", 0)
+    tol = float(ctl.get("tolerance", 0.01))
+    if not 0 < tol < 1:
+        raise sc.error((*path, "tolerance"), f"{tol!r}: give a fraction in (0, 1)")
     f_avg = quantity(
         sc, ctl.get("averaged_frequency", "50 Hz"), (*path, "averaged_frequency"), "Hz", 0
     )
@@ -263,7 +270,9 @@ def run_pwm_hold(sc: Scenario, out_dir: Path) -> RunOutput:
         metrics.update({f"{key}_{k}": v for k, v in run_metrics.items()})
     f0 = f"pwm{f_avg:g}"
     sw, av = results[f"{f0}_pi"], results[f"{f0}_pi_averaged"]
-    pred = predict(valve_model(f_avg), duty_hold, [output], b.overrides)
+    choice = choose_level(valve_model(f_avg), duty_hold, [output], tol, b.overrides)
+    pred = choice.prediction
+    extra["valve_auto"] = choice.report()
     gap = np.abs(sw[output] - av[output])
     metrics[f"{f0}_averaged_deviation_mm"] = float(np.max(gap)) * 1e3
     metrics[f"{f0}_averaged_deviation_held_mm"] = (

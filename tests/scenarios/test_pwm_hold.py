@@ -32,6 +32,7 @@ def test_packaged_scene_loads():
     [
         ('frequencies = ["20 Hz", "50 Hz", "100 Hz"]', 'frequencies = ["10 Hz"]', "frequencies"),
         ("points_per_period = 20", "points_per_period = 1", "points_per_period"),
+        ("points_per_period = 20", "points_per_period = 20\ntolerance = 2.0", "tolerance"),
         ("points_per_period = 20", "points_per_period = 20\nwobble = 1", "wobble"),
         (
             'nmpc_frequency = "50 Hz"',
@@ -75,3 +76,7 @@ def test_shortened_scene_end_to_end(tmp_path):
         assert m[f"{key}_rmse_mm"] < m[f"{key}_disturbance_peak_mm"]
     assert m["pwm50_averaged_cpu_ratio"] > 2.0  # 10-13x measured; load-proof margin
     assert out.extra["hold_duty"] == pytest.approx(0.41, abs=0.02)
+    auto = out.extra["valve_auto"]  # the auto rule said which level and why
+    assert auto["chosen"] in ("averaged", "switched") and "tolerance 0.01" in auto["why"]
+    rel = auto["predicted_relative_error"]["myofibril.length"]
+    assert (auto["chosen"] == "averaged") == (rel <= 0.01)
