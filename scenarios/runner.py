@@ -37,6 +37,7 @@ BUILTIN_KINDS = {
     "transient": "sarcomere.scenarios.transient",
     "closed_loop": "sarcomere.scenarios.control",
     "cosim": "sarcomere.scenarios.cosim",
+    "pwm_hold": "sarcomere.scenarios.pwm_hold",
 }
 
 

@@ -241,6 +241,37 @@ double sm_samples(double t, double h) {
     return 0.0;
 }
 
+#if SM_PWM
+/* The PWM (physics.h; dynamics/simulation/pwm.py): the effective duty, the command at t
+ * (the duty d from the carrier time t_switch on, prev before it) and the next edge. */
+static double pwm_duty(double d) {
+    double brief = SM_PWM_MIN_ON * (1.0 - 1e-9) / SM_PWM_PERIOD;
+    return d < brief ? 0.0 : (1.0 - d < brief ? 1.0 : d);
+}
+
+static double pwm_command(double t, double d, double prev, double t_switch) {
+    double s = t - SM_PWM_DELAY, T = SM_PWM_PERIOD;
+    double duty = pwm_duty(s >= t_switch ? d : prev);
+    return s - T * floor(s / T) < duty * T ? 1.0 : 0.0;
+}
+
+/* The first edge after t by more than rounding (so that every piece advances). */
+static double pwm_next_edge(double t, double d, double prev, double t_switch) {
+    double s = t - SM_PWM_DELAY, T = SM_PWM_PERIOD, next = INFINITY;
+    double after = t + 1e-12 * (1.0 + fabs(t)), k = floor(s / T);
+    for (int j = 0; j < 3; j++) {
+        double start = (k + j) * T;
+        double edges[4] = {start, start + pwm_duty(prev) * T, start + pwm_duty(d) * T,
+                           j ? INFINITY : t_switch};
+        for (int i = 0; i < 4; i++) {
+            double e = edges[i] + SM_PWM_DELAY;
+            if (e > after && e < next) next = e;
+        }
+    }
+    return next;
+}
+#endif
+
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg) {
     double rtol = wk->rtol > 0.0 ? wk->rtol : SM_RTOL;
@@ -248,12 +279,34 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
     double opt[4] = {rtol, fmax(SM_ATOL_PER_RTOL * rtol, SM_ATOL_MIN), 0.0, INFINITY};
     double stats[SM_RADAU_STATS] = {0.0};
     double xw[SM_NX], xf[SM_NX], t_end = t + h, t_fail = t;
+    int code = 0;
     *substeps = 0;
     if (!(h > 0.0)) return 0;
     for (int i = 0; i < SM_NX; i++) xw[i] = x[i] / sm_radau_scale[i]; /* what sm_rhs takes */
-    int code = sm_radau(SM_NX, u, p, t, xw, 1, &t_end, xf, sm_radau_tableau, opt,
-                        SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail);
+#if SM_PWM
+    double ua[SM_NU], d = u[SM_PWM_INPUT];
+    double prev = wk->pwm_started ? wk->pwm_prev : d;
+    memcpy(ua, u, sizeof ua);
+    ua[SM_PWM_INPUT] = pwm_duty(d);
+    /* the pieces between edges, each with its command held (averaged: one piece) */
+    for (double a = t; a < t_end && !code;) {
+        double b = SM_PWM_AVERAGED ? t_end : fmin(pwm_next_edge(a, d, prev, t), t_end);
+        if (!SM_PWM_AVERAGED) ua[SM_PWM_INPUT] = pwm_command(0.5 * (a + b), d, prev, t);
+        if (b - a > 1e-13 * (1.0 + fabs(b))) { /* shorter: an edge twice, to rounding */
+            double b_out = b;
+            code = sm_radau(SM_NX, ua, p, a, xw, 1, &b_out, xf, sm_radau_tableau, opt,
+                            SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail);
+            *substeps = (long)stats[0]; /* radau.c adds to its counters */
+            memcpy(xw, xf, sizeof xw);
+        }
+        a = b;
+    }
+    if (!code) wk->pwm_prev = d, wk->pwm_started = 1;
+#else
+    code = sm_radau(SM_NX, u, p, t, xw, 1, &t_end, xf, sm_radau_tableau, opt, SM_RADAU_MAX_STEPS,
+                    SM_RADAU_MAX_NEWTON, stats, &t_fail);
     *substeps = (long)stats[0];
+#endif
     if (code) {
         /* radau.c's smallest step: 10 machine epsilons of the larger of |t| and h */
         char why[SM_MSG / 2] = "";

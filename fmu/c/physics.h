@@ -16,6 +16,8 @@ typedef struct {
     long long int iw[SM_SZ_IW + 1];
     double w[SM_SZ_W];
     double rtol;
+    double pwm_prev; /* SM_PWM: the duty of the last doStep (the delayed edges' history) */
+    int pwm_started; /* SM_PWM: a doStep has run (before it, the duty counts as held) */
 } SmWork;
 
 /* Each returns 0 on success, nonzero if the generated code failed or a result is not
@@ -47,6 +49,11 @@ int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg);
  * updated only on success; *substeps counts the steps (samples) taken. */
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg);
+
+/* SM_PWM (a PWM valve's duty input SM_PWM_INPUT, dynamics/simulation/pwm.py): sm_advance
+ * integrates between the pulse train's edges (period SM_PWM_PERIOD, carrier from the start
+ * time, minimum on-time SM_PWM_MIN_ON, delay SM_PWM_DELAY) with the command held in each
+ * piece, or (SM_PWM_AVERAGED) with the effective duty as the command. */
 
 /* The sample instants in [t, t + h) a doStep from t (time since the start) runs: a sampled
  * system, at most SM_MAX_SAMPLES per doStep; 0 for a continuous model. */
