@@ -1,0 +1,106 @@
+"""The robot scenes: the joint and bundle bound from scene files, joint-stiffness and
+bundle-recruitment, their refusals."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sarcomere.dynamics.errors import ScenarioError
+from sarcomere.scenarios import parse_scenario, run
+from sarcomere.scenarios.catalog import packaged_scenarios
+
+JOINT = """
+[scenario]
+name = "j"
+kind = "{kind}"
+
+[model]
+name = "joint"
+fidelity = "{fidelity}"
+n = {n}
+{options}
+{parameters}
+{body}
+"""
+
+STEPS = """
+[sweep.pressure]
+unit = "Pa"
+values = {pressures}
+
+[sweep.angle]
+unit = "rad"
+values = [{angle}]
+
+[simulation]
+stop_time = "4 s"
+output_interval = "20 ms"
+
+[solver]
+rtol = 1e-9
+atol = 1e-12
+"""
+
+
+def _joint(kind="joint_stiffness", fidelity="full", n=2, options="", parameters="", body=""):
+    text = JOINT.format(
+        kind=kind, fidelity=fidelity, n=n, options=options, parameters=parameters, body=body
+    )
+    return parse_scenario(text, "j.toml")
+
+
+@pytest.mark.slow
+def test_packaged_joint_stiffness_linearisation_within_1_percent_of_load_steps(tmp_path):
+    out = run("joint-stiffness", tmp_path, quiet=True)
+    assert out.metrics["linearisation_error_max_ratio"] < 0.01
+    assert out.metrics["angle_deviation_max_rad"] < 1e-9
+    assert out.metrics["stiffness_range_ratio"] > 1.1  # co-contraction stiffens
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["metrics"]["stiffness_highest_N_m_per_rad"] > 0
+
+
+@pytest.mark.slow
+def test_random_joints_stiffness_from_steps_matches_the_linearisation(tmp_path):
+    rng = np.random.default_rng(2026)
+    for case in range(2):
+        pressures = sorted(float(v) for v in rng.uniform(0.05e6, 0.3e6, 2))
+        angle = 0.0 if case == 0 else float(rng.uniform(-0.2, 0.2))
+        r = f'"joint.r" = "{rng.uniform(6, 14):.2f} mm"'
+        sc = _joint(
+            fidelity="symmetric",
+            n=int(rng.integers(1, 4)),
+            parameters=f"[parameters]\n{r}",
+            body=STEPS.format(pressures=pressures, angle=angle),
+        )
+        out = run(sc, tmp_path / str(case), quiet=True)
+        assert out.metrics["linearisation_error_max_ratio"] < 0.01
+        assert out.metrics["angle_deviation_max_rad"] < 1e-9
+        if angle == 0.0:  # the symmetric pair at rest
+            assert out.metrics["torque_at_rest_max_N_m"] < 1e-12
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "where"),
+    [
+        ({"fidelity": "auto"}, "model.fidelity"),
+        ({"fidelity": "linear"}, "model.fidelity"),
+        ({"options": '[model.options]\nsupply = "valve_pwm"'}, "supply"),
+        ({"options": "[model.options]\nfibres = 2"}, "fibres"),
+        ({"options": "[model.options]\nn_extensor = 0"}, "n_extensor"),
+        ({"parameters": '[parameters]\n"joint.radius" = "1 mm"'}, "joint.radius"),
+        ({"body": STEPS.format(pressures=[0.1e6], angle=0).replace("[0]", "[0, 1]")}, "angle"),
+        ({"body": STEPS.format(pressures=[0.1e6], angle=3.0)}, "angle"),
+    ],
+)
+def test_joint_scene_refusals_name_the_key(tmp_path, kwargs, where):
+    body = kwargs.pop("body", STEPS.format(pressures=[0.1e6], angle=0))
+    with pytest.raises(ScenarioError, match=where.replace(".", r"\.")):
+        run(_joint(body=body, **kwargs), tmp_path, quiet=True)
+
+
+def test_the_stiffness_kind_refuses_a_chain(tmp_path):
+    text = packaged_scenarios()["joint-stiffness"].read_text(encoding="utf-8")
+    sc = parse_scenario(text.replace('name = "joint"', 'name = "myofibril"'), "x.toml")
+    with pytest.raises(ScenarioError, match="joint"):
+        run(sc, tmp_path, quiet=True)
