@@ -38,6 +38,7 @@ BUILTIN_KINDS = {
     "closed_loop": "sarcomere.scenarios.control",
     "cosim": "sarcomere.scenarios.cosim",
     "joint_stiffness": "sarcomere.scenarios.joint_stiffness",
+    "recruitment": "sarcomere.scenarios.recruitment",
 }
 
 

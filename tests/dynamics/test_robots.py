@@ -140,3 +140,18 @@ def test_bad_settings_are_refused_naming_the_argument(build, name):
     with pytest.raises(ParameterError) as exc:
         build()
     assert exc.value.name == name
+
+
+@pytest.mark.parametrize("fidelity", ["full", "symmetric"])
+def test_a_bundle_of_one_fibre_is_the_chain_set_up(fidelity):
+    from sarcomere.dynamics.assemblies import hanging_load, isometric
+
+    u = {"regulator1.p_cmd": 0.15e6}
+    hung = solve_equilibrium(bundle(1, 2, fidelity=fidelity, load_kg=0.03), u)
+    ref = solve_equilibrium(
+        hanging_load(2, load_kg=0.03, fidelity=fidelity), {"regulator.p_cmd": 0.15e6}
+    )
+    assert hung["load.s"] == pytest.approx(ref["load.s"], rel=1e-9)
+    held = solve_equilibrium(bundle(1, 2, fidelity=fidelity, setup="isometric"), u)
+    ref = solve_equilibrium(isometric(2, fidelity=fidelity), {"regulator.p_cmd": 0.15e6})
+    assert held["sensor.f"] == pytest.approx(ref["sensor.f"], rel=1e-9)

@@ -104,3 +104,21 @@ def test_the_stiffness_kind_refuses_a_chain(tmp_path):
     sc = parse_scenario(text.replace('name = "joint"', 'name = "myofibril"'), "x.toml")
     with pytest.raises(ScenarioError, match="joint"):
         run(sc, tmp_path, quiet=True)
+
+
+@pytest.mark.slow
+def test_packaged_bundle_recruitment_grades_in_equal_steps_like_pressure(tmp_path):
+    out = run("bundle-recruitment", tmp_path, quiet=True)
+    m = out.metrics
+    assert m["recruitment_step_spread_ratio"] < 1e-6  # identical fibres: equal steps
+    assert m["force_all_recruited_N"] == pytest.approx(4 * m["force_first_fibre_N"], rel=1e-6)
+    f = json.loads((tmp_path / "summary.json").read_text())["extra"]
+    assert np.all(np.diff(f["force_all_fibres_N"]) > 0)
+    assert np.all(np.diff(f["matched_pressure_Pa"]) > 0)
+
+
+def test_recruitment_refuses_a_hanging_bundle(tmp_path):
+    text = packaged_scenarios()["bundle-recruitment"].read_text(encoding="utf-8")
+    sc = parse_scenario(text.replace('"isometric"', '"hanging"'), "x.toml")
+    with pytest.raises(ScenarioError, match="isometric"):
+        run(sc, tmp_path, quiet=True)
