@@ -43,11 +43,14 @@ atol = 1e-12
 """
 
 
-def _joint(kind="joint_stiffness", fidelity="full", n=2, options="", parameters="", body=""):
-    text = JOINT.format(
+def _text(kind="joint_stiffness", fidelity="full", n=2, options="", parameters="", body=""):
+    return JOINT.format(
         kind=kind, fidelity=fidelity, n=n, options=options, parameters=parameters, body=body
     )
-    return parse_scenario(text, "j.toml")
+
+
+def _joint(**kwargs):
+    return parse_scenario(_text(**kwargs), "j.toml")
 
 
 @pytest.mark.slow
@@ -122,3 +125,49 @@ def test_recruitment_refuses_a_hanging_bundle(tmp_path):
     sc = parse_scenario(text.replace('"isometric"', '"hanging"'), "x.toml")
     with pytest.raises(ScenarioError, match="isometric"):
         run(sc, tmp_path, quiet=True)
+
+
+TRANSIENT = """
+[simulation]
+stop_time = "0.5 s"
+
+[inputs."flexor_regulator.p_cmd"]
+type = "step"
+unit = "Pa"
+initial = "0.12 MPa"
+final = "0.2 MPa"
+time = "0.1 s"
+
+[inputs."extensor_regulator.p_cmd"]
+type = "step"
+unit = "Pa"
+initial = "0.08 MPa"
+final = "0.08 MPa"
+time = "0.1 s"
+"""
+
+
+@pytest.mark.slow
+def test_linearize_the_joint_two_commands_to_angle_and_stiffness(tmp_path):
+    from sarcomere.dynamics.equilibrium import solve_equilibrium
+    from sarcomere.scenarios.linearize import linearize_scenario
+
+    path = tmp_path / "j.toml"
+    path.write_text(_text(kind="transient", fidelity="symmetric", body=TRANSIENT))
+    summary = linearize_scenario(path, tmp_path)
+    sc = parse_scenario(path.read_text(), "j.toml")
+    rec = json.loads((tmp_path / "linearization.json").read_text())
+    assert rec["inputs"] == ["flexor_regulator.p_cmd", "extensor_regulator.p_cmd"]
+    assert rec["outputs"] == ["joint.theta", "stiffness.K"]
+    assert np.array(rec["B"]).shape[1] == 2 and np.array(rec["C"]).shape[0] == 2
+    # the static gains against equilibria at commands +-1 kPa (central differences)
+    from sarcomere.scenarios.binding import bind
+
+    model = bind(sc).build("symmetric")
+    u = {"flexor_regulator.p_cmd": 0.12e6, "extensor_regulator.p_cmd": 0.08e6}
+    for name in u:
+        eq = [solve_equilibrium(model, {**u, name: u[name] + s * 1e3}) for s in (1, -1)]
+        for out in rec["outputs"]:
+            fd = (eq[0][out] - eq[1][out]) / 2e3
+            assert rec["static_gain"][f"{out}__{name}"] == pytest.approx(fd, rel=1e-4)
+    assert summary["metrics"]["slowest_pole_1_s"] < 0  # stable at the operating point
