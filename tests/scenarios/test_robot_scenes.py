@@ -171,3 +171,44 @@ def test_linearize_the_joint_two_commands_to_angle_and_stiffness(tmp_path):
             fd = (eq[0][out] - eq[1][out]) / 2e3
             assert rec["static_gain"][f"{out}__{name}"] == pytest.approx(fd, rel=1e-4)
     assert summary["metrics"]["slowest_pole_1_s"] < 0  # stable at the operating point
+
+
+@pytest.mark.slow
+def test_joint_study_stiffness_scales_with_the_radius_squared_and_falls_with_n():
+    from sarcomere.scenarios.explore.evaluate import evaluate_batch
+    from sarcomere.scenarios.explore.spec import load_study, parse_study
+
+    packaged = load_study("joint-stiffness-map")
+    assert {f.name for f in packaged.factors} >= {"n", "joint.r"}
+    study = parse_study(
+        """
+[study]
+kind = "grid"
+base = "joint-cocontraction"
+
+[study.grid]
+n = [1, 3]
+"joint.r" = ["7 mm", "14 mm"]
+
+[study.metrics]
+names = ["peak_pressure"]
+
+[study.metrics.value_at]
+low = { signal = "stiffness.K", time = "0 s" }
+high = { signal = "stiffness.K", time = "1.15 s" }
+""",
+        "s.toml",
+    )
+    got = evaluate_batch(study, range(4))
+    assert got.status.tolist() == [0, 0, 0, 0]
+    points = study.design().points  # rows: (n, r)
+    K = {
+        (int(p[0]), round(p[1] * 1e3)): (lo, hi)
+        for p, lo, hi in zip(points, got.metrics["low"], got.metrics["high"], strict=True)
+    }
+    for n in (1, 3):  # at 0 rad the chains do not see the radius: K = r^2 (k_f + k_e)
+        for i in (0, 1):
+            assert K[n, 14][i] == pytest.approx(4 * K[n, 7][i], rel=1e-6)
+    for r in (7, 14):  # longer chains are more compliant; co-contraction stiffens
+        assert K[3, r][1] < K[1, r][1]
+        assert K[1, r][1] > K[1, r][0] and K[3, r][1] > K[3, r][0]
