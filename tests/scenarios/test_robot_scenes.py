@@ -174,17 +174,21 @@ def test_linearize_the_joint_two_commands_to_angle_and_stiffness(tmp_path):
 
 
 @pytest.mark.slow
-def test_joint_study_stiffness_scales_with_the_radius_squared_and_falls_with_n():
+def test_joint_study_stiffness_scales_with_the_radius_squared_and_falls_with_n(tmp_path):
     from sarcomere.scenarios.explore.evaluate import evaluate_batch
-    from sarcomere.scenarios.explore.spec import load_study, parse_study
+    from sarcomere.scenarios.explore.spec import load_study
 
     packaged = load_study("joint-stiffness-map")
     assert {f.name for f in packaged.factors} >= {"n", "joint.r"}
-    study = parse_study(
+    # a symmetric co-contraction (0 rad throughout: the chains never see the radius)
+    base = _text(kind="transient", fidelity="symmetric", body=TRANSIENT)
+    base = base.replace("0.12 MPa", "0.08 MPa").replace('final = "0.08 MPa"', 'final = "0.2 MPa"')
+    (tmp_path / "base.toml").write_text(base)
+    (tmp_path / "s.toml").write_text(
         """
 [study]
 kind = "grid"
-base = "joint-cocontraction"
+base = "base.toml"
 
 [study.grid]
 n = [1, 3]
@@ -195,10 +199,10 @@ names = ["peak_pressure"]
 
 [study.metrics.value_at]
 low = { signal = "stiffness.K", time = "0 s" }
-high = { signal = "stiffness.K", time = "1.15 s" }
-""",
-        "s.toml",
+high = { signal = "stiffness.K", time = "0.5 s" }
+"""
     )
+    study = load_study(tmp_path / "s.toml")
     got = evaluate_batch(study, range(4))
     assert got.status.tolist() == [0, 0, 0, 0]
     points = study.design().points  # rows: (n, r)
