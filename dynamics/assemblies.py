@@ -44,7 +44,6 @@ from .components.mechanical import (
     PositionSensor,
     Spring,
 )
-from .components.pneumatic import Regulator
 from .equilibrium import solve_equilibrium
 from .errors import ParameterError
 from .modeling.component import System
@@ -52,6 +51,7 @@ from .modeling.model import Model
 from .params.ambient import Ambient
 from .plausibility import PlausibilityWarning, implausible_aps, implausible_load
 from .schema import FIDELITIES
+from .supply import add_supply
 from .units import to_si
 
 HOOK_MASS_KG = 1.0e-3
@@ -153,10 +153,23 @@ def end_mass(myo) -> float:
 
 
 def _frame_regulator_chain(
-    setup, n, params, fidelity, regulator_tau, g, saturate, flow_law, groups=GROUPS, p_max=None
+    setup,
+    n,
+    params,
+    fidelity,
+    regulator_tau,
+    g,
+    saturate,
+    flow_law,
+    groups=GROUPS,
+    p_max=None,
+    supply="regulator",
+    valve=None,
 ):
     """The part both set-ups share: the environment, the chain hung from the frame, fed by
-    the regulator (``p_max`` [Pa]: its range's upper end; None: the Regulator's default)."""
+    its supply (:func:`~.supply.add_supply`: the regulator, ``p_max`` [Pa] its range's
+    upper end, None the Regulator's default; or the PWM valve, options ``valve``); the
+    supply's modulators go to the flattened model (:func:`_flat`)."""
     if params is not None and not isinstance(params, APSParams):
         raise ParameterError("params", params, "an APSParams or None (the paper's APS)")
     for name, why in implausible_aps(params or APSParams.from_paper()).items():
@@ -167,12 +180,23 @@ def _frame_regulator_chain(
     sys = System(f"{setup}_n{n}_{fidelity}")
     sys.add(Environment(g=g))
     frame = sys.add(Fixed("frame"))
-    p_max = {} if p_max is None else {"p_max": _si(p_max, "Pa", "regulator_p_max", 0.0, False)}
-    reg = sys.add(Regulator("regulator", tau=tau, saturate=saturate, **p_max))
+    p_max = None if p_max is None else _si(p_max, "Pa", "regulator_p_max", 0.0, False)
+    name = "regulator" if supply == "regulator" else "valve"
+    sup = add_supply(
+        sys, name, supply, regulator_tau=tau, saturate=saturate, p_max=p_max, valve=valve
+    )
     mf = sys.add(myo)
     sys.connect(frame.flange, mf.flange_a)
-    sys.connect(reg.port, mf.port)
+    sys.connect(sup.port, mf.port)
+    sys.modulators = sup.modulators
     return sys, myo, mf
+
+
+def _flat(sys: System) -> Model:
+    """``sys`` flattened, carrying its supply's PWM (:attr:`Model.modulators`)."""
+    model = sys.flatten()
+    model.modulators.update(getattr(sys, "modulators", {}))
+    return model
 
 
 @records_setup
@@ -187,6 +211,8 @@ def hanging_load(
     flow_law: str = "iso6358",
     groups: int = GROUPS,
     regulator_p_max: float | str | None = None,
+    supply: str = "regulator",
+    valve: Mapping[str, object] | None = None,
 ) -> Model:
     """Myofibril of ``n`` APS hanging from the frame, a load mass [kg] at its lower end.
 
@@ -194,7 +220,9 @@ def hanging_load(
     optimisers, which use the input's bounds). ``flow_law``: "iso6358" (exact) or
     "smooth" (C1, for optimisers). ``groups``: of the "grouped" level.
     ``regulator_p_max`` [Pa]: the regulator's range (the input's bound and the clamp);
-    None: the Regulator's default (6 bar).
+    None: the Regulator's default (6 bar). ``supply``: "regulator" or "valve_pwm" (a
+    PWM-driven on/off valve named ``valve``, input ``valve.cmd`` the duty cycle;
+    ``valve`` its options, :class:`~.supply.ValveOptions`; docs/model.md).
     """
     load = _si(load_kg, "kg", "load_kg", 0.0)
     if why := implausible_load(load):
@@ -210,10 +238,12 @@ def hanging_load(
         flow_law,
         groups,
         regulator_p_max,
+        supply,
+        valve,
     )
     end = sys.add(Mass("load", m=HOOK_MASS_KG + load + end_mass(myo), s_start=myo.rest_length_expr))
     sys.connect(mf.flange_b, end.flange_a)
-    return sys.flatten()
+    return _flat(sys)
 
 
 def hanging_rest_position(
@@ -243,6 +273,8 @@ def isometric(
     flow_law: str = "iso6358",
     groups: int = GROUPS,
     regulator_p_max: float | str | None = None,
+    supply: str = "regulator",
+    valve: Mapping[str, object] | None = None,
 ) -> Model:
     """Myofibril between the frame and a force sensor on a fixture.
 
@@ -251,7 +283,8 @@ def isometric(
     [m] defaults to :func:`hanging_rest_position` (the model's own equilibrium), so the
     sensor reads zero at 0 MPa. ``fixture_stiffness`` None means rigid; otherwise a
     one-sided spring [N/m] with ``fixture_gap`` [m] of play. ``saturate``,
-    ``flow_law``, ``groups`` and ``regulator_p_max`` as :func:`hanging_load`.
+    ``flow_law``, ``groups``, ``regulator_p_max``, ``supply`` and ``valve`` as
+    :func:`hanging_load`.
     """
     if length is None:
         L = hanging_rest_position(n, params, fidelity, g, groups)
@@ -273,6 +306,8 @@ def isometric(
         flow_law,
         groups,
         regulator_p_max,
+        supply,
+        valve,
     )
     sensor = sys.add(ForceSensor("sensor"))
     fix = sys.add(Fixed("fixture", s0=L))
@@ -291,7 +326,7 @@ def isometric(
         sys.connect(hook.flange_b, sensor.flange_a)
         sys.connect(sensor.flange_b, spring.flange_a)
         sys.connect(spring.flange_b, fix.flange)
-    return sys.flatten()
+    return _flat(sys)
 
 
 SPRING_LOAD = {"mass_kg": 0.05, "stiffness": 100.0, "damping": 0.5}

@@ -10,6 +10,8 @@ Built from the same components as :mod:`.assemblies` (each chain at any dynamic 
   (N); the chains ``flexor.*``, ``extensor.*`` as ``myofibril.*`` of a single chain;
   parameters ``joint.r``, ``joint.J``, ``joint.d``, ``joint.m_arm``, ``joint.l_arm``,
   ``joint.tau_load`` (:data:`~.components.joint.JOINT_DEFAULTS`);
+* with ``supply = "valve_pwm"``: ``<side>_valve.cmd`` and ``valve<i>.cmd`` (the duty
+  cycles, [1]) in place of the regulators' commands (:mod:`.supply`);
 * bundle: ``regulator<i>.p_cmd`` (inputs, i = 1..k), the fibres ``fibre<i>.*``; hanging:
   ``load.s`` (m), ``load.m`` (kg); isometric: ``sensor.f`` (N), ``fixture.s0`` (m).
 """
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Mapping
 
 import casadi as cs
 
@@ -34,7 +37,6 @@ from .components.aps import APSParams
 from .components.environment import Environment
 from .components.joint import TENDON_LENGTH, Pulley, Tendon
 from .components.mechanical import Fixed, ForceSensor, Mass, Node
-from .components.pneumatic import Regulator
 from .equilibrium import solve_equilibrium
 from .errors import ParameterError
 from .modeling.component import Builder, Component, System
@@ -42,11 +44,8 @@ from .modeling.model import Model
 from .params.core import Quantity
 from .plausibility import PlausibilityWarning, implausible_aps, implausible_load
 from .schema import WITHOUT_MODEL
+from .supply import SUPPLIES, add_supply
 from .units import to_si
-
-SUPPLIES = ("regulator", "valve_pwm")
-"""Air supplies of a chain: the proportional regulator, or an on/off valve switched by
-PWM (not in this build: refused, :func:`check_supply`)."""
 
 MAX_FIBRES = 12
 """Most fibres of a bundle (each a chain with its own regulator; cost grows with k)."""
@@ -59,20 +58,6 @@ def _arg(value, unit: str, name: str, low: float, low_open: bool = False) -> flo
     if not (math.isfinite(v) and q.contains(v)):
         raise q.refuse(name, value)
     return v
-
-
-def check_supply(supply: str) -> None:
-    """Refuse a supply other than the regulator, naming why."""
-    if supply == "valve_pwm":
-        raise ParameterError(
-            "supply",
-            supply,
-            "'regulator'",
-            "the on/off valve and its PWM law are not part of this build (issue 26's "
-            "valve work is on another branch)",
-        )
-    if supply not in SUPPLIES:
-        raise ParameterError("supply", supply, f"one of {SUPPLIES}")
 
 
 def _check_level(fidelity: str, what: str) -> None:
@@ -98,21 +83,47 @@ def _chains_checked(params, n_values: dict) -> APSParams:
     return p
 
 
-def _fed_chain(sys, frame, name, reg_name, n, p, fidelity, flow_law, groups, reg_kw):
-    """A chain ``name`` of ``n`` units hung from ``frame``, fed by its own regulator."""
+def supply_name(chain_name: str, supply: str) -> str:
+    """The supply component of a chain: ``flexor`` -> ``flexor_regulator`` or
+    ``flexor_valve``; ``fibre<i>`` -> ``regulator<i>`` or ``valve<i>``."""
+    kind = "regulator" if supply == "regulator" else "valve"
+    if chain_name.startswith("fibre"):
+        return kind + chain_name.removeprefix("fibre")
+    return f"{chain_name}_{kind}"
+
+
+def _fed_chain(sys, frame, name, n, p, fidelity, flow_law, groups, feed: dict):
+    """A chain ``name`` of ``n`` units hung from ``frame``, fed by its own supply
+    (:func:`~.supply.add_supply` with ``feed``); returns it and the supply's PWM."""
     myo = chain(n, p, fidelity, flow_law, groups, name=name)
     mf = sys.add(myo)
-    reg = sys.add(Regulator(reg_name, **reg_kw))
+    sup = add_supply(sys, supply_name(name, feed["supply"]), **feed)
     sys.connect(frame.flange, mf.flange_a)
-    sys.connect(reg.port, mf.port)
-    return myo, mf
+    sys.connect(sup.port, mf.port)
+    return myo, mf, sup.modulators
 
 
-def _regulator_kw(regulator_tau, saturate, regulator_p_max) -> dict:
-    kw = {"tau": _arg(regulator_tau, "s", "regulator_tau", 0.0, True), "saturate": saturate}
-    if regulator_p_max is not None:
-        kw["p_max"] = _arg(regulator_p_max, "Pa", "regulator_p_max", 0.0, True)
-    return kw
+def _feed(supply, regulator_tau, saturate, regulator_p_max, valve) -> dict:
+    """The arguments of :func:`~.supply.add_supply` for every chain, checked."""
+    if supply not in SUPPLIES:
+        raise ParameterError("supply", supply, f"one of {SUPPLIES}")
+    p_max = regulator_p_max
+    if p_max is not None:
+        p_max = _arg(p_max, "Pa", "regulator_p_max", 0.0, True)
+    return {
+        "supply": supply,
+        "regulator_tau": _arg(regulator_tau, "s", "regulator_tau", 0.0, True),
+        "saturate": saturate,
+        "p_max": p_max,
+        "valve": valve,
+    }
+
+
+def _flat(sys: System, modulators: dict) -> Model:
+    """``sys`` flattened, carrying its supplies' PWM (:attr:`Model.modulators`)."""
+    model = sys.flatten()
+    model.modulators.update(modulators)
+    return model
 
 
 class StiffnessOutput(Component):
@@ -164,6 +175,7 @@ def antagonistic_joint(
     groups: int = GROUPS,
     regulator_p_max: float | str | None = None,
     supply: str = "regulator",
+    valve: Mapping[str, object] | None = None,
     **joint: float,
 ) -> Model:
     """A revolute joint (:class:`~.components.joint.Pulley`) driven by an antagonistic
@@ -176,15 +188,17 @@ def antagonistic_joint(
     is as long as reaches it, so both are just straight at 0 Pa and ``theta = 0``.
     ``joint``: :data:`~.components.joint.JOINT_DEFAULTS` values (``r``, ``J``, ``d``,
     ``m_arm``, ``l_arm``; SI). Other arguments as :func:`~.assemblies.hanging_load`;
-    ``supply``: :data:`SUPPLIES`. Levels without a model of their own are refused.
+    ``supply`` (:data:`~.supply.SUPPLIES`) and ``valve`` (its options) as
+    :func:`~.supply.add_supply`, for each muscle (inputs ``flexor_valve.cmd``,
+    ``extensor_valve.cmd``: the duty cycles). Levels without a model of their own are
+    refused.
     """
-    check_supply(supply)
     _check_level(fidelity, "a joint")
     n_ext = n_flexor if n_extensor is None else n_extensor
     p = _chains_checked(params, {"n_flexor": n_flexor, "n_extensor": n_ext})
     l_t = _arg(tendon_length, "m", "tendon_length", 0.0, True)
     g = _arg(g, "m/s^2", "g", 0.0, True)
-    reg_kw = _regulator_kw(regulator_tau, saturate, regulator_p_max)
+    feed = _feed(supply, regulator_tau, saturate, regulator_p_max, valve)
     chain(max(n_flexor, n_ext), p, fidelity, flow_law, groups)  # the level's limits first
     rest = {n: hanging_rest_position(n, p, fidelity, g, groups) for n in {n_flexor, n_ext}}
     s_axis = max(rest.values()) + l_t
@@ -192,33 +206,32 @@ def antagonistic_joint(
     sys.add(Environment(g=g))
     frame = sys.add(Fixed("frame"))
     pulley = sys.add(Pulley("joint", s_axis=s_axis, **joint))
+    modulators = {}
     for side, n in (("flexor", n_flexor), ("extensor", n_ext)):
-        myo, mf = _fed_chain(
-            sys, frame, side, f"{side}_regulator", n, p, fidelity, flow_law, groups, reg_kw
-        )
+        myo, mf, pwm = _fed_chain(sys, frame, side, n, p, fidelity, flow_law, groups, feed)
+        modulators.update(pwm)
         hook = sys.add(Mass(f"{side}_hook", m=HOOK_MASS_KG + end_mass(myo), s_start=rest[n]))
         tendon = sys.add(Tendon(f"{side}_tendon", l=s_axis - rest[n]))
         sys.connect(mf.flange_b, hook.flange_a)
         sys.connect(hook.flange_b, tendon.flange_a)
         sys.connect(tendon.flange_b, getattr(pulley, f"flange_{side[0]}"))
-    bare = sys.flatten()
+    bare = sys.flatten()  # the stiffness is an expression of its variables
     sys.add(
         StiffnessOutput("stiffness", stiffness_expression(bare, "joint.theta", "joint.tau_load"))
     )
-    return sys.flatten()
+    return _flat(sys, modulators)
 
 
-def _bundle_system(k, n, p, fidelity, g, flow_law, groups, reg_kw, name):
+def _bundle_system(k, n, p, fidelity, g, flow_law, groups, feed, name):
     sys = System(name)
     sys.add(Environment(g=g))
     frame = sys.add(Fixed("frame"))
     fibres = [
-        _fed_chain(
-            sys, frame, f"fibre{i}", f"regulator{i}", n, p, fidelity, flow_law, groups, reg_kw
-        )
+        _fed_chain(sys, frame, f"fibre{i}", n, p, fidelity, flow_law, groups, feed)
         for i in range(1, k + 1)
     ]
-    return sys, fibres
+    modulators = {k: v for *_, pwm in fibres for k, v in pwm.items()}
+    return sys, [(myo, mf) for myo, mf, _ in fibres], modulators
 
 
 @records_setup
@@ -237,18 +250,19 @@ def bundle(
     groups: int = GROUPS,
     regulator_p_max: float | str | None = None,
     supply: str = "regulator",
+    valve: Mapping[str, object] | None = None,
 ) -> Model:
     """``k_fibres`` chains of ``n`` units in parallel, hung side by side from the frame,
-    each fed by its own regulator (``regulator<i>.p_cmd``: a fibre is recruited by its
-    command and released by venting it), their hooks joined to one load.
+    each fed by its own supply (``regulator<i>.p_cmd``, or ``valve<i>.cmd`` with
+    ``supply = "valve_pwm"``: a fibre is recruited by its command and released by venting
+    it), their hooks joined to one load.
 
     ``setup`` "hanging": a mass of the 1 g hook plus ``load_kg`` [kg] hangs from the
     joined hooks; "isometric": the joined hooks are held by a force sensor on a rigid
     fixture at ``length`` [m] (default: where the bundle hangs at rest at 0 Pa with the
     hook, so the sensor reads 0 there). Other arguments as
-    :func:`~.assemblies.hanging_load`.
+    :func:`antagonistic_joint`.
     """
-    check_supply(supply)
     _check_level(fidelity, "a bundle")
     if setup not in ("hanging", "isometric"):
         raise ParameterError("setup", setup, "'hanging' or 'isometric'")
@@ -263,16 +277,16 @@ def bundle(
     if why := implausible_load(load / k_fibres):
         warnings.warn(f"load_kg = {why}", PlausibilityWarning, stacklevel=3)
     g = _arg(g, "m/s^2", "g", 0.0, True)
-    reg_kw = _regulator_kw(regulator_tau, saturate, regulator_p_max)
+    feed = _feed(supply, regulator_tau, saturate, regulator_p_max, valve)
     name = f"bundle_k{k_fibres}_n{n}_{fidelity}_{setup}"
-    sys, fibres = _bundle_system(k_fibres, n, p, fidelity, g, flow_law, groups, reg_kw, name)
+    sys, fibres, pwm = _bundle_system(k_fibres, n, p, fidelity, g, flow_law, groups, feed, name)
     ends = sum(end_mass(myo) for myo, _ in fibres)
     start = fibres[0][0].rest_length_expr
     if setup == "hanging":
         end = sys.add(Mass("load", m=HOOK_MASS_KG + load + ends, s_start=start))
         for _, mf in fibres:
             sys.connect(mf.flange_b, end.flange_a)
-        return sys.flatten()
+        return _flat(sys, pwm)
     if length is None:
         hung = bundle(
             k_fibres,
@@ -285,8 +299,7 @@ def bundle(
             regulator_tau,
             g,
             groups=groups,
-            regulator_p_max=regulator_p_max,
-        )
+        )  # where it hangs at rest at 0 Pa (on regulators: the same geometry)
         L = solve_equilibrium(hung, {})["load.s"]
     else:
         L = _arg(length, "m", "length", 0.0, True)
@@ -297,15 +310,14 @@ def bundle(
         sys.connect(mf.flange_b, hook.flange_a)
     sys.connect(hook.flange_a, sensor.flange_a)
     sys.connect(sensor.flange_b, fix.flange)
-    return sys.flatten()
+    return _flat(sys, pwm)
 
 
 __all__ = [
     "MAX_FIBRES",
-    "SUPPLIES",
     "StiffnessOutput",
     "antagonistic_joint",
     "bundle",
-    "check_supply",
+    "supply_name",
     "stiffness_expression",
 ]

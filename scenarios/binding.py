@@ -461,9 +461,10 @@ def _check_sundials_option(sc: Scenario, method: str, key: str, value: object) -
 
 
 def default_signals(model: Model) -> list[str]:
-    """The signals a transient keeps besides ``[outputs] signals``: the command, the
-    regulator's outlet, the length, the load's position, the force sensor, and each
-    unit's chamber pressure, expansion, thread tension and stretch."""
+    """The signals a transient keeps besides ``[outputs] signals``: the commands, the
+    regulators' outlets and the valves' openings, the length, the load's position, the
+    force sensor, a joint's angle, torque, stiffness and tendon tensions, and each unit's
+    chamber pressure, expansion, thread tension and stretch."""
     keep = ("myofibril.length", "load.s", "sensor.f", "joint.theta", "joint.tau", "stiffness.K")
     chains = ("myofibril.", "flexor.", "extensor.", "fibre")
     suffix = (".chamber.p_gauge", ".expansion.s", ".T", ".e")
@@ -471,7 +472,8 @@ def default_signals(model: Model) -> list[str]:
         n
         for n in model.signal_names
         if n in keep
-        or n.endswith((".p_cmd", ".p_out", "_tendon.T", "fibre1.length"))
+        or n.endswith((".p_cmd", ".p_out", ".cmd", "_tendon.T", "fibre1.length"))
+        or (n.endswith(".x") and "valve" in n)  # a valve's opening
         or (n.startswith(chains) and n.endswith(suffix))
     ]
 

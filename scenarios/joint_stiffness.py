@@ -93,6 +93,7 @@ def run_joint_stiffness(sc: Scenario, out_dir: Path) -> RunOutput:
     b = bind(sc)
     if b.setup != "joint":
         raise sc.error(("model", "name"), "kind 'joint_stiffness' needs [model] name = 'joint'")
+    b.require_regulators("joint_stiffness")
     axes = {a.name: a for a in sc.sweep}
     if "pressure" not in axes or set(axes) - {"pressure", "angle"}:
         raise sc.error(("sweep",), "give [sweep.pressure] (and at most [sweep.angle])")

@@ -60,6 +60,7 @@ def run_recruitment(sc: Scenario, out_dir: Path) -> RunOutput:
         raise sc.error(
             ("model",), "kind 'recruitment' needs [model] name = 'bundle' on setup 'isometric'"
         )
+    b.require_regulators("recruitment")
     if [a.name for a in sc.sweep] != ["pressure"]:
         raise sc.error(("sweep",), "give [sweep.pressure] alone")
     if sc.simulation is None:

@@ -9,7 +9,9 @@ levels (``"auto"`` and the levels without a model of their own are refused: they
 read one chain's one command). ``[model.options]``:
 
 - joint: ``n_extensor`` (default n), ``tendon_length`` ("20 mm"), ``regulator_tau``,
-  ``flow_law``, ``supply`` (``"regulator"``);
+  ``flow_law``, ``supply`` (``"regulator"`` or ``"valve_pwm"``: each muscle on a PWM
+  valve with :class:`~sarcomere.dynamics.supply.ValveOptions`' defaults, its command the
+  duty cycle ``<side>_valve.cmd``);
 - bundle: ``fibres`` (k, default 3), ``setup`` (``"hanging"`` or ``"isometric"``),
   ``load`` (hanging only), ``regulator_tau``, ``flow_law``, ``supply``.
 """
@@ -22,7 +24,7 @@ from sarcomere.dynamics.assemblies import GROUPS
 from sarcomere.dynamics.components.aps import APSParams
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.modeling.model import Model
-from sarcomere.dynamics.robots import antagonistic_joint, bundle
+from sarcomere.dynamics.robots import antagonistic_joint, bundle, supply_name
 from sarcomere.dynamics.schema import WITHOUT_MODEL
 from sarcomere.dynamics.units import to_si
 
@@ -100,11 +102,30 @@ class RobotBinding:
         return f"bundle-{self.options.get('setup', 'hanging')}"
 
     @property
+    def supply(self) -> str:
+        """The chains' supply: ``"regulator"`` or ``"valve_pwm"``."""
+        return self.options.get("supply", "regulator")
+
+    @property
     def inputs(self) -> list[str]:
-        """The pressure commands of the model built, one per chain."""
-        if self.model == "joint":
-            return ["flexor_regulator.p_cmd", "extensor_regulator.p_cmd"]
-        return [f"regulator{i}.p_cmd" for i in range(1, self.options.get("k_fibres", 3) + 1)]
+        """The commands of the model built, one per chain (a regulator's pressure or a
+        valve's duty cycle)."""
+        cmd = "p_cmd" if self.supply == "regulator" else "cmd"
+        chains = (
+            ["flexor", "extensor"]
+            if self.model == "joint"
+            else [f"fibre{i}" for i in range(1, self.options.get("k_fibres", 3) + 1)]
+        )
+        return [f"{supply_name(c, self.supply)}.{cmd}" for c in chains]
+
+    def require_regulators(self, kind: str) -> None:
+        """Refuse the valve supply for a kind that commands pressures."""
+        if self.supply != "regulator" and self.scenario is not None:
+            raise self.scenario.error(
+                ("model", "options", "supply"),
+                f"kind '{kind}' commands pressures (regulators); the valve's command is a "
+                "duty cycle: use a transient for supply = 'valve_pwm'",
+            )
 
     def build(
         self,

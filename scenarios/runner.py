@@ -39,6 +39,7 @@ BUILTIN_KINDS = {
     "cosim": "sarcomere.scenarios.cosim",
     "joint_stiffness": "sarcomere.scenarios.joint_stiffness",
     "recruitment": "sarcomere.scenarios.recruitment",
+    "pwm_hold": "sarcomere.scenarios.pwm_hold",
 }
 
 

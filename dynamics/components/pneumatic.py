@@ -128,7 +128,9 @@ class Restriction(Component):
     upstream, ``T_b`` [K] when ``port_b`` is (a CasADi expression of the model's
     variables, e.g. a chamber's temperature; None: the ambient temperature). ``smooth``
     selects the C1 laminar join (see :func:`iso6358_flow`). Output ``m_flow`` [kg/s],
-    positive from a to b.
+    positive from a to b. Between two sides at the ambient temperature (``T_b`` None or
+    the ambient temperature: isothermal air) it declares its throttling dissipation
+    ``q R T ln(p_a/p_b)`` [W], the flow exergy it destroys (>= 0).
     """
 
     def __init__(
@@ -165,6 +167,9 @@ class Restriction(Component):
         T_b = T_amb if self.T_b is None else self.T_b
         args = [pa.p, pb.p, C, bc, rl, rho0, T0, T_amb, T_b]
         (q,) = laws.apply(_restriction_flow, args, smooth=self.smooth)
+        if self.T_b is None or cs.is_equal(self.T_b, T_amb):  # isothermal: throttling exergy
+            R = b.outer(ENVIRONMENT)["R"]
+            b.dissipation("throttling", q * R * T_amb * (cs.log(pa.p) - cs.log(pb.p)))
         b.equation(pa.m_flow, q)
         b.equation(pb.m_flow, -q)
         b.output("m_flow", q, "kg/s", "mass flow from port_a to port_b")

@@ -40,6 +40,10 @@ class Model:
         How an assembly built it (:class:`~sarcomere.dynamics.assemblies.Setup`:
         ``setup.build(fidelity=...)`` builds the same set-up again); None for a
         System flattened by hand.
+    modulators : dict
+        Input name to the :class:`~sarcomere.dynamics.simulation.pwm.PWM` that the
+        simulator puts between that input (a duty cycle) and the equations (an on/off
+        valve's command); empty for most models.
     """
 
     def __init__(
@@ -57,6 +61,7 @@ class Model:
     ) -> None:
         self.name = name
         self.setup = None
+        self.modulators: dict = {}
         self.variables: Mapping[str, Var] = MappingProxyType(dict(variables))
         self.state_names = [v for v, m in variables.items() if m.kind == "state"]
         self.alg_names = list(alg_vars)

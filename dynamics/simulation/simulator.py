@@ -48,6 +48,7 @@ from ..signals import Staircase, Step
 from ..units import to_si
 from . import fixed_step, guard, radau, scipy_methods, sundials  # noqa: F401  (register the methods)
 from .common import method_options, require_step
+from .pwm import EffectiveDuty, PulseTrain
 from .settings import HELD, METHODS, InputLaw, Segment, SolverSettings, segment_w
 
 CHUNK_POINTS = 1000
@@ -79,6 +80,9 @@ class _Const:
 
 _HELD_TYPES = (_Const, Step, Staircase)
 """Signals constant between their breakpoints (right-continuous): integrated as held."""
+
+_LAWS = (PulseTrain, EffectiveDuty)
+"""What a PWM (:attr:`Model.modulators`) makes of a held duty: also held."""
 
 
 class Simulator:
@@ -279,7 +283,8 @@ class Simulator:
             raise ParameterError("times", times[-1], f"an end after t = {t_start:g} s")
         if np.any(np.diff(times) <= 0):
             raise ParameterError("times", times[:3], "strictly increasing times [s]")
-        signals = self._input_signals(u)
+        given = self._input_signals(u)
+        signals = self._modulated(given)
         t_end = float(times[-1])
         bps = sorted(
             {
@@ -290,7 +295,7 @@ class Simulator:
             }
             - {t_start, t_end}
         )
-        self._check_range(signals, np.concatenate([[t_start], times, bps]))
+        self._check_range(given, np.concatenate([[t_start], times, bps]))
         if self._scheme is not None:
             self._guard(signals, times, bps)
         X = np.empty((len(times), m.nx))
@@ -302,16 +307,20 @@ class Simulator:
             first = 1
         edges = [t_start, *bps, t_end]
         span = t_end - t_start
-        held = all(isinstance(sig, _HELD_TYPES) for sig in signals)
+        held = all(isinstance(sig, _HELD_TYPES + _LAWS) for sig in signals)
         law = HELD if held else InputLaw(tuple(signals))
+        # held: the inputs at each edge (for the rows at b) and inside each piece (what is
+        # integrated: a PWM edge is a breakpoint only to rounding, the middle is not)
         W = _values(signals, np.array(edges)) if held else None  # one vectorised call
+        mid = np.array(edges)
+        Wm = _values(signals, 0.5 * (mid[:-1] + mid[1:])) if held else None
         done = first  # rows filled: what a failure keeps (SolverError.partial)
         for i, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
             lo = first + int(np.searchsorted(times[first:], a, side="right"))
             hi = first + int(np.searchsorted(times[first:], b, side="right"))
             seg_times = times[lo:hi] if hi > lo and times[hi - 1] == b else [*times[lo:hi], b]
             seg_times = np.asarray(seg_times, dtype=float)
-            w = W[i] if held else segment_w(a, b)
+            w = Wm[i] if held else segment_w(a, b)
             for k in range(0, len(seg_times), CHUNK_POINTS):
                 piece = seg_times[k : k + CHUNK_POINTS]
                 try:
@@ -327,9 +336,31 @@ class Simulator:
                 done = rows.stop
                 if progress is not None:
                     progress((self._t - t_start) / span if span > 0 else 1.0)
-        self._inputs = signals
-        self._u = _values(signals, t_end)
+        self._inputs = given
+        self._u = _values(given, t_end)
+        if given is not signals:  # the rows show the inputs as given (the duty)
+            U = _values(given, times) if len(given) else U
         return X, Z, U
+
+    def _modulated(self, given: list) -> list:
+        """``given`` with each PWM-modulated input (:attr:`Model.modulators`) replaced by
+        its law (:meth:`~.pwm.PWM.law`); ``given`` itself without modulators."""
+        m = self.model
+        if not m.modulators:
+            return given
+        out = list(given)
+        for name, pwm in m.modulators.items():
+            i = m.input_names.index(name)
+            if not all(isinstance(sig, _HELD_TYPES) for sig in given):
+                raise ParameterError(
+                    name,
+                    [type(sig).__name__ for sig in given],
+                    "piecewise-constant inputs (constants, steps, staircases) with a PWM",
+                    "the PWM samples the duty as it comes, and its command is integrated "
+                    "held between its edges",
+                )
+            out[i] = pwm.law(given[i], self._inputs[i], self._t)
+        return out
 
     def _piece(
         self, law: InputLaw, w: np.ndarray, signals: list, times: np.ndarray

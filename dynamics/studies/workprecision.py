@@ -1,4 +1,5 @@
-"""Work-precision diagrams: error against wall time for every method, three scenarios.
+"""Work-precision diagrams: error against wall time for every method, four scenarios
+(the fourth on a PWM-driven valve, whose switching edges every method stops at).
 
 Following the SciML benchmarks, each method is swept over its accuracy knob (the
 tolerance of an adaptive method, the step of a fixed-step method) and each run gives
@@ -74,6 +75,10 @@ class Scenario:
         Number of saved points (evenly spaced, both ends included).
     params : tuple of (str, float)
         Parameter overrides by name (SI).
+    supply : str
+        "regulator" (``command`` in Pa gauge) or "valve_pwm" (the 50 Hz 3/2 valve of
+        :func:`~sarcomere.dynamics.supply.add_supply`; ``p_start`` and ``command`` are
+        duty cycles: every PWM edge is a breakpoint each method stops at).
     """
 
     name: str
@@ -85,6 +90,12 @@ class Scenario:
     t_final: float = 2.0
     n_out: int = 201
     params: tuple = ()
+    supply: str = "regulator"
+
+    @property
+    def input(self) -> str:
+        """The commanded input: the regulator's or the valve's duty."""
+        return P_CMD if self.supply == "regulator" else "valve.cmd"
 
     @property
     def t_out(self) -> np.ndarray:
@@ -93,7 +104,7 @@ class Scenario:
 
     def setup(self) -> tuple[Model, np.ndarray]:
         """The model and the start equilibrium state (cached)."""
-        return _setup(self.n, self.load_kg, self.p_start, self.params)
+        return _setup(self.n, self.load_kg, self.p_start, self.params, self.supply)
 
     def run(self, settings: SolverSettings, all_signals: bool = False) -> Result:
         """Simulate with ``settings`` on the saved points (the states only, unless
@@ -102,7 +113,7 @@ class Scenario:
         return simulate(
             model,
             self.t_final,
-            inputs={P_CMD: self.command},
+            inputs={self.input: self.command},
             params=dict(self.params),
             x0=x0,
             settings=settings,
@@ -112,14 +123,17 @@ class Scenario:
 
 
 @functools.cache
-def _setup(n: int, load_kg: float, p_start: float, params: tuple) -> tuple[Model, np.ndarray]:
-    model = hanging_load(n, load_kg=load_kg)
-    eq = solve_equilibrium(model, {P_CMD: p_start}, params=dict(params))
+def _setup(
+    n: int, load_kg: float, p_start: float, params: tuple, supply: str = "regulator"
+) -> tuple[Model, np.ndarray]:
+    model = hanging_load(n, load_kg=load_kg, supply=supply)
+    name = P_CMD if supply == "regulator" else "valve.cmd"
+    eq = solve_equilibrium(model, {name: p_start}, params=dict(params))
     return model, eq.x
 
 
 def scenarios(n: int = 3) -> dict[str, Scenario]:
-    """The three work-precision scenarios for a chain of ``n`` APS."""
+    """The four work-precision scenarios for a chain of ``n`` APS."""
     return {
         "ramp": Scenario(
             "ramp",
@@ -145,6 +159,17 @@ def scenarios(n: int = 3) -> dict[str, Scenario]:
             1e5,
             Step(initial=1e5, final=0.0, time=0.1, unit="Pa"),
             params=(("regulator.tau", 0.01),),
+        ),
+        "pwm": Scenario(
+            "pwm",
+            "3/2 valve at 50 Hz PWM, duty 0.3 -> 0.5 at 0.1 s, 20 g load: 50 edges",
+            n,
+            0.02,
+            0.3,
+            Step(initial=0.3, final=0.5, time=0.1),
+            t_final=0.5,
+            n_out=51,
+            supply="valve_pwm",
         ),
     }
 

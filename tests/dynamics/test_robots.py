@@ -121,7 +121,7 @@ def test_bundle_fibres_share_the_load_and_recruiting_one_raises_the_force():
 @pytest.mark.parametrize(
     ("build", "name"),
     [
-        (lambda: antagonistic_joint(2, supply="valve_pwm"), "supply"),
+        (lambda: antagonistic_joint(2, supply="valve_pwm", regulator_p_max=5e5), "regulator_p_max"),
         (lambda: antagonistic_joint(2, supply="pump"), "supply"),
         (lambda: antagonistic_joint(2, fidelity="linear"), "fidelity"),
         (lambda: antagonistic_joint(2, fidelity="paper"), "fidelity"),
@@ -155,3 +155,43 @@ def test_a_bundle_of_one_fibre_is_the_chain_set_up(fidelity):
     held = solve_equilibrium(bundle(1, 2, fidelity=fidelity, setup="isometric"), u)
     ref = solve_equilibrium(isometric(2, fidelity=fidelity), {"regulator.p_cmd": 0.15e6})
     assert held["sensor.f"] == pytest.approx(ref["sensor.f"], rel=1e-9)
+
+
+@pytest.mark.slow
+def test_joint_on_pwm_valves_energy_balance_closes_to_1e_9_of_the_supply_work():
+    """The switched valves' supply work = the stored energy's change + the dissipated
+    energy, through 5 PWM periods from rest (quadratures between the PWM edges)."""
+    from sarcomere.dynamics.signals import Step
+
+    m = antagonistic_joint(2, supply="valve_pwm", m_arm=0.02)  # full: every unit
+    names = ["flexor_valve.cmd", "extensor_valve.cmd"]
+    assert m.input_names == names and set(m.modulators) == set(names)
+    x0 = solve_equilibrium(m, dict.fromkeys(names, 0.0)).x  # at rest, vented
+    duty = {"flexor_valve.cmd": 0.6, "extensor_valve.cmd": 0.3}
+    trains = {
+        n: m.modulators[n].law(Step(final=d, unit="1"), Step(final=d, unit="1"), 0.0)
+        for n, d in duty.items()
+    }
+    t_end = 0.1
+    edges = sorted({0.0, t_end, *(e for tr in trains.values() for e in tr.breakpoints(0.0, t_end))})
+    f, en, sig = m.function("ode"), m.function("energy"), m.function("signals")
+    x, u = cs.SX.sym("x", m.nx), cs.SX.sym("u", 2)
+    p, z = m.parameters({"joint.m_arm": 0.02}), cs.SX(0, 1)
+    rows = [m.signal_names.index(f"{n.split('.')[0]}_source.power") for n in names]
+    power = cs.sum1(sig(x, z, u, p)[rows])
+    ode = {
+        "x": cs.vertcat(x, cs.SX.sym("q", 2)),
+        "p": u,
+        "ode": cs.vertcat(f(x, z, u, p), en(x, z, u, p)[1], power),
+    }
+    opts = {"reltol": 1e-12, "abstol": 1e-15, "max_num_steps": 200_000}
+    w = np.concatenate([x0, [0.0, 0.0]])
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        held = [float(trains[n](0.5 * (a + b))) for n in names]
+        w = np.array(cs.integrator("seg", "cvodes", ode, 0.0, b - a, opts)(x0=w, p=held)["xf"])
+        w = w.ravel()
+    E = [float(en(s, np.zeros(0), np.zeros(2), p)[0]) for s in (x0, w[: m.nx])]
+    work = w[m.nx + 1]
+    assert work > 1e-3
+    assert abs(E[1] - E[0] + w[m.nx] - work) < 1e-9 * work
+    assert w[m.state_names.index("joint.theta")] > 0.01  # the flexor's longer pulses win

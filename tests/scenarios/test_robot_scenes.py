@@ -216,3 +216,36 @@ high = { signal = "stiffness.K", time = "0.5 s" }
     for r in (7, 14):  # longer chains are more compliant; co-contraction stiffens
         assert K[3, r][1] < K[1, r][1]
         assert K[1, r][1] > K[1, r][0] and K[3, r][1] > K[3, r][0]
+
+
+VALVES = """
+[simulation]
+stop_time = "0.2 s"
+output_interval = "2 ms"
+
+[inputs."flexor_valve.cmd"]
+type = "step"
+unit = "1"
+initial = 0.0
+final = 0.6
+time = "0.02 s"
+
+[inputs."extensor_valve.cmd"]
+type = "step"
+unit = "1"
+initial = 0.0
+final = 0.3
+time = "0.02 s"
+"""
+
+
+def test_a_joint_scene_on_pwm_valves_runs_and_flexes(tmp_path):
+    sc = _joint(
+        kind="transient",
+        fidelity="symmetric",
+        options='[model.options]\nsupply = "valve_pwm"',
+        body=VALVES,
+    )
+    out = run(sc, tmp_path, quiet=True)
+    assert out.results["main"]["joint.theta"][-1] > 0.01
+    assert "flexor_valve.cmd" in out.results["main"].names

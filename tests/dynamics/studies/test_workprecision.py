@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from sarcomere.dynamics.results import Result
+from sarcomere.dynamics.signals import Step
 from sarcomere.dynamics.simulation.simulate import SolverSettings
 from sarcomere.dynamics.studies import workprecision as wp
 
@@ -104,3 +105,65 @@ def test_plot_writes_a_small_png(small, tmp_path):
     recs = wp.sweep(sc, ref, TINY, only=["cvodes"])
     path = wp.plot(recs, sc, ref, tmp_path / "wp.png")
     assert path.exists() and 0 < path.stat().st_size < 200_000
+
+
+@dataclasses.dataclass(frozen=True)
+class _Comparator:
+    """The PWM command as one continuous expression of time (no breakpoints): what an
+    integrator that steps across the edges would see (the library refuses this law)."""
+
+    duty: float
+    period: float
+    delay: float
+
+    def __call__(self, t):
+        s = np.asarray(t) - self.delay
+        return np.where((s >= 0) & (np.mod(s, self.period) < self.duty * self.period), 1.0, 0.0)
+
+    def casadi(self, t):
+        import casadi as cs
+
+        s = t - self.delay
+        on = cs.logic_and(s >= 0, cs.fmod(s, self.period) < self.duty * self.period)
+        return cs.if_else(on, 1.0, 0.0)
+
+
+@pytest.mark.slow  # a 1e-12 reference through 20 PWM edges: some 3 s
+def test_pwm_scenario_stepping_across_edges_fails_stopping_at_them_converges():
+    """On the PWM valve (issue 26): rk4 stopping at every edge (the simulator's
+    breakpoints) against rk4 stepping across them (the command as one expression of
+    time, integrated by the method directly): at the same step the second's error is
+    first order in the step (each edge's position within a step is lost), the first's
+    far smaller; CVODES at rtol 1e-8 is within 1e-5 of the reference."""
+    from sarcomere.dynamics.simulation.settings import METHODS, InputLaw, Segment, segment_w
+
+    sc = dataclasses.replace(
+        wp.scenarios(1)["pwm"], t_final=0.2, n_out=21, command=Step(initial=0.3, final=0.3)
+    )
+    ref = wp.reference(sc, 1e-7)
+    model, x0 = sc.setup()
+    plan = wp.Plan(
+        tolerances=(1e-8,), steps={"rk4": (1.3e-4,)}, repeats=1, budget_s=0.0, check_rtol=1e-7
+    )
+    recs = {r["method"]: r for r in wp.sweep(sc, ref, plan, ["cvodes", "rk4"])}
+    assert recs["cvodes"]["error_l2"] < 1e-5
+    stopping = recs["rk4"]["error_l2"]
+    # the same rk4 over the whole run, the command a continuous law: no edge is a breakpoint
+    pwm = model.modulators["valve.cmd"]
+    law = InputLaw((_Comparator(0.3, pwm.period, pwm.delay),))
+    settings = SolverSettings("rk4", step=1.3e-4, options=(("on_unstable", "ignore"),))
+    seg = Segment(
+        model,
+        settings,
+        model.parameters(),
+        law,
+        segment_w(0.0, sc.t_final),
+        0.0,
+        x0,
+        np.zeros(0),
+        sc.t_out[1:],
+        {},
+    )
+    X, _ = METHODS["rk4"].run(seg)
+    crossing = wp.state_errors(np.vstack([x0, X]), dataclasses.replace(ref))[1]
+    assert crossing > 20 * stopping, (crossing, stopping)
