@@ -34,6 +34,7 @@ _HOMES = {
     "Model": "modeling.model",
     "PlausibilityWarning": "plausibility",
     "Result": "results",
+    **dict.fromkeys(("antagonistic_joint", "bundle"), "robots"),
     **dict.fromkeys(("Chirp", "Ramp", "Signal", "Sine", "Staircase", "Step", "Table"), "signals"),
     **dict.fromkeys(("METHODS", "SolverSettings"), "simulation.settings"),
     "simulate": "simulation.simulate",

@@ -80,7 +80,7 @@ class Setup:
         return self.builder(**{**self.arguments, **changes})
 
 
-def _records_setup(builder: Callable[..., Model]) -> Callable[..., Model]:
+def records_setup(builder: Callable[..., Model]) -> Callable[..., Model]:
     """``builder`` that records its :class:`Setup` on the model it returns."""
     signature = inspect.signature(builder)
 
@@ -127,7 +127,9 @@ N_WHY = {
 }
 
 
-def _chain(n, p: APSParams, fidelity: str, flow_law: str, groups: int = GROUPS):
+def chain(n, p: APSParams, fidelity: str, flow_law: str, groups: int = GROUPS, name="myofibril"):
+    """The chain of ``n`` units at ``fidelity`` (a component named ``name``), checked
+    against the level's :data:`N_LIMITS`."""
     if fidelity not in FIDELITIES:
         raise ParameterError("fidelity", fidelity, f"one of {FIDELITIES}")
     if isinstance(n, int) and n > N_LIMITS[fidelity]:
@@ -137,15 +139,15 @@ def _chain(n, p: APSParams, fidelity: str, flow_law: str, groups: int = GROUPS):
     if flow_law not in FLOW_LAWS:
         raise ParameterError("flow_law", flow_law, f"one of {tuple(FLOW_LAWS)}")
     if fidelity == "grouped":
-        return GroupedMyofibril("myofibril", n, p, min(groups, n), flow_law)
+        return GroupedMyofibril(name, n, p, min(groups, n), flow_law)
     if fidelity == "symmetric":
-        return SymmetricMyofibril("myofibril", n, p, flow_law)
+        return SymmetricMyofibril(name, n, p, flow_law)
     if fidelity in INSTANT_LEVELS:
-        return Myofibril("myofibril", n, p, INSTANT_LEVELS[fidelity], flow_law, instant=True)
-    return Myofibril("myofibril", n, p, level=fidelity, flow_law=flow_law)
+        return Myofibril(name, n, p, INSTANT_LEVELS[fidelity], flow_law, instant=True)
+    return Myofibril(name, n, p, level=fidelity, flow_law=flow_law)
 
 
-def _end_mass(myo) -> float:
+def end_mass(myo) -> float:
     """Chain body mass [kg] that rides on the mass at the chain end ("grouped" level)."""
     return myo.end_mass if isinstance(myo, GroupedMyofibril) else 0.0
 
@@ -174,7 +176,7 @@ def _frame_regulator_chain(
         warnings.warn(f"params.{name} = {why}", PlausibilityWarning, stacklevel=4)
     tau = _si(regulator_tau, "s", "regulator_tau", 0.0, closed=False)
     g = _si(g, "m/s^2", "g", 0.0, closed=False)
-    myo = _chain(n, params or APSParams.from_paper(), fidelity, flow_law, groups)
+    myo = chain(n, params or APSParams.from_paper(), fidelity, flow_law, groups)
     sys = System(f"{setup}_n{n}_{fidelity}")
     sys.add(Environment(g=g))
     frame = sys.add(Fixed("frame"))
@@ -197,7 +199,7 @@ def _flat(sys: System) -> Model:
     return model
 
 
-@_records_setup
+@records_setup
 def hanging_load(
     n: int = 3,
     params: APSParams | None = None,
@@ -239,9 +241,7 @@ def hanging_load(
         supply,
         valve,
     )
-    end = sys.add(
-        Mass("load", m=HOOK_MASS_KG + load + _end_mass(myo), s_start=myo.rest_length_expr)
-    )
+    end = sys.add(Mass("load", m=HOOK_MASS_KG + load + end_mass(myo), s_start=myo.rest_length_expr))
     sys.connect(mf.flange_b, end.flange_a)
     return _flat(sys)
 
@@ -259,7 +259,7 @@ def hanging_rest_position(
     return solve_equilibrium(model, {"regulator.p_cmd": 0.0})["load.s"]
 
 
-@_records_setup
+@records_setup
 def isometric(
     n: int = 1,
     params: APSParams | None = None,
@@ -312,7 +312,7 @@ def isometric(
     sensor = sys.add(ForceSensor("sensor"))
     fix = sys.add(Fixed("fixture", s0=L))
     if fixture_stiffness is None:
-        hook = sys.add(Node("hook", m=HOOK_MASS_KG + _end_mass(myo), s_start=L))
+        hook = sys.add(Node("hook", m=HOOK_MASS_KG + end_mass(myo), s_start=L))
         sys.connect(mf.flange_b, hook.flange_a)
         sys.connect(mf.flange_b, sensor.flange_a)
         sys.connect(sensor.flange_b, fix.flange)
@@ -321,7 +321,7 @@ def isometric(
         # a tension spring from the hook (above) down to the fixture at L: it engages once
         # the chain has lifted the hook by more than the gap
         spring = sys.add(Spring("fixture_spring", c=k, gap=gap, one_sided=True))
-        hook = sys.add(Mass("hook", m=HOOK_MASS_KG + _end_mass(myo), s_start=L))
+        hook = sys.add(Mass("hook", m=HOOK_MASS_KG + end_mass(myo), s_start=L))
         sys.connect(mf.flange_b, hook.flange_a)
         sys.connect(hook.flange_b, sensor.flange_a)
         sys.connect(sensor.flange_b, spring.flange_a)
@@ -361,7 +361,7 @@ def force_driven(
 def _hook_pulled(sys: System, myo, mf, flange, hook_kg) -> None:
     """The hook [kg] at the chain's end, with the end-position sensor, attached to
     ``flange``."""
-    m = _si(hook_kg, "kg", "hook_kg", 0.0, closed=False) + _end_mass(myo)
+    m = _si(hook_kg, "kg", "hook_kg", 0.0, closed=False) + end_mass(myo)
     hook = sys.add(Mass("hook", m=m, s_start=myo.rest_length_expr))
     sys.connect(mf.flange_b, hook.flange_a)
     sys.connect(hook.flange_b, sys.add(PositionSensor("end")).flange)

@@ -77,7 +77,16 @@ from sarcomere.dynamics.simulation.simulate import MAX_VALUES, SolverSettings, s
 from sarcomere.dynamics.units import to_si
 
 from .output import CSV_BYTES_PER_VALUE
-from .spec import Scenario, SimulationSpec, describe, did_you_mean, dotted, unknown_key
+from .robot_binding import ROBOT_MODELS, RobotBinding, robot_options
+from .spec import (
+    Scenario,
+    SimulationSpec,
+    check_overrides,
+    describe,
+    did_you_mean,
+    dotted,
+    unknown_key,
+)
 
 P_CMD = "regulator.p_cmd"
 OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
@@ -161,26 +170,8 @@ class Binding:
                 if path
                 else sc.parameter_error(exc.name, describe(exc))
             ) from None
-        self._check_units(model)
+        check_overrides(self.scenario, self.overrides, model)
         return model
-
-    def _check_units(self, model: Model) -> None:
-        """Refuse a name that is not a parameter of the model, and a bare non-zero number
-        for a dimensioned one, in the file."""
-        if self.scenario is None:
-            return
-        for key, raw in self.overrides.items():
-            var = model.variables.get(key)
-            if key not in model.param_names:
-                hint = did_you_mean(key, model.param_names)
-                why = f"{len(model.param_names)} parameters of model '{model.name}'"
-                raise self.scenario.parameter_error(key, f"unknown key '{key}'{hint} ({why})")
-            if isinstance(raw, str):
-                continue
-            try:
-                to_si(raw, var.unit, key, bare_ok=False)
-            except ParameterError as exc:
-                raise self.scenario.parameter_error(key, describe(exc)) from None
 
 
 def _options(sc: Scenario) -> dict:
@@ -253,16 +244,19 @@ def _si_or_none(raw: object, unit: str) -> float | None:
 
 
 def bind(sc: Scenario) -> Binding:
-    """Read ``[model]`` and ``[parameters]`` (see the module docstring)."""
-    if sc.model.name != "myofibril":
-        raise sc.error(("model", "name"), f"'{sc.model.name}' is not a model; use 'myofibril'")
+    """Read ``[model]`` and ``[parameters]`` (see the module docstring; the robot models
+    :data:`~.robot_binding.ROBOT_MODELS` in :mod:`.robot_binding`)."""
+    if sc.model.name not in ("myofibril", *ROBOT_MODELS):
+        models = ", ".join(("myofibril", *ROBOT_MODELS))
+        raise sc.error(("model", "name"), f"'{sc.model.name}' is not a model; use one of {models}")
     if sc.model.geometry is not None:
         raise sc.error(
             ("model", "geometry"),
             f"kind '{sc.kind}' does not use a geometry set (the paper model's, kind 'static'); "
             "set APS dimensions with [parameters] aps.<field>",
         )
-    opts = _options(sc)
+    robot = sc.model.name in ROBOT_MODELS
+    opts = robot_options(sc) if robot else _options(sc)
     aps_over, model_over = {}, {}
     p_max = None
     for key, raw in sc.parameters.items():
@@ -288,7 +282,9 @@ def bind(sc: Scenario) -> Binding:
         aps = APSParams.from_paper(sc.model.material, **aps_over)
     except ParameterError as exc:
         raise sc.parameter_error(f"aps.{exc.name}", describe(exc)) from None
-    _warn_implausible(sc, opts, model_over, aps)
+    _warn_implausible(sc, {} if robot else opts, model_over, aps)
+    if robot:
+        return RobotBinding(sc.model.name, sc.model.n, aps, opts, model_over, p_max, sc)
     return Binding(
         opts["setup"],
         sc.model.n,
@@ -315,15 +311,16 @@ def fidelity_level(sc: Scenario, allow_auto: bool, without_model: bool = False) 
     return fid
 
 
-def command_range(model: Model, overrides: dict) -> tuple[float, float]:
-    """The pressure commands the regulator follows, Pa gauge: ``[0, p_max]``.
+def command_range(model: Model, overrides: dict, name: str = P_CMD) -> tuple[float, float]:
+    """The pressure commands the regulator of the input ``name`` follows, Pa gauge:
+    ``[0, p_max]``.
 
     The regulator clamps its command to ``[0, p_max]``; a command outside would run as the
-    clamped value under the requested one's name. The bounds of the input
-    ``regulator.p_cmd`` narrow the range where they are finite.
+    clamped value under the requested one's name. The bounds of the input narrow the
+    range where they are finite.
     """
-    var = model.variables[P_CMD]
-    p_max = model.parameters(overrides)[model.index("regulator.p_max")[1]]
+    var = model.variables[name]
+    p_max = model.parameters(overrides)[model.index(name.replace("p_cmd", "p_max"))[1]]
     return max(var.low, 0.0), min(var.high, float(p_max))
 
 
@@ -347,12 +344,14 @@ def distinct(value: float, bounds: tuple[float, ...]) -> str:
 
 
 def check_commands(sc: Scenario, model: Model, overrides: dict, inputs: dict, grid) -> None:
-    """Refuse a pressure command outside the regulator's range, at its first time (on the
+    """Refuse a pressure command outside its regulator's range, at its first time (on the
     output grid, the breakpoints and every row of a table)."""
-    if P_CMD not in inputs:
-        return
-    rng = command_range(model, overrides)
-    sig = inputs[P_CMD]
+    for name, sig in inputs.items():
+        if name.endswith(".p_cmd"):
+            _check_command(sc, command_range(model, overrides, name), sig, grid)
+
+
+def _check_command(sc: Scenario, rng: tuple, sig, grid) -> None:
     bps = sig.breakpoints(grid[0], grid[-1]) if hasattr(sig, "breakpoints") else []
     rows = np.asarray(sig.times) if isinstance(sig, Table) else np.empty(0)
     rows = rows[(rows >= grid[0]) & (rows <= grid[-1])]
@@ -462,15 +461,20 @@ def _check_sundials_option(sc: Scenario, method: str, key: str, value: object) -
 
 
 def default_signals(model: Model) -> list[str]:
-    """The signals a transient keeps besides ``[outputs] signals``: the command, the
-    regulator's outlet, the length, the load's position, the force sensor, and each
-    unit's chamber pressure, expansion, thread tension and stretch."""
-    keep = ("regulator.p_cmd", "regulator.p_out", "myofibril.length", "load.s", "sensor.f")
+    """The signals a transient keeps besides ``[outputs] signals``: the commands, the
+    regulators' outlets and the valves' openings, the length, the load's position, the
+    force sensor, a joint's angle, torque, stiffness and tendon tensions, and each unit's
+    chamber pressure, expansion, thread tension and stretch."""
+    keep = ("myofibril.length", "load.s", "sensor.f", "joint.theta", "joint.tau", "stiffness.K")
+    chains = ("myofibril.", "flexor.", "extensor.", "fibre")
     suffix = (".chamber.p_gauge", ".expansion.s", ".T", ".e")
     return [
         n
         for n in model.signal_names
-        if n in keep or (n.startswith("myofibril.") and n.endswith(suffix))
+        if n in keep
+        or n.endswith((".p_cmd", ".p_out", ".cmd", "_tendon.T", "fibre1.length"))
+        or (n.endswith(".x") and "valve" in n)  # a valve's opening
+        or (n.startswith(chains) and n.endswith(suffix))
     ]
 
 

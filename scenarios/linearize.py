@@ -31,6 +31,8 @@ from .catalog import version
 from .outdir import check_out_dir, staged
 
 P_CMD = "regulator.p_cmd"
+ROBOT_OUTPUTS = {"joint": ["joint.theta", "stiffness.K"]}
+"""Default outputs of a robot set-up (``Binding.setup``): the joint's angle and stiffness."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,42 +86,58 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
     model = b.build(fid)
     if sc.kind == "transient":
         scene_inputs(sc, model)  # the scene's inputs are checked as a run would
-    p = _pressure(sc, pressure)
-    low, high = command_range(model, b.overrides)
-    if pressure is not None and not low <= p <= high:
-        raise ScenarioError(
-            sc.file,
-            "--pressure",
-            f"{distinct(p / 1e6, (low / 1e6, high / 1e6))} MPa is outside the regulator's "
-            f"range [{low / 1e6:g}, {high / 1e6:g}] MPa",
-        )
+    commands = getattr(b, "inputs", [P_CMD])  # a robot set-up: a command per chain
+    if pressure is None and sc.kind == "transient" and "pressure" not in sc.inputs:
+        given = scene_inputs(sc, model)  # each command at the scene's start
+        start = sc.simulation.start_time if sc.simulation else 0.0
+        point = {n: float(given[n](start)) if n in given else 0.0 for n in commands}
+    else:
+        point = dict.fromkeys(commands, _pressure(sc, pressure))
+    for name, p in point.items():
+        low, high = command_range(model, b.overrides, name)
+        if pressure is not None and not low <= p <= high:
+            raise ScenarioError(
+                sc.file,
+                "--pressure",
+                f"{distinct(p / 1e6, (low / 1e6, high / 1e6))} MPa is outside the regulator's "
+                f"range [{low / 1e6:g}, {high / 1e6:g}] MPa",
+            )
     default = sc.control.get("output") or (
-        "sensor.f" if b.setup == "isometric" else "myofibril.length"
+        "sensor.f" if b.setup.endswith("isometric") else "myofibril.length"
     )
-    outs = list(outputs or [default])
+    outs = list(outputs or (ROBOT_OUTPUTS.get(b.setup) or [default]))
     for name in outs:
         if name not in model.signal_names:
             hint = did_you_mean(name, model.signal_names)
             raise ScenarioError(sc.file, "--output", f"'{name}' is not a signal of the model{hint}")
-    op = operating_point(model, {P_CMD: p}, b.overrides)
-    sys = linearize(model, op, outs, inputs=[P_CMD])
+    op = operating_point(model, point, b.overrides)
+    sys = linearize(model, op, outs, inputs=commands)
     poles = classify_poles(model, sys)
     A, B, C, D = sys.A, sys.B, sys.C, sys.D
-    gains = sys.dcgain().reshape(len(outs), 1)[:, 0]
+    gains = np.asarray(sys.dcgain()).reshape(len(outs), len(commands))
+    static = (
+        dict(zip(outs, gains[:, 0].tolist(), strict=True))
+        if len(commands) == 1
+        else {
+            f"{o}__{i}": float(gains[j, k])
+            for j, o in enumerate(outs)
+            for k, i in enumerate(commands)
+        }
+    )
     record = {
         "scenario": sc.name,
         "fidelity": fid,
-        "operating_point": {"regulator.p_cmd_Pa": p, **{n: op[n] for n in outs}},
+        "operating_point": {**{f"{n}_Pa": v for n, v in point.items()}, **{n: op[n] for n in outs}},
         "states": model.state_names,
-        "inputs": [P_CMD],
+        "inputs": commands,
         "outputs": outs,
-        "labels": {n: to_label(n) for n in [*model.state_names, P_CMD, *outs]},
+        "labels": {n: to_label(n) for n in [*model.state_names, *commands, *outs]},
         "A": A.tolist(),
         "B": B.tolist(),
         "C": C.tolist(),
         "D": D.tolist(),
         "poles": poles,
-        "static_gain": dict(zip(outs, gains.tolist(), strict=True)),
+        "static_gain": static,
     }
     (out_dir / "linearization.json").write_text(json.dumps(record, indent=1))
     np.savez(
@@ -129,10 +147,10 @@ def linearize_scenario(source: str | Path, out_dir: Path, pressure=None, outputs
         C=C,
         D=D,
         states=np.array(model.state_names),
-        inputs=np.array([P_CMD]),
+        inputs=np.array(commands),
         outputs=np.array(outs),
     )
-    _bode(sys, outs, out_dir / "bode.png", sc.name)
+    _bode(sys, outs, commands, out_dir / "bode.png", sc.name)
     resonant = [r for r in poles if r["imag_1_s"] > 0]
     metrics = {
         "states": float(model.nx),
@@ -163,7 +181,7 @@ def _mode_line(r: dict) -> str:
     return f"{r['mode']} ({r['dominant_state']}): {r['real_1_s']:.4g}{imag} 1/s"
 
 
-def _bode(sys, outs: list[str], path: Path, title: str) -> None:
+def _bode(sys, outs: list[str], ins: list[str], path: Path, title: str) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: CLI start-up
     from matplotlib.figure import Figure
 
@@ -171,19 +189,20 @@ def _bode(sys, outs: list[str], path: Path, title: str) -> None:
     import control as ct
 
     resp = ct.frequency_response(sys, w)
-    mag = np.abs(resp.complex).reshape(len(outs), -1)
-    phase = np.unwrap(np.angle(resp.complex).reshape(len(outs), -1), axis=1)
+    pairs = [(o, i) for o in outs for i in ins]
+    mag = np.abs(resp.complex).reshape(len(pairs), -1)
+    phase = np.unwrap(np.angle(resp.complex).reshape(len(pairs), -1), axis=1)
     fig = Figure(figsize=(6.4, 6.0), layout="constrained")
     FigureCanvasAgg(fig)
     ax_m, ax_p = fig.add_subplot(211), fig.add_subplot(212, sharex=None)
     f = w / (2 * math.pi)
-    for i, name in enumerate(outs):
-        ax_m.loglog(f, mag[i], label=f"{name} / {P_CMD}")
-        ax_p.semilogx(f, np.degrees(phase[i]), label=name)
+    for k, (name, cmd) in enumerate(pairs):
+        ax_m.loglog(f, mag[k], label=f"{name} / {cmd}")
+        ax_p.semilogx(f, np.degrees(phase[k]), label=name if len(ins) == 1 else f"{name} / {cmd}")
     ax_m.set_ylabel("gain [SI / Pa]")
     ax_p.set_ylabel("phase [deg]")
     ax_p.set_xlabel("frequency [Hz]")
-    ax_m.set_title(f"{title}: linearisation from {P_CMD}")
+    ax_m.set_title(f"{title}: linearisation from {', '.join(ins)}")
     for ax in (ax_m, ax_p):
         ax.grid(True, which="both", alpha=0.3)
     ax_m.legend(fontsize="small")

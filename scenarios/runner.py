@@ -37,6 +37,8 @@ BUILTIN_KINDS = {
     "transient": "sarcomere.scenarios.transient",
     "closed_loop": "sarcomere.scenarios.control",
     "cosim": "sarcomere.scenarios.cosim",
+    "joint_stiffness": "sarcomere.scenarios.joint_stiffness",
+    "recruitment": "sarcomere.scenarios.recruitment",
     "pwm_hold": "sarcomere.scenarios.pwm_hold",
 }
 

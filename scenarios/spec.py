@@ -23,6 +23,7 @@ from sarcomere.dynamics.schema import MAX_VALUES, WITHOUT_MODEL
 from sarcomere.dynamics.units import to_si
 
 if TYPE_CHECKING:
+    from sarcomere.dynamics.modeling.model import Model
     from sarcomere.dynamics.signals import Signal
 
 #: Allowed values of ``[model] fidelity``.
@@ -371,3 +372,22 @@ class Scenario:
         """The key path of the ``[parameters]`` entry ``name`` as the file wrote it."""
         flat = f"parameters.{name}"
         return next((p for p in self.key_lines if ".".join(p) == flat), ("parameters", name))
+
+
+def check_overrides(sc: Scenario | None, overrides: dict, model: Model) -> None:
+    """Refuse a name that is not a parameter of the model, and a bare non-zero number
+    for a dimensioned one, in the file (nothing without a scenario)."""
+    if sc is None:
+        return
+    for key, raw in overrides.items():
+        var = model.variables.get(key)
+        if key not in model.param_names:
+            hint = did_you_mean(key, model.param_names)
+            why = f"{len(model.param_names)} parameters of model '{model.name}'"
+            raise sc.parameter_error(key, f"unknown key '{key}'{hint} ({why})")
+        if isinstance(raw, str):
+            continue
+        try:
+            to_si(raw, var.unit, key, bare_ok=False)
+        except ParameterError as exc:
+            raise sc.parameter_error(key, describe(exc)) from None
