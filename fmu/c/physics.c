@@ -94,6 +94,8 @@ int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg) {
     return 0;
 }
 
+void sm_work_release(SmWork* wk) { (void)wk; }
+
 /* The sample instants k T in [t, t + h): k from ceil(t / T) to ceil((t + h) / T) - 1. */
 static double first_sample(double t) { return ceil(t / SM_SAMPLE_PERIOD - SM_SAMPLE_TOL); }
 
@@ -241,6 +243,12 @@ double sm_samples(double t, double h) {
     return 0.0;
 }
 
+void sm_work_release(SmWork* wk) {
+    sm_radau_free(wk->radau);
+    wk->radau = NULL;
+    wk->carried = 0;
+}
+
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg) {
     double rtol = wk->rtol > 0.0 ? wk->rtol : SM_RTOL;
@@ -250,9 +258,22 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
     double xw[SM_NX], xf[SM_NX], t_end = t + h, t_fail = t;
     *substeps = 0;
     if (!(h > 0.0)) return 0;
-    for (int i = 0; i < SM_NX; i++) xw[i] = x[i] / sm_radau_scale[i]; /* what sm_rhs takes */
-    int code = sm_radau(SM_NX, u, p, t, xw, 1, &t_end, xf, sm_radau_tableau, opt,
-                        SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail);
+    if (wk->radau == NULL && (wk->radau = sm_radau_new(SM_NX)) == NULL) {
+        snprintf(msg, SM_MSG, "the Radau IIA integrator: out of memory");
+        return 1;
+    }
+    /* nothing set since the last doStep: continue its integration (radau.c checks t) */
+    int resume = wk->carried && wk->end_rtol == rtol && !memcmp(x, wk->end_x, sizeof xw) &&
+                 !memcmp(u, wk->end_u, sizeof(double) * SM_NU) &&
+                 !memcmp(p, wk->end_p, sizeof(double) * SM_NP);
+    if (resume) {
+        memcpy(xw, wk->end_xw, sizeof xw);
+    } else {
+        for (int i = 0; i < SM_NX; i++) xw[i] = x[i] / sm_radau_scale[i]; /* what sm_rhs takes */
+    }
+    wk->carried = 0;
+    int code = sm_radau(wk->radau, u, p, t, xw, 1, &t_end, xf, sm_radau_tableau, opt,
+                        SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail, resume);
     *substeps = (long)stats[0];
     if (code) {
         /* radau.c's smallest step: 10 machine epsilons of the larger of |t| and h */
@@ -277,6 +298,13 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
         return 1;
     }
     for (int i = 0; i < SM_NX; i++) x[i] = xf[i] * sm_radau_scale[i];
+    wk->carried = 1;
+    wk->end_t = t_end;
+    wk->end_rtol = rtol;
+    memcpy(wk->end_x, x, sizeof xw);
+    memcpy(wk->end_xw, xf, sizeof xw);
+    memcpy(wk->end_u, u, sizeof(double) * SM_NU);
+    memcpy(wk->end_p, p, sizeof(double) * SM_NP);
     return 0;
 }
 #endif

@@ -173,8 +173,9 @@ def test_cosim_takes_the_importers_tolerance(step_loaded, step_native):
 
 
 def test_cosim_restarts_from_a_saved_state_bit_for_bit(step_loaded):
-    """A doStep depends on (t, x, u, p) only: each restarts the integrator (automatic
-    first step, fresh Jacobian), so steps after restoring a saved state repeat exactly."""
+    """Saving or setting a state restarts the integrator at the next doStep (automatic
+    first step, fresh Jacobian; between other doSteps it continues), so the steps after
+    restoring a saved state repeat those after saving it exactly."""
     fmi = step_loaded
     fmu = fmi.instance()
     fmu.setupExperiment(startTime=0.0)
