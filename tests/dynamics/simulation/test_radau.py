@@ -351,9 +351,9 @@ def test_cache_key_follows_flags_and_sources(tmp_path, monkeypatch):
 @pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_dense_jacobian_from_the_generator_gives_the_same_steps(tmp_path, monkeypatch):
     """``sm_jac`` may return the dense Jacobian (``sparse=False``): the same steps to one
-    in 500 and the same states to 1e-9 (the run's rtol is 1e-7) as the sparse one (the LU's sums run in another
-    order: roundoff can flip one Jacobian-reuse decision, as it did when RADAU5's THET
-    went from 0.001 to 0.01: 521 steps against 520)."""
+    in 500 and the same states to 1e-9 (the run's rtol is 1e-7) as the sparse one (the
+    LU's sums run in another order: roundoff can flip one Jacobian-reuse decision, as it
+    did when RADAU5's THET went from 0.001 to 0.01: 521 steps against 520)."""
     s = SolverSettings("radau", 1e-7, 1e-10)
 
     def run(model):
