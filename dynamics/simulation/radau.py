@@ -8,7 +8,9 @@ the input law and its sparse Jacobian (``casadi.jacobian`` of the same expressio
 generated to C by CasADi (:func:`generate_sources`, in pieces of bounded size) and
 compiled with it into one shared library per model and input law, memoised on the model
 (``Model.cached``) and cached on disk by content hash (:mod:`.compiled`), loaded with
-ctypes. One call integrates a whole segment, so Python is paid per segment, not per step.
+ctypes. One call integrates a whole run (``c/radau_runs.c``: every piece between input
+breakpoints restarted, the states checked finite and inside the physical domain in C by
+the generated ``sm_dom``), so Python is paid per run, not per step or segment.
 
 Why: the model's oscillatory modes lie 73-80 deg from the negative real axis, outside
 the stability sectors of BDF4/BDF5, so CVODES needs 6-9x the steps of this A-stable
@@ -71,7 +73,7 @@ CHUNK = 2000
 nonzeros are split into functions of about this size, so the compile time is linear in n."""
 ROUNDOFF_ATOL, ROUNDOFF_RTOL = 1e-14, 1e-12
 """Below these tolerances a Newton failure names the roundoff floor as a likely cause: the
-muscle scenes run at rtol 1e-12 / atol 1e-14 and fail at atol 1e-15 (SI units)."""
+muscle scenes run at rtol 1e-12 / atol 1e-14; the step scene fails at atol 1e-16 (SI units)."""
 _STATS = ("n_steps", "n_rejected", "n_rhs", "n_jac", "n_lu", "n_newton", "n_newton_fail")
 _DEFAULTS = {"first_step": None, "max_step": np.inf, "max_newton": 7}
 
