@@ -388,45 +388,34 @@ class Simulator:
         run = Pieces(m, self.settings, self.p, law, Wm, self._t, self._x, all_times, ends,
                      self.stats)  # fmt: skip
         Xall, fail = method.pieces(run)
-        if law is HELD:
-            Uall = np.repeat(Wm, lens, axis=0)
-            for k, q in enumerate(plan):
-                if q[4] is not None:
-                    Uall[ends[k] - 1] = q[4]
-        else:
-            Uall = _values(signals, all_times)
+        Uall = np.repeat(Wm, lens, axis=0) if law is HELD else _values(signals, all_times)
+        for k, q in enumerate(plan):  # held: at b itself the input's value from b on
+            if q[4] is not None:
+                Uall[ends[k] - 1] = q[4]
         n_done = len(plan) if fail is None else fail.piece
-        if n_done and sum(q[3] for q in plan[:n_done]) == ends[n_done - 1]:
-            stop = first + int(ends[n_done - 1])  # every time an output time: rows as they are
-            X[first:stop], U[first:stop] = Xall[: stop - first], Uall[: stop - first]
-        elif n_done:
-            keep = np.concatenate([np.arange(e - n, e - n + q[3]) for q, n, e in
-                                   zip(plan[:n_done], lens, ends, strict=False)])  # fmt: skip
-            stop = first + len(keep)
-            X[first:stop], U[first:stop] = Xall[keep], Uall[keep]
-        else:
-            stop = first
-        Z[first:stop] = 0.0
+        rows = zip(plan, lens, ends[:n_done], strict=False)
+        keep = [np.arange(e - n, e - n + q[3]) for q, n, e in rows]
+        keep = np.concatenate(keep) if keep else np.zeros(0, dtype=int)  # output times only
+        stop = first + len(keep)
+        X[first:stop], U[first:stop], Z[first:stop] = Xall[keep], Uall[keep], 0.0
         if n_done:
             end = int(ends[n_done - 1]) - 1
-            self._t, self._x = float(all_times[end]), Xall[end].copy()
-            self._z = np.zeros(m.nz)
+            self._t, self._x, self._z = float(all_times[end]), Xall[end].copy(), np.zeros(m.nz)
         if fail is None:
             return
-        w, piece, row, n_out, _ = plan[fail.piece]
+        w, piece = plan[fail.piece][:2]
         seg = Segment(m, self.settings, self.p, law, w, self._t, self._x, self._z, piece,
                       self.stats)  # fmt: skip
-        start = int(ends[fail.piece]) - len(piece)
+        i = fail.row - (int(ends[fail.piece]) - len(piece))  # the row in the piece
         if fail.cause is not None:
             exc = seg.fail(fail.cause, fail.t, fail.x)
         elif fail.signal < 0:
-            i = fail.row - start
-            exc = seg.fail("the state became non-finite", float(piece[i]),
-                           Xall[fail.row - 1] if i else seg.x0)  # fmt: skip
+            x_before = Xall[fail.row - 1] if i else seg.x0
+            exc = seg.fail("the state became non-finite", float(piece[i]), x_before)
         else:
             names = m.cached(("domain",), lambda: _domain(m))[0]
-            exc = _domain_error(seg, names[fail.signal], fail.value, float(piece[fail.row - start]),
-                                Xall[fail.row])  # fmt: skip
+            t = float(piece[i])
+            exc = _domain_error(seg, names[fail.signal], fail.value, t, Xall[fail.row])
         exc.partial = (times[:stop], X[:stop], Z[:stop], U[:stop])
         raise exc
 
