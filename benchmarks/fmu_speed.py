@@ -103,7 +103,36 @@ int main(int argc, char** argv) {
 """
 
 
-def run(repeats: int, out: Path | None, scenario: str = "step-50g") -> dict:
+def instructions(driver: Path, binary: Path, guid: str, vr: int, nx: int, steps: int) -> dict:
+    """Instructions (callgrind, inclusive) per 1 ms ``fmi2DoStep`` and per call of the
+    integrator inside it (``sm_radau``), over the C driver's ``steps`` doSteps: a
+    ratio that machine load does not move."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "cg.out"
+        cmd = ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", str(driver)]
+        cmd += [str(binary), guid, str(steps), str(vr), str(nx), "1"]
+        subprocess.run(cmd, capture_output=True, check=True)
+        text = subprocess.run(
+            ["callgrind_annotate", "--inclusive=yes", "--threshold=100", str(out)],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    found = {}
+    for line in text.splitlines():
+        for name in ("fmi2DoStep", "sm_radau", "sm_rhs", "sm_check_domain"):
+            if line.rstrip().split(" [")[0].endswith(f":{name}") and name not in found:
+                found[name] = int(line.split()[0].replace(",", "")) / steps
+    return {
+        "instructions_per_dostep": found["fmi2DoStep"],
+        "instructions_per_integrator_call": found["sm_radau"],
+        "dostep_over_integrator": found["fmi2DoStep"] / found["sm_radau"],
+    }
+
+
+def run(
+    repeats: int, out: Path | None, scenario: str = "step-50g", callgrind: bool = False
+) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix="fmu-bench-"))
     fmu = tmp / "step-50g.fmu"
     tic = time.perf_counter()
@@ -161,6 +190,8 @@ def run(repeats: int, out: Path | None, scenario: str = "step-50g") -> dict:
         get_means.append((time.perf_counter() - tic) / steps)
         fmpy_fmu.terminate()
         fmpy_fmu.freeInstance()
+    if callgrind:
+        counts = instructions(tmp / "driver", binary, md.guid, vr["regulator.p_cmd"], nx, steps)
     cs_us = statistics.median(cs_means) * 1e6
     py_us = statistics.median(py_means) * 1e6
     result = {
@@ -176,6 +207,8 @@ def run(repeats: int, out: Path | None, scenario: str = "step-50g") -> dict:
         "fmpy_overhead_us": py_us - cs_us,
         "fmpy_getreal_alone_us": statistics.median(get_means) * 1e6,
     }
+    if callgrind:
+        result.update(counts)
     shutil.rmtree(tmp)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -188,10 +221,15 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="JSON file for the results")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument(
+        "--callgrind",
+        action="store_true",
+        help="also count instructions per doStep and per integrator call (valgrind)",
+    )
+    parser.add_argument(
         "--scenario", default="step-50g", help="scenario file or packaged name (its model)"
     )
     args = parser.parse_args()
-    for key, value in run(args.repeats, args.out, args.scenario).items():
+    for key, value in run(args.repeats, args.out, args.scenario, args.callgrind).items():
         print(f"{key:28s} {value:.4g}" if isinstance(value, float) else f"{key:28s} {value}")
 
 

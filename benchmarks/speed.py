@@ -202,53 +202,55 @@ def dissect_cvodes(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
 
 def dissect_radau(sc: wp.Scenario, rtol: float, repeats: int) -> dict:
     """Where the time of one ``simulate`` call with ``radau`` goes: ``simulate`` in
-    total, the method's share (``meta["wall_time_s"]``), the two compiled integrator
-    calls alone and the integrator's counters (the split of the C time into RHS,
-    Jacobian, LU and solves was timed by ``radau.unit_costs``, removed after 0248a69)."""
+    total, the method's share (``meta["wall_time_s"]``), the one compiled call
+    (``radau_runs.c``: both pieces, the domain checks) timed around the ctypes call, in
+    CPU time (``time.process_time``) and wall time, and the integrator's counters. The
+    Python share is the call minus the C: what the library runs in Python around it."""
     model, x0 = sc.setup()
     settings = SolverSettings("radau", rtol, rtol * wp.ATOL_PER_RTOL)
     tic = time.perf_counter()
     sc.run(settings)
     cold = time.perf_counter() - tic
     lib = radau.library(model, HELD)
-    totals, methods = [], []
-    for _ in range(repeats):
-        tic = time.perf_counter()
-        res = sc.run(settings)
-        totals.append(time.perf_counter() - tic)
-        methods.append(res.meta["wall_time_s"])
+    raw, c_wall, c_cpu = lib.runs, [0.0], [0.0]
+
+    def timed(*args):
+        tic, cpu = time.perf_counter(), time.process_time()
+        code = raw(*args)
+        c_wall[0] += time.perf_counter() - tic
+        c_cpu[0] += time.process_time() - cpu
+        return code
+
+    lib.runs = timed
+    totals, cpus, methods, c_walls, c_cpus = [], [], [], [], []
+    try:
+        for _ in range(repeats):
+            c_wall[0] = c_cpu[0] = 0.0
+            tic, cpu = time.perf_counter(), time.process_time()
+            res = sc.run(settings)
+            totals.append(time.perf_counter() - tic)
+            cpus.append(time.process_time() - cpu)
+            methods.append(res.meta["wall_time_s"])
+            c_walls.append(c_wall[0])
+            c_cpus.append(c_cpu[0])
+    finally:
+        lib.runs = raw
     counts = {k: res.meta[k] for k in res.meta if k.startswith("n_")}
-    p = model.parameters()
-    tb, grid = sc.command.time, sc.t_out
-    segments = [
-        (0.0, float(sc.command(0.0)), grid[(grid > 0) & (grid <= tb)]),
-        (tb, float(sc.command(tb)), grid[grid > tb]),
-    ]
-
-    def direct() -> None:  # the two ctypes calls simulate makes, arguments prepared here
-        x = np.array(x0, dtype=float)
-        for t0, u, times in segments:
-            w, X = np.array([u]), np.empty((len(times), model.nx))
-            opt = np.array([settings.rtol, settings.atol, 0.0, np.inf])
-            st, tf = np.zeros(7), np.zeros(1)
-            code = lib.run(
-                model.nx, w.ctypes.data, p.ctypes.data, t0, x.ctypes.data, len(times),
-                times.ctypes.data, X.ctypes.data, radau._TABLEAU.ctypes.data,
-                opt.ctypes.data, settings.max_steps, 7, st.ctypes.data, tf.ctypes.data,
-            )  # fmt: skip
-            assert code == 0, code
-
-    c_calls = median_wall(direct, repeats)[1]
-    total, method = statistics.median(totals), statistics.median(methods)
+    total, cpu_total = statistics.median(totals), statistics.median(cpus)
+    method, c_calls, c_cpu_s = (statistics.median(v) for v in (methods, c_walls, c_cpus))
     return {
         "rtol": rtol,
         "cold_s": cold,
         "build_s": lib.build_s,
         "simulate_total_s": total,
+        "simulate_total_cpu_s": cpu_total,
         "method_s": method,
         "c_calls_s": c_calls,
+        "c_calls_cpu_s": c_cpu_s,
         "python_around_c_s": method - c_calls,
         "simulate_outside_method_s": total - method,
+        "python_share_wall": (total - c_calls) / total,
+        "python_share_cpu": (cpu_total - c_cpu_s) / cpu_total,
         "counts": counts,
         "c_per_step_us": 1e6 * c_calls / counts["n_steps"],
     }

@@ -177,7 +177,8 @@ def generate(funcs: list[cs.Function], folder: Path) -> Generated:
             raise ParameterError("functions", "incomplete", f"all of {RADAU_FUNCTIONS} or none")
         by_name = {f.name(): f for f in integrator}
         generated = radau.generate_sources(by_name["sm_rhs"], folder)
-        shutil.copyfile(radau.SOURCE, folder / "radau.c")
+        for f in (radau.SOURCE, *radau.HEADERS):
+            shutil.copyfile(f, folder / f.name)
         scale = np.array(by_name["sm_x_scale"]()["o0"]).ravel()
         (folder / "sm_radau.h").write_text(radau_header(scale))
         sources += (*(g.name for g in generated), "radau.c")
@@ -219,10 +220,15 @@ static const double sm_radau_scale[{len(scale)}] = {{
     {scales}
 }};
 
-/* radau.c's entry point: integrate x' = sm_rhs(t, x, w, p) from t0 to tout[nout - 1]. */
-int sm_radau(int n, const double* w, const double* p, double t0, double* x, int nout,
-             const double* tout, double* xout, const double* cst, const double* opt,
-             long max_steps, int max_newton, double* stats, double* t_fail);
+/* radau.c's entry points: an integrator's memory (kept across doSteps), and the
+ * integration of x' = sm_rhs(t, x, w, p) from t0 to tout[nout - 1] (resume: continue
+ * the last call's integration if it ended at (t0, x)). */
+struct SmRadau;
+struct SmRadau* sm_radau_new(int n);
+void sm_radau_free(struct SmRadau* r);
+int sm_radau(struct SmRadau* r, const double* w, const double* p, double t0, double* x,
+             int nout, const double* tout, double* xout, const double* cst, const double* opt,
+             long max_steps, int max_newton, double* stats, double* t_fail, int resume);
 
 #endif
 """

@@ -8,7 +8,9 @@ the input law and its sparse Jacobian (``casadi.jacobian`` of the same expressio
 generated to C by CasADi (:func:`generate_sources`, in pieces of bounded size) and
 compiled with it into one shared library per model and input law, memoised on the model
 (``Model.cached``) and cached on disk by content hash (:mod:`.compiled`), loaded with
-ctypes. One call integrates a whole segment, so Python is paid per segment, not per step.
+ctypes. One call integrates a whole run (``c/radau_runs.c``: every piece between input
+breakpoints restarted, the states checked finite and inside the physical domain in C by
+the generated ``sm_dom``), so Python is paid per run, not per step or segment.
 
 Why: the model's oscillatory modes lie 73-80 deg from the negative real axis, outside
 the stability sectors of BDF4/BDF5, so CVODES needs 6-9x the steps of this A-stable
@@ -21,7 +23,7 @@ from __future__ import annotations
 import ctypes
 import os
 import time
-from dataclasses import dataclass
+import weakref
 from pathlib import Path
 
 import casadi as cs
@@ -32,10 +34,22 @@ from ..modeling.model import Model
 from . import compiled
 from .collocation import radau5_packed
 from .common import law_dae, method_options, require_ode
-from .settings import InputLaw, Segment, SolverSettings, add_stats, register_method
+from .settings import (
+    InputLaw,
+    Pieces,
+    PiecesFailure,
+    Segment,
+    SolverSettings,
+    add_stats,
+    register_method,
+)
 
 SOURCE = Path(__file__).parent / "c" / "radau.c"
-"""The integrator's C source (package data)."""
+"""The integrator's C source (package data); it includes :data:`HEADERS`."""
+HEADERS = (Path(__file__).parent / "c" / "sparse_lu.h",)
+"""The headers :data:`SOURCE` includes (package data, copied next to it into an FMU)."""
+RUNS_SOURCE = Path(__file__).parent / "c" / "radau_runs.c"
+"""The simulator's driver: several pieces in one call, states checked in C (package data)."""
 
 _CAUSES = {
     1: "too many steps (max_steps reached)",
@@ -45,6 +59,7 @@ _CAUSES = {
     5: "out of memory",
     6: "right-hand side evaluation failed (NaN or inf)",
 }
+_NONFINITE, _DOMAIN = 7, 8  # radau_runs.c's codes beyond radau.c's
 CFLAGS = ("-O3", "-fno-math-errno", "-fcx-limited-range", "-std=c11")
 """Compiler flags of the integrator: no errno from sqrt/pow and C99's NaN-recovery in
 complex products left out (neither is ever relied on here): inline arithmetic, 8 %
@@ -58,7 +73,7 @@ CHUNK = 2000
 nonzeros are split into functions of about this size, so the compile time is linear in n."""
 ROUNDOFF_ATOL, ROUNDOFF_RTOL = 1e-14, 1e-12
 """Below these tolerances a Newton failure names the roundoff floor as a likely cause: the
-muscle scenes run at rtol 1e-12 / atol 1e-14 and fail at atol 1e-15 (SI units)."""
+muscle scenes run at rtol 1e-12 / atol 1e-14; the step scene fails at atol 1e-16 (SI units)."""
 _STATS = ("n_steps", "n_rejected", "n_rhs", "n_jac", "n_lu", "n_newton", "n_newton_fail")
 _DEFAULTS = {"first_step": None, "max_step": np.inf, "max_newton": 7}
 
@@ -67,16 +82,19 @@ def _packed() -> np.ndarray:
     return radau5_packed()
 
 
-@dataclass(frozen=True)
 class Library:
-    """A compiled integrator for one model and input law.
+    """A compiled integrator for one model and input law, and a pool of integrator
+    memories (``sm_radau_new``: work arrays allocated once, taken by one call at a time,
+    so threads never share one; freed with the library).
 
     Attributes
     ----------
     n : int
         Number of states.
     run : ctypes function
-        ``sm_radau`` (see ``c/radau.c``).
+        ``sm_radau`` (see ``c/radau.c``): one segment.
+    runs : ctypes function
+        ``sm_radau_runs`` (see ``c/radau_runs.c``): several pieces, states checked.
     handle : ctypes.CDLL
         The loaded library (kept so it stays loaded).
     build_s : float
@@ -85,14 +103,68 @@ class Library:
         The library in the on-disk cache.
     compiled : bool
         Whether this process compiled it (False: found in the cache).
+    low, high : numpy.ndarray
+        The ranges of the bounded signals ``sm_dom`` returns (the model's order).
     """
 
-    n: int
-    run: ctypes._CFuncPtr
-    handle: ctypes.CDLL
-    build_s: float
-    path: Path
-    compiled: bool
+    def __init__(self, n: int, handle: ctypes.CDLL, build_s: float, path: Path, built: bool,
+                 low: np.ndarray, high: np.ndarray) -> None:  # fmt: skip
+        ptr, i32, f64, i64 = ctypes.c_void_p, ctypes.c_int, ctypes.c_double, ctypes.c_long
+        self.n, self.handle, self.build_s, self.path, self.compiled = (
+            n,
+            handle,
+            build_s,
+            path,
+            built,
+        )
+        self.low, self.high = low, high
+        self.run = handle.sm_radau
+        self.run.restype = i32
+        self.run.argtypes = [
+            ptr,
+            ptr,
+            ptr,
+            f64,
+            ptr,
+            i32,
+            ptr,
+            ptr,
+            ptr,
+            ptr,
+            i64,
+            i32,
+            ptr,
+            ptr,
+            i32,
+        ]
+        self.runs = handle.sm_radau_runs
+        self.runs.restype = i32
+        self.runs.argtypes = [ptr, i32, i32, ptr, i32, ptr, ptr, f64, ptr, ptr, ptr, ptr, ptr,
+                              i64, i32, ptr, ptr, i32, ptr, ptr, ptr, ptr]  # fmt: skip
+        handle.sm_radau_new.restype = ptr
+        handle.sm_radau_new.argtypes = [i32]
+        handle.sm_radau_free.argtypes = [ptr]
+        self._pool: list[int] = []
+        weakref.finalize(self, _free_all, handle.sm_radau_free, self._pool)
+
+    def acquire(self) -> int:
+        """An integrator memory (give it back with :meth:`release`)."""
+        try:
+            return self._pool.pop()  # atomic: no two callers get the same memory
+        except IndexError:
+            mem = self.handle.sm_radau_new(self.n)
+            if not mem:
+                raise SolverError("radau: out of memory") from None
+            return mem
+
+    def release(self, mem: int) -> None:
+        self._pool.append(mem)
+
+
+def _free_all(free, pool: list) -> None:
+    for mem in pool:
+        free(mem)
+    pool.clear()
 
 
 def library(model: Model, law: InputLaw) -> Library:
@@ -133,13 +205,18 @@ def generate_sources(
     f = rhs.call(args)[0]
     jac = cs.jacobian(f, args[1])
     jac = jac if sparse else cs.densify(jac)
-    paths = []
-    for name, expr in (("sm_rhs", cs.densify(f)), ("sm_jac", jac)):
-        gen = cs.CodeGenerator(f"{name}.c", {"casadi_int": "int"})
-        gen.add(_chunked(name, args, expr, chunk))
-        gen.generate(str(folder) + os.sep)
-        paths.append(Path(folder) / f"{name}.c")
-    return paths
+    return [
+        _generate(name, args, e, folder, chunk)
+        for name, e in (("sm_rhs", cs.densify(f)), ("sm_jac", jac))
+    ]
+
+
+def _generate(name: str, args: list, expr: cs.SX, folder: Path, chunk: int) -> Path:
+    """``name(args) -> expr`` generated (chunked, ``casadi_int = int``) into ``folder``."""
+    gen = cs.CodeGenerator(f"{name}.c", {"casadi_int": "int"})
+    gen.add(_chunked(name, args, expr, chunk))
+    gen.generate(str(folder) + os.sep)
+    return Path(folder) / f"{name}.c"
 
 
 def _chunked(name: str, args: list, expr: cs.SX, chunk: int) -> cs.Function:
@@ -163,28 +240,35 @@ def _build(model: Model, law: InputLaw) -> Library:
     tic = time.perf_counter()
     d = law_dae(model, law)
     rhs = cs.Function("sm_rhs", [d.t, d.x, d.w, d.p], [d.ode])
+    # the bounded signals (the physical domain) under the law, checked by radau_runs.c
+    bounded = model.bounded_signal_names
+    u = law.u_expr(d.t, d.w)
+    dom = cs.densify(model.signals_function(bounded).call([d.x, d.z, u, d.p])[0])
+    args = [d.t, d.x, d.w, d.p]
+    low = np.array([model.variables[k].low for k in bounded], dtype=float)
+    high = np.array([model.variables[k].high for k in bounded], dtype=float)
 
     def units(folder: Path) -> list[compiled.Unit]:
-        sources = generate_sources(rhs, folder)
-        return [compiled.Unit(SOURCE, CFLAGS)] + [compiled.Unit(s, MODEL_CFLAGS) for s in sources]
+        sources = [*generate_sources(rhs, folder), _generate("sm_dom", args, dom, folder, CHUNK)]
+        own = [compiled.Unit(SOURCE, CFLAGS), compiled.Unit(RUNS_SOURCE, CFLAGS)]
+        return own + [compiled.Unit(s, MODEL_CFLAGS) for s in sources]
 
     # the key: the model's expression (serialised: deterministic) and what turns it into
     # C (CasADi's version, this module's code, the chunk size), the sources and flags
-    inputs = [rhs.serialize(), cs.__version__, Path(__file__).read_bytes(), SOURCE.read_bytes()]
+    dom_fn = cs.Function("sm_dom", args, [dom])
+    inputs = [rhs.serialize(), dom_fn.serialize(), cs.__version__, Path(__file__).read_bytes()]
+    inputs += [f.read_bytes() for f in (SOURCE, *HEADERS, RUNS_SOURCE)]
     inputs += [" ".join(CFLAGS), " ".join(MODEL_CFLAGS), str(CHUNK)]
     try:
         path, built = compiled.shared_library("radau", inputs, units)
     except SolverError as e:
         raise SolverError(f"radau: {e}") from None
     handle = ctypes.CDLL(str(path))
-    fn = handle.sm_radau
-    fn.restype = ctypes.c_int
-    ptr, i32, f64 = ctypes.c_void_p, ctypes.c_int, ctypes.c_double
-    fn.argtypes = [i32, ptr, ptr, f64, ptr, i32, ptr, ptr, ptr, ptr, ctypes.c_long, i32, ptr, ptr]
-    return Library(model.nx, fn, handle, time.perf_counter() - tic, path, built)
+    return Library(model.nx, handle, time.perf_counter() - tic, path, built, low, high)
 
 
 _TABLEAU = _packed()
+_TABLEAU_PTR = _TABLEAU.ctypes.data
 
 
 def _options(s: SolverSettings) -> tuple[np.ndarray, int]:
@@ -201,6 +285,21 @@ def _options(s: SolverSettings) -> tuple[np.ndarray, int]:
     return np.array([s.rtol, s.atol, first or 0.0, hmax]), newton
 
 
+def _cause(code: int, s: SolverSettings) -> str:
+    cause = _CAUSES.get(code, f"error code {code}")
+    if code == 3 and (s.atol < ROUNDOFF_ATOL or s.rtol < ROUNDOFF_RTOL):
+        cause += (
+            f" at atol = {s.atol:g}, rtol = {s.rtol:g}: below the roundoff floor of the"
+            " stage equations of this model? (docs/numerics.md: raise atol)"
+        )
+    return cause
+
+
+def _add(stats: dict, counts: np.ndarray, segments: int) -> None:
+    add_stats(stats, **dict(zip(_STATS, counts.astype(int).tolist(), strict=False)),
+              n_segments=segments)  # fmt: skip
+
+
 def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
     s, m = seg.settings, seg.model
     require_ode(m, s)
@@ -212,34 +311,60 @@ def _run(seg: Segment) -> tuple[np.ndarray, np.ndarray]:
     X = np.empty((len(times), nx))
     w = np.ascontiguousarray(seg.w, dtype=float)
     p = np.ascontiguousarray(seg.p, dtype=float)
-    stats = np.zeros(len(_STATS))
-    t_fail = np.zeros(1)
-    code = lib.run(
-        nx,
-        w.ctypes.data,
-        p.ctypes.data,
-        float(seg.t0),
-        x.ctypes.data,
-        len(times),
-        times.ctypes.data,
-        X.ctypes.data,
-        _TABLEAU.ctypes.data,
-        opt.ctypes.data,
-        int(s.max_steps),
-        newton,
-        stats.ctypes.data,
-        t_fail.ctypes.data,
-    )
-    add_stats(seg.stats, **{k: int(v) for k, v in zip(_STATS, stats, strict=True)}, n_segments=1)
+    stats = np.zeros(len(_STATS) + 1)  # + t_fail
+    mem = lib.acquire()
+    try:
+        code = lib.run(mem, w.ctypes.data, p.ctypes.data, float(seg.t0), x.ctypes.data,
+                       len(times), times.ctypes.data, X.ctypes.data, _TABLEAU_PTR,
+                       opt.ctypes.data, int(s.max_steps), newton, stats.ctypes.data,
+                       stats[-1:].ctypes.data, 0)  # fmt: skip
+    finally:
+        lib.release(mem)
+    _add(seg.stats, stats[:-1], 1)
     if code:
-        cause = _CAUSES.get(code, f"error code {code}")
-        if code == 3 and (s.atol < ROUNDOFF_ATOL or s.rtol < ROUNDOFF_RTOL):
-            cause += (
-                f" at atol = {s.atol:g}, rtol = {s.rtol:g}: below the roundoff floor of the"
-                " stage equations of this model? (docs/numerics.md: raise atol)"
-            )
-        raise seg.fail(cause, float(t_fail[0]), x)
+        raise seg.fail(_cause(code, s), float(stats[-1]), x)
     return X, np.zeros((len(times), 0))
 
 
-register_method("radau")(_run)
+def _bound(model: Model, law: InputLaw, s: SolverSettings) -> tuple:
+    """What every call with ``(model, law, s)`` passes alike: the library, the addresses
+    of the options and of the domain's bounds (arrays kept alive here), max_newton."""
+    opt, newton = _options(s)
+    lib = library(model, law)
+    return lib, opt, opt.ctypes.data, newton, lib.low.ctypes.data, lib.high.ctypes.data
+
+
+def _run_pieces(run: Pieces) -> tuple[np.ndarray, PiecesFailure | None]:
+    """All pieces of ``run`` in one C call (``radau_runs.c``): the states at every time,
+    checked finite and inside the physical domain there."""
+    s, m = run.settings, run.model
+    require_ode(m, s)
+    key = ("radau_bound", run.law.key(), s.key)
+    lib, _, opt, newton, low, high = m.cached(key, lambda: _bound(m, run.law, s))
+    nx, nb = lib.n, len(lib.low)
+    times, ends = run.times, run.ends
+    X = np.empty((len(times), nx))
+    x = np.array(run.x0, dtype=float)
+    # counters, t_fail, failure info (4), room for the bounded signals
+    work = np.zeros(12 + nb)
+    w0 = work.ctypes.data
+    mem = lib.acquire()
+    try:
+        code = lib.runs(mem, nx, len(ends), ends.ctypes.data, run.W.shape[1], run.W.ctypes.data,
+                        run.p.ctypes.data, run.t0, x.ctypes.data, times.ctypes.data,
+                        X.ctypes.data, _TABLEAU_PTR, opt, s.max_steps, newton, w0, w0 + 56, nb,
+                        low, high, w0 + 96, w0 + 64)  # fmt: skip
+    finally:
+        lib.release(mem)
+    piece = int(work[8]) if code else len(ends)
+    _add(run.stats, work[:7], min(piece + 1, len(ends)))
+    if not code:
+        return X, None
+    if code == _NONFINITE:
+        return X, PiecesFailure(piece, row=int(work[9]))
+    if code == _DOMAIN:
+        return X, PiecesFailure(piece, row=int(work[9]), signal=int(work[10]), value=work[11])
+    return X, PiecesFailure(piece, cause=_cause(code, s), t=float(work[7]), x=x)
+
+
+register_method("radau", pieces=_run_pieces)(_run)

@@ -158,8 +158,46 @@ class Segment:
         return SolverError(f"{self.settings.method}: {why}", time=t, state=state)
 
 
+@dataclass
+class Pieces:
+    """Several segments under one input law, for a method that integrates them in one call
+    (:attr:`Method.pieces`). Piece ``k`` runs from the end of piece ``k - 1`` (``t0``,
+    ``x0`` for the first) through ``times[ends[k - 1]:ends[k]]`` (``ends[-1]`` = 0) with
+    the law's argument ``W[k]``, restarted there as at a :class:`Segment`'s start; the
+    states at every time are checked as the simulator checks a segment's: finite, and
+    every bounded signal (``model.bounded_signal_names``) inside its range, its inputs
+    from the law. ``times``, ``ends`` (int32) and ``W`` are C-contiguous."""
+
+    model: Model
+    settings: SolverSettings
+    p: np.ndarray
+    law: InputLaw
+    W: np.ndarray
+    t0: float
+    x0: np.ndarray
+    times: np.ndarray
+    ends: np.ndarray
+    stats: dict
+
+
+@dataclass(frozen=True)
+class PiecesFailure:
+    """Where a :class:`Pieces` run stopped: the ``piece``, and either the method's
+    ``cause`` (at time ``t``, state ``x``) or a check that failed at ``row`` of the times:
+    a state not finite (``signal`` -1) or bounded signal number ``signal`` at ``value``."""
+
+    piece: int
+    cause: str | None = None
+    t: float = float("nan")
+    x: np.ndarray | None = None
+    row: int = -1
+    signal: int = -1
+    value: float = float("nan")
+
+
 RunFn = Callable[[Segment], tuple[np.ndarray, np.ndarray]]
 StepFn = Callable[["Model", SolverSettings], cs.Function]
+PiecesFn = Callable[[Pieces], tuple[np.ndarray, PiecesFailure | None]]
 
 
 @dataclass(frozen=True)
@@ -175,20 +213,27 @@ class Method:
         ``step_function(model, settings)`` -> the CasADi Function
         ``step(x, z, u, h, p) -> (xf, zf)`` of one step with the input held; None for
         methods that are not CasADi graphs (scipy's).
+    pieces : callable or None
+        ``pieces(run) -> (X, failure)``: every piece of a :class:`Pieces` in one call, the
+        states at ``run.times`` (rows after a failure undefined) and None or the
+        :class:`PiecesFailure`; the same numbers as :attr:`run` piece by piece.
     """
 
     run: RunFn
     step_function: StepFn | None = None
+    pieces: PiecesFn | None = None
 
 
 METHODS: dict[str, Method] = {}
 
 
-def register_method(name: str, step_function: StepFn | None = None) -> Callable[[RunFn], RunFn]:
+def register_method(
+    name: str, step_function: StepFn | None = None, pieces: PiecesFn | None = None
+) -> Callable[[RunFn], RunFn]:
     """Decorator: make ``run(segment) -> (X, Z)`` available as method ``name``."""
 
     def deco(fn: RunFn) -> RunFn:
-        METHODS[name] = Method(fn, step_function)
+        METHODS[name] = Method(fn, step_function, pieces)
         return fn
 
     return deco

@@ -105,7 +105,8 @@ def simulate(
     if len(t_out) < 2:
         raise ParameterError("t_out", t_out.tolist(), "at least two increasing times [s]")
     wanted = list(model.signal_names if signals is None else signals)
-    unknown = [n for n in wanted if n not in model.signal_names]
+    known = model.cached(("signal_set",), lambda: frozenset(model.signal_names))
+    unknown = [n for n in wanted if n not in known]
     if unknown:
         raise ParameterError("signals", unknown[:5], f"signals of model '{model.name}'")
     _check_size(len(t_out), model, wanted, max_values)
@@ -133,9 +134,15 @@ def _result(
     """The :class:`Result` of a run of ``sim`` through ``t_out`` (states ``X``, algebraic
     unknowns ``Z``, inputs ``U``, one row per time; ``wall`` its integration time [s])."""
     model, settings = sim.model, sim.settings
-    S = sim._signals_at(tuple(wanted), X.T, Z.T, U.T)  # bound buffers: no conversions
-    values = {name: S[i] for i, name in enumerate(wanted)}
-    units = {name: model.unit(name) for name in values}
+    direct = model.cached(("direct_columns",), lambda: _direct_columns(model))
+    rows = [direct.get(name) for name in wanted]
+    if None in rows:
+        S = sim._signals_at(tuple(wanted), X.T, Z.T, U.T)  # bound buffers: no conversions
+    else:  # states and inputs only: the columns themselves
+        S = np.concatenate([X, U], axis=1).T[rows]
+    values = dict(zip(wanted, S, strict=True))
+    units = model.cached(("units", tuple(wanted)), lambda: [model.unit(n) for n in wanted])
+    units = dict(zip(wanted, units, strict=True))
     meta = {
         "model": model.name,
         "method": settings.method,
@@ -146,7 +153,14 @@ def _result(
         "x_final": X[-1].tolist(),
         **sim.stats,
     }
-    return Result("time", "s", t_out, values, units, meta).require_finite(settings.method)
+    result = Result("time", "s", t_out, values, units, meta)
+    return result if np.isfinite(S).all() else result.require_finite(settings.method)
+
+
+def _direct_columns(model: Model) -> dict[str, int]:
+    """The signals that are a state or an input, by their column of ``[X, U]``."""
+    names = [*model.state_names, *model.input_names]
+    return {name: i for i, name in enumerate(names)}
 
 
 def _check_size(

@@ -49,7 +49,7 @@ from ..units import to_si
 from . import fixed_step, guard, radau, scipy_methods, sundials  # noqa: F401  (register the methods)
 from .common import method_options, require_step
 from .pwm import EffectiveDuty, PulseTrain
-from .settings import HELD, METHODS, InputLaw, Segment, SolverSettings, segment_w
+from .settings import HELD, METHODS, InputLaw, Pieces, Segment, SolverSettings, segment_w
 
 CHUNK_POINTS = 1000
 """Most output points per method call: long runs are integrated in pieces of this many
@@ -154,16 +154,21 @@ class Simulator:
         ``params`` (overrides by name, units allowed); inputs return to their start values.
         """
         m = self.model
-        self.p = m.parameters(params)
+        if params:
+            self.p = m.parameters(params)
+        else:  # the defaults: fixed per model
+            self.p = m.cached(("default_parameters",), lambda: m.parameters()).copy()
         # the start values at the default parameters (as Model.x0() etc.): fixed per model
         x_start, z_start, u_start = m.cached(("start_values",), lambda: _start_values(m))
         self._x = _vector(m, "x0", x0, x_start, m.state_names)
-        m.check_finite(self._x, "x")
+        if not np.isfinite(self._x).all():
+            m.check_finite(self._x, "x")
         self._z = _vector(m, "z0", z0, z_start, m.alg_names)
         if not math.isfinite(t0):
             raise ParameterError("t0", t0, "a finite time [s]")
         self._t = float(t0)
-        self._inputs = [_Const(float(v)) for v in u_start]
+        start = m.cached(("start_inputs",), lambda: tuple(_Const(float(v)) for v in u_start))
+        self._inputs = list(start)
         self._u = u_start.copy()
         self._limit: tuple | None = None
         self._pwm_history = False  # a PWM's duty before the first advance: held as given
@@ -278,11 +283,11 @@ class Simulator:
             )
         m, t_start = self.model, self._t
         times = np.asarray(times, dtype=float).reshape(-1)
-        if not len(times) or not np.all(np.isfinite(times)) or times[0] < t_start:
+        if not len(times) or not np.isfinite(times).all() or times[0] < t_start:
             raise ParameterError("times", times[:3], f"finite times from t = {t_start:g} s on")
         if times[-1] <= t_start:
             raise ParameterError("times", times[-1], f"an end after t = {t_start:g} s")
-        if np.any(np.diff(times) <= 0):
+        if (np.diff(times) <= 0).any():
             raise ParameterError("times", times[:3], "strictly increasing times [s]")
         given = self._input_signals(u)
         signals = self._modulated(given)
@@ -296,15 +301,17 @@ class Simulator:
             }
             - {t_start, t_end}
         )
-        self._check_range(given, np.concatenate([[t_start], times, bps]))
+        # the inputs as given at t_start, the times and the breakpoints, in one vectorised call
+        V = self._check_range(given, np.concatenate([[t_start], times, bps]))
         if self._scheme is not None:
             self._guard(signals, times, bps)
-        X = np.empty((len(times), m.nx))
-        Z = np.empty((len(times), m.nz))
-        U = np.empty((len(times), len(signals)))
+        nt = len(times)
+        X = np.empty((nt, m.nx))
+        Z = np.empty((nt, m.nz))
+        U = np.empty((nt, len(signals)))
         first = 0
         if times[0] == t_start:
-            X[0], Z[0], U[0] = self._x, self._z, _values(signals, t_start)
+            X[0], Z[0], U[0] = self._x, self._z, V[0]
             first = 1
         edges = [t_start, *bps, t_end]
         span = t_end - t_start
@@ -312,33 +319,46 @@ class Simulator:
         law = HELD if held else InputLaw(tuple(signals))
         # held: the inputs at each edge (for the rows at b) and inside each piece (what is
         # integrated: a PWM edge is a breakpoint only to rounding, the middle is not)
-        W = _values(signals, np.array(edges)) if held else None  # one vectorised call
-        mid = np.array(edges)
-        Wm = _values(signals, 0.5 * (mid[:-1] + mid[1:])) if held else None
-        done = first  # rows filled: what a failure keeps (SolverError.partial)
+        W = V[[0, *range(nt + 1, nt + 1 + len(bps)), nt]] if held else None  # at the edges
+        if held and given is not signals:
+            mid = np.array(edges)
+            Wi = _values(signals, 0.5 * (mid[:-1] + mid[1:]))
+        else:
+            Wi = W
+        plan = []  # per piece: w, times, first row, rows kept, ends at b held (U from b on)
+        rows = (first + np.searchsorted(times[first:], edges, side="right")).tolist()
         for i, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
-            lo = first + int(np.searchsorted(times[first:], a, side="right"))
-            hi = first + int(np.searchsorted(times[first:], b, side="right"))
-            seg_times = times[lo:hi] if hi > lo and times[hi - 1] == b else [*times[lo:hi], b]
-            seg_times = np.asarray(seg_times, dtype=float)
-            w = Wm[i] if held else segment_w(a, b)
+            lo, hi = rows[i], rows[i + 1]
+            if hi > lo and times[hi - 1] == b:
+                seg_times = times[lo:hi]
+            else:
+                seg_times = np.append(times[lo:hi], b)
+            w = Wi[i] if held else segment_w(a, b)
             for k in range(0, len(seg_times), CHUNK_POINTS):
                 piece = seg_times[k : k + CHUNK_POINTS]
+                n_out = max(min(len(piece), hi - lo - k), 0)  # b may be a breakpoint only
+                at_b = held and n_out == len(piece) and piece[-1] == b
+                plan.append((w, piece, lo + k, n_out, W[i + 1] if at_b else None))
+        method = METHODS[self.settings.method]
+        if method.pieces is not None and progress is None:
+            self._pieces(method, law, signals, plan, X, Z, U, first, times)
+        else:
+            done = first  # rows filled: what a failure keeps (SolverError.partial)
+            for w, piece, row, n_out, u_b in plan:
                 try:
                     Xp, Zp, Up = self._piece(law, w, signals, piece)
                 except SolverError as exc:
                     exc.partial = (times[:done], X[:done], Z[:done], U[:done])
                     raise
-                n_out = max(min(len(piece), hi - lo - k), 0)  # b may be a breakpoint only
-                rows = slice(lo + k, lo + k + n_out)
+                rows = slice(row, row + n_out)
                 X[rows], Z[rows], U[rows] = Xp[:n_out], Zp[:n_out], Up[:n_out]
-                if held and n_out == len(piece) and piece[-1] == b:
-                    U[rows.stop - 1] = W[i + 1]  # at b itself the input's value from b on
+                if u_b is not None:
+                    U[rows.stop - 1] = u_b  # at b itself the input's value from b on
                 done = rows.stop
                 if progress is not None:
                     progress((self._t - t_start) / span if span > 0 else 1.0)
         self._inputs = given
-        self._u = _values(given, t_end)
+        self._u = V[nt].copy()  # at t_end
         if given is not signals:  # the rows show the inputs as given (the duty)
             U = _values(given, times) if len(given) else U
         return X, Z, U
@@ -394,6 +414,48 @@ class Simulator:
         self._t, self._x, self._z = float(times[-1]), X[-1].copy(), Z[-1].copy()
         return X, Z, U
 
+    def _pieces(self, method, law, signals, plan, X, Z, U, first, times) -> None:
+        """Every piece of ``plan`` in one call of the method (:attr:`Method.pieces`), with
+        the same numbers, checks and failures as :meth:`_piece` piece by piece."""
+        m = self.model
+        lens = [len(q[1]) for q in plan]
+        ends = np.cumsum(lens, dtype=np.int32)
+        all_times = np.concatenate([q[1] for q in plan]) if len(plan) > 1 else plan[0][1]
+        Wm = np.ascontiguousarray([q[0] for q in plan], dtype=float)
+        run = Pieces(m, self.settings, self.p, law, Wm, self._t, self._x, all_times, ends,
+                     self.stats)  # fmt: skip
+        Xall, fail = method.pieces(run)
+        Uall = np.repeat(Wm, lens, axis=0) if law is HELD else _values(signals, all_times)
+        for k, q in enumerate(plan):  # held: at b itself the input's value from b on
+            if q[4] is not None:
+                Uall[ends[k] - 1] = q[4]
+        n_done = len(plan) if fail is None else fail.piece
+        rows = zip(plan, lens, ends[:n_done], strict=False)
+        keep = [np.arange(e - n, e - n + q[3]) for q, n, e in rows]
+        keep = np.concatenate(keep) if keep else np.zeros(0, dtype=int)  # output times only
+        stop = first + len(keep)
+        X[first:stop], U[first:stop], Z[first:stop] = Xall[keep], Uall[keep], 0.0
+        if n_done:
+            end = int(ends[n_done - 1]) - 1
+            self._t, self._x, self._z = float(all_times[end]), Xall[end].copy(), np.zeros(m.nz)
+        if fail is None:
+            return
+        w, piece = plan[fail.piece][:2]
+        seg = Segment(m, self.settings, self.p, law, w, self._t, self._x, self._z, piece,
+                      self.stats)  # fmt: skip
+        i = fail.row - (int(ends[fail.piece]) - len(piece))  # the row in the piece
+        if fail.cause is not None:
+            exc = seg.fail(fail.cause, fail.t, fail.x)
+        elif fail.signal < 0:
+            x_before = Xall[fail.row - 1] if i else seg.x0
+            exc = seg.fail("the state became non-finite", float(piece[i]), x_before)
+        else:
+            names = m.cached(("domain",), lambda: _domain(m))[0]
+            t = float(piece[i])
+            exc = _domain_error(seg, names[fail.signal], fail.value, t, Xall[fail.row])
+        exc.partial = (times[:stop], X[:stop], Z[:stop], U[:stop])
+        raise exc
+
     # --- checks --------------------------------------------------------------------
     def _check_domain(self, seg: Segment, X: np.ndarray, Z: np.ndarray, U: np.ndarray) -> None:
         """Refuse the first output point where a bounded signal leaves ``[low, high]``."""
@@ -407,24 +469,23 @@ class Simulator:
             return
         col = int(np.argmax(out.any(axis=0)))
         row = int(np.argmax(out[:, col]))
-        name, var = names[row], m.variables[names[row]]
-        raise seg.fail(
-            f"left the physical domain: {name} = {S[row, col]:.4g} {var.unit} is outside "
-            f"{var.range_str} ({var.description})",
-            float(seg.times[col]),
-            X[col],
-        )
+        raise _domain_error(seg, names[row], S[row, col], float(seg.times[col]), X[col])
 
-    def _check_range(self, signals: list, times: np.ndarray) -> None:
-        """Refuse an input outside its variable's range at ``times``."""
+    def _check_range(self, signals: list, times: np.ndarray) -> np.ndarray:
+        """The inputs at ``times`` (one row per time); refuse one outside its variable's
+        range."""
         m = self.model
-        for name, sig in zip(m.input_names, signals, strict=True):
-            var = m.variables[name]
-            values = np.asarray(sig(times), dtype=float) * np.ones_like(times)
+        V = _values(signals, times)
+        low, high = m.cached(("input_ranges",), lambda: _input_ranges(m))
+        if ((V >= low) & (V <= high)).all():
+            return V
+        for k, name in enumerate(m.input_names):
+            var, values = m.variables[name], V[:, k]
             bad = np.flatnonzero(~((values >= var.low) & (values <= var.high)))
             if bad.size:
                 value = f"{values[bad[0]]:g} {var.unit} at t = {times[bad[0]]:g} s"
                 raise var.refuse(name, value, var.description)
+        return V
 
     def _guard(self, signals: list, times: np.ndarray, bps: list[float]) -> None:
         """The explicit-step stability guard (:mod:`.guard`); the limit is estimated at the
@@ -479,6 +540,24 @@ def _start_values(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``x0``, ``z0`` and ``u0`` at the default parameters, in one call."""
     start = model.function("start").call([model.parameters()])
     return tuple(np.array(v, dtype=float).reshape(-1) for v in start)
+
+
+def _input_ranges(model: Model) -> tuple[np.ndarray, np.ndarray]:
+    """The inputs' ``low`` and ``high`` (one entry each)."""
+    low = np.array([model.variables[k].low for k in model.input_names], dtype=float)
+    high = np.array([model.variables[k].high for k in model.input_names], dtype=float)
+    return low, high
+
+
+def _domain_error(seg: Segment, name: str, value: float, t: float, x: np.ndarray) -> SolverError:
+    """The failure of bounded signal ``name`` at ``value`` outside its range at ``t``."""
+    var = seg.model.variables[name]
+    return seg.fail(
+        f"left the physical domain: {name} = {value:.4g} {var.unit} is outside "
+        f"{var.range_str} ({var.description})",
+        t,
+        x,
+    )
 
 
 def _domain(model: Model) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:

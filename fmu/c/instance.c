@@ -97,6 +97,7 @@ SmStatus sm_set_logging(SmInstance* inst, int on, size_t n, const char* const* c
 
 /* --- life cycle ----------------------------------------------------------------------- */
 void sm_reset(SmInstance* inst) {
+    sm_work_release(&inst->wk);
     inst->v.t = 0.0;
     inst->v.t_start = 0.0;
     memcpy(inst->v.x, sm_x_start, sizeof inst->v.x);
@@ -148,6 +149,7 @@ SmInstance* sm_new(const char* name, int cosim, SmLogger log, SmCallback callbac
 
 void sm_free(SmInstance* inst) {
     sm_unregister(inst);
+    sm_work_release(&inst->wk);
     free(inst->name);
     free(inst);
 }

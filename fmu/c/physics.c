@@ -94,6 +94,8 @@ int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg) {
     return 0;
 }
 
+void sm_work_release(SmWork* wk) { (void)wk; }
+
 /* The sample instants k T in [t, t + h): k from ceil(t / T) to ceil((t + h) / T) - 1. */
 static double first_sample(double t) { return ceil(t / SM_SAMPLE_PERIOD - SM_SAMPLE_TOL); }
 
@@ -272,6 +274,13 @@ static double pwm_next_edge(double t, double d, double prev, double t_switch) {
 }
 #endif
 
+
+void sm_work_release(SmWork* wk) {
+    sm_radau_free(wk->radau);
+    wk->radau = NULL;
+    wk->carried = 0;
+}
+
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,
                long* substeps, char* msg) {
     double rtol = wk->rtol > 0.0 ? wk->rtol : SM_RTOL;
@@ -282,7 +291,24 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
     int code = 0;
     *substeps = 0;
     if (!(h > 0.0)) return 0;
-    for (int i = 0; i < SM_NX; i++) xw[i] = x[i] / sm_radau_scale[i]; /* what sm_rhs takes */
+    if (wk->radau == NULL && (wk->radau = sm_radau_new(SM_NX)) == NULL) {
+        snprintf(msg, SM_MSG, "the Radau IIA integrator: out of memory");
+        return 1;
+    }
+#if SM_PWM
+    int resume = 0; /* every switching edge restarts the integrator */
+#else
+    /* nothing set since the last doStep: continue its integration (radau.c checks t) */
+    int resume = wk->carried && wk->end_rtol == rtol && !memcmp(x, wk->end_x, sizeof xw) &&
+                 !memcmp(u, wk->end_u, sizeof(double) * SM_NU) &&
+                 !memcmp(p, wk->end_p, sizeof(double) * SM_NP);
+#endif
+    if (resume) {
+        memcpy(xw, wk->end_xw, sizeof xw);
+    } else {
+        for (int i = 0; i < SM_NX; i++) xw[i] = x[i] / sm_radau_scale[i]; /* what sm_rhs takes */
+    }
+    wk->carried = 0;
 #if SM_PWM
     double ua[SM_NU], d = u[SM_PWM_INPUT];
     double prev = wk->pwm_started ? wk->pwm_prev : d;
@@ -294,8 +320,8 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
         if (!SM_PWM_AVERAGED) ua[SM_PWM_INPUT] = pwm_command(0.5 * (a + b), d, prev, t);
         if (b - a > 1e-13 * (1.0 + fabs(b))) { /* shorter: an edge twice, to rounding */
             double b_out = b;
-            code = sm_radau(SM_NX, ua, p, a, xw, 1, &b_out, xf, sm_radau_tableau, opt,
-                            SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail);
+            code = sm_radau(wk->radau, ua, p, a, xw, 1, &b_out, xf, sm_radau_tableau, opt,
+                            SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail, 0);
             *substeps = (long)stats[0]; /* radau.c adds to its counters */
             memcpy(xw, xf, sizeof xw);
         }
@@ -303,8 +329,8 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
     }
     if (!code) wk->pwm_prev = d, wk->pwm_started = 1;
 #else
-    code = sm_radau(SM_NX, u, p, t, xw, 1, &t_end, xf, sm_radau_tableau, opt, SM_RADAU_MAX_STEPS,
-                    SM_RADAU_MAX_NEWTON, stats, &t_fail);
+    code = sm_radau(wk->radau, u, p, t, xw, 1, &t_end, xf, sm_radau_tableau, opt,
+                    SM_RADAU_MAX_STEPS, SM_RADAU_MAX_NEWTON, stats, &t_fail, resume);
     *substeps = (long)stats[0];
 #endif
     if (code) {
@@ -330,6 +356,13 @@ int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t
         return 1;
     }
     for (int i = 0; i < SM_NX; i++) x[i] = xf[i] * sm_radau_scale[i];
+    wk->carried = 1;
+    wk->end_t = t_end;
+    wk->end_rtol = rtol;
+    memcpy(wk->end_x, x, sizeof xw);
+    memcpy(wk->end_xw, xf, sizeof xw);
+    memcpy(wk->end_u, u, sizeof(double) * SM_NU);
+    memcpy(wk->end_p, p, sizeof(double) * SM_NP);
     return 0;
 }
 #endif

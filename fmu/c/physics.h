@@ -9,7 +9,10 @@
 #include "model_data.h"
 
 /* Work memory of the generated functions: one per instance, so instances are independent;
- * and the Co-Simulation's relative tolerance (0: the default SM_RTOL of sm_radau.h). */
+ * the Co-Simulation's relative tolerance (0: the default SM_RTOL of sm_radau.h); and the
+ * Co-Simulation integrator's memory (radau.c's, allocated at the first doStep) with the
+ * end of the last doStep that succeeded (carried: its time, states, scaled states, inputs,
+ * parameters and tolerance), which the next doStep continues when it starts there. */
 typedef struct {
     const double* arg[SM_SZ_ARG];
     double* res[SM_SZ_RES];
@@ -18,7 +21,13 @@ typedef struct {
     double rtol;
     double pwm_prev; /* SM_PWM: the duty of the last doStep (the delayed edges' history) */
     int pwm_started; /* SM_PWM: a doStep has run (before it, the duty counts as held) */
+    struct SmRadau* radau;
+    int carried;
+    double end_t, end_rtol, end_x[SM_NX], end_xw[SM_NX], end_u[SM_NU + 1], end_p[SM_NP + 1];
 } SmWork;
+
+/* Free the integrator's memory and forget the carried state (reset, free). */
+void sm_work_release(SmWork* wk);
 
 /* Each returns 0 on success, nonzero if the generated code failed or a result is not
  * finite; msg (size SM_MSG) then says why. */
@@ -42,9 +51,11 @@ int sm_equilibrium(SmWork* wk, double* x, const double* u0, const double* p0, co
 int sm_set_tolerance(SmWork* wk, int defined, double tolerance, char* msg);
 
 /* Advance x from t (time since the start) by h > 0 with u held: the adaptive Radau IIA of
- * radau.c (sm_radau) restarted from (t, x) in the states over sm_radau_scale (their nominal
- * values), rtol from sm_set_tolerance and atol = SM_ATOL_PER_RTOL rtol (in those scaled
- * states), at most SM_RADAU_MAX_STEPS steps. A sampled system: x = update(x, u, p) at each
+ * radau.c (sm_radau) in the states over sm_radau_scale (their nominal values), rtol from
+ * sm_set_tolerance and atol = SM_ATOL_PER_RTOL rtol (in those scaled states), at most
+ * SM_RADAU_MAX_STEPS steps; continued from the last doStep (its step size, Jacobian, LU,
+ * error history) when that one succeeded and ended at exactly this x, u, p and tolerance
+ * (and at t to the rounding of t: nothing was set in between), else restarted at (t, x). A sampled system: x = update(x, u, p) at each
  * sample instant k SM_SAMPLE_PERIOD in [t, t + h) (to SM_SAMPLE_TOL of a period). x is
  * updated only on success; *substeps counts the steps (samples) taken. */
 int sm_advance(SmWork* wk, double* x, const double* u, const double* p, double t, double h,

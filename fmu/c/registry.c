@@ -194,6 +194,7 @@ SmStatus sm_get_state(SmInstance* inst, void** handle, const char* function) {
     s->v = inst->v;
     s->cosim = inst->cosim;
     *handle = s;
+    inst->wk.carried = 0; /* the next doStep restarts, as one after setting this state will */
     return SM_OK;
 }
 
@@ -201,6 +202,7 @@ SmStatus sm_set_state(SmInstance* inst, const void* handle, const char* function
     const SmState* s = live_state(inst, handle, function);
     if (s == NULL || !fits(inst, s->cosim, s->v.mode, function)) return SM_ERROR;
     inst->v = s->v;
+    inst->wk.carried = 0; /* restart the integrator: steps repeat those after saving */
     return SM_OK;
 }
 

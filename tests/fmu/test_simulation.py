@@ -12,6 +12,7 @@ Model Exchange with fmpy's CVode at relative tolerance 1e-8.
 from __future__ import annotations
 
 import os
+import re
 import zipfile
 
 import casadi as cs
@@ -173,8 +174,9 @@ def test_cosim_takes_the_importers_tolerance(step_loaded, step_native):
 
 
 def test_cosim_restarts_from_a_saved_state_bit_for_bit(step_loaded):
-    """A doStep depends on (t, x, u, p) only: each restarts the integrator (automatic
-    first step, fresh Jacobian), so steps after restoring a saved state repeat exactly."""
+    """Saving or setting a state restarts the integrator at the next doStep (automatic
+    first step, fresh Jacobian; between other doSteps it continues), so the steps after
+    restoring a saved state repeat those after saving it exactly."""
     fmi = step_loaded
     fmu = fmi.instance()
     fmu.setupExperiment(startTime=0.0)
@@ -225,3 +227,41 @@ def test_cosim_at_a_tight_importer_tolerance_from_rest(step_loaded):
         fmu.doStep(k * 0.01, 0.01)
     assert fmu.getReal([fmi.vr["myofibril.length"]])[0] < rest - 1e-3
     fmu.freeInstance()
+
+
+def _substeps(loaded) -> list[int]:
+    """The Radau steps of each doStep logged so far (logSolver), in order."""
+    pattern = re.compile(r"doStep to t = \S+ s: (\d+) Radau IIA steps")
+    return [int(m.group(1)) for _, _, msg in loaded.messages if (m := pattern.search(msg))]
+
+
+def test_cosim_continues_the_integrator_when_nothing_was_set(step_loaded, step_native):
+    """Between doSteps with nothing set, the integrator continues (step size, Jacobian, LU
+    and error history carried); a restart takes an automatic first step. After the
+    filling, 1 ms doSteps are one Radau step each when continued, two when restarted at
+    every doStep (getFMUstate between doSteps restarts); continuing moves the result only
+    within the tolerance: within 1e-6 of the length's span of the restarted run."""
+    fmi = step_loaded
+    lengths, substeps = [], []
+    for restart in (False, True):
+        fmi.messages.clear()
+        fmu = fmi.instance(logging_on=True)
+        fmu.setDebugLogging(True, ["logSolver"])
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        fmu.setReal([fmi.vr["regulator.p_cmd"]], [1e5])
+        for k in range(100):
+            if restart:
+                fmu.freeFMUstate(fmu.getFMUstate())
+            fmu.doStep(k * 1e-3, 1e-3)
+        substeps.append(_substeps(fmi))
+        lengths.append(fmu.getReal([fmi.vr["myofibril.length"]])[0])
+        fmu.freeInstance()
+    continued, restarted = substeps
+    assert len(continued) == len(restarted) == 100
+    assert set(continued[-20:]) == {1} and set(restarted[-20:]) == {2}
+    assert sum(continued) < sum(restarted)
+    span = np.ptp(step_native["myofibril.length"])
+    assert lengths[0] != lengths[1]
+    assert abs(lengths[0] - lengths[1]) < 1e-6 * span

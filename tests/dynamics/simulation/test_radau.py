@@ -208,11 +208,13 @@ def test_tight_tolerances_on_the_muscle_track_cvodes(step_reference):
 
 @pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_below_the_roundoff_floor_the_failure_says_so(step_reference):
-    """atol 1e-15 on the muscle: the velocities' Newton increments cannot get below their
-    roundoff floor; the error names it instead of only "failed to converge"."""
+    """atol 1e-16 on the muscle: the velocities' Newton increments cannot get below their
+    roundoff floor; the error names it instead of only "failed to converge". (At atol
+    1e-15 the step scene failed until the Jacobian's reuse followed RADAU5's THET 0.01
+    and QUOT2 2; it now runs there, 10 367 steps, l2 error 7e-12.)"""
     sc = step_reference[0]
     with pytest.raises(SolverError, match="roundoff floor .* raise atol"):
-        sc.run(SolverSettings("radau", 1e-12, 1e-15))
+        sc.run(SolverSettings("radau", 1e-12, 1e-16))
 
 
 # --- the muscle against CVODES at rtol 1e-12 ----------------------------------------------
@@ -348,8 +350,10 @@ def test_cache_key_follows_flags_and_sources(tmp_path, monkeypatch):
 
 @pytest.mark.slow  # over 0.8 s: the fast loop leaves it to the full suite
 def test_dense_jacobian_from_the_generator_gives_the_same_steps(tmp_path, monkeypatch):
-    """``sm_jac`` may return the dense Jacobian (``sparse=False``): same steps, same
-    states to roundoff as the sparse one."""
+    """``sm_jac`` may return the dense Jacobian (``sparse=False``): the same steps to one
+    in 500 and the same states to 1e-9 (the run's rtol is 1e-7) as the sparse one (the
+    LU's sums run in another order: roundoff can flip one Jacobian-reuse decision, as it
+    did when RADAU5's THET went from 0.001 to 0.01: 521 steps against 520)."""
     s = SolverSettings("radau", 1e-7, 1e-10)
 
     def run(model):
@@ -364,8 +368,8 @@ def test_dense_jacobian_from_the_generator_gives_the_same_steps(tmp_path, monkey
     dense = run(model)
     lib = radau.library(model, HELD)
     assert lib.compiled and lib.path.parent == tmp_path / "lib"
-    assert dense.meta["n_steps"] == sparse.meta["n_steps"]
-    np.testing.assert_allclose(dense["load.s"], sparse["load.s"], rtol=1e-12, atol=1e-15)
+    assert abs(dense.meta["n_steps"] - sparse.meta["n_steps"]) <= sparse.meta["n_steps"] / 500
+    np.testing.assert_allclose(dense["load.s"], sparse["load.s"], rtol=1e-9, atol=0)
 
 
 def test_unwritable_cache_is_a_solver_error_naming_it(tmp_path, monkeypatch):
