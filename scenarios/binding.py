@@ -165,8 +165,8 @@ class Binding:
         return model
 
     def _check_units(self, model: Model) -> None:
-        """Refuse a name that is not a parameter of the model, and a bare non-zero number
-        for a dimensioned one, in the file."""
+        """Refuse a name that is not a parameter of the model, a bare non-zero number for
+        a dimensioned one and a text that is not a quantity of its unit, in the file."""
         if self.scenario is None:
             return
         for key, raw in self.overrides.items():
@@ -175,8 +175,6 @@ class Binding:
                 hint = did_you_mean(key, model.param_names)
                 why = f"{len(model.param_names)} parameters of model '{model.name}'"
                 raise self.scenario.parameter_error(key, f"unknown key '{key}'{hint} ({why})")
-            if isinstance(raw, str):
-                continue
             try:
                 to_si(raw, var.unit, key, bare_ok=False)
             except ParameterError as exc:
