@@ -1,0 +1,300 @@
+"""Parameter identification on ``fit-synthetic`` (issue 25): convergence, coverage, speed.
+
+The baseline is what a user writes today: ``scipy.optimize.least_squares`` (trust-region
+reflective, log-parameters within the fit file's bounds, 2-point finite differences)
+around ``binding.run`` (the library's simulation of a bound scene from its start
+equilibrium, CVODES at ``rtol`` 1e-8), one simulation per experiment per residual. The
+fit file's parameters: the five shared dynamic estimates and ``load.m`` per experiment
+(``aps.<field>`` mapped onto the per-unit model parameters it sets, as the studies do).
+
+Usage::
+
+    python benchmarks/fit.py convergence [--starts 50] [--methods lsq,ms,ss] [--out DIR]
+    python benchmarks/fit.py coverage [--replicates 200] [--out DIR]
+    python benchmarks/fit.py speed [--out DIR]
+    python benchmarks/fit.py profiles [--workers 2] [--out DIR]
+
+Starts: ``--starts`` points drawn log-uniformly within 0.5-2x of the truth for every
+fitted parameter (fixed seed 0), the same for every method. A start *succeeds* when its
+final cost is within ``SUCCESS_DCHI2`` (chi-squared units, 2 x cost) of the best cost any
+method reached on the same data (and of a baseline fit started at the truth): statistically
+the same optimum. Times are CPU seconds of
+this process (``time.process_time``; the engine's Dask workers, if any, are reported by
+the engine), methods interleaved start by start. Results: ``fit_<command>.json`` in
+``--out`` (default ``out/bench/fit``) and a table on stdout; BENCHMARKS.md section 13.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from sarcomere.dynamics.errors import SarcomereError
+from sarcomere.dynamics.signals import Table
+from sarcomere.dynamics.simulation.settings import SolverSettings
+from sarcomere.dynamics.units import to_si
+from sarcomere.scenarios import binding
+from sarcomere.scenarios.explore.factors import scene_context
+from sarcomere.scenarios.fits import generate as gen
+from sarcomere.scenarios.loader import scenario_from_dict
+
+FIT = "fit-synthetic.toml"
+#: Success: the final cost within this many chi-squared units (2 x cost) of the best.
+SUCCESS_DCHI2 = 1.0
+#: The tuned baseline's finite-difference step (scipy's ``diff_step``).
+DIFF_STEP = 1e-5
+
+
+@dataclass
+class TimeSeries:
+    """One fitted time-series experiment of the fit file, bound for simulation."""
+
+    name: str
+    model: object
+    base: dict  # parameter overrides of the scene (none: defaults)
+    maps: dict  # fit parameter -> ((model parameter, value per unit of it), ...)
+    command: Table
+    t: np.ndarray
+    outputs: tuple[str, ...]
+    data: dict  # output -> measured values, SI
+    sigma: dict  # output -> standard deviation, SI
+
+
+def read_fit() -> tuple[dict, list[TimeSeries], dict]:
+    """The fit file's parameters (name -> (start, low, high, per_experiment), SI), its
+    fitted time-series experiments with their data, and the truth (name -> SI; per
+    experiment ``load.m@<experiment>``)."""
+    root = resources.files("sarcomere.scenarios.fits")
+    spec = tomllib.loads((root / FIT).read_text())
+    params = {}
+    for name, p in spec["parameters"].items():
+        unit = _unit(name)
+        start = to_si(p["start"], unit)
+        low, high = (to_si(b, unit) for b in p["bounds"])
+        params[name] = (start, low, high, bool(p.get("per_experiment", False)))
+    sigma = {k: to_si(v["sigma"], _signal_unit(k)) for k, v in spec["noise"].items()}
+    experiments = []
+    for e in spec["experiments"]:
+        if e["kind"] != "time-series" or e.get("validation", False):
+            continue
+        scene = {
+            "scenario": {"name": e["name"], "kind": "transient"},
+            "model": dict(e["model"]),
+            "simulation": {"stop_time": "1 s"},  # the context binds a transient
+        }
+        sc = scenario_from_dict(scene, f"<{e['name']}>")
+        b = binding.bind(sc)
+        model = b.build(e["model"].get("fidelity", "full"))
+        ctx = scene_context(sc)
+        maps = {}  # fit parameter -> ((model parameter, its value per unit of the field), ...)
+        for name in params:
+            field = name.removeprefix("aps.")
+            if name.startswith("aps."):
+                base = getattr(b.aps, field)
+                maps[name] = tuple((t, v / base) for t, v in ctx.aps_parameters(field))
+            else:
+                maps[name] = ((name, 1.0),)
+        text = (root / e["data"]).read_text()
+        rows = [r for r in text.splitlines() if not r.startswith("#")]
+        head = [c.split(" [")[0] for c in rows[0].split(",")]
+        values = np.array([[float(v) for v in r.split(",")] for r in rows[1:]])
+        cols = {h: values[:, i] for i, h in enumerate(head)}
+        si = {n: gen.SIGNALS[n][1] for n in gen.SIGNALS}
+        t = cols["time"]
+        command = corners(t, cols["pressure"] / si["pressure"])
+        data = {o: cols[o] / si[o] for o in e["outputs"]}
+        experiments.append(
+            TimeSeries(
+                e["name"],
+                model,
+                dict(b.overrides),
+                maps,
+                command,
+                t,
+                tuple(e["outputs"]),
+                data,
+                sigma,
+            )
+        )
+    truth = {k: to_si(v, _unit(k)) for k, v in gen.TRUTH.items()}
+    for e in experiments:
+        payload = next(x.payload_kg for x in gen.EXPERIMENTS if x.name == e.name)
+        truth[f"load.m@{e.name}"] = payload + gen.HOOK_KG
+    return params, experiments, truth
+
+
+def corners(t: np.ndarray, values: np.ndarray) -> Table:
+    """The piecewise-linear input through ``(t, values)`` as a Table of its corners only
+    (the same function): a 1001-row table would restart the integrator at every row."""
+    slope = np.diff(values) / np.diff(t)
+    keep = np.r_[True, ~np.isclose(slope[1:], slope[:-1], rtol=1e-12, atol=1e-9), True]
+    return Table(times=tuple(t[keep]), values=tuple(values[keep]), unit="Pa")
+
+
+def _unit(name: str) -> str:
+    from sarcomere.dynamics.components.aps import APSParams
+
+    if name.startswith("aps."):
+        return APSParams.unit(name.removeprefix("aps."))
+    return {"regulator.tau": "s", "load.m": "kg"}[name]
+
+
+def _signal_unit(signal: str) -> str:
+    return "m" if signal.endswith("length") else "N" if signal.endswith(".f") else "Pa"
+
+
+class Problem:
+    """The weighted residuals of the fitted time series as a function of the
+    log-parameters (the vector order of :meth:`names`)."""
+
+    def __init__(self, params: dict, experiments: list[TimeSeries], rtol: float = 1e-8):
+        self.params, self.experiments = params, experiments
+        self.settings = SolverSettings(method="cvodes", rtol=rtol, atol=rtol * 1e-3)
+        self.evaluations = 0
+
+    def names(self) -> list[str]:
+        out = []
+        for name, (_, _, _, per) in self.params.items():
+            out += [f"{name}@{e.name}" for e in self.experiments] if per else [name]
+        return out
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        low, high = [], []
+        for _, lo, hi, per in self.params.values():
+            k = len(self.experiments) if per else 1
+            low += [np.log(lo)] * k
+            high += [np.log(hi)] * k
+        return np.array(low), np.array(high)
+
+    def overrides(self, theta: np.ndarray, exp: TimeSeries) -> dict:
+        values = dict(zip(self.names(), np.exp(theta), strict=True))
+        over = dict(exp.base)
+        for name in self.params:
+            v = values.get(f"{name}@{exp.name}", values.get(name))
+            for target, per_unit in exp.maps[name]:
+                over[target] = per_unit * v
+        return over
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        self.evaluations += 1
+        out = []
+        for exp in self.experiments:
+            try:
+                res = binding.run(
+                    exp.model,
+                    {binding.P_CMD: exp.command},
+                    self.overrides(theta, exp),
+                    exp.t,
+                    self.settings,
+                    list(exp.outputs),
+                )
+                for o in exp.outputs:
+                    out.append((np.asarray(res[o]) - exp.data[o]) / exp.sigma[o])
+            except SarcomereError:  # a failed simulation: a large, finite residual
+                out += [np.full(len(exp.t), 1e3) for _ in exp.outputs]
+        return np.concatenate(out)
+
+    def cost(self, theta: np.ndarray) -> float:
+        r = self.residuals(theta)
+        return 0.5 * float(r @ r)
+
+
+def starts(truth: dict, names: list[str], count: int, seed: int = 0) -> np.ndarray:
+    """``count`` log-parameter vectors, each parameter log-uniform in 0.5-2x the truth."""
+    rng = np.random.default_rng(seed)
+    centre = np.log([truth[n] for n in names])
+    return centre + rng.uniform(np.log(0.5), np.log(2.0), (count, len(names)))
+
+
+def fit_least_squares(problem: Problem, theta0: np.ndarray, tuned: bool = True) -> dict:
+    """The baseline: scipy's TRF with 2-point finite differences, from ``theta0``;
+    ``tuned``: a finite-difference step of :data:`DIFF_STEP` (relative, on the
+    log-parameters) instead of scipy's default 1.5e-8, which is below the simulation's
+    own error at ``rtol`` 1e-8 (the default stops early on noise: ``lsq-default``)."""
+    low, high = problem.bounds()
+    problem.evaluations = 0
+    cpu = time.process_time()
+    sol = least_squares(
+        problem.residuals,
+        np.clip(theta0, low + 1e-9, high - 1e-9),
+        bounds=(low, high),
+        method="trf",
+        diff_step=DIFF_STEP if tuned else None,
+    )
+    return {
+        "cost": float(sol.cost),
+        "theta": sol.x.tolist(),
+        "cpu_s": time.process_time() - cpu,
+        "evaluations": problem.evaluations,
+        "status": int(sol.status),
+        "message": str(sol.message),
+    }
+
+
+METHODS = {
+    "lsq": fit_least_squares,
+    "lsq-default": lambda problem, theta0: fit_least_squares(problem, theta0, tuned=False),
+}
+
+
+def convergence(args) -> dict:
+    params, experiments, truth = read_fit()
+    problem = Problem(params, experiments)
+    names = problem.names()
+    theta_true = np.log([truth[n] for n in names])
+    points = starts(truth, names, args.starts)
+    runs = {m: [] for m in args.methods}
+    for k, theta0 in enumerate(points):
+        for m in args.methods:  # interleaved start by start
+            r = METHODS[m](problem, theta0)
+            runs[m].append(r)
+            print(f"start {k:2d} {m:4s} cost {r['cost']:.6g} cpu {r['cpu_s']:.1f} s", flush=True)
+    reference = fit_least_squares(problem, theta_true)  # from the truth: the optimum near it
+    best = min([reference["cost"], *(r["cost"] for rs in runs.values() for r in rs)])
+    summary = {}
+    for m, rs in runs.items():
+        ok = [2 * (r["cost"] - best) <= SUCCESS_DCHI2 for r in rs]
+        cpu = [r["cpu_s"] for r in rs]
+        summary[m] = {
+            "success": f"{sum(ok)}/{len(ok)}",
+            "success_rate": sum(ok) / len(ok),
+            "cpu_median_s": float(np.median(cpu)),
+            "cpu_total_s": float(np.sum(cpu)),
+        }
+    return {
+        "names": names,
+        "truth": dict(zip(names, np.exp(theta_true).tolist(), strict=True)),
+        "cost_at_truth": problem.cost(theta_true),
+        "reference_from_truth": reference,
+        "best_cost": best,
+        "summary": summary,
+        "runs": runs,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python benchmarks/fit.py")
+    parser.add_argument("command", choices=("convergence",))
+    parser.add_argument("--starts", type=int, default=50)
+    parser.add_argument("--methods", default="lsq", type=lambda s: s.split(","))
+    parser.add_argument("--out", type=Path, default=Path("out/bench/fit"))
+    args = parser.parse_args(argv)
+    result = {"convergence": convergence}[args.command](args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / f"fit_{args.command}.json"
+    path.write_text(json.dumps(result, indent=1) + "\n")
+    print(json.dumps(result.get("summary", {}), indent=1))
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
