@@ -27,6 +27,7 @@ the engine), methods interleaved start by start. Results: ``fit_<command>.json``
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import time
 import tomllib
@@ -68,10 +69,14 @@ class TimeSeries:
     sigma: dict  # output -> standard deviation, SI
 
 
-def read_fit() -> tuple[dict, list[TimeSeries], dict]:
+def read_fit(
+    replicate: int | None = None, table: bool = False
+) -> tuple[dict, list[TimeSeries], dict]:
     """The fit file's parameters (name -> (start, low, high, per_experiment), SI), its
     fitted time-series experiments with their data, and the truth (name -> SI; per
-    experiment ``load.m@<experiment>``)."""
+    experiment ``load.m@<experiment>``). ``replicate``: the data with that noise draw of
+    the generator instead of the packaged files'; ``table``: the command as the CSV's
+    1001-row table (what a user with a measured input has) instead of its corners."""
     root = resources.files("sarcomere.scenarios.fits")
     spec = tomllib.loads((root / FIT).read_text())
     params = {}
@@ -109,8 +114,11 @@ def read_fit() -> tuple[dict, list[TimeSeries], dict]:
         cols = {h: values[:, i] for i, h in enumerate(head)}
         si = {n: gen.SIGNALS[n][1] for n in gen.SIGNALS}
         t = cols["time"]
-        command = corners(t, cols["pressure"] / si["pressure"])
+        p = cols["pressure"] / si["pressure"]
+        command = Table(times=tuple(t), values=tuple(p), unit="Pa") if table else corners(t, p)
         data = {o: cols[o] / si[o] for o in e["outputs"]}
+        if replicate is not None:
+            data = replicate_data(e["name"], replicate, e["outputs"])
         experiments.append(
             TimeSeries(
                 e["name"],
@@ -129,6 +137,18 @@ def read_fit() -> tuple[dict, list[TimeSeries], dict]:
         payload = next(x.payload_kg for x in gen.EXPERIMENTS if x.name == e.name)
         truth[f"load.m@{e.name}"] = payload + gen.HOOK_KG
     return params, experiments, truth
+
+
+@functools.lru_cache(maxsize=16)
+def _clean(name: str):
+    return gen.clean(next(x for x in gen.EXPERIMENTS if x.name == name))[1]
+
+
+def replicate_data(name: str, replicate: int, outputs) -> dict:
+    """Experiment ``name``'s measured outputs with noise draw ``replicate`` (SI)."""
+    exp = next(x for x in gen.EXPERIMENTS if x.name == name)
+    noisy = gen.noisy(exp, dict(_clean(name)), replicate)
+    return {o: noisy[o] for o in outputs}
 
 
 def corners(t: np.ndarray, values: np.ndarray) -> Table:

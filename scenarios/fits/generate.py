@@ -200,10 +200,14 @@ def clean(exp: Experiment) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     return t, {"pressure": command(t), **{s: np.asarray(result[s]) for s in exp.outputs}}
 
 
-def noisy(exp: Experiment, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+def noisy(
+    exp: Experiment, columns: dict[str, np.ndarray], replicate: int | None = None
+) -> dict[str, np.ndarray]:
     """``columns`` with the measured signals' Gaussian noise (:data:`NOISE`), drawn from
-    this experiment's own stream."""
-    rng = np.random.default_rng(np.random.SeedSequence([SEED, EXPERIMENTS.index(exp)]))
+    this experiment's own stream; ``replicate``: another draw (``SeedSequence([SEED, i,
+    replicate])``, the coverage benchmark's), None the packaged one."""
+    extra = [] if replicate is None else [replicate]
+    rng = np.random.default_rng(np.random.SeedSequence([SEED, EXPERIMENTS.index(exp), *extra]))
     return {
         k: v + rng.normal(0.0, NOISE[k], v.shape) if k in NOISE else v for k, v in columns.items()
     }
