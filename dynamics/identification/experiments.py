@@ -98,8 +98,9 @@ class Noise:
             raise ParameterError("relative", self.relative, "[0, 1)")
         if self.sigma is None and self.relative:
             raise ParameterError(
-                "relative", self.relative, "0 when sigma is estimated (a relative part needs a "
-                "known sigma)"
+                "relative",
+                self.relative,
+                "0 when sigma is estimated (a relative part needs a known sigma)",
             )
 
 

@@ -25,19 +25,17 @@ import numpy as np
 from ..equilibrium import solve_equilibrium
 from ..errors import ParameterError, SolverError
 from .experiments import Estimated, Noise, StaticPoint, Target, TimeSeries, check_uses
-from .gauss_newton import gauss_newton
 from .shooting import Shooting
-
-METHODS = ("gauss-newton", "ipopt")
-"""The solvers of :meth:`Problem.solve`."""
 
 IPOPT = {
     "ipopt.print_level": 0,
     "ipopt.sb": "yes",
     "print_time": False,
-    "ipopt.tol": 1e-10,
-    "ipopt.acceptable_tol": 1e-7,
-    "ipopt.max_iter": 300,
+    "ipopt.tol": 1e-9,
+    "ipopt.constr_viol_tol": 1e-9,
+    "ipopt.acceptable_tol": 1e-6,
+    "ipopt.acceptable_iter": 5,
+    "ipopt.max_iter": 200,
 }
 """IPOPT's options for every fit (tolerances on the scaled KKT conditions)."""
 
@@ -195,8 +193,6 @@ class Problem:
         self.sizes = [u.numel() for u in unknowns]
         Jr, Jg = cs.jacobian(rw, v), cs.jacobian(g, v)
         self.residual = cs.Function("residual", [v, w], [rw, Jr, r], ["v", "w"], ["rw", "J", "r"])
-        self.full = cs.Function("full", [v, w], [rw, Jr, g, Jg], ["v", "w"], ["rw", "Jr", "g", "Jg"])
-        self.values = cs.Function("values", [v, w], [rw, g], ["v", "w"], ["rw", "g"])
         self.constraint = cs.Function("constraint", [v], [g, Jg], ["v"], ["g", "J"])
         self._nlp = (v, w, rw, g, Jr)
 
@@ -290,33 +286,14 @@ class Problem:
         v0: np.ndarray,
         weights: np.ndarray,
         fixed: Mapping[int, float] | None = None,
-        method: str = "gauss-newton",
     ) -> Solution:
         """Minimise from ``v0`` with the residual ``weights``; ``fixed``: parameter index ->
-        search value held (a profile). ``method``: "gauss-newton"
-        (:func:`.gauss_newton.gauss_newton`, the default) or "ipopt" (IPOPT with the
-        Gauss-Newton Hessian). Never raises for a failed solve: the status says why."""
-        if method not in METHODS:
-            raise ParameterError("method", method, f"one of {METHODS}")
+        search value held (a profile). IPOPT with the Gauss-Newton Hessian; never raises
+        for a failed solve: the status says why."""
         lo, hi = self.bounds()
         for k, val in (fixed or {}).items():
             lo[k] = hi[k] = val
         v0 = np.clip(v0, lo, hi)
-        if method == "gauss-newton":
-
-            def full(v):
-                rw, Jr, g, Jg = self.full(v, weights)
-                return _vec(rw), Jr.sparse(), _vec(g), Jg.sparse()
-
-            def values(v):
-                rw, g = self.values(v, weights)
-                return _vec(rw), _vec(g)
-
-            out = gauss_newton(full, values, v0, lo, hi)
-            status = "Solve_Succeeded" if out.success else out.status
-            if not np.isfinite(out.cost):
-                return _failed(self, v0, weights, out.status)
-            return self._solution(out.v, weights, status, out.iterations)
         try:
             sol = self.ipopt(x0=v0, p=weights, lbx=lo, ubx=hi, lbg=0, ubg=0)
             stats = self.ipopt.stats()
@@ -342,11 +319,6 @@ def _failed(problem: Problem, v0, weights, why: str) -> Solution:
     return Solution(phi, problem._theta(phi), v0, np.inf, nan, weights, why, 0)
 
 
-def _vec(x) -> np.ndarray:
-    return np.array(x, dtype=float).ravel()
-
-
 def _needed(points: Sequence[StaticPoint]) -> set[tuple[str, str]]:
     """(point, signal) pairs some later point links to."""
     return {v for pt in points for v in pt.links.values()}
-

@@ -46,7 +46,9 @@ def step_function(model: Model, substeps: int = 1) -> cs.Function:
         u0, u1, h, a, b = q[:nu], q[nu : 2 * nu], q[2 * nu], q[2 * nu + 1], q[2 * nu + 2]
         s = a + b * tau  # the position inside the sample interval
         f = cs.Function(
-            "f", [tau, xi, q], [h * b * ode(scale * xi, u0 + s * (u1 - u0), q[2 * nu + 3 :]) / scale]
+            "f",
+            [tau, xi, q],
+            [h * b * ode(scale * xi, u0 + s * (u1 - u0), q[2 * nu + 3 :]) / scale],
         )
         R = collocation.residual(f, nx, POINTS)
         V, x0 = cs.SX.sym("V", nx * POINTS), cs.SX.sym("xi0", nx)
@@ -59,7 +61,9 @@ def step_function(model: Model, substeps: int = 1) -> cs.Function:
         for k in range(substeps):
             qk = cs.vertcat(us0, us1, hs, k / substeps, 1.0 / substeps, ps)
             x = rf(cs.repmat(x, POINTS, 1), x, qk)[-nx:]
-        return cs.Function("step", [xs, us0, us1, hs, ps], [x], ["xi0", "u0", "u1", "h", "p"], ["xi1"])
+        return cs.Function(
+            "step", [xs, us0, us1, hs, ps], [x], ["xi0", "u0", "u1", "h", "p"], ["xi1"]
+        )
 
     return model.cached(("identification.step", substeps), build)
 
@@ -96,7 +100,13 @@ class Shooting:
         n = len(t)
         size = n - 1 if interval is None else interval
         edges = list(range(0, n - 1, size)) + [n - 1]
-        return cls(model, np.asarray(t), np.asarray(u), list(zip(edges[:-1], edges[1:])), substeps)
+        return cls(
+            model,
+            np.asarray(t),
+            np.asarray(u),
+            list(zip(edges[:-1], edges[1:], strict=True)),
+            substeps,
+        )
 
     @property
     def nodes(self) -> int:
@@ -139,8 +149,9 @@ class Shooting:
                     f"({str(exc).splitlines()[-1][:120]})"
                 ) from None
             if not np.all(np.isfinite(X)):
-                raise SolverError(f"the simulation diverged between t = {self.t[a]:g} s and "
-                                  f"{self.t[b]:g} s")
+                raise SolverError(
+                    f"the simulation diverged between t = {self.t[a]:g} s and {self.t[b]:g} s"
+                )
             cols.append(X)
         return np.hstack(cols)
 
