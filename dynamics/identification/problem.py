@@ -234,7 +234,8 @@ class Problem:
             lo[k], hi[k] = e.to_phi(e.low), e.to_phi(e.high)
         return lo, hi
 
-    def _theta(self, phi: np.ndarray) -> np.ndarray:
+    def values(self, phi: np.ndarray) -> np.ndarray:
+        """Parameter values (SI) of search variables ``phi``."""
         return np.array([e.to_theta(float(phi[k])) for k, e in enumerate(self.params)])
 
     def _p_numeric(self, exp, theta: np.ndarray, links: Mapping[str, float] | None = None):
@@ -300,13 +301,14 @@ class Problem:
             status, iters = stats["return_status"], int(stats["iter_count"])
         except RuntimeError as exc:
             return _failed(self, v0, weights, f"IPOPT raised: {str(exc).splitlines()[-1][:200]}")
-        return self._solution(np.array(sol["x"]).ravel(), weights, status, iters)
+        return self.evaluate(np.array(sol["x"]).ravel(), weights, status, iters)
 
-    def _solution(self, v, weights, status, iters) -> Solution:
+    def evaluate(self, v, weights, status: str = "evaluated", iters: int = 0) -> Solution:
+        """The :class:`Solution` record of unknowns ``v`` (no solve)."""
         rw, _, r = self.residual(v, weights)
         rw, r = np.array(rw).ravel(), np.array(r).ravel()
         phi = v[: len(self.params)]
-        return Solution(phi, self._theta(phi), v, float(rw @ rw), r, weights, status, iters)
+        return Solution(phi, self.values(phi), v, float(rw @ rw), r, weights, status, iters)
 
     def predictions(self, sol: Solution) -> np.ndarray:
         """The model's value at every residual row (data + residual)."""
@@ -316,7 +318,7 @@ class Problem:
 def _failed(problem: Problem, v0, weights, why: str) -> Solution:
     phi = v0[: len(problem.params)]
     nan = np.full(len(problem.rows.data), np.nan)
-    return Solution(phi, problem._theta(phi), v0, np.inf, nan, weights, why, 0)
+    return Solution(phi, problem.values(phi), v0, np.inf, nan, weights, why, 0)
 
 
 def _needed(points: Sequence[StaticPoint]) -> set[tuple[str, str]]:
