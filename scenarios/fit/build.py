@@ -249,8 +249,8 @@ def build(spec: FitSpec) -> Built:
                     est = _estimated(spec, p, unit, b.model, p.name)
                     for pname, (_, factor) in uses.items():
                         b.fixed[pname] = factor * est.start
-    noise = _noise(spec, bound)
     series, points, targets = _experiments(spec, bound, fitted)
+    noise = _noise(spec, bound)
     problem = Problem(params, series, points, targets, noise)
     held = [b for b in bound if b.spec.validation]
     validation = None

@@ -11,6 +11,7 @@ import subprocess
 from pathlib import Path
 
 from ..outdir import staged
+from .data import sampling_note
 
 
 def _commit() -> str:
@@ -80,6 +81,9 @@ def summary(result) -> dict:
             s: {"sigma": nz.sigma, "relative": nz.relative, "estimated": nz.sigma is None}
             for s, nz in b.problem.noise.items()
         },
+        "sampling": sampling_note(
+            {x.spec.name: x.table for x in b.experiments if x.spec.kind == "time-series"}
+        ),
         "fitted": lean(result.metrics),
         "validation": lean(result.validation),
         "starts": {
