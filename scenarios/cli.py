@@ -168,6 +168,12 @@ COMMANDS: list[Command] = [
         "sarcomere.scenarios.calibrate:add_arguments",
     ),
     Command(
+        "fit",
+        "fit model parameters to measured time series and static curves, with uncertainty",
+        "sarcomere.scenarios.fit.command:handler",
+        "sarcomere.scenarios.fit.command:add_arguments",
+    ),
+    Command(
         "bench",
         "numerical studies: work-precision, stability, mpc",
         "sarcomere.scenarios.bench:handler",
