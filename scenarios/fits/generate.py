@@ -13,10 +13,10 @@ experiment's end mass ``load.m`` is its payload + 1.4 g. Time series at :data:`R
 (1 kHz) of the commanded pressure (an input, exact: piecewise linear between its
 samples, as the fit applies a CSV input) and the measured length and first chamber's
 gauge pressure, with Gaussian noise :data:`NOISE` (standard deviations). Static curves:
-the isometric force of 1 APS and the concentric length of 3 APS at 50 g against pressure
-levels (equilibria), with the same noise per signal. The isometric fixture is placed
-where the chain rests with the default 1 g hook (as the set-up builds it), so the true
-1.4 g hook pretensions the sensor by about 4 mN.
+the concentric length of 3 APS at 50 g against pressure
+levels (equilibria), with the same noise per signal. (No isometric curve: a fit that
+estimates ``load.m`` per experiment cannot hold an isometric experiment, whose model has
+no ``load.m``.)
 
 **Mismatch** (``fit-mismatch``): a richer model than the one fitted: the units' areas
 spread (:data:`SPREAD`: per unit, the pneumatic area ``A_p`` and the restoring
@@ -70,7 +70,6 @@ SIGNALS = {
     "pressure": ("kPa", 1e-3, 4, 0.0),  # the command: exact (factor: SI to the unit)
     "myofibril.length": ("mm", 1e3, 6, 20e-6),  # camera / laser: 20 um
     "myofibril.aps1.chamber.p_gauge": ("kPa", 1e-3, 4, 500.0),  # sensor: 0.5 kPa
-    "sensor.f": ("N", 1.0, 6, 5e-3),  # force sensor: 5 mN
 }
 #: The noise standard deviations by measured signal, SI.
 NOISE = {k: v[3] for k, v in SIGNALS.items() if v[3] > 0}
@@ -81,7 +80,7 @@ P_CMD = "regulator.p_cmd"
 @dataclass(frozen=True)
 class Experiment:
     """One data file: ``name`` (the CSV's stem), ``kind`` ("time-series" or "static"),
-    ``setup`` ("hanging" or "isometric"), ``n``, ``payload_kg`` (hanging), ``command``
+    ``setup`` ("hanging"), ``n``, ``payload_kg``, ``command``
     (time series: corners ``(t [s], p [Pa])`` of the piecewise-linear command, on the
     sampling grid; static: the pressure levels, Pa), ``duration`` [s], ``outputs`` and
     ``mismatch`` (the richer model)."""
@@ -119,7 +118,6 @@ EXPERIMENTS = (
     Experiment("step-50g", "time-series", "hanging", 3, 0.05, _step(1e5), TS_OUT, 1.0),
     Experiment("staircase-100g", "time-series", "hanging", 3, 0.1, _staircase(STAIRS), TS_OUT, 1.0),
     Experiment("step-100g", "time-series", "hanging", 3, 0.1, _step(1.2e5), TS_OUT, 1.0),
-    Experiment("isometric", "static", "isometric", 1, 0.0, LEVELS, ("sensor.f",)),
     Experiment("concentric-50g", "static", "hanging", 3, 0.05, LEVELS, ("myofibril.length",)),
     Experiment(
         "mismatch-step-50g", "time-series", "hanging", 3, 0.05, _step(1e5), TS_OUT, 1.0, True
@@ -144,10 +142,7 @@ EXPERIMENTS = (
 def true_parameters(exp: Experiment) -> dict[str, object]:
     """The scene ``[parameters]`` of ``exp``'s true model."""
     params: dict[str, object] = dict(TRUTH)
-    if exp.setup == "hanging":
-        params["load.m"] = f"{exp.payload_kg + HOOK_KG!r} kg"
-    else:  # the fixture is placed at the rest of the chain with the default 1 g hook
-        params["hook.m"] = f"{HOOK_KG!r} kg"
+    params["load.m"] = f"{exp.payload_kg + HOOK_KG!r} kg"
     if exp.mismatch:
         from sarcomere.dynamics.components.aps import APSParams
 
