@@ -198,12 +198,12 @@ class Problem:
         Jr, Jg = cs.jacobian(rw, v), cs.jacobian(g, v)
         self.residual = cs.Function("residual", [v, w], [rw, Jr, r], ["v", "w"], ["rw", "J", "r"])
         self.constraint = cs.Function("constraint", [v], [g, Jg], ["v"], ["g", "J"])
-        self._nlp = (v, w, rw, g, Jr)
+        self.nlp = (v, w, rw, g, Jr)  # the symbols: unknowns, weights, residuals, constraints, J_r
 
     @functools.cached_property
     def ipopt(self) -> cs.Function:
         """IPOPT on the same NLP with the Gauss-Newton Hessian (built on first use)."""
-        v, w, rw, g, Jr = self._nlp
+        v, w, rw, g, Jr = self.nlp
         lam_f, lam_g = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", g.numel())
         hess = cs.Function(
             "hess_lag",
