@@ -163,7 +163,7 @@ COMMANDS: list[Command] = [
     ),
     Command(
         "calibrate",
-        "fit A_p, A_r, k_s to the paper's three measured targets (Newton continuation)",
+        "fit A_p, A_r, k_s to the paper's three measured targets (the fit engine)",
         "sarcomere.scenarios.calibrate:handler",
         "sarcomere.scenarios.calibrate:add_arguments",
     ),

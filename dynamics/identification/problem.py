@@ -85,6 +85,8 @@ class Problem:
         Static measurements on the points.
     noise : mapping of signal name to Noise
         One per measured signal (time-series outputs and target signals).
+    options : mapping, optional
+        IPOPT options over :data:`IPOPT` (tighter tolerances for a zero-residual fit).
     """
 
     def __init__(
@@ -94,6 +96,7 @@ class Problem:
         points: Sequence[StaticPoint] = (),
         targets: Sequence[Target] = (),
         noise: Mapping[str, Noise] | None = None,
+        options: Mapping[str, object] | None = None,
     ) -> None:
         self.params, self.series = list(params), list(series)
         self.points, self.targets = list(points), list(targets)
@@ -101,6 +104,7 @@ class Problem:
         if len(set(names)) != len(names):
             raise ParameterError("parameters", names, "distinct names")
         self.noise = dict(noise or {})
+        self.options = {**IPOPT, **(options or {})}
         for exp in (*self.series, *self.points):
             check_uses(exp.model, exp.uses, names, f"experiment '{exp.name}'")
         measured = {s for e in self.series for s in e.outputs} | {t.signal for t in self.targets}
@@ -194,12 +198,12 @@ class Problem:
         Jr, Jg = cs.jacobian(rw, v), cs.jacobian(g, v)
         self.residual = cs.Function("residual", [v, w], [rw, Jr, r], ["v", "w"], ["rw", "J", "r"])
         self.constraint = cs.Function("constraint", [v], [g, Jg], ["v"], ["g", "J"])
-        self._nlp = (v, w, rw, g, Jr)
+        self.nlp = (v, w, rw, g, Jr)  # the symbols: unknowns, weights, residuals, constraints, J_r
 
     @functools.cached_property
     def ipopt(self) -> cs.Function:
         """IPOPT on the same NLP with the Gauss-Newton Hessian (built on first use)."""
-        v, w, rw, g, Jr = self._nlp
+        v, w, rw, g, Jr = self.nlp
         lam_f, lam_g = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", g.numel())
         hess = cs.Function(
             "hess_lag",
@@ -209,7 +213,7 @@ class Problem:
             ["hess_gamma_x_x"],
         )
         nlp = {"x": v, "p": w, "f": 0.5 * cs.sumsqr(rw), "g": g}
-        return cs.nlpsol("fit", "ipopt", nlp, {**IPOPT, "hess_lag": hess})
+        return cs.nlpsol("fit", "ipopt", nlp, {**self.options, "hess_lag": hess})
 
     # --- noise ------------------------------------------------------------------------
     def weights(self, sigma: Mapping[str, float] | None = None) -> np.ndarray:

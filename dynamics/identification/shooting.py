@@ -25,7 +25,7 @@ from ..simulation import collocation
 POINTS = 3
 """Radau IIA nodes per step (order 5)."""
 
-NEWTON = {"abstol": 1e-10, "abstolStep": 1e-12, "max_iter": 50, "linear_solver": "qr"}
+NEWTON = {"abstol": 1e-9, "abstolStep": 1e-9, "max_iter": 50, "linear_solver": "qr"}
 """The step's Newton (scaled unknowns: states divided by their nominal values)."""
 
 

@@ -76,10 +76,12 @@ def fisher(problem: Problem, sol: Solution, S: np.ndarray | None = None) -> Fish
     """The :class:`Fisher` record at ``sol`` (``S``: the sensitivities if known)."""
     S = sensitivities(problem, sol) if S is None else S
     n = S.shape[1]
-    _, s, Vt = np.linalg.svd(S, full_matrices=False) if S.size else (None, np.zeros(n), np.eye(n))
+    # full V: with fewer residuals than parameters the missing singular values are 0
+    _, s, Vt = np.linalg.svd(S, full_matrices=True) if S.size else (None, np.zeros(0), np.eye(n))
+    s = np.concatenate([s, np.zeros(n - len(s))])
     top = s[0] if len(s) and s[0] > 0 else 1.0
     keep = s > FLAT * top
-    flat = [Vt[i] for i in range(len(s)) if not keep[i]]
+    flat = [Vt[i] for i in range(n) if not keep[i]]
     cov_phi = (Vt[keep].T / s[keep] ** 2) @ Vt[keep]
     sd_phi = np.sqrt(np.maximum(np.diag(cov_phi), 0.0))
     for direction in flat:  # a flat direction: unbounded variance for its parameters

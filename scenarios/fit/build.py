@@ -68,10 +68,10 @@ class Built:
     validation: Problem | None
 
 
-def _scene(spec: FitSpec, exp: ExperimentSpec):
+def _scene(spec: FitSpec, exp: ExperimentSpec, table: dict):
     prefix = ("experiments", exp.index)
     lines = {p[2:]: n for p, n in spec.lines.items() if p[:2] == prefix and len(p) > 2}
-    data = {"scenario": {"name": "fit", "kind": "transient"}, "model": exp.model}
+    data = {"scenario": {"name": "fit", "kind": "transient"}, "model": table}
     try:
         return scenario_from_dict(data, spec.file, lines)
     except ScenarioError as exc:
@@ -83,14 +83,31 @@ def _prefixed(exc: ScenarioError, exp: ExperimentSpec) -> FitError:
     return FitError(exc.file, f"experiments[{exp.index + 1}].{exc.key}", message, exc.line)
 
 
-def _model(spec: FitSpec, exp: ExperimentSpec):
-    sc = _scene(spec, exp)
+def _model(spec: FitSpec, exp: ExperimentSpec, table: dict | None = None):
+    sc = _scene(spec, exp, exp.model if table is None else table)
     try:
         fid = fidelity_level(sc, allow_auto=False)
         binding = bind(sc)
         return binding, binding.build(fid), fid
     except ScenarioError as exc:
         raise _prefixed(exc, exp) from None
+
+
+def model_of(spec: FitSpec, exp: ExperimentSpec, table: dict):
+    """The binding and model of experiment ``exp``'s set-up with ``[model]`` = ``table``
+    (a candidate experiment)."""
+    binding, model, _ = _model(spec, exp, table)
+    return binding, model
+
+
+def place(built: Built, binding, model: Model, like: Bound) -> dict:
+    """Where the shared estimated parameters enter ``model`` (a set-up like ``like``'s)."""
+    b = Bound(like.spec, model, like.table, binding, like.fidelity)
+    uses = {}
+    for p in built.spec.parameters:
+        if not p.per_experiment:
+            uses.update(_uses(built.spec, b, p, p.name)[0])
+    return uses
 
 
 def _uses(spec: FitSpec, b: Bound, p: ParameterSpec, name: str) -> tuple[dict, str]:

@@ -92,6 +92,7 @@ def summary(result) -> dict:
             "dropped": sum(s.dropped for s in starts),
             "dropped_why": sorted({s.status for s in starts if s.dropped}),
         },
+        "design": result.design,
         "solver": {"status": result.solution.status, "iterations": result.solution.iterations},
         "wall_time_s": result.wall_time,
     }

@@ -25,6 +25,7 @@ from sarcomere.dynamics.identification.estimate import Fitted, fit_from
 from sarcomere.dynamics.identification.problem import Solution
 
 from .build import Built, build
+from .design import ranking
 from .spec import load_fit
 from .validation import experiment_metrics
 
@@ -62,6 +63,7 @@ class FitResult:
     metrics: dict[str, dict]
     validation: dict[str, dict]
     wall_time: float
+    design: list[dict] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
 
     @property
@@ -151,6 +153,7 @@ class Fit:
             self._validation(fitted),
             0.0,
         )
+        result.design = ranking(self.built, sol, fitted.sigma)
         result.wall_time = time.perf_counter() - tic
         if folder is not None:
             from .report import write

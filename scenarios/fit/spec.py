@@ -20,7 +20,9 @@ from ..spec import KeyPath, did_you_mean, line_of
 
 METHODS = ("multiple-shooting", "single-shooting")
 KINDS = ("time-series", "static")
-SECTIONS = ("fit", "parameters", "noise", "experiments")
+SECTIONS = ("fit", "parameters", "noise", "experiments", "design")
+DESIGN_KEYS = ("kinds", "levels", "loads", "duration", "sample", "outputs")
+DESIGN_KINDS = ("step", "staircase")
 FIT_KEYS = ("name", "description", "method", "starts", "seed", "interval")
 PARAM_KEYS = ("start", "bounds", "scale", "per_experiment")
 NOISE_KEYS = ("sigma", "relative")
@@ -70,6 +72,19 @@ class ExperimentSpec:
     path: KeyPath
 
 
+@dataclass(frozen=True)
+class DesignSpec:
+    """``[design]``: candidate experiments to rank (SI): input kinds, pressure levels,
+    hanging loads, duration and sampling interval, measured signals."""
+
+    kinds: tuple[str, ...]
+    levels: tuple[float, ...]
+    loads: tuple[float, ...]
+    duration: float
+    sample: float
+    outputs: tuple[str, ...]
+
+
 @dataclass
 class FitSpec:
     """A parsed fit file."""
@@ -85,6 +100,7 @@ class FitSpec:
     experiments: list[ExperimentSpec]
     file: str
     lines: dict[KeyPath, int] = field(repr=False)
+    design: DesignSpec | None = None
 
     def error(self, path: KeyPath, message: str) -> FitError:
         """A FitError at ``path`` (with its line)."""
@@ -164,6 +180,7 @@ def parse_fit(text: str, file: str = "<string>") -> FitSpec:
     params = _parameters(r, data["parameters"])
     noise = _noise(r, data.get("noise", {}))
     exps = _experiments(r, data["experiments"], Path(file).parent)
+    design = _design(r, data["design"]) if "design" in data else None
     spec = FitSpec(
         name,
         r.text(head, ("fit",), "description", ""),
@@ -176,6 +193,7 @@ def parse_fit(text: str, file: str = "<string>") -> FitSpec:
         exps,
         file,
         lines,
+        design,
     )
     _cross_checks(spec)
     return spec
@@ -254,6 +272,37 @@ def _experiments(r: _Reader, value: object, base: Path) -> list[ExperimentSpec]:
     return out
 
 
+def _design(r: _Reader, value: object) -> DesignSpec:
+    path = ("design",)
+    tbl = r.table(value, path, DESIGN_KEYS, required=("levels",))
+    kinds = r.strings(tbl.get("kinds", ["step"]), (*path, "kinds"))
+    for k in kinds:
+        if k not in DESIGN_KINDS:
+            raise r.error((*path, "kinds"), f"'{k}' is not one of {', '.join(DESIGN_KINDS)}")
+
+    def quantities(key: str, unit: str, default) -> tuple[float, ...]:
+        raw = tbl.get(key, default)
+        if not isinstance(raw, list) or not raw:
+            raise r.error((*path, key), f"{raw!r}: expected a non-empty list of quantities")
+        return tuple(r.quantity(x, (*path, key), unit) for x in raw)
+
+    duration = r.quantity(tbl.get("duration", "1 s"), (*path, "duration"), "s")
+    sample = r.quantity(tbl.get("sample", "5 ms"), (*path, "sample"), "s")
+    if not 0 < sample < duration:
+        raise r.error((*path, "sample"), f"{tbl.get('sample')!r}: in (0, duration)")
+    if duration / sample > 20_000:
+        raise r.error((*path, "sample"), "more than 20000 samples per candidate")
+    outputs = r.strings(tbl.get("outputs", []), (*path, "outputs"))
+    return DesignSpec(
+        kinds,
+        quantities("levels", "Pa", None),
+        quantities("loads", "kg", ["0 g"]),
+        duration,
+        sample,
+        outputs,
+    )
+
+
 def _cross_checks(spec: FitSpec) -> None:
     fitted = [e for e in spec.experiments if not e.validation]
     if not fitted:
@@ -275,6 +324,10 @@ def _cross_checks(spec: FitSpec) -> None:
                 f"'{signal}' is not measured by any experiment"
                 + did_you_mean(signal, sorted(measured)),
             )
+    if spec.design is not None:
+        for s in spec.design.outputs:
+            if s not in spec.noise:
+                raise spec.error(("design", "outputs"), f"'{s}' has no [noise.\"{s}\"]")
     for e in spec.experiments:
         for s in e.outputs:
             if s not in spec.noise:

@@ -47,8 +47,13 @@ def _record(seed: int, truth: dict, dt: float = 2e-3, t_end: float = 0.2):
 
 def _problem(m, t, u, data, names, interval=10, substeps=2):
     params = [
-        Estimated(n, m.variables[n].unit, m.variables[n].value, m.variables[n].value / 5,
-                  m.variables[n].value * 5)
+        Estimated(
+            n,
+            m.variables[n].unit,
+            m.variables[n].value,
+            m.variables[n].value / 5,
+            m.variables[n].value * 5,
+        )
         for n in names
     ]
     uses = {n: (n, 1.0) for n in names}
@@ -81,9 +86,7 @@ def test_single_shooting_is_the_same_problem():
     single = _problem(m, t, u, data, list(truth), interval=None)
     assert single.shootings[0].nodes == 1 and multi.shootings[0].nodes == 4
     theta = np.array(list(truth.values()))
-    costs = [
-        p.evaluate(p.initial_guess(theta), p.weights()).cost for p in (multi, single)
-    ]
+    costs = [p.evaluate(p.initial_guess(theta), p.weights()).cost for p in (multi, single)]
     assert costs[0] == pytest.approx(costs[1], rel=1e-9)
     assert costs[0] < 0.5  # the fit's Radau steps reproduce CVODES' data within the noise
 
@@ -134,17 +137,17 @@ def test_product_pair_flagged_structurally_non_identifiable():
 
 @pytest.mark.slow
 def test_fisher_covariance_matches_replicate_spread():
-    """12 noise replicates (fixed seed): the spread of the estimates agrees with the Fisher
-    standard deviations (the sample sd of 12 values is within 0.55-1.6x of the true one
+    """8 noise replicates (fixed seed): the spread of the estimates agrees with the Fisher
+    standard deviations (the sample sd of 8 values is within 0.4-1.7x of the true one
     with 99 % probability)."""
     base = hanging_load(1)
     truth = _truth(base, {"regulator.tau": 1.3, C: 0.7})
-    m, t, u, clean = _record(21, truth)
+    m, t, u, clean = _record(21, truth, t_end=0.12)
     rng = np.random.default_rng(1)
     sd = np.array([SIGMA[o] for o in OUTS])
     theta0 = np.array(list(truth.values()))
     estimates, fisher_sd = [], None
-    for _ in range(12):
+    for _ in range(8):
         pb = _problem(m, t, u, clean + rng.normal(size=clean.shape) * sd, list(truth))
         fit = fit_from(pb, theta0)
         assert fit.solution.success
@@ -152,7 +155,7 @@ def test_fisher_covariance_matches_replicate_spread():
         if fisher_sd is None:
             fisher_sd = uncertainty.fisher(pb, fit.solution).sd
     ratio = np.std(estimates, axis=0, ddof=1) / fisher_sd
-    assert np.all((ratio > 0.55) & (ratio < 1.6)), ratio
+    assert np.all((ratio > 0.4) & (ratio < 1.7)), ratio
 
 
 def test_estimated_parameter_refuses_bad_bounds():

@@ -73,15 +73,38 @@ def test_good_file_builds(tmp_path):
 @pytest.mark.parametrize(
     ("csv", "line", "key", "words"),
     [
-        ("\n".join(ln.rsplit(",", 1)[0] for ln in GOOD_CSV.splitlines()), 1, "myofibril.length", "no column"),
-        (GOOD_CSV.replace("myofibril.length [mm]", "myofibril.length"), 1, "myofibril.length", "no unit"),
+        (
+            "\n".join(ln.rsplit(",", 1)[0] for ln in GOOD_CSV.splitlines()),
+            1,
+            "myofibril.length",
+            "no column",
+        ),
+        (
+            GOOD_CSV.replace("myofibril.length [mm]", "myofibril.length"),
+            1,
+            "myofibril.length",
+            "no unit",
+        ),
         (GOOD_CSV.replace("\n3,", "\n1.5,"), 5, "time", "not increasing"),
         (GOOD_CSV.replace("\n3,", "\n2,"), 5, "time", "duplicate time"),
-        ("\n".join(ln if not ln.startswith("3,") else "3,0,nan" for ln in GOOD_CSV.splitlines()), 5, "myofibril.length", "NaN"),
+        (
+            "\n".join(ln if not ln.startswith("3,") else "3,0,nan" for ln in GOOD_CSV.splitlines()),
+            5,
+            "myofibril.length",
+            "NaN",
+        ),
         (GOOD_CSV.replace("\n7,50,", "\n7,5000,"), 9, "pressure", "outside the input's range"),
         (GOOD_CSV.replace("pressure [kPa]", "pressure [mm]"), 1, "pressure", "is not a unit of Pa"),
     ],
-    ids=["missing-column", "unitless", "time-decreasing", "duplicate-time", "nan", "input-range", "wrong-unit"],
+    ids=[
+        "missing-column",
+        "unitless",
+        "time-decreasing",
+        "duplicate-time",
+        "nan",
+        "input-range",
+        "wrong-unit",
+    ],
 )
 def test_bad_csv(tmp_path, csv, line, key, words):
     err = _error(_write(tmp_path, csv=csv))
