@@ -21,21 +21,27 @@ hanging chain is 170.6 mm against the measured 165 mm: a contradiction in the pa
 numbers for SPA bodies of about 8.6 g, stated in docs/paper.md, "Rest length".
 
 Fitted: the effective pneumatic area ``A_p``, the restoring cross-section ``A_r`` and
-the I-band series stiffness ``k_s``, in log space. The three targets and every
-equilibrium they need form one square system in the log-parameters and the equilibria's
-states (exact CasADi Jacobian), solved by a damped Newton method with continuation in
-the targets: from the targets the start parameters achieve, straight to the paper's,
-halving a step that does not converge. The result is accepted only after an independent
-check (:func:`evaluate`: every equilibrium re-solved from scratch) meets the targets to
-:data:`VERIFY_RTOL`; a failure raises :class:`SolverError` with the step reached.
+the I-band series stiffness ``k_s``, in log space, by the identification engine
+(:mod:`.identification`, docs/fitting.md): the three targets are one static experiment
+set, six equilibria (:class:`~.identification.experiments.StaticPoint`, the isometric
+fixture linked to the hanging chain's rest position) and three targets with the
+relative residuals ``(t - T) / T``, solved as one least-squares problem with the
+equilibria as constraints (IPOPT, Gauss-Newton Hessian, exact CasADi Jacobians; the
+start's equilibria solved by :func:`.equilibrium.solve_equilibrium`). The result is
+accepted only after an independent check (:func:`evaluate`: every equilibrium re-solved
+from scratch) meets the targets to :data:`VERIFY_RTOL`; a failure raises
+:class:`SolverError` naming the solver's status.
 
 Region of convergence: every start with each fitted parameter within a factor
 :data:`START_REGION` = (0.5, 2) of its packaged value converges to the same parameters
 (tested from the 8 corners and fixed-seed random starts in
-tests/dynamics/test_calibration.py, each in 1-2 continuation steps and 6-27 Newton
-iterations). The fit is unique there: every start lands on the same point to 1e-11, and
-the sensitivity matrix at it is non-singular (singular values 1.0, 0.088, 0.022). Seven
-of the eight corners of the wider (0.25, 4) box converge too; (4, 0.25, 4) stalls.
+tests/dynamics/test_calibration.py). The fit is unique there: the sensitivity matrix at
+it is non-singular (singular values 1.0, 0.088, 0.022).
+
+The compliance split is not identified: with the restoring length ``L_r`` estimated too,
+the three targets leave a flat direction (the L_r family, :func:`family`), which the
+engine's singular values flag as structurally non-identifiable
+(:attr:`CalibrationResult.compliance_split`).
 
 Identifiability is judged from the sensitivities of the targets to every candidate
 parameter at the solution and their singular values.
@@ -46,21 +52,17 @@ from __future__ import annotations
 import fnmatch
 from dataclasses import dataclass, replace
 
-import casadi as cs
 import numpy as np
 
 from .assemblies import hanging_load, isometric
 from .components.aps import APSParams
 from .equilibrium import solve_equilibrium
 from .errors import ParameterError, SolverError
-from .modeling.model import Model
-from .newton import (
-    ContinuationFailure,
-    NewtonFailure,
-    NewtonResult,
-    continuation,
-    damped_newton,
-)
+from .identification import uncertainty
+from .identification.estimate import fit_from
+from .identification.experiments import Estimated, Noise, StaticPoint, Target
+from .identification.problem import Problem
+from .newton import ContinuationFailure, NewtonFailure, continuation
 
 P_TEST = 1.0e5  # Pa, the paper's maximum test pressure (0.1 MPa)
 
@@ -81,19 +83,17 @@ VERIFY_RTOL = 1e-8
 """Largest relative target residual accepted when the fit's equilibria are re-solved
 independently (:func:`evaluate`)."""
 
-NEWTON_TOL = 1e-11
-"""Convergence of the fit's Newton method: max-norm of the scaled residual (equilibrium
-rows per their largest Jacobian entry, targets relative)."""
-
-STALL_TOL = 1e-9
-"""A Newton iteration that can make no more progress (rounding) is accepted at this
-scaled residual, and reported as stalled; :func:`fit`'s verification still applies."""
+BOUNDS = 20.0
+"""The fit's bounds: each fitted parameter within this factor of its start."""
 
 FITTED = {  # APSParams field -> model parameter pattern
     "A_p": "*.chamber.A",
     "A_r": "*.yeoh.A_r",
     "k_s": "*.actin*.k_s",
 }
+
+SPLIT = {"L_r": "*.yeoh.L_r"}
+"""The compliance-split parameter the targets cannot identify beside :data:`FITTED`."""
 
 CANDIDATES = (
     *FITTED,
@@ -114,7 +114,7 @@ CANDIDATES = (
 @dataclass
 class Fit:
     """A verified solution of the fit: parameters, achieved targets, relative residuals,
-    status, Newton iterations and accepted continuation steps."""
+    status and the solver's iterations."""
 
     params: APSParams
     fitted: dict[str, float]
@@ -122,16 +122,17 @@ class Fit:
     residuals: dict[str, float]
     status: str
     iterations: int
-    steps: int
 
 
 @dataclass
 class CalibrationResult(Fit):
-    """A :class:`Fit` with the identifiability of the candidates (:func:`sensitivities`)."""
+    """A :class:`Fit` with the identifiability of the candidates (:func:`sensitivities`)
+    and the engine's verdict on the compliance split (:func:`compliance_split`)."""
 
     sensitivities: dict[str, dict[str, float]]
     singular_values: list[float]
     not_identifiable: list[str]
+    compliance_split: dict
 
     def to_dict(self) -> dict:
         """JSON-ready record with provenance."""
@@ -151,23 +152,12 @@ class CalibrationResult(Fit):
             "sensitivities_dlog_target_dlog_param": self.sensitivities,
             "singular_values": self.singular_values,
             "not_identifiable": self.not_identifiable,
+            "compliance_split": self.compliance_split,
             "status": self.status,
-            "newton_iterations": self.iterations,
-            "continuation_steps": self.steps,
+            "iterations": self.iterations,
             "rest_length_undeformed_n3_m": rest_length_undeformed(3, self.params),
             "rest_length_hanging_n3_m": rest_length_hanging(3, self.params),
         }
-
-
-def _param_expr(model: Model, base: np.ndarray, theta: dict[str, cs.SX], links: dict) -> cs.SX:
-    """Parameter vector with the fitted entries (``theta``: APSParams field -> symbol)
-    replaced by symbolic values, and the linked entries (``links``: parameter name ->
-    expression) by those expressions."""
-    entries = []
-    for i, name in enumerate(model.param_names):
-        sym = next((s for k, s in theta.items() if fnmatch.fnmatch(name, FITTED[k])), None)
-        entries.append(links.get(name, sym if sym is not None else cs.SX(base[i])))
-    return cs.vertcat(*entries)
 
 
 def _experiments(p: APSParams):
@@ -220,19 +210,6 @@ def _targets(y: dict, p: APSParams, rest_length: str = "hanging") -> dict:
     }
 
 
-def _residual_function(model: Model) -> cs.Function:
-    """``[ode; alg]`` as a Function of ``(vertcat(x, z), u, p)``."""
-    w = cs.vertcat(model.x, model.z)
-    return cs.Function("F", [w, model.u, model.p], [cs.vertcat(model.ode, model.alg)])
-
-
-def _output_function(model: Model, name: str) -> cs.Function:
-    """A state, algebraic unknown or output by name, as a Function of ``(x, z, u, p)``."""
-    i = (model.state_names + model.alg_names + model.output_names).index(name)
-    sig = cs.vertcat(model.x, model.z, model.y)
-    return cs.Function("Y", [model.x, model.z, model.u, model.p], [sig[i]])
-
-
 def evaluate(p: APSParams, rest_length: str = "hanging") -> dict[str, float]:
     """The three target quantities for a parameter set (by equilibrium solves from
     scratch); ``rest_length``: the ``L'`` of the ratios, one of :data:`REST_LENGTHS`."""
@@ -245,6 +222,52 @@ def evaluate(p: APSParams, rest_length: str = "hanging") -> dict[str, float]:
     return _targets(y, p, rest_length)
 
 
+def problem(
+    start: APSParams,
+    fitted: tuple[str, ...] = tuple(FITTED),
+    targets: tuple[str, ...] = tuple(TARGETS),
+    rest_length: str = "hanging",
+    extra: dict[str, str] | None = None,
+    values: dict[str, float] | None = None,
+) -> Problem:
+    """The calibration as an identification problem: the ``fitted`` fields (and ``extra``:
+    field -> model parameter pattern) estimated in log space from ``start``, the six
+    equilibria of :func:`_experiments` and the ``targets`` (the paper's, or ``values``)
+    with sigma = the paper's target (the relative residuals)."""
+    patterns = {**{k: FITTED[k] for k in fitted}, **(extra or {})}
+    params = [
+        Estimated(k, APSParams.unit(k), v, v / BOUNDS, v * BOUNDS)
+        for k, v in ((k, getattr(start, k)) for k in patterns)
+    ]
+    points, outs = [], {}
+    for key, model, pc, over, out, link in _experiments(start):
+        p = model.parameters(over)
+        u = model.u0(p)
+        u[model.input_names.index("regulator.p_cmd")] = pc
+        uses = {
+            n: (k, 1.0)
+            for n in model.param_names
+            for k, pat in patterns.items()
+            if fnmatch.fnmatch(n, pat)
+        }
+        links = {name: (point, "load.s") for name, point in link.items()}
+        points.append(StaticPoint(key, model, u, p, uses, links))
+        outs[key] = out
+
+    def target(k: str) -> Target:
+        def expr(signal):
+            y = {key: signal(key, out) for key, out in outs.items()}
+            return _targets(y, start, rest_length)[k]
+
+        return Target(k, expr, (values or TARGETS)[k], k)
+
+    noise = {k: Noise(abs(TARGETS[k])) for k in targets}
+    tight = {"ipopt.tol": 1e-13, "ipopt.acceptable_tol": 1e-11, "ipopt.mu_init": 1e-9}
+    return Problem(
+        params, points=points, targets=[target(k) for k in targets], noise=noise, options=tight
+    )
+
+
 def fit(
     start: APSParams,
     fitted: tuple[str, ...] = tuple(FITTED),
@@ -254,15 +277,14 @@ def fit(
 ) -> Fit:
     """Fit the ``fitted`` parameters (keys of :data:`FITTED`) to the ``targets`` (keys of
     :data:`TARGETS`, as many as parameters) from ``start``; ``rest_length`` as
-    :func:`evaluate`. Newton continuation, verified by :func:`evaluate` to
-    :data:`VERIFY_RTOL` (module docstring); raises :class:`SolverError` otherwise."""
+    :func:`evaluate`. The identification engine (module docstring), verified by
+    :func:`evaluate` to :data:`VERIFY_RTOL`; raises :class:`SolverError` otherwise."""
     if not set(fitted) <= set(FITTED):
         raise ParameterError("fitted", fitted, f"names from {tuple(FITTED)}")
     if not set(targets) <= set(TARGETS) or len(targets) != len(fitted):
         raise ParameterError("targets", targets, f"{len(fitted)} names from {tuple(TARGETS)}")
-    system = _System(start, fitted, targets, rest_length)
-    v, path = _continuation(system, verbose)
-    values = {k: float(np.exp(v[i])) for i, k in enumerate(fitted)}
+    theta, iterations, steps = _solve(start, fitted, targets, rest_length, verbose)
+    values = {k: float(v) for k, v in zip(fitted, theta, strict=True)}
     p_fit = replace(start, **values)
     every = evaluate(p_fit, rest_length)
     achieved = {k: every[k] for k in targets}
@@ -270,17 +292,76 @@ def fit(
     worst = max(abs(r) for r in residuals.values())
     if not worst <= VERIFY_RTOL:
         raise SolverError(
-            f"calibration failed: the Newton solution does not hold when its equilibria are "
-            f"re-solved from scratch (worst relative target residual {worst:.3g} > "
-            f"{VERIFY_RTOL:g}: another equilibrium branch)"
+            f"calibration failed: the fit does not hold when its equilibria are re-solved "
+            f"from scratch (worst relative target residual {worst:.3g} > {VERIFY_RTOL:g}: "
+            "another equilibrium branch)"
         )
-    stalled = f" (stalled, accepted below {STALL_TOL:g})" if path.residual > NEWTON_TOL else ""
     status = (
-        f"converged: Newton continuation in {path.steps} step(s), {path.iterations} "
-        f"iterations, scaled residual {path.residual:.2g}{stalled}; verified by equilibrium "
-        f"solves from scratch (worst relative target residual {worst:.2g})"
+        f"converged: least squares (IPOPT, Gauss-Newton Hessian) in {iterations} "
+        f"iterations, {steps} continuation step(s); verified by equilibrium solves from "
+        f"scratch (worst relative target residual {worst:.2g})"
     )
-    return Fit(p_fit, values, achieved, residuals, status, path.iterations, path.steps)
+    return Fit(p_fit, values, achieved, residuals, status, iterations)
+
+
+MIN_STEP = 1.0 / 256
+"""Smallest continuation step (fraction of the way to the targets) before giving up."""
+
+
+def _solve(start: APSParams, fitted, targets, rest_length, verbose) -> tuple:
+    """The fitted values, the iterations and the continuation steps: straight to the
+    paper's targets, else (:func:`.newton.continuation`) from the targets the start
+    achieves to the paper's, halving a step that fails."""
+    th0 = np.array([getattr(start, k) for k in fitted])
+    t0 = evaluate(start, rest_length)
+    count = {"iterations": 0, "steps": 0}
+
+    def advance(theta: np.ndarray, frac: float) -> np.ndarray:
+        goal = {k: t0[k] + frac * (TARGETS[k] - t0[k]) for k in targets}
+        prob = problem(
+            replace(start, **dict(zip(fitted, theta, strict=True))),
+            fitted,
+            targets,
+            rest_length,
+            values=goal,
+        )
+        sol = fit_from(prob, theta).solution
+        count["iterations"] += sol.iterations
+        if verbose:
+            print(
+                f"calibration: targets at {100 * frac:5.1f} %: {sol.status}, "
+                f"{sol.iterations} iterations"
+            )
+        if not sol.success:
+            raise NewtonFailure(sol.status, sol.cost, sol.iterations)
+        count["steps"] += 1
+        return sol.theta
+
+    try:
+        theta = continuation(advance, th0, MIN_STEP)
+    except ContinuationFailure as stop:
+        raise SolverError(
+            f"calibration failed: the least-squares solver stopped ({stop.failure.why}); the "
+            f"continuation reached {100 * stop.fraction:.3g} % of the way from the start's "
+            "targets to the paper's"
+        ) from None
+    return theta, count["iterations"], count["steps"]
+
+
+def compliance_split(p: APSParams) -> dict:
+    """The engine's identifiability verdicts at a calibrated ``p`` with :data:`SPLIT`
+    (``L_r``) estimated beside :data:`FITTED` from the three static targets: the flat
+    direction named (``verdicts``) and the ``singular_values``."""
+    prob = problem(p, extra=SPLIT)
+    theta = np.array([getattr(p, e.name) for e in prob.params])
+    sol = prob.evaluate(prob.initial_guess(theta), prob.weights())
+    fis = uncertainty.fisher(prob, sol)
+    verdicts = uncertainty.verdicts(prob, fis, None)
+    return {
+        "parameters": [e.name for e in prob.params],
+        "verdicts": dict(zip((e.name for e in prob.params), verdicts, strict=True)),
+        "singular_values": fis.singular_values.tolist(),
+    }
 
 
 def calibrate(start: APSParams | None = None, verbose: bool = False) -> CalibrationResult:
@@ -289,115 +370,11 @@ def calibrate(start: APSParams | None = None, verbose: bool = False) -> Calibrat
     f = fit(start or APSParams.from_paper(), verbose=verbose)
     sens, sv, weak = sensitivities(f.params)
     return CalibrationResult(
-        **vars(f), sensitivities=sens, singular_values=sv, not_identifiable=weak
-    )
-
-
-class _System:
-    """The square system ``R(v, T) = 0`` of the fit: every equilibrium (rows scaled by
-    their Jacobian at the start) and the relative target residuals ``(t(v) - T) / T*``;
-    ``v`` = [log-parameters, scaled equilibrium unknowns...]. ``v0`` holds the start
-    parameters and their equilibria, ``t0`` the targets they achieve, ``goal`` the paper's."""
-
-    def __init__(self, p0: APSParams, fitted, targets, rest_length: str) -> None:
-        log_theta = cs.SX.sym("log_theta", len(fitted))
-        theta = {k: cs.exp(log_theta[i]) for i, k in enumerate(fitted)}
-        th0 = np.log([getattr(p0, k) for k in fitted])
-        ws, w0s, cons, outs, guesses = [], [], [], {}, {}
-        for key, model, pc, over, out, link in _experiments(p0):
-            eq = solve_equilibrium(
-                model, {"regulator.p_cmd": pc}, over, guess=guesses.get(model.name)
-            )
-            guesses.setdefault(model.name, eq)
-            w_guess = np.concatenate([eq.x, eq.z])
-            scale = np.maximum(np.abs(w_guess), 1e-6)
-            w_hat = cs.SX.sym(f"w_{key}", len(w_guess))
-            w = w_hat * scale
-            pe = _param_expr(model, eq.p, theta, {k: outs[v] for k, v in link.items()})
-            u = cs.DM([pc])
-            r = _residual_function(model)(w, u, pe)
-            # each row in its own units: divided by its largest Jacobian entry at the start
-            # (a linked parameter makes r depend on earlier experiments' unknowns too)
-            jac = cs.Function("J", [cs.vertcat(*ws, w_hat), log_theta], [cs.jacobian(r, w_hat)])
-            Jw = np.abs(np.array(jac(np.concatenate([*w0s, w_guess / scale]), th0)))
-            cons.append(r / np.maximum(Jw.max(axis=1), 1e-300))
-            outs[key] = _output_function(model, out)(w[: model.nx], w[model.nx :], u, pe)
-            ws.append(w_hat)
-            w0s.append(w_guess / scale)
-        v = cs.vertcat(log_theta, *ws)
-        T = cs.SX.sym("T", len(targets))
-        tq = _targets(outs, p0, rest_length)
-        rows = [(tq[k] - T[i]) / TARGETS[k] for i, k in enumerate(targets)]
-        R = cs.vertcat(*cons, *rows)
-        self.residual = cs.Function("R", [v, T], [R, cs.jacobian(R, v)])
-        achieved = cs.Function("t", [v], [cs.vertcat(*(tq[k] for k in targets))])
-        self.v0 = np.concatenate([th0, *w0s])
-        self.t0 = np.array(achieved(self.v0)).ravel()
-        self.goal = np.array([TARGETS[k] for k in targets])
-
-
-@dataclass
-class _Path:
-    """How the continuation went: accepted steps, Newton iterations in all, final scaled
-    residual (max-norm)."""
-
-    steps: int = 0
-    iterations: int = 0
-    residual: float = np.inf
-
-
-MAX_NEWTON = 20
-"""Newton iterations per continuation step before the step is halved."""
-
-MIN_STEP = 1.0 / 1024
-"""Smallest continuation step (fraction of the way to the targets) before giving up."""
-
-
-def _continuation(system: _System, verbose: bool) -> tuple[np.ndarray, _Path]:
-    """Move the targets from ``system.t0`` to ``system.goal`` (:func:`.newton.continuation`),
-    each step solved by :func:`_newton` from the last solution."""
-    path = _Path()
-
-    def advance(v: np.ndarray, frac: float) -> np.ndarray:
-        try:
-            sol = _newton(system, v, system.t0 + frac * (system.goal - system.t0))
-        except NewtonFailure as failure:
-            sol = failure
-        path.iterations += sol.iterations
-        failed = isinstance(sol, NewtonFailure)
-        if verbose:
-            print(
-                f"calibration: targets at {100 * frac:5.1f} %: {sol.iterations:2d} Newton "
-                f"iterations, scaled residual {sol.residual:.2e}" + (" (halving)" * failed)
-            )
-        if failed:
-            raise sol
-        path.steps, path.residual = path.steps + 1, sol.residual
-        return sol.x
-
-    try:
-        return continuation(advance, system.v0, MIN_STEP), path
-    except ContinuationFailure as stop:
-        f = stop.failure
-        raise SolverError(
-            f"calibration failed: Newton did not converge (scaled residual {f.residual:.3g} "
-            f"after {f.iterations} iterations); the continuation reached "
-            f"{100 * stop.fraction:.3g} % of the way from the start's targets to the paper's"
-        ) from None
-
-
-def _newton(system: _System, v: np.ndarray, goal: np.ndarray) -> NewtonResult:
-    """Damped Newton (:func:`.newton.damped_newton`) on ``R(v, goal) = 0``: backtracking
-    on ``|R|_2`` (a trial point with a non-finite residual or Jacobian counts as worse);
-    converged at ``max |R| <= NEWTON_TOL``, or stalled (no more progress) at
-    ``max |R| <= STALL_TOL``; raises :class:`.newton.NewtonFailure` otherwise."""
-
-    def fun(x):
-        R, J = system.residual(x, goal)
-        return np.array(R).ravel(), np.array(J)
-
-    return damped_newton(
-        fun, v, tol=NEWTON_TOL, max_iter=MAX_NEWTON, merit_norm=None, stall_tol=STALL_TOL
+        **vars(f),
+        sensitivities=sens,
+        singular_values=sv,
+        not_identifiable=weak,
+        compliance_split=compliance_split(f.params),
     )
 
 

@@ -12,8 +12,8 @@ from .progress import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--out DIR`` (default out/calibration), ``--verbose`` (the Newton continuation's
-    log) and
+    """``--out DIR`` (default out/calibration), ``--verbose`` (the fit's and its
+    continuation's log) and
     ``--family`` (also calibrate the L_r family and draw its concentric band)."""
     parser.add_argument(
         "--out",
@@ -21,9 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="output folder for calibration.json (default: out/calibration)",
     )
-    parser.add_argument(
-        "--verbose", action="store_true", help="print the Newton continuation's steps"
-    )
+    parser.add_argument("--verbose", action="store_true", help="print the fit's steps")
     parser.add_argument(
         "--family",
         action="store_true",
@@ -66,6 +64,8 @@ def handler(args: argparse.Namespace) -> int:
         f"{', '.join(f'{s:.3g}' for s in res.singular_values)}"
     )
     print(f"  no influence on these targets: {', '.join(res.not_identifiable)}")
+    split = res.compliance_split["verdicts"]["L_r"]
+    print(f"  compliance split (L_r fitted too): {split['verdict']}: {split['why']}")
     print(
         f"  3-APS rest length: L' = {1e3 * record['rest_length_hanging_n3_m']:.1f} mm hanging "
         f"(the ratios' L'), {1e3 * record['rest_length_undeformed_n3_m']:.2f} mm undeformed; "

@@ -80,6 +80,17 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         help="output folder (default: out/<scenario name>)",
     )
     parser.add_argument("--quiet", action="store_true", help="do not print the summary")
+    parameters_argument(parser)
+
+
+def parameters_argument(parser: argparse.ArgumentParser) -> None:
+    """``--parameters FILE``: a parameter file (``sarcomere fit``'s ``fitted.toml``)
+    included after the scene's own includes; the scene's ``[parameters]`` override it."""
+    parser.add_argument(
+        "--parameters",
+        metavar="FILE",
+        help="parameter file (e.g. a fit's fitted.toml); the scene's [parameters] override it",
+    )
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -88,7 +99,12 @@ def _run(args: argparse.Namespace) -> int:
     out = None if args.out is None else check_out_dir(args.out, "--out")  # before computing
     from .runner import run
 
-    run(args.scenario, out, quiet=args.quiet)
+    scenario = args.scenario
+    if args.parameters is not None:
+        from .loader import load_scenario, with_parameter_file
+
+        scenario = with_parameter_file(load_scenario(scenario), args.parameters)
+    run(scenario, out, quiet=args.quiet)
     return 0
 
 
@@ -115,12 +131,13 @@ def _study_arguments(parser: argparse.ArgumentParser) -> None:
         "--plots-only", action="store_true", help="draw the figures from the store, compute nothing"
     )
     parser.add_argument("--quiet", action="store_true", help="no progress line, no summary")
+    parameters_argument(parser)
 
 
 def _study(args: argparse.Namespace) -> int:
     from .explore.study import Study
 
-    study = Study.from_file(args.study)
+    study = Study.from_file(args.study, args.parameters)
     caps = {"max_samples": args.max_samples}
     if args.max_store_mb is not None:
         caps["max_store_bytes"] = args.max_store_mb * 1_000_000
@@ -146,9 +163,15 @@ COMMANDS: list[Command] = [
     ),
     Command(
         "calibrate",
-        "fit A_p, A_r, k_s to the paper's three measured targets (Newton continuation)",
+        "fit A_p, A_r, k_s to the paper's three measured targets (the fit engine)",
         "sarcomere.scenarios.calibrate:handler",
         "sarcomere.scenarios.calibrate:add_arguments",
+    ),
+    Command(
+        "fit",
+        "fit model parameters to measured time series and static curves, with uncertainty",
+        "sarcomere.scenarios.fit.command:handler",
+        "sarcomere.scenarios.fit.command:add_arguments",
     ),
     Command(
         "bench",

@@ -56,13 +56,17 @@ def scenario_setup(source: str | Path | Scenario) -> tuple[Model, dict, dict, Ex
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``SCENARIO``, ``--fmi 2|3`` (default 2) and ``--out X.fmu`` (default <model>.fmu)."""
+    """``SCENARIO``, ``--fmi 2|3`` (default 2), ``--out X.fmu`` (default <model>.fmu) and
+    ``--parameters FILE``."""
     parser.add_argument("scenario", help="scenario file (path/to/file.toml) or packaged name")
     parser.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version")
     parser.add_argument("--out", metavar="X.fmu", help="the FMU to write (default <name>.fmu)")
     parser.add_argument(
         "--force", action="store_true", help="replace --out even if it is not an FMU"
     )
+    from .cli import parameters_argument
+
+    parameters_argument(parser)
 
 
 def _is_fmu(path: Path) -> bool:
@@ -99,6 +103,10 @@ def handler(args: argparse.Namespace) -> int:
     from .loader import load_scenario
 
     sc = load_scenario(args.scenario)
+    if args.parameters is not None:
+        from .loader import with_parameter_file
+
+        sc = with_parameter_file(sc, args.parameters)
     out = Path(args.out) if args.out else Path(f"{sc.name}.fmu")
     check_output(out, args.force)
     model, params, inputs, experiment = scenario_setup(sc)

@@ -7,6 +7,7 @@ key and its line; unknown keys are listed with the valid ones and the closest ma
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import tomllib
@@ -22,6 +23,7 @@ from sarcomere.dynamics.files import path_kind, read_text
 from sarcomere.dynamics.units import si_unit, to_si
 
 from .catalog import packaged_scenarios
+from .keylines import key_lines, key_parts
 from .signals import SIGNAL_TYPES, signal_from_spec
 from .spec import (
     FIDELITIES,
@@ -29,6 +31,7 @@ from .spec import (
     MAX_VALUES,
     MAX_VALUES_CEILING,
     SI_UNITS,
+    Included,
     KeyPath,
     MetricCheck,
     ModelSpec,
@@ -60,81 +63,6 @@ SECTIONS = (
 
 _REQUIRED = object()
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
-
-# ---------------------------------------------------------------------------- key lines
-
-_PART = r'(?:[A-Za-z0-9_-]+|"(?:[^"\\]|\\.)*"|\'[^\']*\')'
-_KEY = rf"{_PART}(?:\s*\.\s*{_PART})*"
-_TABLE_LINE = re.compile(rf"^\[\[?\s*({_KEY})\s*\]\]?")
-_KEY_LINE = re.compile(rf"^({_KEY})\s*=(.*)$")
-
-
-def key_parts(key: str) -> KeyPath:
-    """Split a TOML key (``a."b.c"``) into its parts, unquoted.
-
-    >>> key_parts('study.factors."aps.A_p"')
-    ('study', 'factors', 'aps.A_p')
-    """
-    return tuple(
-        tomllib.loads(f"k = {p}")["k"] if p[0] in "\"'" else p for p in re.findall(_PART, key)
-    )
-
-
-def _open_brackets(value: str) -> tuple[int, str | None]:
-    """Bracket depth left open by ``value`` and an unclosed multi-line string delimiter."""
-    depth, i, quote = 0, 0, None
-    while i < len(value):
-        if quote:
-            if value.startswith(quote, i) and (len(quote) == 3 or value[i - 1] != "\\"):
-                i, quote = i + len(quote), None
-                continue
-        elif value.startswith(('"""', "'''"), i):
-            quote = value[i : i + 3]
-            i += 3
-            continue
-        elif value[i] in "\"'":
-            quote = value[i]
-        elif value[i] == "#":
-            break
-        elif value[i] in "[{":
-            depth += 1
-        elif value[i] in "]}":
-            depth -= 1
-        i += 1
-    return depth, quote if quote and len(quote) == 3 else None
-
-
-def key_lines(text: str) -> dict[KeyPath, int]:
-    """Map each table and key path of a TOML text to the line (1-based) defining it.
-
-    tomllib reports no positions, so this scans the text: table headers set the current
-    table, ``key = value`` lines add a key under it. Values spanning several lines
-    (arrays, inline tables, multi-line strings) are skipped over.
-    """
-    lines: dict[KeyPath, int] = {}
-    table: KeyPath = ()
-    depth, quote = 0, None
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if quote:
-            if quote in line:
-                quote = None
-            continue
-        if depth > 0:
-            depth += _open_brackets(line)[0]
-            continue
-        if match := _TABLE_LINE.match(line):
-            table = key_parts(match[1])
-            path = table
-        elif match := _KEY_LINE.match(line):
-            path = table + key_parts(match[1])
-            depth, quote = _open_brackets(match[2])
-        else:
-            continue
-        for k in range(1, len(path) + 1):  # a.b defines a too, if not yet defined
-            lines.setdefault(path[:k], lineno)
-    return lines
-
 
 # ---------------------------------------------------------------------------- resolution
 
@@ -335,12 +263,13 @@ def scenario_from_dict(
             f"'{name}': use letters, digits, '_', '-' and '.' only, not only dots "
             "(it names the output folder)",
         )
+    params, included = _scene_parameters(r, data.get("parameters", {}), Path(file).parent)
     return Scenario(
         name=name,
         kind=r.text(head, ("scenario",), "kind"),
         description=r.text(head, ("scenario",), "description", ""),
         model=_model(r, data.get("model", {})),
-        parameters=_parameters(r, data.get("parameters", {}), ("parameters",)),
+        parameters=params,
         inputs=_inputs(r, data.get("inputs", {}), Path(file).parent),
         sweep=_sweep(r, data.get("sweep", {})),
         simulation=_simulation(r, data["simulation"]) if "simulation" in data else None,
@@ -351,6 +280,7 @@ def scenario_from_dict(
         cosim=r.table(data.get("cosim", {}), ("cosim",)),
         file=file,
         key_lines=lines,
+        included=included,
     )
 
 
@@ -384,6 +314,89 @@ def _parameters(r: Reader, value: object, path: KeyPath) -> dict[str, object]:
         else:
             raise r.error((*path, key), f"expected a number or a string with a unit, got {item!r}")
     return out
+
+
+# ---------------------------------------------------------------------------- parameter files
+
+#: Tables of a parameter file (``docs/scenarios.md``; written by ``sarcomere fit``).
+PARAMETER_FILE_TABLES = ("fitted", "parameters", "sources")
+
+
+def _scene_parameters(r: Reader, value: object, base_dir: Path) -> tuple[dict, dict]:
+    """``[parameters]`` with its ``include`` (a file, or a list of files, relative to the
+    scene's folder; later files override earlier ones, the scene's own entries all)."""
+    tbl = dict(r.table(value, ("parameters",)))
+    files = tbl.pop("include", [])
+    files = [files] if isinstance(files, str) else files
+    if not (isinstance(files, list) and all(isinstance(f, str) for f in files)):
+        raise r.error(("parameters", "include"), f"expected a file name, got {files!r}")
+    params, included = {}, {}
+    for name in files:
+        path = Path(name) if Path(name).is_absolute() else base_dir / name
+        if (kind := path_kind(path)) is not None:
+            what = "no such file" if kind == "missing" else f"is {kind}"
+            raise r.error(("parameters", "include"), f"'{name}': {what} ({path})")
+        values, sources = read_parameter_file(path)
+        params.update(values)
+        included.update(sources)
+    explicit = _parameters(r, tbl, ("parameters",))
+    included = {k: v for k, v in included.items() if k not in explicit}
+    return {**params, **explicit}, included
+
+
+def read_parameter_file(path: str | Path) -> tuple[dict[str, object], dict[str, Included]]:
+    """A parameter file's ``[parameters]`` (dotted name -> value as written) and, per
+    entry, its :class:`~.spec.Included` (file, line, ``[sources]`` text).
+
+    Raises
+    ------
+    ScenarioError
+        Naming the parameter file: not a regular file, a TOML syntax error, an unknown
+        table, a value that is neither a number nor a string, an ``include`` (files do
+        not nest), a ``[sources]`` entry naming no parameter or not text.
+    """
+    file = str(path)
+    try:
+        text = read_text(Path(path))
+    except ValueError as exc:
+        raise ScenarioError(file, "parameters", str(exc)) from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise _syntax_error(exc, text, file) from None
+    lines = key_lines(text)
+    r = Reader(file, lines)
+    r.table(data, (), PARAMETER_FILE_TABLES, required=("parameters",))
+    r.table(data.get("fitted", {}), ("fitted",))
+    if "include" in data["parameters"]:
+        raise r.error(("parameters", "include"), "a parameter file cannot include another")
+    values = _parameters(r, data["parameters"], ("parameters",))
+    sources = r.table(data.get("sources", {}), ("sources",), list(values))
+    for key in sources:
+        r.text(sources, ("sources",), key)
+    where = {".".join(p): n for p, n in lines.items()}
+    included = {
+        k: Included(file, where.get(f"parameters.{k}"), f"{file}: {sources.get(k, 'no source')}")
+        for k in values
+    }
+    return values, included
+
+
+def with_parameter_file(sc: Scenario, path: str | Path) -> Scenario:
+    """``sc`` with the parameter file ``path`` included last (``--parameters FILE``): its
+    entries override the scene's included ones; the scene's own ``[parameters]`` stay."""
+    if (kind := path_kind(Path(path))) is not None:
+        what = "no such file" if kind == "missing" else f"is {kind}"
+        raise ScenarioError(str(path), "--parameters", f"{what}; expected a parameter TOML file")
+    values, included = read_parameter_file(path)
+    own = {k: v for k, v in sc.parameters.items() if k not in sc.included}
+    inherited = {k: v for k, v in sc.parameters.items() if k in sc.included}
+    new = {k: v for k, v in included.items() if k not in own}
+    return dataclasses.replace(
+        sc,
+        parameters={**inherited, **values, **own},
+        included={**sc.included, **new},
+    )
 
 
 def _inputs(r: Reader, value: object, base_dir: Path) -> dict:

@@ -3,7 +3,9 @@
 Files in the output folder, all values in SI:
 
 - ``summary.json``: scenario, fidelity, solver, wall time, metrics, reference checks,
-  provenance (sarcomere version, UTC time, scenario file) and the list of files;
+  the parameters (with ``parameter_sources`` when a parameter file is included: what each
+  value was fitted to), provenance (sarcomere version, UTC time, scenario file) and the
+  list of files;
 - ``timeseries.csv`` (one result) or ``timeseries_<result>.csv`` (one per result of a
   multi-curve sweep): index column first, header cells ``name [unit]``.
 """
@@ -198,6 +200,7 @@ def write_summary(
             "options": dict(scenario.model.options),
         },
         "parameters": dict(scenario.parameters),
+        **({"parameter_sources": src} if (src := scenario.parameter_sources()) else {}),
         "results": {
             key: {
                 "file": timeseries_name(key, len(output.results)),

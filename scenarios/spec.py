@@ -252,6 +252,17 @@ class MetricCheck:
 
 
 @dataclass(frozen=True)
+class Included:
+    """Where an included ``[parameters]`` entry comes from (``[parameters] include`` or
+    ``--parameters FILE``): the parameter file, the entry's line in it, and its
+    ``[sources]`` text (what it was fitted to)."""
+
+    file: str
+    line: int | None
+    source: str
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A parsed scenario, every quantity in SI.
 
@@ -266,7 +277,8 @@ class Scenario:
     model : ModelSpec
     parameters : mapping of str to object
         Parameter overrides, dotted name -> value as written (numbers or strings with
-        units), for ``ParameterSet.with_overrides``.
+        units), for ``ParameterSet.with_overrides``: the included files' entries with the
+        file's own ``[parameters]`` on top.
     inputs : mapping of str to Signal
     sweep : tuple of SweepAxis
         The first axis is the index of each result; further axes give one result each.
@@ -284,6 +296,9 @@ class Scenario:
         Scenario file path, or a label such as ``"<string>"``.
     key_lines : mapping of tuple to int
         Key path -> line in ``file``, for error messages; see :meth:`error`.
+    included : mapping of str to Included
+        The entries of ``parameters`` taken from a parameter file (not overridden by the
+        scene's own ``[parameters]``): their file, line and source.
     """
 
     name: str
@@ -301,9 +316,10 @@ class Scenario:
     cosim: Mapping[str, object] = field(default_factory=dict)
     file: str = "<string>"
     key_lines: Mapping[KeyPath, int] = field(default_factory=dict, repr=False, compare=False)
+    included: Mapping[str, Included] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        _freeze(self, "parameters", "inputs", "control", "cosim", "key_lines")
+        _freeze(self, "parameters", "inputs", "control", "cosim", "key_lines", "included")
 
     @property
     def base_dir(self) -> Path:
@@ -364,9 +380,22 @@ class Scenario:
         """A ScenarioError for the ``[parameters]`` entry ``name`` (a dotted name).
 
         Finds the line whether the file wrote ``"geometry.h_ch" = ...`` or
-        ``[parameters.geometry] h_ch = ...``.
+        ``[parameters.geometry] h_ch = ...``; an included entry is placed in its
+        parameter file.
         """
+        if name in self.included:
+            inc = self.included[name]
+            return ScenarioError(inc.file, dotted(("parameters", name)), message, inc.line)
         return self.error(self.parameter_path(name), message)
+
+    def parameter_sources(self) -> dict[str, str]:
+        """Each parameter's source when any comes from a parameter file (``summary.json``):
+        the file's ``[sources]`` text, or the scene file's ``[parameters]``; {} if none
+        is included."""
+        if not self.included:
+            return {}
+        own = f"[parameters] of {self.file}"
+        return {k: self.included[k].source if k in self.included else own for k in self.parameters}
 
     def parameter_path(self, name: str) -> KeyPath:
         """The key path of the ``[parameters]`` entry ``name`` as the file wrote it."""
@@ -375,8 +404,9 @@ class Scenario:
 
 
 def check_overrides(sc: Scenario | None, overrides: dict, model: Model) -> None:
-    """Refuse a name that is not a parameter of the model, and a bare non-zero number
-    for a dimensioned one, in the file (nothing without a scenario)."""
+    """Refuse a name that is not a parameter of the model, a bare non-zero number for a
+    dimensioned one and a text that is not a quantity of its unit, in the file (nothing
+    without a scenario)."""
     if sc is None:
         return
     for key, raw in overrides.items():
@@ -385,8 +415,6 @@ def check_overrides(sc: Scenario | None, overrides: dict, model: Model) -> None:
             hint = did_you_mean(key, model.param_names)
             why = f"{len(model.param_names)} parameters of model '{model.name}'"
             raise sc.parameter_error(key, f"unknown key '{key}'{hint} ({why})")
-        if isinstance(raw, str):
-            continue
         try:
             to_si(raw, var.unit, key, bare_ok=False)
         except ParameterError as exc:

@@ -2,7 +2,8 @@
 
 ``summary.json`` (SI units, each number with its unit; ``null`` where a value is undefined):
 
-* ``study``, ``kind``, ``base``, ``method``, ``seed``, ``fingerprint``, ``results`` (a
+* ``study``, ``kind``, ``base``, ``method``, ``seed``, ``parameter_sources`` (when the
+  scene includes a parameter file: each parameter's source), ``fingerprint``, ``results`` (a
   digest of the results it was written from: a re-run that changed nothing redraws
   nothing), ``version``;
 * ``samples``: ``total``, ``ok``, ``failed`` (status 1), ``worker_lost`` (status 2),
@@ -280,6 +281,7 @@ def write_outputs(
         "fidelity": study.fidelity,
         "method": ds.attrs.get("method", design.method),
         "seed": study.seed,
+        **({"parameter_sources": src} if (src := study.scene().parameter_sources()) else {}),
         "fingerprint": fingerprint,
         "results": digest,
         "version": ds.attrs.get("version") or version(),

@@ -32,7 +32,8 @@ import numpy as np
 from sarcomere.dynamics.errors import SarcomereError, ScenarioError
 from sarcomere.dynamics.files import path_kind, read_text
 
-from ..loader import Reader, key_lines, key_parts, scenario_from_dict
+from ..keylines import key_lines, key_parts
+from ..loader import Reader, scenario_from_dict
 from ..spec import did_you_mean, line_of, unknown_key
 from . import factor_spec, packaged_studies
 from .factor_spec import Factor
@@ -109,8 +110,11 @@ class StudyDef:
     def definition(self) -> dict:
         """Canonical, JSON-serialisable; equal iff the same study: the scene it runs (base
         and overrides merged), the factors, design, metrics and series. The name, the
-        description, how the base is written and ``max_samples`` (a cap) are left out."""
+        description, how the base is written and ``max_samples`` (a cap) are left out;
+        included parameter files count by their content."""
+        files = self.scene_data.get("parameters", {}).get("include", [])
         return {
+            **({"parameter_files": {f: _digest(f) for f in files}} if files else {}),
             "scene": self.scene_data,
             "kind": self.kind,
             "method": self.method,
@@ -145,6 +149,14 @@ class StudyDef:
     @property
     def factor_names(self) -> tuple[str, ...]:
         return tuple(f.name for f in self.factors)
+
+
+def _digest(path: str) -> str:
+    """SHA-256 (hex) of an included parameter file's bytes ("missing" if unreadable)."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return "missing"
 
 
 def _check_draws(study: StudyDef, design) -> None:
@@ -204,8 +216,9 @@ def _resolve(source: str | Path, anchor: Path | None = None) -> tuple[str, str]:
     raise StudyError(str(anchor), "study.base", f"'{text}': {what}{hint}")
 
 
-def load_study(source: str | Path) -> StudyDef:
-    """Read and check a study given as a file path or a packaged study's name.
+def load_study(source: str | Path, parameters: str | Path | None = None) -> StudyDef:
+    """Read and check a study given as a file path or a packaged study's name;
+    ``parameters``: a parameter file included last (``--parameters FILE``).
 
     Raises
     ------
@@ -213,12 +226,25 @@ def load_study(source: str | Path) -> StudyDef:
         Any problem of the study or its base scene, one line, before any work.
     """
     text, file = _resolve(source)
-    return parse_study(text, file)
+    return parse_study(text, file, parameters)
 
 
-def parse_study(text: str, file: str = "<string>") -> StudyDef:
+def _includes(data: dict, anchor: str) -> list:
+    """``[parameters] include`` of scene data as a list, relative paths made absolute
+    against ``anchor``'s folder (a wrong type is left for the scene's check)."""
+    files = data.get("parameters", {}).get("include", []) if isinstance(data, dict) else []
+    files = [files] if isinstance(files, str) else files
+    if not isinstance(files, list):
+        return files
+    return [str(Path(anchor).parent / f) if isinstance(f, str) else f for f in files]
+
+
+def parse_study(
+    text: str, file: str = "<string>", parameters: str | Path | None = None
+) -> StudyDef:
     """Parse and check study TOML ``text``; ``file`` names it in errors and anchors a
-    relative ``base``."""
+    relative ``base`` and ``[parameters] include``; ``parameters``: a parameter file
+    included after the scene's (``--parameters FILE``)."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -240,9 +266,15 @@ def parse_study(text: str, file: str = "<string>") -> StudyDef:
         if "fidelity" in data.get("model", {}):  # the base's auto tolerance goes with it
             base_data.get("outputs", {}).pop("tolerance", None)
         base_lines = key_lines(base_text)
+        includes = _includes(base_data, scene_file) + _includes(data, file)
         scene_data = _merge(base_data, data)
     elif "scenario" not in data:
         raise r.error(("study", "base"), "a study TOML without [scenario] needs base = SCENE")
+    else:
+        includes = _includes(data, file)
+    includes += [str(Path(parameters).absolute())] if parameters is not None else []
+    if includes:  # the base's, the study's, then --parameters: later ones override
+        scene_data["parameters"] = {**scene_data.get("parameters", {}), "include": includes}
     sc, ctx = _parse_scene(scene_data, scene_file, file, lines, base_lines)
     name = r.text(study, ("study",), "name", Path(file).stem if file != "<string>" else sc.name)
     return _check_study(r, study, ctx, name, base or sc.name, text, scene_data, scene_file)
@@ -250,7 +282,7 @@ def parse_study(text: str, file: str = "<string>") -> StudyDef:
 
 def _parse_scene(data: dict, scene_file: str, file: str, lines: dict, base_lines: dict):
     """The merged scene and its :class:`~.factors.SceneContext`; an error is placed in the
-    study file if it wrote the key, else in the base scene."""
+    study file if it wrote the key, else in the base scene (or its parameter file)."""
     from .factors import scene_context
 
     try:
@@ -259,6 +291,8 @@ def _parse_scene(data: dict, scene_file: str, file: str, lines: dict, base_lines
     except ScenarioError as exc:
         path = key_parts(exc.key)
         message = str(exc).split(f"key '{exc.key}': ", 1)[-1]
+        if exc.file not in (file, scene_file):  # in an included parameter file
+            raise StudyError(exc.file, exc.key, message, exc.line) from None
         if line_of(lines, path) and file != scene_file:
             raise StudyError(file, exc.key, message, line_of(lines, path)) from None
         raise StudyError(scene_file, exc.key, message, line_of(base_lines, path)) from None

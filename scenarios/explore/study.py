@@ -38,12 +38,13 @@ class Study:
         self.definition = definition
 
     @classmethod
-    def from_file(cls, path: str | Path) -> Study:
+    def from_file(cls, path: str | Path, parameters: str | Path | None = None) -> Study:
         """Load and validate the study in ``path`` (a study TOML, a scene TOML with a
-        ``[study]`` section, or a packaged study's name)."""
+        ``[study]`` section, or a packaged study's name); ``parameters``: a parameter file
+        included after the scene's (``--parameters FILE``)."""
         from .spec import load_study
 
-        return cls(load_study(path))
+        return cls(load_study(path, parameters))
 
     def run(
         self,

@@ -38,6 +38,7 @@ def stub(kind, factors, metrics, method, problem=None, **options):
         design=lambda: design,
         definition=lambda: {"kind": kind},
         fingerprint=lambda: "f" * 64,
+        scene=lambda: SimpleNamespace(parameter_sources=dict),  # no parameter file
     )
 
 

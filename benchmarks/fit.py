@@ -1,0 +1,393 @@
+"""Parameter identification on ``fit-synthetic`` (issue 25): convergence, coverage, speed.
+
+The baseline is what a user writes today: ``scipy.optimize.least_squares`` (trust-region
+reflective, log-parameters within the fit file's bounds, 2-point finite differences)
+around ``binding.run`` (the library's simulation of a bound scene from its start
+equilibrium, CVODES at ``rtol`` 1e-8), one simulation per experiment per residual. The
+static curve: one ``solve_equilibrium`` per level. The fit file's parameters: the five
+shared dynamic estimates and ``load.m`` per experiment
+(``aps.<field>`` mapped onto the per-unit model parameters it sets, as the studies do).
+
+Usage::
+
+    python benchmarks/fit.py convergence [--starts 50] [--methods lsq,ms,ss] [--out DIR]
+    python benchmarks/fit.py coverage [--replicates 200] [--out DIR]
+    python benchmarks/fit.py speed [--out DIR]
+    python benchmarks/fit.py profiles [--workers 2] [--out DIR]
+
+Starts: ``--starts`` points drawn log-uniformly within 0.5-2x of the truth for every
+fitted parameter (fixed seed 0), the same for every method. A start *succeeds* when its
+final cost is within ``SUCCESS_DCHI2`` (chi-squared units, 2 x cost) of the best cost of
+its family on the same data: statistically the same optimum. Families: the engine's
+methods (``ms``, ``ss``: Radau IIA on the 1 ms samples) and scipy's (``lsq``,
+``lsq-default``: CVODES; with a baseline fit started at the truth), whose costs differ by
+their integrators' errors. Times are CPU seconds of
+this process (``time.process_time``; the engine's Dask workers, if any, are reported by
+the engine), methods interleaved start by start. Results: ``fit_<command>.json`` in
+``--out`` (default ``out/bench/fit``) and a table on stdout; BENCHMARKS.md section 13.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import math
+import re
+import tempfile
+import time
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.errors import SarcomereError
+from sarcomere.dynamics.signals import Table
+from sarcomere.dynamics.simulation.settings import SolverSettings
+from sarcomere.dynamics.units import to_si
+from sarcomere.scenarios import binding
+from sarcomere.scenarios.explore.factors import scene_context
+from sarcomere.scenarios.fits import generate as gen
+from sarcomere.scenarios.loader import scenario_from_dict
+
+FIT = "fit-synthetic.toml"
+#: Success: the final cost within this many chi-squared units (2 x cost) of the best.
+SUCCESS_DCHI2 = 1.0
+#: The tuned baseline's finite-difference step (scipy's ``diff_step``).
+DIFF_STEP = 1e-5
+
+
+@dataclass
+class TimeSeries:
+    """One fitted experiment of the fit file, bound for simulation (``command`` None: a
+    static curve, ``t`` its pressure levels [Pa])."""
+
+    name: str
+    model: object
+    base: dict  # parameter overrides of the scene (none: defaults)
+    maps: dict  # fit parameter -> ((model parameter, value per unit of it), ...)
+    command: Table | None
+    t: np.ndarray
+    outputs: tuple[str, ...]
+    data: dict  # output -> measured values, SI
+    sigma: dict  # output -> standard deviation, SI
+
+
+def read_fit(
+    replicate: int | None = None, table: bool = False
+) -> tuple[dict, list[TimeSeries], dict]:
+    """The fit file's parameters (name -> (start, low, high, per_experiment), SI), its
+    fitted time-series experiments with their data, and the truth (name -> SI; per
+    experiment ``load.m@<experiment>``). ``replicate``: the data with that noise draw of
+    the generator instead of the packaged files'; ``table``: the command as the CSV's
+    1001-row table (what a user with a measured input has) instead of its corners."""
+    root = resources.files("sarcomere.scenarios.fits")
+    spec = tomllib.loads((root / FIT).read_text())
+    params = {}
+    for name, p in spec["parameters"].items():
+        unit = _unit(name)
+        start = to_si(p["start"], unit)
+        low, high = (to_si(b, unit) for b in p["bounds"])
+        params[name] = (start, low, high, bool(p.get("per_experiment", False)))
+    sigma = {k: to_si(v["sigma"], _signal_unit(k)) for k, v in spec["noise"].items()}
+    experiments = []
+    for e in spec["experiments"]:
+        if e.get("validation", False):
+            continue
+        scene = {
+            "scenario": {"name": e["name"], "kind": "transient"},
+            "model": dict(e["model"]),
+            "simulation": {"stop_time": "1 s"},  # the context binds a transient
+        }
+        sc = scenario_from_dict(scene, f"<{e['name']}>")
+        b = binding.bind(sc)
+        model = b.build(e["model"].get("fidelity", "full"))
+        ctx = scene_context(sc)
+        maps = {}  # fit parameter -> ((model parameter, its value per unit of the field), ...)
+        for name in params:
+            field = name.removeprefix("aps.")
+            if name.startswith("aps."):
+                base = getattr(b.aps, field)
+                maps[name] = tuple((t, v / base) for t, v in ctx.aps_parameters(field))
+            else:
+                maps[name] = ((name, 1.0),)
+        text = (root / e["data"]).read_text()
+        rows = [r for r in text.splitlines() if not r.startswith("#")]
+        head = [c.split(" [")[0] for c in rows[0].split(",")]
+        values = np.array([[float(v) for v in r.split(",")] for r in rows[1:]])
+        cols = {h: values[:, i] for i, h in enumerate(head)}
+        si = {n: gen.SIGNALS[n][1] for n in gen.SIGNALS}
+        p = cols["pressure"] / si["pressure"]
+        if e["kind"] == "static":  # one equilibrium per row: t holds the levels
+            t, command = p, None
+        else:
+            t = cols["time"]
+            command = Table(times=tuple(t), values=tuple(p), unit="Pa") if table else corners(t, p)
+        data = {o: cols[o] / si[o] for o in e["outputs"]}
+        if replicate is not None:
+            data = replicate_data(e["name"], replicate, e["outputs"])
+        experiments.append(
+            TimeSeries(
+                e["name"],
+                model,
+                dict(b.overrides),
+                maps,
+                command,
+                t,
+                tuple(e["outputs"]),
+                data,
+                sigma,
+            )
+        )
+    truth = {k: to_si(v, _unit(k)) for k, v in gen.TRUTH.items()}
+    for e in experiments:
+        payload = next(x.payload_kg for x in gen.EXPERIMENTS if x.name == e.name)
+        truth[f"load.m@{e.name}"] = payload + gen.HOOK_KG
+    return params, experiments, truth
+
+
+@functools.lru_cache(maxsize=16)
+def _clean(name: str):
+    return gen.clean(next(x for x in gen.EXPERIMENTS if x.name == name))[1]
+
+
+def replicate_data(name: str, replicate: int, outputs) -> dict:
+    """Experiment ``name``'s measured outputs with noise draw ``replicate`` (SI)."""
+    exp = next(x for x in gen.EXPERIMENTS if x.name == name)
+    noisy = gen.noisy(exp, dict(_clean(name)), replicate)
+    return {o: noisy[o] for o in outputs}
+
+
+def corners(t: np.ndarray, values: np.ndarray) -> Table:
+    """The piecewise-linear input through ``(t, values)`` as a Table of its corners only
+    (the same function): a 1001-row table would restart the integrator at every row."""
+    slope = np.diff(values) / np.diff(t)
+    keep = np.r_[True, ~np.isclose(slope[1:], slope[:-1], rtol=1e-12, atol=1e-9), True]
+    return Table(times=tuple(t[keep]), values=tuple(values[keep]), unit="Pa")
+
+
+def _unit(name: str) -> str:
+    from sarcomere.dynamics.components.aps import APSParams
+
+    if name.startswith("aps."):
+        return APSParams.unit(name.removeprefix("aps."))
+    return {"regulator.tau": "s", "load.m": "kg"}[name]
+
+
+def _signal_unit(signal: str) -> str:
+    return "m" if signal.endswith("length") else "N" if signal.endswith(".f") else "Pa"
+
+
+class Problem:
+    """The weighted residuals of the fitted time series as a function of the
+    log-parameters (the vector order of :meth:`names`)."""
+
+    def __init__(self, params: dict, experiments: list[TimeSeries], rtol: float = 1e-8):
+        self.params, self.experiments = params, experiments
+        self.settings = SolverSettings(method="cvodes", rtol=rtol, atol=rtol * 1e-3)
+        self.evaluations = 0
+
+    def names(self) -> list[str]:
+        out = []
+        for name, (_, _, _, per) in self.params.items():
+            out += [f"{name}@{e.name}" for e in self.experiments] if per else [name]
+        return out
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        low, high = [], []
+        for _, lo, hi, per in self.params.values():
+            k = len(self.experiments) if per else 1
+            low += [np.log(lo)] * k
+            high += [np.log(hi)] * k
+        return np.array(low), np.array(high)
+
+    def overrides(self, theta: np.ndarray, exp: TimeSeries) -> dict:
+        values = dict(zip(self.names(), np.exp(theta), strict=True))
+        over = dict(exp.base)
+        for name in self.params:
+            v = values.get(f"{name}@{exp.name}", values.get(name))
+            for target, per_unit in exp.maps[name]:
+                over[target] = per_unit * v
+        return over
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        self.evaluations += 1
+        out = []
+        for exp in self.experiments:
+            if exp.command is None:
+                out += self._static(exp, theta)
+                continue
+            try:
+                res = binding.run(
+                    exp.model,
+                    {binding.P_CMD: exp.command},
+                    self.overrides(theta, exp),
+                    exp.t,
+                    self.settings,
+                    list(exp.outputs),
+                )
+                for o in exp.outputs:
+                    out.append((np.asarray(res[o]) - exp.data[o]) / exp.sigma[o])
+            except SarcomereError:  # a failed simulation: a large, finite residual
+                out += [np.full(len(exp.t), 1e3) for _ in exp.outputs]
+        return np.concatenate(out)
+
+    def _static(self, exp: TimeSeries, theta: np.ndarray) -> list[np.ndarray]:
+        over, guess, values = self.overrides(theta, exp), None, []
+        try:
+            for level in exp.t:
+                guess = solve_equilibrium(exp.model, {binding.P_CMD: level}, over, guess=guess)
+                values.append([guess[o] for o in exp.outputs])
+        except SarcomereError:
+            return [np.full(len(exp.t), 1e3) for _ in exp.outputs]
+        v = np.array(values)
+        return [(v[:, j] - exp.data[o]) / exp.sigma[o] for j, o in enumerate(exp.outputs)]
+
+    def cost(self, theta: np.ndarray) -> float:
+        r = self.residuals(theta)
+        return 0.5 * float(r @ r)
+
+
+def starts(truth: dict, names: list[str], count: int, seed: int = 0) -> np.ndarray:
+    """``count`` log-parameter vectors, each parameter log-uniform in 0.5-2x the truth."""
+    rng = np.random.default_rng(seed)
+    centre = np.log([truth[n] for n in names])
+    return centre + rng.uniform(np.log(0.5), np.log(2.0), (count, len(names)))
+
+
+def fit_least_squares(problem: Problem, theta0: np.ndarray, tuned: bool = True) -> dict:
+    """The baseline: scipy's TRF with 2-point finite differences, from ``theta0``;
+    ``tuned``: a finite-difference step of :data:`DIFF_STEP` (relative, on the
+    log-parameters) instead of scipy's default 1.5e-8, which is below the simulation's
+    own error at ``rtol`` 1e-8 (the default stops early on noise: ``lsq-default``)."""
+    low, high = problem.bounds()
+    problem.evaluations = 0
+    cpu = time.process_time()
+    sol = least_squares(
+        problem.residuals,
+        np.clip(theta0, low + 1e-9, high - 1e-9),
+        bounds=(low, high),
+        method="trf",
+        diff_step=DIFF_STEP if tuned else None,
+    )
+    return {
+        "cost": float(sol.cost),
+        "theta": sol.x.tolist(),
+        "cpu_s": time.process_time() - cpu,
+        "evaluations": problem.evaluations,
+        "status": int(sol.status),
+        "message": str(sol.message),
+    }
+
+
+@functools.lru_cache(maxsize=4)
+def engine(method: str, data_dir: str | None = None):
+    """The engine's bound fit of fit-synthetic (``Fit.from_file`` on a copy with one start,
+    ``method``, the data in ``data_dir``: default the packaged files)."""
+    from sarcomere.scenarios.fit.run import Fit
+
+    root = resources.files("sarcomere.scenarios.fits")
+    folder = Path(data_dir) if data_dir else Path(str(root / "data"))
+    text = (root / FIT).read_text().replace('data = "data/', f'data = "{folder}/')
+    text = re.sub(r"(?m)^starts = \d+", "starts = 1", text)
+    text = re.sub(r'(?m)^method = "[a-z-]+"', f'method = "{method}"', text)
+    path = Path(tempfile.mkdtemp(prefix="fitbench")) / FIT
+    path.write_text(text)
+    return Fit.from_file(path)
+
+
+def fit_engine(method: str, names: list[str], theta0: np.ndarray, data_dir=None) -> dict:
+    """One engine fit (``fit_from``) from ``theta0`` (log-parameters in ``names``' order)."""
+    from sarcomere.dynamics.identification.estimate import fit_from
+
+    fit = engine(method, data_dir)
+    order = [e.name for e in fit.built.params]
+    start = dict(zip(names, np.exp(theta0), strict=True))
+    cpu = time.process_time()
+    try:
+        sol = fit_from(fit.built.problem, np.array([start[n] for n in order])).solution
+        cost, status, theta = 0.5 * sol.cost, sol.status, sol.theta.tolist()
+        if not sol.success:
+            cost = math.inf
+    except SarcomereError as exc:
+        cost, status, theta = math.inf, f"dropped: {exc}"[:200], None
+    return {
+        "cost": cost,  # 1/2 chi-squared, as least_squares reports it
+        "theta": theta,
+        "cpu_s": time.process_time() - cpu,
+        "status": status,
+    }
+
+
+METHODS = {
+    "lsq": lambda problem, names, theta0: fit_least_squares(problem, theta0),
+    "lsq-default": lambda problem, names, theta0: fit_least_squares(problem, theta0, False),
+    "ms": lambda problem, names, theta0: fit_engine("multiple-shooting", names, theta0),
+    "ss": lambda problem, names, theta0: fit_engine("single-shooting", names, theta0),
+}
+
+
+def convergence(args) -> dict:
+    params, experiments, truth = read_fit()
+    problem = Problem(params, experiments)
+    names = problem.names()
+    theta_true = np.log([truth[n] for n in names])
+    points = starts(truth, names, args.starts)
+    runs = {m: [] for m in args.methods}
+    for k, theta0 in enumerate(points):
+        for m in args.methods:  # interleaved start by start
+            r = METHODS[m](problem, names, theta0)
+            runs[m].append(r)
+            print(f"start {k:2d} {m:4s} cost {r['cost']:.6g} cpu {r['cpu_s']:.1f} s", flush=True)
+    reference = fit_least_squares(problem, theta_true)  # from the truth: the optimum near it
+    family = {m: "engine" if m in ("ms", "ss") else "scipy" for m in runs}
+    best = {
+        f: min(
+            [*([reference["cost"]] if f == "scipy" else [])]
+            + [r["cost"] for m, rs in runs.items() if family[m] == f for r in rs]
+        )
+        for f in set(family.values())
+    }
+    summary = {}
+    for m, rs in runs.items():
+        ok = [2 * (r["cost"] - best[family[m]]) <= SUCCESS_DCHI2 for r in rs]
+        cpu = [r["cpu_s"] for r in rs]
+        summary[m] = {
+            "success": f"{sum(ok)}/{len(ok)}",
+            "success_rate": sum(ok) / len(ok),
+            "cpu_median_s": float(np.median(cpu)),
+            "cpu_total_s": float(np.sum(cpu)),
+        }
+    return {
+        "names": names,
+        "truth": dict(zip(names, np.exp(theta_true).tolist(), strict=True)),
+        "cost_at_truth": problem.cost(theta_true),
+        "reference_from_truth": reference,
+        "best_cost": best,
+        "summary": summary,
+        "runs": runs,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python benchmarks/fit.py")
+    parser.add_argument("command", choices=("convergence",))
+    parser.add_argument("--starts", type=int, default=50)
+    parser.add_argument("--methods", default="lsq", type=lambda s: s.split(","))
+    parser.add_argument("--out", type=Path, default=Path("out/bench/fit"))
+    args = parser.parse_args(argv)
+    result = {"convergence": convergence}[args.command](args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / f"fit_{args.command}.json"
+    path.write_text(json.dumps(result, indent=1) + "\n")
+    print(json.dumps(result.get("summary", {}), indent=1))
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,9 @@
+"""Parameter identification on the flattened model's CasADi Functions (docs/fitting.md).
+
+- :mod:`.experiments`: estimated parameters, noise, time series, static points, targets;
+- :mod:`.shooting`: multiple shooting with Radau IIA collocation (exact derivatives);
+- :mod:`.problem`: the NLP (:class:`~.problem.Problem`), IPOPT with the Gauss-Newton Hessian;
+- :mod:`.estimate`: one fit from one start, noise levels by maximum likelihood;
+- :mod:`.uncertainty`: sensitivities, Fisher covariance, profiles, verdicts;
+- :mod:`.design`: ranking candidate experiments by D-optimality.
+"""
