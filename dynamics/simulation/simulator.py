@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
@@ -44,10 +43,9 @@ import numpy as np
 from ..errors import ParameterError, SolverError
 from ..modeling.buffered import BufferedCall
 from ..modeling.model import Model
-from ..signals import Staircase, Step
-from ..units import to_si
 from . import fixed_step, guard, radau, scipy_methods, sundials  # noqa: F401  (register the methods)
 from .common import method_options, require_step
+from .inputs import HELD_TYPES, Const, input_ranges, number, signal_of, start_vector, values_at
 from .pwm import EffectiveDuty, PulseTrain
 from .settings import HELD, METHODS, InputLaw, Pieces, Segment, SolverSettings, segment_w
 
@@ -60,26 +58,6 @@ EXPAND_LIMIT = 60_000
 30 ms to build and 2.5 MB held, once per model, signals and grid size; enough for the 17
 bounded signals of the n = 3 chain at 501 points); larger ones stay maps."""
 
-
-@dataclass(frozen=True)
-class _Const:
-    """A constant input value [SI]."""
-
-    value: float
-    unit = None
-
-    def __call__(self, t):
-        return np.full(np.shape(t), self.value) if np.ndim(t) else self.value
-
-    def casadi(self, t: cs.SX) -> cs.SX:
-        return cs.SX(self.value)
-
-    def breakpoints(self, t0: float, tf: float) -> list[float]:
-        return []
-
-
-_HELD_TYPES = (_Const, Step, Staircase)
-"""Signals constant between their breakpoints (right-continuous): integrated as held."""
 
 _LAWS = (PulseTrain, EffectiveDuty)
 """What a PWM (:attr:`Model.modulators`) makes of a held duty: also held."""
@@ -159,15 +137,15 @@ class Simulator:
         else:  # the defaults: fixed per model
             self.p = m.cached(("default_parameters",), lambda: m.parameters()).copy()
         # the start values at the default parameters (as Model.x0() etc.): fixed per model
-        x_start, z_start, u_start = m.cached(("start_values",), lambda: _start_values(m))
-        self._x = _vector(m, "x0", x0, x_start, m.state_names)
+        x_start, z_start, u_start = m.cached(("startvalues_at",), lambda: _startvalues_at(m))
+        self._x = start_vector(m, "x0", x0, x_start, m.state_names)
         if not np.isfinite(self._x).all():
             m.check_finite(self._x, "x")
-        self._z = _vector(m, "z0", z0, z_start, m.alg_names)
+        self._z = start_vector(m, "z0", z0, z_start, m.alg_names)
         if not math.isfinite(t0):
             raise ParameterError("t0", t0, "a finite time [s]")
         self._t = float(t0)
-        start = m.cached(("start_inputs",), lambda: tuple(_Const(float(v)) for v in u_start))
+        start = m.cached(("start_inputs",), lambda: tuple(Const(float(v)) for v in u_start))
         self._inputs = list(start)
         self._u = u_start.copy()
         self._limit: tuple | None = None
@@ -248,7 +226,7 @@ class Simulator:
             When the method fails or the trajectory leaves the physical domain (the
             time, the state and the cause).
         """
-        h = _number(h, "s", "h")
+        h = number(h, "s", "h")
         if not (math.isfinite(h) and h > 0):
             raise ParameterError("h", h, "(0, inf) s")
         self.advance(u, [self._t + h])
@@ -315,14 +293,14 @@ class Simulator:
             first = 1
         edges = [t_start, *bps, t_end]
         span = t_end - t_start
-        held = all(isinstance(sig, _HELD_TYPES + _LAWS) for sig in signals)
+        held = all(isinstance(sig, HELD_TYPES + _LAWS) for sig in signals)
         law = HELD if held else InputLaw(tuple(signals))
         # held: the inputs at each edge (for the rows at b) and inside each piece (what is
         # integrated: a PWM edge is a breakpoint only to rounding, the middle is not)
         W = V[[0, *range(nt + 1, nt + 1 + len(bps)), nt]] if held else None  # at the edges
         if held and given is not signals:
             mid = np.array(edges)
-            Wi = _values(signals, 0.5 * (mid[:-1] + mid[1:]))
+            Wi = values_at(signals, 0.5 * (mid[:-1] + mid[1:]))
         else:
             Wi = W
         plan = []  # per piece: w, times, first row, rows kept, ends at b held (U from b on)
@@ -360,7 +338,7 @@ class Simulator:
         self._inputs = given
         self._u = V[nt].copy()  # at t_end
         if given is not signals:  # the rows show the inputs as given (the duty)
-            U = _values(given, times) if len(given) else U
+            U = values_at(given, times) if len(given) else U
         return X, Z, U
 
     def _modulated(self, given: list) -> list:
@@ -372,7 +350,7 @@ class Simulator:
         out = list(given)
         for name, pwm in m.modulators.items():
             i = m.input_names.index(name)
-            if not all(isinstance(sig, _HELD_TYPES) for sig in given):
+            if not all(isinstance(sig, HELD_TYPES) for sig in given):
                 raise ParameterError(
                     name,
                     [type(sig).__name__ for sig in given],
@@ -403,7 +381,7 @@ class Simulator:
             self.stats,
         )
         X, Z = METHODS[self.settings.method].run(seg)
-        U = np.repeat(w[None, :], len(times), axis=0) if law is HELD else _values(signals, times)
+        U = np.repeat(w[None, :], len(times), axis=0) if law is HELD else values_at(signals, times)
         bad = ~(np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(Z), axis=1))
         if bad.any():
             i = int(np.argmax(bad))
@@ -425,7 +403,7 @@ class Simulator:
         run = Pieces(m, self.settings, self.p, law, Wm, self._t, self._x, all_times, ends,
                      self.stats)  # fmt: skip
         Xall, fail = method.pieces(run)
-        Uall = np.repeat(Wm, lens, axis=0) if law is HELD else _values(signals, all_times)
+        Uall = np.repeat(Wm, lens, axis=0) if law is HELD else values_at(signals, all_times)
         for k, q in enumerate(plan):  # held: at b itself the input's value from b on
             if q[4] is not None:
                 Uall[ends[k] - 1] = q[4]
@@ -475,8 +453,8 @@ class Simulator:
         """The inputs at ``times`` (one row per time); refuse one outside its variable's
         range."""
         m = self.model
-        V = _values(signals, times)
-        low, high = m.cached(("input_ranges",), lambda: _input_ranges(m))
+        V = values_at(signals, times)
+        low, high = m.cached(("input_ranges",), lambda: input_ranges(m))
         if ((V >= low) & (V <= high)).all():
             return V
         for k, name in enumerate(m.input_names):
@@ -502,9 +480,9 @@ class Simulator:
                 self.model,
                 self._scheme,
                 self._x,
-                _values(signals, self._t),
+                values_at(signals, self._t),
                 t_after,
-                _values(signals, t_after),
+                values_at(signals, t_after),
                 self.p,
             )
             self.stats["stability_limit_s"] = self._limit[0]
@@ -523,7 +501,7 @@ class Simulator:
                 )
             out = list(self._inputs)
             for name, spec in u.items():
-                out[m.input_names.index(name)] = _signal(m, name, spec)
+                out[m.input_names.index(name)] = signal_of(m, name, spec)
             return out
         vec = np.asarray(u, dtype=float).reshape(-1)
         if len(vec) != len(m.input_names):
@@ -533,20 +511,13 @@ class Simulator:
         for name, v in zip(m.input_names, vec, strict=True):
             if not math.isfinite(v):
                 raise ParameterError(name, float(v), "a finite number")
-        return [_Const(float(v)) for v in vec]
+        return [Const(float(v)) for v in vec]
 
 
-def _start_values(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _startvalues_at(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``x0``, ``z0`` and ``u0`` at the default parameters, in one call."""
     start = model.function("start").call([model.parameters()])
     return tuple(np.array(v, dtype=float).reshape(-1) for v in start)
-
-
-def _input_ranges(model: Model) -> tuple[np.ndarray, np.ndarray]:
-    """The inputs' ``low`` and ``high`` (one entry each)."""
-    low = np.array([model.variables[k].low for k in model.input_names], dtype=float)
-    high = np.array([model.variables[k].high for k in model.input_names], dtype=float)
-    return low, high
 
 
 def _domain_error(seg: Segment, name: str, value: float, t: float, x: np.ndarray) -> SolverError:
@@ -575,63 +546,3 @@ def _points_function(model: Model, names: tuple[str, ...], n: int) -> cs.Functio
     f = model.signals_function(list(names))
     mapped = f.map("signals", "serial", n, [3], [])
     return mapped.expand() if f.n_instructions() * n <= EXPAND_LIMIT else mapped
-
-
-def _signal(model: Model, name: str, spec: object):
-    """An input's signal from a constant, a unit string or a signal (unit checked)."""
-    var = model.variables[name]
-    if hasattr(spec, "casadi"):
-        unit = getattr(spec, "unit", None)
-        if unit not in (None, "1", var.unit):
-            raise ParameterError(
-                name,
-                f"a signal in {unit}",
-                f"a signal in {var.unit} (signals hold SI values of the input they drive)",
-            )
-        return spec
-    if callable(spec):
-        raise ParameterError(
-            name,
-            spec,
-            "a constant or a signal with casadi(t) (see sarcomere.dynamics.signals): "
-            "the integrators need the input as an expression of time",
-        )
-    value = _number(spec, var.unit, name)
-    if not math.isfinite(value):
-        raise ParameterError(name, value, "a finite number")
-    return _Const(value)
-
-
-def _number(value: object, unit: str, name: str) -> float:
-    """An SI float from a number (fast path) or a string with a unit."""
-    if isinstance(value, int | float) and not isinstance(value, bool):
-        return float(value)
-    return to_si(value, unit, name)
-
-
-def _values(signals: list, t: float | np.ndarray) -> np.ndarray:
-    """Input values at a time (vector) or at times (one row per time)."""
-    if np.ndim(t) == 0:
-        return np.array([float(sig(t)) for sig in signals], dtype=float)
-    t = np.asarray(t, dtype=float)
-    cols = [np.asarray(sig(t), dtype=float) * np.ones_like(t) for sig in signals]
-    return np.column_stack(cols) if cols else np.zeros((len(t), 0))
-
-
-def _vector(
-    model: Model, what: str, given: object, default: np.ndarray, names: list[str]
-) -> np.ndarray:
-    """A start vector from a full vector or a mapping by name (others keep ``default``)."""
-    out = default.astype(float).copy()
-    if given is None:
-        return out
-    if isinstance(given, Mapping):
-        for key, value in given.items():
-            if key not in names:
-                raise ParameterError(what, key, f"names of model '{model.name}': {names}")
-            out[names.index(key)] = float(value)
-        return out
-    vec = np.asarray(given, dtype=float).reshape(-1)
-    if len(vec) != len(names):
-        raise ParameterError(what, f"{len(vec)} values", f"{len(names)} values for {names}")
-    return vec.copy()
