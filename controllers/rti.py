@@ -20,18 +20,22 @@ from sarcomere.dynamics.modeling.buffered import BufferedCall
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
+from .banded_lu import BorderedBand, bordered_band
 from .ekf import OFFSETS
 from .qp import qp_solver
 from .rti_compiled import compiled_functions
 from .rti_lift import DenseLift, FactoredLift
 
-LINEAR_SOLVERS = ("auto", "lapacklu", "qr", "sparse_lu")
+LINEAR_SOLVERS = ("auto", "lapacklu", "qr", "sparse_lu", "banded")
 """Linear solvers of the RTI's lifted Radau equations (:mod:`.rti_lift`): LAPACK's dense
 LU or CasADi's own sparse QR (generates C, slowly) of every sensitivity in the
 preparation (:class:`~.rti_lift.DenseLift`), or the sparse LU written out as SX
 expressions with the Jacobians and kept (:mod:`.sparse_lu`, :class:`~.rti_lift.
-FactoredLift`: generates C, the fastest compiled); "auto": "sparse_lu" when ``compiled``,
-else "lapacklu" (the faster in CasADi's virtual machine: BENCHMARKS.md, section 5)."""
+FactoredLift`: generates C, the fastest compiled), or "banded": the dense lift's solves
+by scipy's bordered banded LU (:mod:`.banded_lu`) between the preparation's two CasADi
+Functions (the :attr:`~RealTimeIteration.law` Function keeps LAPACK's dense LU; refused
+when the Jacobian has no band that pays); "auto": "sparse_lu" when ``compiled``, else
+"banded" where the band pays, else "lapacklu" (BENCHMARKS.md, section 5)."""
 
 GENERATED_SOLVERS = ("qr", "sparse_lu")
 """The linear solvers whose law generates C (LAPACK's have no code generation)."""
@@ -185,11 +189,15 @@ class RealTimeIteration:
             parts = [built[f.name()] for f in parts]
         elif pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
             built = compiled_functions([head, tail, self.feedback, self.update], "nmpc_rti")
-            parts = [self._prepare_function(built["nmpc_head"], built["nmpc_tail"])]
+            head, tail = built["nmpc_head"], built["nmpc_tail"]
+            parts = [self._prepare_function(head, tail)]
             parts += [built["nmpc_feedback"], built["nmpc_update"]]
         # the prepared data (some 27 000 numbers at n = 3, N = 20) stays in the preparation's
         # output array, which the feedback and the update read in place
-        prepare = BufferedCall(parts[0], copy=False)
+        if self.band is not None:
+            prepare = _BandedPreparation(head, tail, self.band)
+        else:
+            prepare = BufferedCall(parts[0], copy=False)
         feedback, update = BufferedCall(parts[1]), BufferedCall(parts[2])
         feedback.share(0, prepare.res[0])
         update.share(0, prepare.res[0])
@@ -232,15 +240,26 @@ class RealTimeIteration:
         """The per-interval linearisation and its solves (:mod:`.rti_lift`, mapped over
         the horizon) and the outputs' linearisation."""
         nx, N = pb.nx, pb.s.horizon
-        linsol = pb.s.linear_solver
+        linsol, self.band, self.band_reason = pb.s.linear_solver, None, ""
         if linsol == "auto":
-            linsol = "sparse_lu" if pb.s.compiled else "lapacklu"
+            linsol = "sparse_lu" if pb.s.compiled else "banded"
         if linsol == "sparse_lu":  # the factors as expressions, with the Jacobians
             self.lift = FactoredLift(pb, N)
         else:
-            if linsol.startswith("lapack"):
+            if linsol.startswith("lapack") or linsol == "banded":
                 _one_blas_thread()
-            self.lift = DenseLift(pb, linsol, N)
+            self.lift = DenseLift(pb, "lapacklu" if linsol == "banded" else linsol, N)
+        if linsol == "banded":  # the same lift, its solves by the bordered band if it pays
+            sp_rv, sp_rb = self.lift.lin.sparsity_out(0), self.lift.lin.sparsity_out(1)
+            n = sp_rv.size1()
+            P = np.array(cs.DM(sp_rv, 1))[:, :n] != 0
+            band, self.band_reason = bordered_band(P, nx, pb.s.degree, self.lift.w)
+            if band is not None:
+                self.band = BorderedBand(band, sp_rv, sp_rb, N)
+            elif pb.s.linear_solver == "banded":
+                raise ParameterError(
+                    "nmpc.linear_solver", linsol, "'lapacklu' or 'auto'", self.band_reason
+                )
         xi, ps = cs.SX.sym("xi", nx), cs.SX.sym("p", pb.np)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
         self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
@@ -471,6 +490,22 @@ class RealTimeIteration:
             ["data", "memory", "x", "u_prev", "step"],
             ["memory_next"],
         )
+
+
+class _BandedPreparation:
+    """The preparation with the lifted solves by :class:`~.banded_lu.BorderedBand`:
+    ``head`` (Jacobians), the banded solves in numpy, ``tail`` (condensing) into the
+    same data as :attr:`RealTimeIteration.prepare`'s; :attr:`res` the data's array."""
+
+    def __init__(self, head: cs.Function, tail: cs.Function, band: BorderedBand) -> None:
+        self.head, self.tail = BufferedCall(head, copy=False), BufferedCall(tail, copy=False)
+        for i, j in ((0, 0), (1, 1), (2, 2), (4, 5), (5, 6)):  # read in place
+            self.tail.share(i, self.head.res[j])
+        self.band, self.res = band, self.tail.res
+
+    def __call__(self, *args: np.ndarray) -> np.ndarray:
+        Xb, Ub, Vb, RV, RB, YT, CYT = self.head.outputs(*args)
+        return self.tail(Xb, Ub, Vb, self.band.solve(RV, RB), YT, CYT)
 
 
 def _one_blas_thread() -> None:

@@ -1,10 +1,11 @@
 """The RTI NMPC's cost against the chain length n (``python benchmarks/mpc.py --scaling``).
 
-For each n: the RTI as the default builds it uncompiled (the dense lift, LAPACK's LU of
-every sensitivity: ``linear_solver = "lapacklu"``), the same with the kept sparse factors
-uncompiled (``"sparse_lu"``) and compiled (``compiled = true``: the factored lift's
+For each n: the RTI with the dense lift uncompiled (LAPACK's LU of every sensitivity:
+``linear_solver = "lapacklu"``), the same lift solved by the bordered banded LU
+(``"banded"``, what the default builds uncompiled), the kept sparse factors uncompiled
+(``"sparse_lu"``) and compiled (``compiled = true``: the factored lift's
 small per-interval Functions generated to C); the build's wall time, its CPU time and
-the compiler's (``RUSAGE_CHILDREN``). Then the three run interleaved, sample by sample, on
+the compiler's (``RUSAGE_CHILDREN``). Then they run interleaved, sample by sample, on
 one closed loop (the plant: the full exact-law chain with 20 g, CVODES between samples;
 it follows the dense one's commands, the others get the same measurements): a 3 mm
 shorter step, then a 1 mm longer one. Per variant the medians of the CPU time
@@ -29,6 +30,7 @@ from .mpc_speed import DT, HORIZON, L_NAME, LOAD_KG, P_NAME, P_START, Timed
 
 VARIANTS = {
     "python_dense": {"linear_solver": "lapacklu"},
+    "python_banded": {"linear_solver": "banded"},
     "python_factored": {"linear_solver": "sparse_lu"},
     "compiled": {"compiled": True},
 }
