@@ -1,19 +1,20 @@
 """A bordered banded LU of the Radau collocation Jacobians with scipy's LAPACK, for the
 uncompiled real-time iteration (:mod:`.rti`, ``linear_solver`` "banded").
 
-The dense lift (:class:`~.rti_lift.DenseLift`) solves ``L_k = -R_V^{-1} [R, R_x, R_v]``
-per interval. A chain's ODE Jacobian couples each state with its neighbours only, apart
-from a few states coupled with all (the regulator's pressure drives every chamber): with
+The lifted intervals of :mod:`.rti_banded` solve ``-R_V^{-1} b`` per interval. A
+chain's ODE Jacobian couples each state with its neighbours only, apart from a few
+states coupled with all (the regulator's pressure drives every chamber): with
 those states' unknowns moved last (the border) and the others in reverse Cuthill-McKee
 order, ``R_V`` (rows and columns permuted, ``P R_V P^T``) is ``[[A, B], [C, E]]`` with
-``A`` banded. :class:`BorderedBand` finds that structure once from ``R_V``'s sparsity
-(:func:`bordered_band`: the border grown greedily, state by state, while the estimated
-flops fall; ``None`` with the reason when the band does not pay) and solves
-all intervals per call: ``A``'s LU with partial pivoting inside the band
-(``dgbtrf``), ``Y = A^{-1} [b_1, B]`` (``dgbtrs``), then the border by the Schur
-complement ``S = E - C A^{-1} B``: ``x_2 = S^{-1} (b_2 - C A^{-1} b_1)``,
-``x_1 = A^{-1} b_1 - A^{-1} B x_2``. At n = 10 (159 unknowns, the band 20 below and 20
-above the diagonal of 156, border 3) that is about a fifth of the dense LU's flops.
+``A`` banded. :func:`bordered_band` finds that structure once from ``R_V``'s sparsity
+(the border grown greedily, state by state, while the estimated flops fall; ``None``
+with the reason when the band does not pay); :class:`BorderedBand` factorises every
+interval per preparation, ``A``'s LU with partial pivoting inside the band (``dgbtrf``),
+``A^{-1} B`` and the Schur complement ``S = E - C A^{-1} B``, and solves any right-hand
+side later: ``y = A^{-1} b_1`` (``dgbtrs``), ``x_2 = S^{-1} (b_2 - C y)``,
+``x_1 = y - A^{-1} B x_2``. At n = 10 (159 unknowns: the band 18 below and 18 above the
+diagonal of 153, border 6, the regulator's and one more state's) a solve is about a
+third of the dense LU's flops, its factorisation a tenth.
 
 A singular ``A`` (``dgbtrf`` info > 0) gives NaN, which the RTI treats as a failed
 sample, as it does a singular dense LU.
@@ -81,66 +82,73 @@ def bordered_band(P: np.ndarray, nx: int, d: int, w: int) -> tuple[dict | None, 
 
 
 class BorderedBand:
-    """``-R_V^{-1} RB`` for the ``N`` intervals of the mapped Jacobians (``RV``:
-    ``n x N n``, ``RB``: ``n x N w``, CasADi's column-major nonzeros) by the bordered
-    banded LU of ``structure`` (:func:`bordered_band`); :meth:`solve` returns the dense
-    ``n x N w`` result's column-major values, the dense lift's ``L``."""
+    """The bordered banded LU of the ``N`` intervals' ``R_V`` (their mapped nonzeros,
+    ``n x N n`` of sparsity ``sp_rv``, CasADi's column-major order) by ``structure``
+    (:func:`bordered_band`): :meth:`factor` once per preparation, then :meth:`solve`
+    ``-R_V^{-1} b`` for interval ``k`` as often as a use needs."""
 
-    def __init__(self, structure: dict, sp_rv: cs.Sparsity, sp_rb: cs.Sparsity, N: int):
+    def __init__(self, structure: dict, sp_rv: cs.Sparsity, N: int) -> None:
         perm, m, kl, ku = (structure[k] for k in ("perm", "m", "kl", "ku"))
-        n, w = sp_rv.size1(), sp_rb.size2() // N
-        self.N, self.n, self.w, self.m, self.kl, self.ku = N, n, w, m, kl, ku
+        n = sp_rv.size1()
+        self.N, self.n, self.m, self.kl, self.ku = N, n, m, kl, ku
         self.nb, self.ld = n - m, 2 * kl + ku + 1
-        self.pos = np.empty(n, dtype=int)
-        self.pos[perm] = np.arange(n)
-        # where each nonzero of RV goes: A's band storage (per interval m x ld, the
-        # transpose of LAPACK's column-major ldab x m), the right-hand sides' block
-        # (w + nb columns x m rows: B joins b_1), C, E
+        self.perm = np.asarray(perm)
+        # where each nonzero goes: A's band storage (per interval m x ld, the transpose
+        # of LAPACK's column-major ldab x m), B (transposed: nb x m), C (nb x m), E
         r, c = (np.array(v) for v in sp_rv.get_triplet())
-        k, r, c = c // n, self.pos[r], self.pos[c % n]
-        nb, ld, wb = self.nb, self.ld, w + self.nb
+        pos = np.empty(n, dtype=int)
+        pos[perm] = np.arange(n)
+        k, r, c = c // n, pos[r], pos[c % n]
+        nb, ld = self.nb, self.ld
         parts = {
             "A": ((r < m) & (c < m), k * m * ld + c * ld + kl + ku + r - c),
-            "Y": ((r < m) & (c >= m), k * wb * m + (w + c - m) * m + r),
+            "B": ((r < m) & (c >= m), k * nb * m + (c - m) * m + r),
             "C": ((r >= m) & (c < m), k * nb * m + (r - m) * m + c),
             "E": ((r >= m) & (c >= m), k * nb * nb + (r - m) * nb + c - m),
         }
-        self.rv = {key: (np.flatnonzero(sel), idx[sel]) for key, (sel, idx) in parts.items()}
-        r, c = (np.array(v) for v in sp_rb.get_triplet())
-        k, r, c = c // w, self.pos[r], c % w
-        self.rb = {
-            "Y": (np.flatnonzero(r < m), (k * wb * m + c * m + r)[r < m]),
-            "b2": (np.flatnonzero(r >= m), (k * nb * w + (r - m) * w + c)[r >= m]),
-        }
+        self.at = {key: (np.flatnonzero(sel), idx[sel]) for key, (sel, idx) in parts.items()}
 
-    def _fill(self, shape, parts: list[tuple[np.ndarray, tuple]]) -> np.ndarray:
+    def _fill(self, rv: np.ndarray, key: str, shape: tuple) -> np.ndarray:
         out = np.zeros(shape)
-        flat = out.reshape(-1)
-        for values, (src, dst) in parts:
-            flat[dst] = values[src]
+        src, dst = self.at[key]
+        out.reshape(-1)[dst] = rv[src]
         return out
 
-    def solve(self, rv: np.ndarray, rb: np.ndarray) -> np.ndarray:
-        N, m, w, nb, kl, ku = self.N, self.m, self.w, self.nb, self.kl, self.ku
-        A = self._fill((N, m, self.ld), [(rv, self.rv["A"])])
-        Y = self._fill((N, w + nb, m), [(rv, self.rv["Y"]), (rb, self.rb["Y"])])
-        for k in range(N):  # A[k].T, Y[k].T: LAPACK's column-major arrays, in place
-            lu, piv, info = lapack.dgbtrf(A[k].T, kl, ku, overwrite_ab=1)
-            if info != 0:
-                Y[k] = np.nan
-                continue
-            Y[k] = lapack.dgbtrs(lu, kl, ku, Y[k].T, piv, overwrite_b=1)[0].T
-        # the transposed solutions (a right-hand side per row) throughout: contiguous blocks
+    def factor(self, rv: np.ndarray) -> None:
+        """``A``'s LU per interval (``dgbtrf``), ``A^{-1} B`` and the inverse of the Schur
+        complement ``S = E - C A^{-1} B``; a singular interval's solves give NaN."""
+        N, m, nb, kl, ku = self.N, self.m, self.nb, self.kl, self.ku
+        self.A = self._fill(rv, "A", (N, m, self.ld))
+        self.ok = np.ones(N, dtype=bool)
+        self.piv: list[np.ndarray] = []
+        for k in range(N):  # A[k].T: LAPACK's column-major array, factorised in place
+            piv, info = lapack.dgbtrf(self.A[k].T, kl, ku, overwrite_ab=1)[1:]
+            self.piv.append(piv)
+            self.ok[k] = info == 0
         if nb:
-            Yb, Yc = Y[:, :w, :], Y[:, w:, :]  # (A^{-1} b_1)^T, (A^{-1} B)^T
-            C = self._fill((N, nb, m), [(rv, self.rv["C"])])
-            E = self._fill((N, nb, nb), [(rv, self.rv["E"])])
-            b2 = self._fill((N, nb, w), [(rb, self.rb["b2"])])
-            CT = C.transpose(0, 2, 1)
-            S = E - (Yc @ CT).transpose(0, 2, 1)  # E - C A^{-1} B
-            x2 = np.linalg.solve(S, b2 - (Yb @ CT).transpose(0, 2, 1)).transpose(0, 2, 1)
-            Y = np.concatenate([x2 @ Yc - Yb, -x2], axis=2)
-        else:
-            Y = -Y
-        # back to the unknowns' order: the dense n x N w matrix's column-major values
-        return np.take(Y, self.pos, axis=2).reshape(-1)
+            self.C = self._fill(rv, "C", (N, nb, m))
+            AB = self._fill(rv, "B", (N, nb, m))  # becomes (A^{-1} B)^T
+            for k in range(N):
+                AB[k] = self._band_solve(k, AB[k].T).T
+            S = self._fill(rv, "E", (N, nb, nb)) - self.C @ AB.transpose(0, 2, 1)
+            self.AB, self.Sinv = AB.transpose(0, 2, 1), np.linalg.inv(S)
+
+    def _band_solve(self, k: int, b: np.ndarray) -> np.ndarray:
+        if not self.ok[k]:
+            return np.full(b.shape, np.nan)
+        return lapack.dgbtrs(self.A[k].T, self.kl, self.ku, b, self.piv[k])[0]
+
+    def solve(self, k: int, b: np.ndarray) -> np.ndarray:
+        """``-R_V^{-1} b`` for interval ``k`` (``b``: ``n`` x columns, the unknowns'
+        order)."""
+        bp = b[self.perm]
+        y = self._band_solve(k, np.asfortranarray(bp[: self.m]))
+        x = np.empty_like(bp)
+        if self.nb:
+            x2 = self.Sinv[k] @ (bp[self.m :] - self.C[k] @ y)
+            x[self.m :] = -x2
+            y = y - self.AB[k] @ x2
+        x[: self.m] = -y
+        out = np.empty_like(x)
+        out[self.perm] = x
+        return out

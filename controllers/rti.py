@@ -9,7 +9,10 @@ run-time inputs; :func:`radau_residual` the collocation equations of one interva
 
 from __future__ import annotations
 
+import copy
 import ctypes
+import dataclasses
+import functools
 from pathlib import Path
 
 import casadi as cs
@@ -20,9 +23,10 @@ from sarcomere.dynamics.modeling.buffered import BufferedCall
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
-from .banded_lu import BorderedBand, bordered_band
+from .banded_lu import bordered_band
 from .ekf import OFFSETS
 from .qp import qp_solver
+from .rti_banded import BandedCalls, BandedLift
 from .rti_compiled import compiled_functions
 from .rti_lift import DenseLift, FactoredLift
 
@@ -169,41 +173,68 @@ class RealTimeIteration:
         self._lifts(pb)
         head = self._head_function()
         tail = self._tail_function(head)
-        self.prepare = self._prepare_function(head, tail)
         self.feedback = self._feedback_function()
         self.update = self._update_function()
-        mem, x, u, ref = (cs.MX.sym(n, k) for n, k in self._io())
-        p = cs.MX.sym("p", pb.np)
-        data = self.prepare(mem, x, u, p)
-        u_now, viol, fallback, slack, step = self.feedback(data, mem, x, u, ref)
-        self.law = cs.Function(
-            "nmpc_law",
-            [mem, x, u, ref, p],
-            [self.update(data, mem, x, u, step), u_now, viol, fallback, slack],
-            ["memory", "x", "u_prev", "ref", "p"],
-            ["memory_next", "u", "violation", "fallback", "slack"],
-        )
+        if isinstance(self.lift, BandedLift):  # the solves in numpy, between the Functions
+            self.prepare = None
+            parts = [head, tail, self.feedback, self.update]
+            if pb.s.compiled:
+                built = compiled_functions(parts, "nmpc_rti")
+                parts = [built[f.name()] for f in parts]
+            slots = {k: self._data_slice(k) for k in ("DXA", "DV")}
+            banded = BandedCalls(pb.xs, self.lift, *parts, slots)
+            self.calls = {"prepare": banded.prepare, "feedback": banded.feedback,
+                          "update": banded.update}  # fmt: skip
+            self.reset()
+            return
+        self.prepare = self._prepare_function(head, tail)
         parts = [self.prepare, self.feedback, self.update]
         if pb.s.compiled and isinstance(self.lift, FactoredLift):  # all in C
             built = compiled_functions(parts, "nmpc_rti")
             parts = [built[f.name()] for f in parts]
         elif pb.s.compiled:  # all in C but the lifted solves (LAPACK has no generated C)
             built = compiled_functions([head, tail, self.feedback, self.update], "nmpc_rti")
-            head, tail = built["nmpc_head"], built["nmpc_tail"]
-            parts = [self._prepare_function(head, tail)]
+            parts = [self._prepare_function(built["nmpc_head"], built["nmpc_tail"])]
             parts += [built["nmpc_feedback"], built["nmpc_update"]]
         # the prepared data (some 27 000 numbers at n = 3, N = 20) stays in the preparation's
         # output array, which the feedback and the update read in place
-        if self.band is not None:
-            prepare = _BandedPreparation(head, tail, self.band)
-        else:
-            prepare = BufferedCall(parts[0], copy=False)
+        prepare = BufferedCall(parts[0], copy=False)
         feedback, update = BufferedCall(parts[1]), BufferedCall(parts[2])
         feedback.share(0, prepare.res[0])
         update.share(0, prepare.res[0])
         # the feedback's every output; the preparation's and the update's first
         self.calls = {"prepare": prepare, "feedback": feedback.outputs, "update": update}
         self.reset()
+
+    @functools.cached_property
+    def law(self) -> cs.Function:
+        """``(memory, x, u_prev, ref, p) -> (memory_next, u, violation, fallback, slack)``:
+        the preparation, the feedback and the update as one CasADi Function (with the
+        banded lift, whose solves are numpy's, the dense lift's law: the same step)."""
+        if self.prepare is None:
+            twin = copy.copy(self.pb)
+            twin.s = dataclasses.replace(self.pb.s, linear_solver="lapacklu", compiled=False)
+            return RealTimeIteration(twin).law
+        mem, x, u, ref = (cs.MX.sym(n, k) for n, k in self._io())
+        p = cs.MX.sym("p", self.pb.np)
+        data = self.prepare(mem, x, u, p)
+        u_now, viol, fallback, slack, step = self.feedback(data, mem, x, u, ref)
+        return cs.Function(
+            "nmpc_law",
+            [mem, x, u, ref, p],
+            [self.update(data, mem, x, u, step), u_now, viol, fallback, slack],
+            ["memory", "x", "u_prev", "ref", "p"],
+            ["memory_next", "u", "violation", "fallback", "slack"],
+        )
+
+    def _data_slice(self, name: str) -> slice:
+        """Where item ``name`` of the prepared data lies (column-major)."""
+        start = 0
+        for key, (r, c) in self.data_shapes.items():
+            if key == name:
+                return slice(start, start + r * c)
+            start += r * c
+        raise KeyError(name)
 
     def _io(self) -> list[tuple[str, int]]:
         return [("memory", self.n_memory), ("x", self.pb.nx), ("u_prev", self.pb.nu),
@@ -240,7 +271,7 @@ class RealTimeIteration:
         """The per-interval linearisation and its solves (:mod:`.rti_lift`, mapped over
         the horizon) and the outputs' linearisation."""
         nx, N = pb.nx, pb.s.horizon
-        linsol, self.band, self.band_reason = pb.s.linear_solver, None, ""
+        linsol, self.band_reason = pb.s.linear_solver, ""
         if linsol == "auto":
             linsol = "sparse_lu" if pb.s.compiled else "banded"
         if linsol == "sparse_lu":  # the factors as expressions, with the Jacobians
@@ -249,13 +280,12 @@ class RealTimeIteration:
             if linsol.startswith("lapack") or linsol == "banded":
                 _one_blas_thread()
             self.lift = DenseLift(pb, "lapacklu" if linsol == "banded" else linsol, N)
-        if linsol == "banded":  # the same lift, its solves by the bordered band if it pays
-            sp_rv, sp_rb = self.lift.lin.sparsity_out(0), self.lift.lin.sparsity_out(1)
-            n = sp_rv.size1()
-            P = np.array(cs.DM(sp_rv, 1))[:, :n] != 0
+        if linsol == "banded":  # the factors kept in numpy, if the band pays
+            sp = self.lift.lin.sparsity_out(0)
+            P = np.array(cs.DM(sp, 1))[:, : sp.size1()] != 0
             band, self.band_reason = bordered_band(P, nx, pb.s.degree, self.lift.w)
             if band is not None:
-                self.band = BorderedBand(band, sp_rv, sp_rb, N)
+                self.lift = BandedLift(pb, N, band)
             elif pb.s.linear_solver == "banded":
                 raise ParameterError(
                     "nmpc.linear_solver", linsol, "'lapacklu' or 'auto'", self.band_reason
@@ -490,22 +520,6 @@ class RealTimeIteration:
             ["data", "memory", "x", "u_prev", "step"],
             ["memory_next"],
         )
-
-
-class _BandedPreparation:
-    """The preparation with the lifted solves by :class:`~.banded_lu.BorderedBand`:
-    ``head`` (Jacobians), the banded solves in numpy, ``tail`` (condensing) into the
-    same data as :attr:`RealTimeIteration.prepare`'s; :attr:`res` the data's array."""
-
-    def __init__(self, head: cs.Function, tail: cs.Function, band: BorderedBand) -> None:
-        self.head, self.tail = BufferedCall(head, copy=False), BufferedCall(tail, copy=False)
-        for i, j in ((0, 0), (1, 1), (2, 2), (4, 5), (5, 6)):  # read in place
-            self.tail.share(i, self.head.res[j])
-        self.band, self.res = band, self.tail.res
-
-    def __call__(self, *args: np.ndarray) -> np.ndarray:
-        Xb, Ub, Vb, RV, RB, YT, CYT = self.head.outputs(*args)
-        return self.tail(Xb, Ub, Vb, self.band.solve(RV, RB), YT, CYT)
 
 
 def _one_blas_thread() -> None:
