@@ -96,7 +96,7 @@ class BorderedBand:
         # where each nonzero goes: A's band storage (per interval m x ld, the transpose
         # of LAPACK's column-major ldab x m), B (transposed: nb x m), C (nb x m), E
         r, c = (np.array(v) for v in sp_rv.get_triplet())
-        pos = np.empty(n, dtype=int)
+        self.pos = pos = np.empty(n, dtype=int)
         pos[perm] = np.arange(n)
         k, r, c = c // n, pos[r], pos[c % n]
         nb, ld = self.nb, self.ld
@@ -138,17 +138,12 @@ class BorderedBand:
             return np.full(b.shape, np.nan)
         return lapack.dgbtrs(self.A[k].T, self.kl, self.ku, b, self.piv[k])[0]
 
-    def solve(self, k: int, b: np.ndarray) -> np.ndarray:
-        """``-R_V^{-1} b`` for interval ``k`` (``b``: ``n`` x columns, the unknowns'
-        order)."""
+    def solve(self, k: int, b: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+        """Rows ``rows`` of ``-R_V^{-1} b`` for interval ``k`` (``b``: ``n`` x columns,
+        the unknowns' order)."""
         bp = b[self.perm]
         y = self._band_solve(k, np.asfortranarray(bp[: self.m]))
-        x = np.empty_like(bp)
         if self.nb:
             x2 = self.Sinv[k] @ (bp[self.m :] - self.C[k] @ y)
-            x[self.m :] = -x2
-            y = y - self.AB[k] @ x2
-        x[: self.m] = -y
-        out = np.empty_like(x)
-        out[self.perm] = x
-        return out
+            y = np.concatenate([y - self.AB[k] @ x2, x2])
+        return -y[self.pos[rows]]

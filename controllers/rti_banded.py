@@ -91,12 +91,12 @@ class BandedCalls:
             _dense(nz.reshape(N, -1), at, (N, lift.n, m))
             for nz, at, m in ((RX, lift.at[0], nx), (RU, lift.at[1], nu))
         )
-        nq = N * nu
+        nq, end = N * nu, slice(lift.n - nx, None)  # the interval's end: the last stage
         CC, GG = np.zeros((nx, N)), np.zeros((nx, N * nq))
         c, G = np.zeros(nx), np.zeros((nx, 0))
         for k in range(N):
             B = np.hstack([(self.R[:, k] + self.RX[k] @ c)[:, None], self.RX[k] @ G, self.RU[k]])
-            Y = lift.band.solve(k, B)[-nx:]
+            Y = lift.band.solve(k, B, end)
             c = self.Vb[-nx:, k] + Y[:, 0] - self.Xb[:, k + 1]
             G = Y[:, 1:]
             CC[:, k], GG[:, k * nq : k * nq + G.shape[1]] = c, G
@@ -111,9 +111,9 @@ class BandedCalls:
         """The measured state's deviation carried through the intervals (one solve per
         interval) into the data, then the feedback Function."""
         lift, dx = self.lift, self._a0(x)
-        DXA = np.empty((lift.nx, lift.N))
+        DXA, end = np.empty((lift.nx, lift.N)), slice(lift.n - lift.nx, None)
         for k in range(lift.N):
-            dx = lift.band.solve(k, (self.RX[k] @ dx)[:, None])[-lift.nx :, 0]
+            dx = lift.band.solve(k, (self.RX[k] @ dx)[:, None], end)[:, 0]
             DXA[:, k] = dx
         data[self.slots["DXA"]] = DXA.reshape(-1, order="F")
         return self.fb.outputs(data, mem, x, u_prev, ref)

@@ -24,8 +24,8 @@ import numpy as np
 
 from sarcomere.controllers.nmpc import NMPCSettings, NonlinearMPC
 from sarcomere.dynamics.assemblies import hanging_load
-from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.equilibrium import solve_equilibrium
+from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.simulation.simulator import Simulator
 
 from .mpc_speed import DT, HORIZON, L_NAME, LOAD_KG, P_NAME, P_START, Timed
