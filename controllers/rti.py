@@ -127,7 +127,9 @@ class RealTimeIteration:
     variables: the rate limits are then bounds), with one slack per node shared by the
     soft bounds' rows.
 
-    Three Functions, composed into one :attr:`law`:
+    Three Functions, composed into one :attr:`law` (with the banded lift of
+    :mod:`.rti_banded` the solves run in numpy between the head, tail, feedback and update
+    Functions, :attr:`calls`, and :attr:`prepare` is None):
 
     * :attr:`prepare` ``(memory, x, u_prev, p) -> data``: the lifting, the linearisation
       and the condensing. Everything condensed is affine in the measured state, the
