@@ -141,9 +141,12 @@ class NMPCSettings:
         (CasADi's sparse QR; both solve every sensitivity in the preparation),
         "sparse_lu" (:mod:`.sparse_lu`, the factors as SX expressions with the Jacobians,
         kept, each use solving only the right-hand sides it needs; with "qr" the ones
-        that generate C: use it for a law to export) or
-        "auto" (default: "sparse_lu" when compiled, else LAPACK LU, the faster in
-        CasADi's virtual machine).
+        that generate C: use it for a law to export), "banded" (the same order of solves
+        with the factors in numpy: scipy's LAPACK banded LU with the regulator's
+        unknowns as a border, :mod:`.banded_lu`, :mod:`.rti_banded`; refused, naming
+        why, when the Jacobian's band does not pay) or "auto" (default: "sparse_lu" when
+        compiled, else "banded" where the band pays (n >= 10 on the chain), else LAPACK
+        LU; :attr:`~.rti.RealTimeIteration.band_reason` says why not).
     disturbance : str
         The disturbance model of the NMPC's own Kalman filter on the states it reads
         (:class:`~.disturbance.StateDisturbanceFilter`): "load" (the load mass), "input",

@@ -9,7 +9,10 @@ run-time inputs; :func:`radau_residual` the collocation equations of one interva
 
 from __future__ import annotations
 
+import copy
 import ctypes
+import dataclasses
+import functools
 from pathlib import Path
 
 import casadi as cs
@@ -20,18 +23,23 @@ from sarcomere.dynamics.modeling.buffered import BufferedCall
 from sarcomere.dynamics.modeling.model import Model
 from sarcomere.dynamics.simulation import collocation
 
+from .banded_lu import bordered_band
 from .ekf import OFFSETS
 from .qp import qp_solver
+from .rti_banded import BandedCalls, BandedLift
 from .rti_compiled import compiled_functions
 from .rti_lift import DenseLift, FactoredLift
 
-LINEAR_SOLVERS = ("auto", "lapacklu", "qr", "sparse_lu")
+LINEAR_SOLVERS = ("auto", "lapacklu", "qr", "sparse_lu", "banded")
 """Linear solvers of the RTI's lifted Radau equations (:mod:`.rti_lift`): LAPACK's dense
 LU or CasADi's own sparse QR (generates C, slowly) of every sensitivity in the
 preparation (:class:`~.rti_lift.DenseLift`), or the sparse LU written out as SX
 expressions with the Jacobians and kept (:mod:`.sparse_lu`, :class:`~.rti_lift.
-FactoredLift`: generates C, the fastest compiled); "auto": "sparse_lu" when ``compiled``,
-else "lapacklu" (the faster in CasADi's virtual machine: BENCHMARKS.md, section 5)."""
+FactoredLift`: generates C, the fastest compiled), or "banded": the dense lift's solves
+by scipy's bordered banded LU (:mod:`.banded_lu`) between the preparation's two CasADi
+Functions (the :attr:`~RealTimeIteration.law` Function keeps LAPACK's dense LU; refused
+when the Jacobian has no band that pays); "auto": "sparse_lu" when ``compiled``, else
+"banded" where the band pays, else "lapacklu" (BENCHMARKS.md, section 5)."""
 
 GENERATED_SOLVERS = ("qr", "sparse_lu")
 """The linear solvers whose law generates C (LAPACK's have no code generation)."""
@@ -119,7 +127,9 @@ class RealTimeIteration:
     variables: the rate limits are then bounds), with one slack per node shared by the
     soft bounds' rows.
 
-    Three Functions, composed into one :attr:`law`:
+    Three Functions, composed into one :attr:`law` (with the banded lift of
+    :mod:`.rti_banded` the solves run in numpy between the head, tail, feedback and update
+    Functions, :attr:`calls`, and :attr:`prepare` is None):
 
     * :attr:`prepare` ``(memory, x, u_prev, p) -> data``: the lifting, the linearisation
       and the condensing. Everything condensed is affine in the measured state, the
@@ -165,20 +175,21 @@ class RealTimeIteration:
         self._lifts(pb)
         head = self._head_function()
         tail = self._tail_function(head)
-        self.prepare = self._prepare_function(head, tail)
         self.feedback = self._feedback_function()
         self.update = self._update_function()
-        mem, x, u, ref = (cs.MX.sym(n, k) for n, k in self._io())
-        p = cs.MX.sym("p", pb.np)
-        data = self.prepare(mem, x, u, p)
-        u_now, viol, fallback, slack, step = self.feedback(data, mem, x, u, ref)
-        self.law = cs.Function(
-            "nmpc_law",
-            [mem, x, u, ref, p],
-            [self.update(data, mem, x, u, step), u_now, viol, fallback, slack],
-            ["memory", "x", "u_prev", "ref", "p"],
-            ["memory_next", "u", "violation", "fallback", "slack"],
-        )
+        if isinstance(self.lift, BandedLift):  # the solves in numpy, between the Functions
+            self.prepare = None
+            parts = [head, tail, self.feedback, self.update]
+            if pb.s.compiled:
+                built = compiled_functions(parts, "nmpc_rti")
+                parts = [built[f.name()] for f in parts]
+            slots = {k: self._data_slice(k) for k in ("DXA", "DV")}
+            banded = BandedCalls(pb.xs, self.lift, *parts, slots)
+            self.calls = {"prepare": banded.prepare, "feedback": banded.feedback,
+                          "update": banded.update}  # fmt: skip
+            self.reset()
+            return
+        self.prepare = self._prepare_function(head, tail)
         parts = [self.prepare, self.feedback, self.update]
         if pb.s.compiled and isinstance(self.lift, FactoredLift):  # all in C
             built = compiled_functions(parts, "nmpc_rti")
@@ -196,6 +207,36 @@ class RealTimeIteration:
         # the feedback's every output; the preparation's and the update's first
         self.calls = {"prepare": prepare, "feedback": feedback.outputs, "update": update}
         self.reset()
+
+    @functools.cached_property
+    def law(self) -> cs.Function:
+        """``(memory, x, u_prev, ref, p) -> (memory_next, u, violation, fallback, slack)``:
+        the preparation, the feedback and the update as one CasADi Function (with the
+        banded lift, whose solves are numpy's, the dense lift's law: the same step)."""
+        if self.prepare is None:
+            twin = copy.copy(self.pb)
+            twin.s = dataclasses.replace(self.pb.s, linear_solver="lapacklu", compiled=False)
+            return RealTimeIteration(twin).law
+        mem, x, u, ref = (cs.MX.sym(n, k) for n, k in self._io())
+        p = cs.MX.sym("p", self.pb.np)
+        data = self.prepare(mem, x, u, p)
+        u_now, viol, fallback, slack, step = self.feedback(data, mem, x, u, ref)
+        return cs.Function(
+            "nmpc_law",
+            [mem, x, u, ref, p],
+            [self.update(data, mem, x, u, step), u_now, viol, fallback, slack],
+            ["memory", "x", "u_prev", "ref", "p"],
+            ["memory_next", "u", "violation", "fallback", "slack"],
+        )
+
+    def _data_slice(self, name: str) -> slice:
+        """Where item ``name`` of the prepared data lies (column-major)."""
+        start = 0
+        for key, (r, c) in self.data_shapes.items():
+            if key == name:
+                return slice(start, start + r * c)
+            start += r * c
+        raise KeyError(name)
 
     def _io(self) -> list[tuple[str, int]]:
         return [("memory", self.n_memory), ("x", self.pb.nx), ("u_prev", self.pb.nu),
@@ -232,15 +273,25 @@ class RealTimeIteration:
         """The per-interval linearisation and its solves (:mod:`.rti_lift`, mapped over
         the horizon) and the outputs' linearisation."""
         nx, N = pb.nx, pb.s.horizon
-        linsol = pb.s.linear_solver
+        linsol, self.band_reason = pb.s.linear_solver, ""
         if linsol == "auto":
-            linsol = "sparse_lu" if pb.s.compiled else "lapacklu"
+            linsol = "sparse_lu" if pb.s.compiled else "banded"
         if linsol == "sparse_lu":  # the factors as expressions, with the Jacobians
             self.lift = FactoredLift(pb, N)
         else:
-            if linsol.startswith("lapack"):
+            if linsol.startswith("lapack") or linsol == "banded":
                 _one_blas_thread()
-            self.lift = DenseLift(pb, linsol, N)
+            self.lift = DenseLift(pb, "lapacklu" if linsol == "banded" else linsol, N)
+        if linsol == "banded":  # the factors kept in numpy, if the band pays
+            sp = self.lift.lin.sparsity_out(0)
+            P = np.array(cs.DM(sp, 1))[:, : sp.size1()] != 0
+            band, self.band_reason = bordered_band(P, nx, pb.s.degree, self.lift.w)
+            if band is not None:
+                self.lift = BandedLift(pb, N, band)
+            elif pb.s.linear_solver == "banded":
+                raise ParameterError(
+                    "nmpc.linear_solver", linsol, "'lapacklu' or 'auto'", self.band_reason
+                )
         xi, ps = cs.SX.sym("xi", nx), cs.SX.sym("p", pb.np)
         yT = cs.vertcat(pb.y(xi, ps), pb.T(xi, ps))
         self.outs = cs.Function("outs", [xi, ps], [yT, cs.jacobian(yT, xi)]).map(N)
