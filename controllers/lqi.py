@@ -164,7 +164,9 @@ class LQI(Controller):
             raise ParameterError("lqi.output", outs, f"as many outputs as inputs ({ins})")
         self.tracked, self.manipulated = outs, ins
         if len(outs) > 1:
-            _refuse_vector(estimator, feedforward, rate_weight, load_feedforward, preview)
+            _refuse_vector(
+                estimator is not None, feedforward, rate_weight, load_feedforward, preview
+            )
         reads = estimator.measured if estimator else [*model.state_names, *outs]
         check_input_bounds("lqi", model, op, {"input": ins, "u_min": u_min, "u_max": u_max})
         bounds = ({n: u_min for n in ins}, {n: u_max for n in ins})
@@ -501,10 +503,10 @@ def _names(key: str, value) -> list[str]:
     return names
 
 
-def _refuse_vector(estimator, feedforward, rate_weight, load_feedforward, preview) -> None:
+def _refuse_vector(ekf: bool, feedforward, rate_weight, load_feedforward, preview) -> None:
     """Refuse, on a vector LQI, the settings built on one input and one output."""
     why = "the setting is built on one input and one output"
-    if estimator is not None:
+    if ekf:
         raise ParameterError("lqi.estimator", "ekf", "'none' on a vector LQI", why)
     if feedforward != "linear":
         raise ParameterError(
@@ -553,6 +555,9 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     y_scale = own["y_scale"]
     y_scale = tuple(map(float, y_scale)) if isinstance(y_scale, list | tuple) else float(y_scale)
     weights = LQIWeights(**scalar, y_scale=y_scale)
+    if not isinstance(out, str):  # before the EKF is built
+        keys = ("feedforward", "rate_weight", "load_feedforward", "preview")
+        _refuse_vector(own["estimator"] == "ekf", *(own[k] for k in keys))
     est = None
     if own["estimator"] == "ekf":
         measured = measured_signals("lqi", settings, out)

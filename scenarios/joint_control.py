@@ -88,9 +88,6 @@ def reference(theta0: float, levels: list[float], step: float, amp: float, freq:
 
 def run_joint_control(sc: Scenario, out_dir: Path) -> RunOutput:
     """Every ``[control.controllers]`` entry on the joint (module docstring)."""
-    from sarcomere.controllers import CONTROLLERS, make_controller
-    from sarcomere.controllers.loop import run_closed_loop
-
     sc.refuse_unused("inputs", "sweep", "outputs.tolerance", "cosim")
     b = bind(sc)
     if b.setup != "joint":
@@ -102,6 +99,10 @@ def run_joint_control(sc: Scenario, out_dir: Path) -> RunOutput:
     for key in ctl:
         if key not in KEYS:
             raise sc.error(("control", key), unknown_key(key, list(KEYS)))
+    # imported here: python-control costs about 1 s, paid by control scenes only
+    from sarcomere.controllers import CONTROLLERS, make_controller
+    from sarcomere.controllers.loop import run_closed_loop
+
     model = b.build(sc.model.fidelity)
     over = dict(b.overrides)
     rng = command_range(model, over, FLEX)
