@@ -13,6 +13,7 @@ from sarcomere.controllers.loop import run_closed_loop
 from sarcomere.controllers.lqi import LQI, LQIWeights
 from sarcomere.dynamics import antagonistic_joint, solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
+from sarcomere.fmu.controller import lqi_system
 
 DT = 0.01
 F, E = "flexor_regulator.p_cmd", "extensor_regulator.p_cmd"
@@ -99,6 +100,8 @@ def test_one_input_controllers_and_the_loop_refuse_vectors(joint):
     c = make_controller("lqi", m, op, DT, TASK)
     with pytest.raises(ParameterError, match="one output"):
         c.as_iosystem()
+    with pytest.raises(ParameterError, match="one output and one input"):
+        lqi_system(c, m, 0.0)  # the controller FMU exports a one-input law
     one = {"output": OUT[0], "input": F, "u_min": 0.0, "u_max": 4e5, "preview": 3}
     pid = make_controller("pid", m, op, DT, one)
     with pytest.raises(ParameterError) as err:
