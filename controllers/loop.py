@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -95,13 +95,14 @@ class ClosedLoopResult:
 
 def recorded_signals(model: Model, output: str, inputs: list[str]) -> list[str]:
     """The signals a run records: the output, the inputs, the regulator and chamber
-    pressures, every thread tension (in the model's order)."""
+    pressures, every thread and tendon tension (in the model's order)."""
     keep = [output, *inputs]
     for name in model.signal_names:
         if (
             name == "regulator.p_out"
             or name.endswith(".chamber.p_gauge")
             or (".actin" in name and name.endswith(".T"))
+            or name.endswith("_tendon.T")
         ):
             keep.append(name)
     return list(dict.fromkeys(keep))
@@ -145,10 +146,10 @@ def run_closed_loop(
     model: Model,
     controller: Controller,
     op: Equilibrium,
-    reference: Callable[[float], float],
+    reference: Callable[[float], float | Sequence[float]],
     stop_time: float,
     *,
-    output: str,
+    output: str | Sequence[str],
     settings: SolverSettings | None = None,
     noise_std: Mapping[str, float] | None = None,
     seed: int = 0,
@@ -169,11 +170,14 @@ def run_closed_loop(
     op : Equilibrium
         Start point (states, inputs, parameters).
     reference : callable
-        ``reference(t)`` of the tracked ``output`` [SI].
+        ``reference(t)`` of the tracked ``output`` [SI] (a sequence, one per output, for
+        several).
     stop_time : float
         End of the run [s] (the last sample is before it).
-    output : str
-        The tracked signal.
+    output : str or sequence of str
+        The tracked signal, or signals (a vector controller's): the metrics, the status,
+        ``reachable`` and ``step`` are of the first; the others' references are recorded as
+        ``<name>.reference``; ``preview`` is refused (it hands over one signal's).
     settings : SolverSettings, optional
         The plant's integrator (default CVODES, rtol 1e-6).
     noise_std : mapping, optional
@@ -198,6 +202,10 @@ def run_closed_loop(
         ``reachable`` like ``r(t)``); a controller without preview sees ``r(t)`` either way.
     """
     dt = controller.dt
+    tracked = [output] if isinstance(output, str) else list(output)
+    output = tracked[0]
+    if len(tracked) > 1 and preview and controller.preview_samples:
+        raise ParameterError("preview", preview, "false with several tracked outputs")
     if not (math.isfinite(stop_time) and dt <= stop_time <= MAX_SAMPLES * dt):
         raise ParameterError(
             "stop_time",
@@ -227,8 +235,10 @@ def run_closed_loop(
     controller.reset(u_now)
     rng = np.random.default_rng(seed)
     record = recorded_signals(model, output, controller.inputs)
-    read = list(dict.fromkeys([*controller.outputs, *record]))
+    record += [n for n in tracked[1:] if n not in record]
     n_samples = int(math.floor(stop_time / dt + 1e-9))
+    others = np.empty((n_samples, len(tracked) - 1))  # the other outputs' references
+    read = list(dict.fromkeys([*controller.outputs, *record]))
     t = np.arange(n_samples) * dt
     rows = np.empty((n_samples, len(record)))
     refs, meas = np.empty(n_samples), np.empty(n_samples)
@@ -243,7 +253,8 @@ def run_closed_loop(
         for name, std in noise.items():
             if name in y and std > 0:
                 y[name] += std * rng.standard_normal()
-        r = float(reference(float(tk)))
+        r, *rest = np.atleast_1d(reference(float(tk))).astype(float).tolist()
+        others[k] = rest
         if preview and controller.preview_samples:
             ahead = [
                 float(reference(float(tk + j * dt)))
@@ -261,7 +272,7 @@ def run_closed_loop(
                     stacklevel=2,
                 )
                 clipped = True
-        u_now.update(controller.checked(float(tk), y, {output: r}))
+        u_now.update(controller.checked(float(tk), y, dict(zip(tracked, [r, *rest], strict=True))))
         rows[k] = [sig[n] for n in record]
         for name in controller.inputs:  # the input held from t_k on
             rows[k, record.index(name)] = u_now[name]
@@ -269,9 +280,11 @@ def run_closed_loop(
         meas[k] = y.get(output, sig[output])
         sim.step(u_now, dt)
     signals = {"reference": refs, "measured": meas}
+    signals.update({f"{n}.reference": others[:, i] for i, n in enumerate(tracked[1:])})
     signals.update({n: rows[:, i] for i, n in enumerate(record)})
     unit = model.unit(output)
     units = {"reference": unit, "measured": unit} | {n: model.unit(n) for n in record}
+    units |= {f"{n}.reference": model.unit(n) for n in tracked[1:]}
     result = Result("time", "s", t, signals, units)
     tensions = np.array([signals[n] for n in record if n.endswith(".T")])
     metrics = loop_metrics(

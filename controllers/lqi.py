@@ -20,6 +20,17 @@ The law is one CasADi Function per feed-forward (:meth:`LQI.law_function`): :cla
 evaluates it every sample, and the controller FMU (:mod:`sarcomere.fmu.controller`)
 generates its C code from it.
 
+Vector inputs and outputs: ``output`` and ``input`` may each be a list of as many
+signals as inputs (a square system, e.g. the antagonistic joint's two commands on its
+angle and stiffness). The same design then gives ``Kx`` (inputs x states), ``Ki`` (inputs
+x outputs) and the linear steady-state map ``Nx, Nu`` (the solve of ``[A - I, B; C, D]
+[x_ss; u_ss] = [0; I]``); ``y_scale`` is one scale per output (a list) or one for all,
+``u_scale`` one for all inputs, the bounds and the rate limit the same for every input.
+The integral is held (anti-windup) while any input is held in the direction it would
+push. Settings built on one input and one output are refused there: the ``"equilibria"``
+feed-forward (a grid over one input's range), ``rate_weight``, ``load_feedforward``,
+``preview`` and the EKF.
+
 The state comes from the plant (``estimator = "none"``: every state is read by name, the
 full-state case) or from an :class:`~.ekf.EKF` on the measured signals
 (``estimator = "ekf"``).
@@ -43,7 +54,7 @@ as above):
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import casadi as cs
@@ -60,6 +71,7 @@ from .base import Controller
 from .disturbance import StateDisturbanceFilter
 from .ekf import DEFAULT_STD, EKF, make_ekf, measured_signals
 from .linearize import linearize, operating_point
+from .lqr import lqi_design, preview_gains
 from .registry import (
     MAX_PREVIEW,
     check_input_bounds,
@@ -87,8 +99,9 @@ class LQIWeights:
         Integral of the tracking error, per ``y_scale`` times 1 s, > 0.
     r_u : float
         Input, per ``u_scale``, > 0.
-    y_scale : float
-        Output scale [SI of the output], > 0.
+    y_scale : float or tuple of float
+        Output scale [SI of the output], > 0; one per output of a vector LQI (or one
+        for all).
     u_scale : float
         Input scale [SI of the input], > 0.
     """
@@ -101,7 +114,8 @@ class LQIWeights:
 
 
 class LQI(Controller):
-    """LQR with integral action on one output and one input (see the module docstring).
+    """LQR with integral action on one or more outputs and as many inputs (see the
+    module docstring).
 
     Parameters
     ----------
@@ -111,10 +125,10 @@ class LQI(Controller):
         The model linearised for the design.
     op : Equilibrium
         The operating point.
-    output, input : str
-        Tracked signal and manipulated input.
+    output, input : str or sequence of str
+        Tracked signal(s) and manipulated input(s), as many of each.
     u_min, u_max : float
-        Input bounds [SI], holding the operating point's input
+        Input bounds [SI] (of every input), holding the operating point's inputs
         (:func:`~.registry.check_input_bounds`).
     weights : LQIWeights
     estimator : EKF or None
@@ -132,8 +146,8 @@ class LQI(Controller):
         dt: float,
         model: Model,
         op: Equilibrium,
-        output: str,
-        input: str,
+        output: str | Sequence[str],
+        input: str | Sequence[str],
         u_min: float,
         u_max: float,
         weights: LQIWeights,
@@ -145,30 +159,47 @@ class LQI(Controller):
         preview: int = 0,
         output_std: float | None = None,
     ) -> None:
-        reads = estimator.measured if estimator else [*model.state_names, output]
-        check_input_bounds("lqi", model, op, {"input": input, "u_min": u_min, "u_max": u_max})
-        super().__init__(dt, [input], list(dict.fromkeys(reads)), {input: u_min}, {input: u_max})
+        outs, ins = _names("output", output), _names("input", input)
+        if len(outs) != len(ins):
+            raise ParameterError("lqi.output", outs, f"as many outputs as inputs ({ins})")
+        self.tracked, self.manipulated = outs, ins
+        if len(outs) > 1:
+            _refuse_vector(
+                estimator is not None, feedforward, rate_weight, load_feedforward, preview
+            )
+        reads = estimator.measured if estimator else [*model.state_names, *outs]
+        check_input_bounds("lqi", model, op, {"input": ins, "u_min": u_min, "u_max": u_max})
+        bounds = ({n: u_min for n in ins}, {n: u_max for n in ins})
+        super().__init__(dt, ins, list(dict.fromkeys(reads)), *bounds)
         if estimator is not None and output not in estimator.measured:
             raise ParameterError("lqi.estimator", output, f"measured by {estimator.measured}")
         positive("lqi", "q_y", weights.q_y, allow_zero=True)
-        for key in ("q_i", "r_u", "y_scale", "u_scale"):
+        for key in ("q_i", "r_u", "u_scale"):
             positive("lqi", key, getattr(weights, key))
+        scales = np.broadcast_to(np.asarray(weights.y_scale, dtype=float), (len(outs),))
+        if len(np.ravel(weights.y_scale)) not in (1, len(outs)):
+            raise ParameterError("lqi.y_scale", weights.y_scale, f"one or {len(outs)} scales")
+        for v in scales:
+            positive("lqi", "y_scale", float(v))
         self.model, self.op, self.weights, self.estimator = model, op, weights, estimator
         self.du_max = max_step("lqi", rate_max, self.dt, u_min, u_max)
-        self.output, self.input = output, input
+        self.output, self.input = outs[0], ins[0]
         self.x_op = op.x.copy()
-        self.y_op = float(op[output])
-        self.u_op = float(op.u[model.input_names.index(input)])
-        sysd = linearize(model, op, [output], dt=self.dt, inputs=[input])
+        y_op = np.array([float(op[n]) for n in outs])
+        u_op = np.array([float(op.u[model.input_names.index(n)]) for n in ins])
+        sysd = linearize(model, op, outs, dt=self.dt, inputs=ins)
         self.sysd = sysd
         rw = None if rate_weight is None else positive("lqi", "rate_weight", rate_weight)
         # Ku: the gain on the held command, with the rate in the design (else None)
-        self.Kx, self.Ku, self.Ki, self.Nx, self.Nu, aug = _design(
-            sysd, weights, self.dt, rw, self.du_max
-        )
+        Kx, self.Ku, Ki, Nx, Nu, aug = lqi_design(sysd, weights, scales, self.dt, rw, self.du_max)
+        # one input and output: the scalars and vectors of the one-input law
+        one = len(outs) == 1
+        self.y_op, self.u_op = (float(y_op[0]), float(u_op[0])) if one else (y_op, u_op)
+        self.Kx, self.Ki = (Kx[0], float(Ki[0, 0])) if one else (Kx, Ki)
+        self.Nx, self.Nu = (Nx[:, 0], float(Nu[0, 0])) if one else (Nx, Nu)
         self.preview = count("lqi.preview", preview, 0, MAX_PREVIEW, "the MPCs' longest horizon")
         # the target's part of the state: x (and the held command, with the rate design)
-        self.preview_gains = _preview_gains(*aug, self.preview)[
+        self.preview_gains = preview_gains(*aug, self.preview)[
             :, : model.nx + (self.Ku is not None)
         ]
         self.ahead = ()
@@ -183,7 +214,7 @@ class LQI(Controller):
         if load_feedforward:
             self.load = self._load_feedforward(output_std)
         self._extended = self.load is not None or self.preview > 0
-        self.xi = 0.0
+        self.xi = 0.0 if one else np.zeros(len(outs))
         self.u_last = self.u_op
         self._laws: dict[bool, BufferedCall] = {}
 
@@ -257,8 +288,10 @@ class LQI(Controller):
     def reset(self, u0: Mapping[str, float]) -> None:
         """Integral to zero; the estimator (if any) restarts at the operating point."""
         super().reset(u0)
-        self.xi = 0.0
-        self.u_last = float(u0[self.input])
+        one = len(self.tracked) == 1
+        self.xi = 0.0 if one else np.zeros(len(self.tracked))
+        u = np.array([float(u0[n]) for n in self.manipulated])
+        self.u_last = float(u[0]) if one else u
         self.ahead = ()
         if self.estimator is not None:
             self.estimator.reset(self.x_op)
@@ -277,9 +310,10 @@ class LQI(Controller):
         """``target(dr) -> (dx_ss, du_ss)``: the steady state of the reference deviation
         ``dr`` (the equilibria grid interpolated linearly, clamped at its ends; or the
         linear map)."""
-        dr = cs.MX.sym("dr")
+        n, ny, nu = self.model.nx, len(self.tracked), len(self.manipulated)
+        dr = cs.MX.sym("dr", ny)
         if self._grid is None:
-            x_ss, u_ss = cs.DM(self.Nx) * dr, self.Nu * dr
+            x_ss, u_ss = _linear_target(self, n, ny, nu, dr)
         else:
             ys, X, U = self._grid
             y = cs.fmin(cs.fmax(dr + self.y_op, ys[0]), ys[-1])
@@ -313,28 +347,33 @@ class LQI(Controller):
                 (self.load is not None, self.preview),
                 "(False, 0): the law without feed-forward takes r(t) and the states only",
             )
-        n = self.model.nx
-        xi, dr, dy = cs.MX.sym("xi"), cs.MX.sym("dr"), cs.MX.sym("dy")
-        dx, u_prev, g = cs.MX.sym("dx", n), cs.MX.sym("u_prev"), cs.MX.sym("g", 3)
+        n, ny, nu = self.model.nx, len(self.tracked), len(self.manipulated)
+        xi, dr, dy = cs.MX.sym("xi", ny), cs.MX.sym("dr", ny), cs.MX.sym("dy", ny)
+        dx, u_prev = cs.MX.sym("dx", n), cs.MX.sym("u_prev", nu)
+        g = cs.MX.sym("g", 2 * nu + 1)  # u_min (each input), u_max (each input), du_max
         ff = cs.MX.sym("ff", n + 2)
+        Kx, Ki = cs.DM(np.reshape(self.Kx, (nu, n))), cs.DM(np.reshape(self.Ki, (nu, ny)))
         if linear:
-            x_ss, u_ss = cs.DM(self.Nx) * dr, self.Nu * dr
+            x_ss, u_ss = _linear_target(self, n, ny, nu, dr)
         else:
             x_ss, u_ss = self.target_function()(dr)
         if extended:
             x_ss, u_ss = x_ss + ff[:n], u_ss + ff[n]
         if self.Ku is None:
-            v = self.u_op + u_ss - cs.dot(cs.DM(self.Kx), dx - x_ss) - self.Ki * xi
+            v = cs.DM(self.u_op) + u_ss - cs.mtimes(Kx, dx - x_ss) - cs.mtimes(Ki, xi)
         else:
             held = self.Ku * (u_prev - self.u_op - u_ss)
-            v = u_prev - cs.dot(cs.DM(self.Kx), dx - x_ss) - held - self.Ki * xi
+            v = u_prev - cs.mtimes(Kx, dx - x_ss) - held - cs.mtimes(Ki, xi)
         if extended:
             v = v + ff[n + 1]
-        lo, hi = cs.fmax(g[0], u_prev - g[2]), cs.fmin(g[1], u_prev + g[2])
+        lo = cs.fmax(g[:nu], u_prev - g[2 * nu])
+        hi = cs.fmin(g[nu : 2 * nu], u_prev + g[2 * nu])
         u = cs.fmin(cs.fmax(v, lo), hi)
         xi_next = xi + self.dt * (dy - dr)
         # held (bound or rate), and integrating would push further out: hold the integral
-        wind = cs.logic_and(u != v, cs.fabs(v - self.Ki * (xi_next - xi) - u) > cs.fabs(v - u))
+        # (every one, while any input is so held)
+        push = cs.fabs(v - cs.mtimes(Ki, xi_next - xi) - u) > cs.fabs(v - u)
+        wind = cs.mmax(cs.logic_and(u != v, push))
         ins = [xi, dx, dr, dy, u_prev, g, *([ff] if extended else [])]
         return cs.Function(
             "lqi",
@@ -346,36 +385,45 @@ class LQI(Controller):
 
     def law(
         self,
-        xi: float,
+        xi: float | np.ndarray,
         dx: np.ndarray,
-        dr: float,
-        dy: float,
-        u_prev: float,
+        dr: float | np.ndarray,
+        dy: float | np.ndarray,
+        u_prev: float | np.ndarray,
         linear: bool = False,
         ff: np.ndarray | None = None,
-    ) -> tuple[float, float]:
+    ) -> tuple:
         """One sample of :meth:`law_function`: ``(xi, dx, dr, dy, u_prev[, ff]) -> (next
-        xi, u)`` [SI]; ``ff`` (:meth:`feedforward`) for an LQI that uses one."""
+        xi, u)`` [SI] (floats for one output and input, else vectors); ``ff``
+        (:meth:`feedforward`) for an LQI that uses one."""
         if linear not in self._laws:  # bound arrays (Function.buffer): ~1 us per call
             call = BufferedCall(self.law_function(linear, self._extended))
-            call.args[5][:] = self.u_min[self.input], self.u_max[self.input], self.du_max
+            ins = self.manipulated
+            lo, hi = [self.u_min[n] for n in ins], [self.u_max[n] for n in ins]
+            call.args[5][:] = [*lo, *hi, self.du_max]
             self._laws[linear] = call
         call = self._laws[linear]
         a_xi, a_dx, a_dr, a_dy, a_u = call.args[:5]
-        a_xi[0], a_dx[:], a_dr[0], a_dy[0], a_u[0] = xi, dx, dr, dy, u_prev
+        a_xi[:], a_dx[:], a_dr[:], a_dy[:], a_u[:] = xi, dx, dr, dy, u_prev
         if self._extended:
             call.args[6][:] = ff
         call.trigger()
-        return float(call.res[0][0]), float(call.res[1][0])
+        if len(self.tracked) == 1:
+            return float(call.res[0][0]), float(call.res[1][0])
+        return np.array(call.res[0]), np.array(call.res[1])
 
     def update(self, t: float, y: Mapping[str, float], r: Mapping[str, float]) -> dict:
         x = self.state(y)
         dx = x - self.x_op
-        dr, dy = r[self.output] - self.y_op, y[self.output] - self.y_op
+        if len(self.tracked) == 1:
+            dr, dy = r[self.output] - self.y_op, y[self.output] - self.y_op
+        else:
+            dr = np.array([r[n] for n in self.tracked]) - self.y_op
+            dy = np.array([y[n] for n in self.tracked]) - self.y_op
         ff = self.feedforward(y, x, dr) if self._extended else None
         self.xi, u = self.law(self.xi, dx, dr, dy, self.u_last, ff=ff)
         self.u_last = u
-        return {self.input: u}
+        return dict(zip(self.manipulated, np.atleast_1d(u).tolist(), strict=True))
 
     def as_iosystem(self) -> ct.NonlinearIOSystem:
         """The full-state law as a discrete python-control I/O system, in deviations from
@@ -390,6 +438,8 @@ class LQI(Controller):
             For a rate-limited LQI (the I/O system carries no held command).
         """
         refuse_rate_limit("lqi", self)
+        if len(self.tracked) > 1:
+            raise ParameterError("lqi.output", self.tracked, "one output for the I/O system")
         self.law_function(True)  # refuses an LQI with feed-forward
         n = self.model.nx
 
@@ -437,41 +487,41 @@ def _equilibria(model: Model, op: Equilibrium, output: str, input: str, lo: floa
     return ys, np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
 
 
-def _design(sysd: ct.StateSpace, w: LQIWeights, dt: float, rate_weight=None, du=None):
-    """``Kx, Ku, Ki`` from ``control.dlqr`` on the model with the error integral
-    appended, the steady-state map ``x_ss = Nx dr``, ``u_ss = Nu dr``, and the design's
-    ``(Aa, Ba, R, K, S)``. With ``rate_weight`` the move per sample ``v = u - u_prev`` is
-    the input, weighted ``rate_weight (v / du)^2`` (``du`` the rate limit's move per
-    sample), and the held command a state ``[dx; u_prev - u_op; xi]`` weighted ``r_u``:
-    ``u = u_prev - Kx (dx - x_ss) - Ku (u_prev - u_op - u_ss) - Ki xi``; else ``Ku`` is
-    None and ``u = u_op + u_ss - Kx (dx - x_ss) - Ki xi``."""
-    A, B, C, D = sysd.A, sysd.B, sysd.C, sysd.D
-    n, held = A.shape[0], rate_weight is not None
-    Aa, Ba, Q = np.eye(n + 1 + held), np.zeros((n + 1 + held, 1)), np.zeros((n + 1 + held,) * 2)
-    Aa[:n, :n], Aa[-1, :n], Ba[:n], Ba[-1] = A, dt * C, B, dt * D
-    Q[:n, :n] = w.q_y / w.y_scale**2 * C.T @ C
-    Q[-1, -1] = w.q_i / w.y_scale**2
-    R = np.array([[w.r_u / w.u_scale**2]])
-    if held:  # the held command: a state the move adds to
-        Aa[:n, n], Aa[-1, n], Ba[n], Q[n, n] = B[:, 0], dt * D[0, 0], 1.0, R[0, 0]
-        R = np.array([[rate_weight / du**2]])
-    K, S, _ = ct.dlqr(Aa, Ba, (Q + Q.T) / 2, R)
-    M = np.block([[A - np.eye(n), B], [C, D]])
-    N = np.linalg.solve(M, np.concatenate([np.zeros(n), [1.0]]))
-    Ku = float(K[0, n]) if held else None
-    return K[0, :n], Ku, float(K[0, -1]), N[:n], float(N[n]), (Aa, Ba, R, K, S)
+def _linear_target(lqi: LQI, n: int, ny: int, nu: int, dr) -> tuple:
+    """The linear steady state ``(Nx dr, Nu dr)`` of the reference deviation ``dr``."""
+    return tuple(
+        cs.mtimes(cs.DM(np.reshape(N, shape)), dr)
+        for N, shape in ((lqi.Nx, (n, ny)), (lqi.Nu, (nu, ny)))
+    )
 
 
-def _preview_gains(Aa, Ba, R, K, S, samples: int) -> np.ndarray:
-    """``G_j = (R + B' S B)^-1 B' (A_cl')^j S``, ``j < samples``: the LQ-optimal answer to
-    a known shift ``w_j`` of the target ``j`` samples ahead is ``-sum_j G_j w_j``."""
-    Acl = Aa - Ba @ K
-    first = np.linalg.solve(R + Ba.T @ S @ Ba, Ba.T)  # 1 x na
-    rows, M = [], S
-    for _ in range(samples):
-        rows.append((first @ M)[0])
-        M = Acl.T @ M
-    return np.reshape(rows, (samples, Aa.shape[0]))
+def _names(key: str, value) -> list[str]:
+    """``value`` (one signal name or a sequence of them) as a non-empty list."""
+    names = [value] if isinstance(value, str) else list(value)
+    if not names or not all(isinstance(n, str) for n in names):
+        raise ParameterError(f"lqi.{key}", value, "a signal name or a list of them")
+    return names
+
+
+def _refuse_vector(ekf: bool, feedforward, rate_weight, load_feedforward, preview) -> None:
+    """Refuse, on a vector LQI, the settings built on one input and one output."""
+    why = "the setting is built on one input and one output"
+    if ekf:
+        raise ParameterError("lqi.estimator", "ekf", "'none' on a vector LQI", why)
+    if feedforward != "linear":
+        raise ParameterError(
+            "lqi.feedforward",
+            feedforward,
+            "'linear' on a vector LQI",
+            "the equilibria grid runs over one input's range",
+        )
+    for key, value, off in (
+        ("rate_weight", rate_weight, None),
+        ("load_feedforward", load_feedforward, False),
+        ("preview", preview, 0),
+    ):
+        if value != off:
+            raise ParameterError(f"lqi.{key}", value, f"{off!r} on a vector LQI", why)
 
 
 def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
@@ -482,8 +532,8 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     None: no limit), and the opt-in ``rate_weight`` (None or > 0), ``load_feedforward``
     (false) and ``preview`` (samples, 0; see the module docstring)."""
     out, inp = settings["output"], settings["input"]
-    unit = model.unit(out)
-    w0 = LQIWeights(y_scale=Y_SCALES.get(unit, 1.0))
+    scales = [Y_SCALES.get(model.unit(n), 1.0) for n in _names("output", out)]
+    w0 = LQIWeights(y_scale=scales[0] if isinstance(out, str) else tuple(scales))
     defaults = {k: getattr(w0, k) for k in ("q_y", "q_i", "r_u", "y_scale", "u_scale")}
     own = own_settings(
         "lqi",
@@ -501,7 +551,13 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
     )
     if own["estimator"] not in ("none", "ekf"):
         raise ParameterError("lqi.estimator", own["estimator"], "'none' or 'ekf'")
-    weights = LQIWeights(**{k: float(own[k]) for k in defaults})
+    scalar = {k: float(own[k]) for k in defaults if k != "y_scale"}
+    y_scale = own["y_scale"]
+    y_scale = tuple(map(float, y_scale)) if isinstance(y_scale, list | tuple) else float(y_scale)
+    weights = LQIWeights(**scalar, y_scale=y_scale)
+    if not isinstance(out, str):  # before the EKF is built
+        keys = ("feedforward", "rate_weight", "load_feedforward", "preview")
+        _refuse_vector(own["estimator"] == "ekf", *(own[k] for k in keys))
     est = None
     if own["estimator"] == "ekf":
         measured = measured_signals("lqi", settings, out)
@@ -522,8 +578,8 @@ def make_lqi(model: Model, op: Equilibrium, dt: float, settings: dict) -> LQI:
         own["rate_weight"],
         own["load_feedforward"],
         own["preview"],
-        (settings.get("noise_std") or {}).get(out),
+        (settings.get("noise_std") or {}).get(_names("output", out)[0]),
     )
 
 
-register_controller("lqi", make_lqi)
+register_controller("lqi", make_lqi, vector=True)

@@ -50,8 +50,15 @@ CONTROLLERS: dict[str, Factory] = {}
 imported."""
 
 
-def register_controller(slug: str, factory: Factory, *, replace: bool = False) -> None:
-    """Make ``factory`` the builder of controller ``slug``.
+VECTOR_CONTROLLERS: set[str] = set()
+"""Slugs whose factory takes lists of outputs and inputs (``vector=True``)."""
+
+
+def register_controller(
+    slug: str, factory: Factory, *, replace: bool = False, vector: bool = False
+) -> None:
+    """Make ``factory`` the builder of controller ``slug`` (``vector``: it takes lists of
+    outputs and inputs, as many of each).
 
     Raises
     ------
@@ -61,6 +68,7 @@ def register_controller(slug: str, factory: Factory, *, replace: bool = False) -
     if slug in CONTROLLERS and CONTROLLERS[slug] is not factory and not replace:
         raise ValueError(f"controller '{slug}' already registered ({CONTROLLERS[slug]!r})")
     CONTROLLERS[slug] = factory
+    (VECTOR_CONTROLLERS.add if vector else VECTOR_CONTROLLERS.discard)(slug)
 
 
 def make_controller(
@@ -79,6 +87,12 @@ def make_controller(
     missing = [k for k in ("output", "input", "u_min", "u_max") if k not in settings]
     if missing:
         raise ParameterError(f"{slug}.settings", sorted(settings), f"keys {missing} set")
+    if slug not in VECTOR_CONTROLLERS:
+        for key in ("output", "input"):
+            if not isinstance(settings[key], str):
+                raise ParameterError(
+                    f"{slug}.{key}", settings[key], "one signal name", "one input and output"
+                )
     check_input_bounds(slug, model, op, settings)
     check_sample_time(slug, model, op, dt)
     return CONTROLLERS[slug](model, op, dt, dict(settings))
@@ -100,6 +114,10 @@ def check_input_bounds(
         allowed range.
     """
     name = settings["input"]
+    if not isinstance(name, str):  # a vector controller's inputs: the same bounds each
+        for one in name:
+            check_input_bounds(slug, model, op, {**settings, "input": one})
+        return
     if name not in model.input_names:
         raise ParameterError(f"{slug}.input", name, f"one of {model.input_names}")
     var, unit = model.variables[name], model.unit(name)

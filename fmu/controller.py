@@ -166,6 +166,8 @@ def lqi_system(lqi: LQI, model: Model, bias: float, name: str = "lqi") -> Sample
         raise ParameterError(
             "controller", "lqi on an EKF", "a full-state LQI (the EKF is not exported)"
         )
+    if len(lqi.tracked) > 1:
+        raise ParameterError("controller", lqi.tracked, "an LQI of one output and one input")
     yu, (uu, lo, hi) = model.unit(lqi.output), _bias(lqi, model, bias)
     states = (
         Variable("integral", f"{yu}*s", "integral of the tracking error (y - r)"),

@@ -38,6 +38,7 @@ BUILTIN_KINDS = {
     "closed_loop": "sarcomere.scenarios.control",
     "cosim": "sarcomere.scenarios.cosim",
     "joint_stiffness": "sarcomere.scenarios.joint_stiffness",
+    "joint_control": "sarcomere.scenarios.joint_control",
     "recruitment": "sarcomere.scenarios.recruitment",
     "pwm_hold": "sarcomere.scenarios.pwm_hold",
 }
