@@ -13,7 +13,7 @@ Usage::
     python benchmarks/fit.py convergence [--starts 50] [--methods lsq,ms,ss] [--out DIR]
 
 (``lsq-default``: the baseline with scipy's default finite-difference step.) Coverage,
-speed and profiles are not written yet: the engine's fit of this problem took more than 8
+speed and profiles are not written yet: the engine's fit of this problem took more than 10
 CPU minutes (BENCHMARKS.md section 13); :func:`replicate_data` gives the noise replicates
 they need.
 
