@@ -11,9 +11,11 @@ shared dynamic estimates and ``load.m`` per experiment
 Usage::
 
     python benchmarks/fit.py convergence [--starts 50] [--methods lsq,ms,ss] [--out DIR]
-    python benchmarks/fit.py coverage [--replicates 200] [--out DIR]
-    python benchmarks/fit.py speed [--out DIR]
-    python benchmarks/fit.py profiles [--workers 2] [--out DIR]
+
+(``lsq-default``: the baseline with scipy's default finite-difference step.) Coverage,
+speed and profiles are not written yet: the engine's fit of this problem took more than 10
+CPU minutes (BENCHMARKS.md section 13); :func:`replicate_data` gives the noise replicates
+they need.
 
 Starts: ``--starts`` points drawn log-uniformly within 0.5-2x of the truth for every
 fitted parameter (fixed seed 0), the same for every method. A start *succeeds* when its
