@@ -72,8 +72,9 @@ from sarcomere.dynamics.plausibility import (
 from sarcomere.dynamics.results import Result
 from sarcomere.dynamics.schema import WITHOUT_MODEL
 from sarcomere.dynamics.signals import Table
-from sarcomere.dynamics.simulation import sundials
+from sarcomere.dynamics.simulation import radau, sundials
 from sarcomere.dynamics.simulation.simulate import MAX_VALUES, SolverSettings, simulate
+from sarcomere.dynamics.simulation.simulator import Simulator
 from sarcomere.dynamics.units import to_si
 
 from .output import CSV_BYTES_PER_VALUE
@@ -575,5 +576,12 @@ def simulate_scene(
     ``guess`` where one is known."""
     model = b.build(fid) if model is None else model
     inputs, wanted, grid = prepare(sc, b, model)
-    settings, limit = solver_settings(sc, model), sc.outputs.max_values
-    return run(model, inputs, b.overrides, grid, settings, wanted, guess=guess, max_values=limit)
+    settings, limit, reason = solver_settings(sc, model), sc.outputs.max_values, None
+    if sc.solver.method is None and not sc.solver.options and not sc.solver.step:
+        sim = Simulator(model, settings, params=b.overrides, t0=float(grid[0]))
+        method, reason = radau.default_method(model, sim.input_law(inputs))
+        settings = dataclasses.replace(settings, method=method)
+    res = run(model, inputs, b.overrides, grid, settings, wanted, guess=guess, max_values=limit)
+    if reason:
+        res.meta["method_reason"] = reason
+    return res

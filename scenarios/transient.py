@@ -44,6 +44,8 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
         res, metrics["fidelity_predicted_error"] = without_model(sc, b, fid)
     else:
         res = binding.simulate_scene(sc, b, fid)
+    if "method_reason" in res.meta:  # the scene names no method: the default's choice
+        extra["solver"] = {"method": res.meta["method"], "method_reason": res.meta["method_reason"]}
     found, left_out = transient_metrics(res)
     metrics.update(found)
     if left_out:

@@ -77,6 +77,14 @@ def key(inputs: Sequence[bytes | str], link_flags: Sequence[str] = ()) -> str:
     return h.hexdigest()[:24]
 
 
+def library_path(
+    stem: str, inputs: Sequence[bytes | str], link_flags: Sequence[str] = ("-lm",)
+) -> Path:
+    """Where :func:`shared_library` keeps the library keyed by ``inputs`` (it may be
+    absent: ``.is_file()``); no compile."""
+    return cache_dir() / "lib" / f"{stem}-{key(inputs, link_flags)}.so"
+
+
 def shared_library(
     stem: str,
     inputs: Sequence[bytes | str],
@@ -102,10 +110,10 @@ def shared_library(
     (Path, bool)
         The library's path in the cache, and whether this call compiled it.
     """
-    folder = cache_dir() / "lib"
-    path = folder / f"{stem}-{key(inputs, link_flags)}.so"
+    path = library_path(stem, inputs, link_flags)
     if path.is_file():
         return path, False
+    folder = path.parent
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:

@@ -236,8 +236,33 @@ def _chunked(name: str, args: list, expr: cs.SX, chunk: int) -> cs.Function:
     return cs.Function(name, mx, [cs.MX(expr.sparsity(), values)])
 
 
-def _build(model: Model, law: InputLaw) -> Library:
-    tic = time.perf_counter()
+def cached(model: Model, law: InputLaw) -> Path | None:
+    """The library of ``model`` under ``law`` if it is in the disk cache, else None: a
+    cache lookup (the key's expressions serialised), no code generation, no compile."""
+    path = compiled.library_path("radau", _generated(model, law)[-1])
+    return path if path.is_file() else None
+
+
+def default_method(model: Model, law: InputLaw) -> tuple[str, str]:
+    """The method a run gets when it names none, and why (``docs/numerics.md``): the
+    compiled ``radau`` if its library for ``model`` under ``law`` is in the disk cache
+    (:func:`cached`), else ``cvodes`` (``idas`` for a model with algebraic unknowns),
+    never a compile; the choice depends on the cache only, not on time or load."""
+    if model.nz:
+        return "idas", f"{model.nz} algebraic unknowns: radau takes explicit ODEs only"
+    try:
+        path = cached(model, law)
+    except SolverError as e:  # no C compiler: no key
+        return "cvodes", f"radau's library cannot be looked up ({e})"
+    if path is None:
+        where = compiled.cache_dir() / "lib"
+        return "cvodes", f"radau's library for this model and input law is not in {where}"
+    return "radau", f"radau's library for this model and input law is cached ({path.name})"
+
+
+def _generated(model: Model, law: InputLaw) -> tuple:
+    """The functions the library is generated from, the domain's bounds, the cache key's
+    inputs."""
     d = law_dae(model, law)
     rhs = cs.Function("sm_rhs", [d.t, d.x, d.w, d.p], [d.ode])
     # the bounded signals (the physical domain) under the law, checked by radau_runs.c
@@ -247,18 +272,24 @@ def _build(model: Model, law: InputLaw) -> Library:
     args = [d.t, d.x, d.w, d.p]
     low = np.array([model.variables[k].low for k in bounded], dtype=float)
     high = np.array([model.variables[k].high for k in bounded], dtype=float)
-
-    def units(folder: Path) -> list[compiled.Unit]:
-        sources = [*generate_sources(rhs, folder), _generate("sm_dom", args, dom, folder, CHUNK)]
-        own = [compiled.Unit(SOURCE, CFLAGS), compiled.Unit(RUNS_SOURCE, CFLAGS)]
-        return own + [compiled.Unit(s, MODEL_CFLAGS) for s in sources]
-
     # the key: the model's expression (serialised: deterministic) and what turns it into
     # C (CasADi's version, this module's code, the chunk size), the sources and flags
     dom_fn = cs.Function("sm_dom", args, [dom])
     inputs = [rhs.serialize(), dom_fn.serialize(), cs.__version__, Path(__file__).read_bytes()]
     inputs += [f.read_bytes() for f in (SOURCE, *HEADERS, RUNS_SOURCE)]
     inputs += [" ".join(CFLAGS), " ".join(MODEL_CFLAGS), str(CHUNK)]
+    return rhs, dom, args, low, high, inputs
+
+
+def _build(model: Model, law: InputLaw) -> Library:
+    tic = time.perf_counter()
+    rhs, dom, args, low, high, inputs = _generated(model, law)
+
+    def units(folder: Path) -> list[compiled.Unit]:
+        sources = [*generate_sources(rhs, folder), _generate("sm_dom", args, dom, folder, CHUNK)]
+        own = [compiled.Unit(SOURCE, CFLAGS), compiled.Unit(RUNS_SOURCE, CFLAGS)]
+        return own + [compiled.Unit(s, MODEL_CFLAGS) for s in sources]
+
     try:
         path, built = compiled.shared_library("radau", inputs, units)
     except SolverError as e:

@@ -63,6 +63,11 @@ _LAWS = (PulseTrain, EffectiveDuty)
 """What a PWM (:attr:`Model.modulators`) makes of a held duty: also held."""
 
 
+def _law(signals: list) -> InputLaw:
+    held = all(isinstance(sig, HELD_TYPES + _LAWS) for sig in signals)
+    return HELD if held else InputLaw(tuple(signals))
+
+
 class Simulator:
     """Step a model through time; the base of :func:`~.simulate.simulate`.
 
@@ -293,8 +298,8 @@ class Simulator:
             first = 1
         edges = [t_start, *bps, t_end]
         span = t_end - t_start
-        held = all(isinstance(sig, HELD_TYPES + _LAWS) for sig in signals)
-        law = HELD if held else InputLaw(tuple(signals))
+        law = _law(signals)
+        held = law is HELD
         # held: the inputs at each edge (for the rows at b) and inside each piece (what is
         # integrated: a PWM edge is a breakpoint only to rounding, the middle is not)
         W = V[[0, *range(nt + 1, nt + 1 + len(bps)), nt]] if held else None  # at the edges
@@ -340,6 +345,14 @@ class Simulator:
         if given is not signals:  # the rows show the inputs as given (the duty)
             U = values_at(given, times) if len(given) else U
         return X, Z, U
+
+    def input_law(self, u: object = None) -> InputLaw:
+        """The input law :meth:`advance` with ``u`` integrates under from here."""
+        history = self._pwm_history
+        try:
+            return _law(self._modulated(self._input_signals(u)))
+        finally:  # asking changes nothing
+            self._pwm_history = history
 
     def _modulated(self, given: list) -> list:
         """``given`` with each PWM-modulated input (:attr:`Model.modulators`) replaced by
