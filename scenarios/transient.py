@@ -20,13 +20,15 @@ from .output import RunOutput
 from .runner import register_runner
 from .spec import Scenario
 from .step_metrics import transient_metrics
+from .valve_supply import check_level, valve_auto
 
 
 def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     """Simulate from the equilibrium at the inputs' start values (module docstring).
 
     ``fidelity = "auto"``: the level of the auto rule runs, and only that one (see
-    :func:`choose_fidelity`).
+    :func:`choose_fidelity`; on the valve supply, the valve's level:
+    :func:`.valve_supply.valve_auto`).
     """
     sc.refuse_unused("sweep", "control", "cosim")
     if sc.model.fidelity != "auto":
@@ -36,7 +38,14 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     check_n(sc, ("model", "n"), b.n, fid)
     extra = {"aps_params": aps_dict(b.aps), "setup": b.setup}
     metrics = {}
-    if fid == "auto":
+    check_level(sc, b, fid)
+    if fid == "auto" and b.supply == "valve_pwm":
+        fid, res, extra["fidelity_auto"] = valve_auto(
+            sc, b, binding.prepare, binding.simulate_scene
+        )
+        valve = extra["fidelity_auto"]["valve"]
+        metrics["valve_predicted_error"] = valve["predicted_relative_error"]
+    elif fid == "auto":
         fid, res, report = choose_fidelity(sc, b)
         extra["fidelity_auto"] = report
         metrics["fidelity_predicted_error"] = report["predicted_error"][fid]
