@@ -110,7 +110,14 @@ def study_level(sc: Scenario, n: int) -> str:
     """The level of every sample of a study on a scene at ``fidelity = "auto"`` with n
     units: full below :data:`~sarcomere.dynamics.fidelity.REDUCED_FROM_N` (the rule,
     nothing predicted). From it auto predicts each run's level, which a study's samples
-    cannot share: refused, saying what to write in the study file."""
+    cannot share: refused, saying what to write in the study file; so is a valve-supplied
+    scene, whose auto picks the valve's level per scene."""
+    if sc.model.options.get("supply") == "valve_pwm":
+        raise sc.error(
+            ("model", "fidelity"),
+            "'auto' picks the valve's level from each run's predicted ripple; a study runs "
+            'one level: set [model] fidelity = "full" and [model.options.valve] level',
+        )
     if ladder.predicts(n):
         raise sc.error(
             ("model", "fidelity"),

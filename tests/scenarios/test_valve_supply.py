@@ -10,10 +10,11 @@ import pytest
 
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
-from sarcomere.dynamics.errors import ScenarioError
+from sarcomere.dynamics.errors import SarcomereError, ScenarioError
 from sarcomere.dynamics.fidelity.ripple import choose_level
 from sarcomere.scenarios import parse_scenario, run
 from sarcomere.scenarios.binding import bind
+from sarcomere.scenarios.explore import spec
 from sarcomere.scenarios.loader import scenario_from_dict
 
 
@@ -144,3 +145,9 @@ def test_auto_on_a_valve_refuses_a_long_chain_and_a_missing_duty(tmp_path):
     del scene["inputs"]
     with pytest.raises(ScenarioError, match=re.escape('inputs."valve.cmd"')):
         run(scenario_from_dict(scene), tmp_path / "b", quiet=True)
+
+
+def test_a_study_on_the_valve_auto_scene_is_refused_saying_what_to_set():
+    text = '[study]\nkind = "grid"\nbase = "pwm-step-auto"\n[study.grid]\nload = ["20 g", "30 g"]\n'
+    with pytest.raises(SarcomereError, match=r"valve's level.*fidelity = \"full\""):
+        spec.parse_study(text, "/nonexistent/s.toml")
