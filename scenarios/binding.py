@@ -25,7 +25,9 @@ Every kind on the dynamic model goes through it (the equilibrium sweep,
 - ``fixture_stiffness`` ("2000 N/m", default rigid) and ``fixture_gap`` ("1 mm"),
   isometric only;
 - ``flow_law``: the restriction's law, ``"iso6358"`` (exact, default) or ``"smooth"`` (C1,
-  for optimisers; :data:`~sarcomere.dynamics.assemblies.FLOW_LAWS`).
+  for optimisers; :data:`~sarcomere.dynamics.assemblies.FLOW_LAWS`);
+- ``supply`` (``"regulator"``, default, or ``"valve_pwm"``) and ``valve`` (its options),
+  transients only: :mod:`.valve_supply`.
 
 Nothing is ignored: an option the set-up does not read, ``[model] geometry``, a section the
 kind does not use, ``n`` above the level's measured limit (:data:`N_LIMITS`), a pressure
@@ -88,6 +90,7 @@ from .spec import (
     dotted,
     unknown_key,
 )
+from .valve_supply import supply_options
 
 P_CMD = "regulator.p_cmd"
 OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
@@ -97,6 +100,8 @@ OPTIONS = {  # option -> (SI unit, "" for text; lowest allowed value; inclusive)
     "fixture_stiffness": ("N/m", 0.0, False),
     "fixture_gap": ("m", 0.0, True),
     "flow_law": ("", None, True),
+    "supply": ("", None, True),
+    "valve": ("", None, True),
 }
 INPUT_ALIASES = {"pressure": P_CMD}
 #: Set-up -> options the other set-up reads and this one would ignore.
@@ -131,6 +136,8 @@ class Binding:
     flow_law: str = "iso6358"
     regulator_p_max: float | None = None
     scenario: Scenario | None = dataclasses.field(default=None, compare=False, repr=False)
+    supply: str = "regulator"
+    valve: object = None  # ValveOptions with supply = "valve_pwm"
 
     def build(
         self,
@@ -150,6 +157,8 @@ class Binding:
             "flow_law": self.flow_law if flow_law is None else flow_law,
             "groups": groups,
             "regulator_p_max": self.regulator_p_max,
+            "supply": self.supply,
+            "valve": self.valve,
         }
         try:
             with warnings.catch_warnings():
@@ -298,6 +307,7 @@ def bind(sc: Scenario) -> Binding:
         opts["flow_law"],
         p_max,
         sc,
+        **supply_options(sc, opts, p_max),
     )
 
 

@@ -20,13 +20,15 @@ from .output import RunOutput
 from .runner import register_runner
 from .spec import Scenario
 from .step_metrics import transient_metrics
+from .valve_supply import check_level, valve_auto
 
 
 def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     """Simulate from the equilibrium at the inputs' start values (module docstring).
 
     ``fidelity = "auto"``: the level of the auto rule runs, and only that one (see
-    :func:`choose_fidelity`).
+    :func:`choose_fidelity`; on the valve supply, the valve's level:
+    :func:`.valve_supply.valve_auto`).
     """
     sc.refuse_unused("sweep", "control", "cosim")
     if sc.model.fidelity != "auto":
@@ -36,7 +38,14 @@ def run_transient(sc: Scenario, out_dir: Path) -> RunOutput:
     check_n(sc, ("model", "n"), b.n, fid)
     extra = {"aps_params": aps_dict(b.aps), "setup": b.setup}
     metrics = {}
-    if fid == "auto":
+    check_level(sc, b, fid)
+    if fid == "auto" and b.supply == "valve_pwm":
+        fid, res, extra["fidelity_auto"] = valve_auto(
+            sc, b, binding.prepare, binding.simulate_scene
+        )
+        valve = extra["fidelity_auto"]["valve"]
+        metrics["valve_predicted_error"] = valve["predicted_relative_error"]
+    elif fid == "auto":
         fid, res, report = choose_fidelity(sc, b)
         extra["fidelity_auto"] = report
         metrics["fidelity_predicted_error"] = report["predicted_error"][fid]
@@ -103,7 +112,14 @@ def study_level(sc: Scenario, n: int) -> str:
     """The level of every sample of a study on a scene at ``fidelity = "auto"`` with n
     units: full below :data:`~sarcomere.dynamics.fidelity.REDUCED_FROM_N` (the rule,
     nothing predicted). From it auto predicts each run's level, which a study's samples
-    cannot share: refused, saying what to write in the study file."""
+    cannot share: refused, saying what to write in the study file; so is a valve-supplied
+    scene, whose auto picks the valve's level per scene."""
+    if sc.model.options.get("supply") == "valve_pwm":
+        raise sc.error(
+            ("model", "fidelity"),
+            "'auto' picks the valve's level from each run's predicted ripple; a study runs "
+            'one level: set [model] fidelity = "full" and [model.options.valve] level',
+        )
     if ladder.predicts(n):
         raise sc.error(
             ("model", "fidelity"),
