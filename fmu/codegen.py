@@ -178,6 +178,7 @@ def generate(funcs: list[cs.Function], folder: Path) -> Generated:
         by_name = {f.name(): f for f in integrator}
         generated = radau.generate_sources(by_name["sm_rhs"], folder)
         shutil.copyfile(radau.SOURCE, folder / "radau.c")
+        shutil.copyfile(radau.HEADER, folder / radau.HEADER.name)
         scale = np.array(by_name["sm_x_scale"]()["o0"]).ravel()
         (folder / "sm_radau.h").write_text(radau_header(scale))
         sources += (*(g.name for g in generated), "radau.c")

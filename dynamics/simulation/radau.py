@@ -36,6 +36,8 @@ from .settings import InputLaw, Segment, SolverSettings, add_stats, register_met
 
 SOURCE = Path(__file__).parent / "c" / "radau.c"
 """The integrator's C source (package data)."""
+HEADER = Path(__file__).parent / "c" / "integrator.h"
+"""What ``radau.c`` shares with ``rodas.c`` (model calls, sparse LU): included by both."""
 
 _CAUSES = {
     1: "too many steps (max_steps reached)",
@@ -171,6 +173,7 @@ def _build(model: Model, law: InputLaw) -> Library:
     # the key: the model's expression (serialised: deterministic) and what turns it into
     # C (CasADi's version, this module's code, the chunk size), the sources and flags
     inputs = [rhs.serialize(), cs.__version__, Path(__file__).read_bytes(), SOURCE.read_bytes()]
+    inputs += [HEADER.read_bytes()]
     inputs += [" ".join(CFLAGS), " ".join(MODEL_CFLAGS), str(CHUNK)]
     try:
         path, built = compiled.shared_library("radau", inputs, units)
