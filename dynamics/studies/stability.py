@@ -20,7 +20,7 @@ reference on the same grid (every step saved):
   largest reference pressure (10 Pa at 0.1 MPa);
 * ``fine``: everything else.
 
-**The Rosenbrock method.** ``rodas`` (Rodas4) is L-stable: ``|R(z)| <= 1`` on the whole
+**The Rosenbrock method.** ``rodas`` (Rodas5P) is L-stable: ``|R(z)| <= 1`` on the whole
 left half-plane and ``R(inf) = 0``, so no eigenvalue limits its step. It is run held at
 fixed steps (first = max step, error control loosened to rtol = atol = 0.5 so that no
 step is rejected: ``n_rejected`` is recorded) far beyond RK4's limit and classified

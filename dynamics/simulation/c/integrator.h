@@ -245,12 +245,12 @@ static double rms(int b, int n, const double *v, const double *s)
     return sqrt(acc / ((double)b * n));
 }
 
-/* The initial step (Hairer, Norsett & Wanner I, II.4) for an error estimate of order 3
- * (O(h^4)), both integrators' case, at most span, into *h; f0 = f(t, y); scale, tmp and
- * f1: n doubles of scratch. Nonzero if the right-hand side fails. */
+/* The initial step (Hairer, Norsett & Wanner I, II.4) for a local error estimate
+ * O(h^power) (radau.c: 4, rodas.c: 5), at most span, into *h; f0 = f(t, y); scale, tmp
+ * and f1: n doubles of scratch. Nonzero if the right-hand side fails. */
 static int initial_step(Model *m, double t, const double *y, const double *f0, double span,
-                        double rtol, double atol, double *scale, double *tmp, double *f1,
-                        double *h)
+                        double rtol, double atol, int power, double *scale, double *tmp,
+                        double *f1, double *h)
 {
     int n = m->n;
     for (int i = 0; i < n; ++i) scale[i] = atol + fabs(y[i]) * rtol;
@@ -262,7 +262,7 @@ static int initial_step(Model *m, double t, const double *y, const double *f0, d
     for (int i = 0; i < n; ++i) tmp[i] = f1[i] - f0[i];
     double d2 = rms(1, n, tmp, scale) / h0;
     double h1 = (d1 <= 1e-15 && d2 <= 1e-15) ? fmax(1e-6, h0 * 1e-3)
-                                               : pow(0.01 / fmax(d1, d2), 0.25);
+                                               : pow(0.01 / fmax(d1, d2), 1.0 / power);
     *h = fmin(100 * h0, h1);
     return 0;
 }

@@ -121,7 +121,7 @@ int sm_radau(int n, const double *w, const double *p, double t0, double *x, int 
     int current_jac = 1;
 
     double h = opt[2];
-    if (!(h > 0) && initial_step(&m, t, y, f0, t_end - t, rtol, atol, scale, tmp, err, &h)) {
+    if (!(h > 0) && initial_step(&m, t, y, f0, t_end - t, rtol, atol, 4, scale, tmp, err, &h)) {
         code = SM_RHS;
         goto done;
     }

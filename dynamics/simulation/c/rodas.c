@@ -1,24 +1,30 @@
-/* Adaptive Rodas4: a 6-stage Rosenbrock method of order 4 with an embedded order-3
+/* Adaptive Rodas5P: an 8-stage Rosenbrock method of order 5 with an embedded order-4
  * solution, both stiffly accurate, L-stable, for x' = f(t, x).
  *
- * The method RODAS of Hairer & Wanner, Solving ODEs II (2nd ed. 1996), section VI.4,
- * with the coefficients of their code rodas.f (subroutine ROCOE, METH = 1: "RODAS4"),
- * written anew for sarcomere. In the variables of their
- * implementation (u_i = h sum_j gamma_ij k_j):
+ * The method of G. Steinebach, "Construction of Rosenbrock-Wanner method Rodas5P and
+ * numerical benchmarks within the Julia Differential Equations package", BIT Numer.
+ * Math. 63, 27 (2023): Rodas5 (Di Marzo 1993) re-derived so that it also keeps its order
+ * on the Prothero-Robinson problem x' = lambda (x - g(t)) + g'(t) (a stiff state that
+ * follows a moving input: the ramp scene's regulator) and with a dense output of order 4
+ * that stays accurate in stiff components. The coefficients are the paper's in the
+ * transformed form of Hairer & Wanner (Solving ODEs II, section IV.7, eq. 7.25) as
+ * OrdinaryDiffEq.jl tabulates them (Rodas5PTableau), typed in here; code was read, not
+ * copied. With u_i = h sum_j gamma_ij k_j:
  *   (1/(h gamma) I - J) u_i = f(t + c_i h, x + sum_j a_ij u_j) + sum_j (c_ij / h) u_j
- *                             + h d_i df/dt,                     i = 1..6,
- * J = df/dx at (t, x), once per step (the method's order needs the exact Jacobian);
- * stage 6 is evaluated at x + sum_j a_6j u_j, which is the embedded solution, and
- * x_new = that + u_6, so u_6 itself is the error estimate (order 3 against order 4).
+ *                             + h d_i df/dt,                     i = 1..8,
+ * J = df/dx at (t, x), once per step (the method's order needs the exact Jacobian).
+ * Stages 7 and 8 are evaluated at the previous stage's argument plus its u (a_7j =
+ * a_6j, a_76 = 1; a_8j = a_7j, a_87 = 1): stage 8's argument is the embedded solution
+ * and x_new = that + u_8, so u_8 itself is the error estimate (order 4 against 5).
  * df/dt, when f depends on t (an input signal), is a forward difference (backward at
- * the segment's end), as rodas.f does. The step size follows rodas.f's controller:
- * h_new = h / fac, fac = err^(1/4) / 0.9 within [1/6, 5], and after the first accepted
- * step Gustafsson's predictor (the larger reduction of the two). Outputs between steps: the dense output of rodas.f (order 3),
- *   x(t + s h) = (1 - s) x + s (x_new + (1 - s) (q1 + s q2)),
- *   q1 = sum_j d2j u_j, q2 = sum_j d3j u_j (j = 1..5).
+ * the segment's end), as Hairer's rodas.f does. The step size follows rodas.f's
+ * controller with the exponent of this pair: h_new = h / fac, fac = err^(1/5) / 0.9
+ * within [1/6, 5], and after the first accepted step Gustafsson's predictor (the larger
+ * reduction of the two). Outputs between steps: the dense output
+ *   x(t + s h) = (1 - s) x + s (x_new + (1 - s) (q1 + s (q2 + s q3))),
+ *   q_m = sum_j h_mj u_j (j = 1..8).
  * f and J are the CasADi-generated sm_rhs / sm_jac that radau.c integrates (same
  * sources, same sparse LU: integrator.h); one real LU of size n per attempted step.
- * Code from elsewhere was read, not copied; the coefficients were typed from rodas.f.
  */
 #include <float.h>
 #include <math.h>
@@ -31,35 +37,47 @@ SM_FILL(fill_real, double)
 SM_LU(lu_real, double, fabs)
 SM_SOLVE(solve_real, double)
 
-/* RODAS4 (Hairer & Wanner, rodas.f, ROCOE METH = 1). */
-static const double GAMMA = 0.25;
-static const double C[6] = {0.0, 0.386, 0.21, 0.63, 1.0, 1.0};  /* stage times */
-static const double D[6] = {0.25, -0.1043, 0.1035, -0.3620000000000023e-01, 0.0, 0.0};
-static const double A[6][5] = {  /* a_ij, j < i; a_6j = a_5j, a_65 = 1 */
+/* Rodas5P (Steinebach 2023; the transformed coefficients of OrdinaryDiffEq.jl). */
+#define STAGES 8
+static const double GAMMA = 0.21193756319429014;
+static const double C[STAGES] = {0.0, 0.6358126895828704, 0.4095798393397535,
+                                 0.9769306725060716, 0.4288403609558664, 1.0, 1.0, 1.0};
+static const double D[STAGES] = {0.21193756319429014, -0.42387512638858027,
+                                 -0.3384627126235924, 1.8046452872882734,
+                                 2.325825639765069, 0.0, 0.0, 0.0};
+#define A6 -7.502846399306121, 2.561846144803919, -11.627539656261098, \
+           -0.18268767659942256, 0.030198172008377946
+static const double A[STAGES][STAGES - 1] = {  /* a_ij, j < i */
     {0},
-    {0.1544000000000000e+01},
-    {0.9466785280815826e+00, 0.2557011698983284e+00},
-    {0.3314825187068521e+01, 0.2896124015972201e+01, 0.9986419139977817e+00},
-    {0.1221224509226641e+01, 0.6019134481288629e+01, 0.1253708332932087e+02,
-     -0.6878860361058950e+00},
-    {0.1221224509226641e+01, 0.6019134481288629e+01, 0.1253708332932087e+02,
-     -0.6878860361058950e+00, 1.0},
+    {3.0},
+    {2.849394379747939, 0.45842242204463923},
+    {-6.954028509809101, 2.489845061869568, -10.358996098473584},
+    {2.8029986275628964, 0.5072464736228206, -0.3988312541770524, -0.04721187230404641},
+    {A6},
+    {A6, 1.0},
+    {A6, 1.0, 1.0},
 };
-static const double CC[6][5] = {  /* c_ij, j < i */
+static const double CC[STAGES][STAGES - 1] = {  /* c_ij, j < i */
     {0},
-    {-0.5668800000000000e+01},
-    {-0.2430093356833875e+01, -0.2063599157091915e+00},
-    {-0.1073529058151375e+00, -0.9594562251023355e+01, -0.2047028614809616e+02},
-    {0.7496443313967647e+01, -0.1024680431464352e+02, -0.3399990352819905e+02,
-     0.1170890893206160e+02},
-    {0.8083246795921522e+01, -0.7981132988064893e+01, -0.3152159432874371e+02,
-     0.1631930543123136e+02, -0.6058818238834054e+01},
+    {-14.155112264123755},
+    {-17.97296035885952, -2.859693295451294},
+    {147.12150275711716, -1.41221402718213, 71.68940251302358},
+    {165.43517024871676, -0.4592823456491126, 42.90938336958603, -5.961986721573306},
+    {24.854864614690072, -3.0009227002832186, 47.4931110020768, 5.5814197821558125,
+     -0.6610691825249471},
+    {30.91273214028599, -3.1208243349937974, 77.79954646070892, 34.28646028294783,
+     -19.097331116725623, -28.087943162872662},
+    {37.80277123390563, -3.2571969029072276, 112.26918849496327, 66.9347231244047,
+     -40.06618937091002, -54.66780262877968, -9.48861652309627},
 };
-static const double DD[2][5] = {  /* dense output */
-    {0.1012623508344586e+02, -0.7487995877610167e+01, -0.3480091861555747e+02,
-     -0.7992771707568823e+01, 0.1025137723295662e+01},
-    {-0.6762803392801253e+00, 0.6087714651680015e+01, 0.1643084320892478e+02,
-     0.2476722511418386e+02, -0.6594389125716872e+01},
+#define DENSE 3
+static const double H[DENSE][STAGES] = {  /* dense output */
+    {25.948786856663858, -2.5579724845846235, 10.433815404888879, -2.3679251022685204,
+     0.524948541321073, 1.1241088310450404, 0.4272876194431874, -0.17202221070155493},
+    {-9.91568850695171, -0.9689944594115154, 3.0438037242978453, -24.495224566215796,
+     20.176138334709044, 15.98066361424651, -6.789040303419874, -6.710236069923372},
+    {11.419903575922262, 2.8879645146136994, 72.92137995996029, 80.12511834622643,
+     -52.072871366152654, -59.78993625266729, -0.15582684282751913, 4.883087185713722},
 };
 #define SAFE 0.9
 #define FAC_MIN 0.2  /* h_new / h >= 0.2 ... */
@@ -67,7 +85,7 @@ static const double DD[2][5] = {  /* dense output */
 #define MAX_FAILS 10 /* consecutive failed attempts (singular matrix, non-finite stage) */
 
 /* One attempted step of size h from (t, y) with f0 = f(t, y), J (m->jnz) and ft = df/dt
- * (or NULL): the stages into U (6 n), the new state into ynew; *en the error norm.
+ * (or NULL): the stages into U (STAGES n), the new state into ynew; *en the error norm.
  * Returns 0, SM_SINGULAR, or SM_RHS (a stage's f not finite). */
 static int attempt(Model *m, Factor *fr, double *LU, double t, double h, const double *y,
                    const double *f0, const double *ft, double rtol, double atol, double *U,
@@ -77,7 +95,7 @@ static int attempt(Model *m, Factor *fr, double *LU, double t, double h, const d
     fill_real(n, LU, fr, &m->pt, m->jnz, 1.0 / (h * GAMMA));
     m->stats[ST_LU] += 1;
     if (lu_real(n, LU, fr)) return SM_SINGULAR;
-    for (int i = 0; i < 6; ++i) {
+    for (int i = 0; i < STAGES; ++i) {
         double *ui = U + (size_t)i * n;
         if (i == 0) {
             memcpy(ui, f0, sizeof(double) * n);
@@ -98,14 +116,14 @@ static int attempt(Model *m, Factor *fr, double *LU, double t, double h, const d
             for (int j = 0; j < n; ++j) ui[j] += h * D[i] * ft[j];
         solve_real(n, LU, fr, ui);
     }
-    /* ynew holds stage 6's argument, the embedded solution; add u6 */
-    const double *u6 = U + 5 * (size_t)n;
+    /* ynew holds the last stage's argument, the embedded solution; add its u */
+    const double *ul = U + (STAGES - 1) * (size_t)n;
     for (int j = 0; j < n; ++j) {
-        ynew[j] += u6[j];
+        ynew[j] += ul[j];
         double big = fabs(y[j]) > fabs(ynew[j]) ? fabs(y[j]) : fabs(ynew[j]);
         tmp[j] = atol + big * rtol;
     }
-    *en = rms(1, n, u6, tmp);
+    *en = rms(1, n, ul, tmp);
     return isfinite(*en) ? 0 : SM_RHS;
 }
 
@@ -147,7 +165,7 @@ int sm_rodas(int n, const double *w, const double *p, double t0, double *x, int 
 
     size_t nn = (size_t)n * n;
     Pattern pt = jac_pattern(n);
-    double *dbl = malloc(sizeof(double) * (SM_LU_SIZE(n) + 16 * (size_t)n + (size_t)sz_w
+    double *dbl = malloc(sizeof(double) * (SM_LU_SIZE(n) + (6 + DENSE + STAGES) * (size_t)n + (size_t)sz_w
                                            + (size_t)(pt.nnz > 0 ? pt.nnz : 0) + 1));
     int *ints = malloc(sizeof(int) * (SM_FACTOR_INTS(n) + (size_t)sz_iw + 1));
     unsigned char *bytes = calloc(nn + 1, 1);
@@ -158,8 +176,8 @@ int sm_rodas(int n, const double *w, const double *p, double t0, double *x, int 
         return SM_NO_MEMORY;
     }
     double *LU = dbl, *y = LU + SM_LU_SIZE(n), *f0 = y + n, *ft = f0 + n, *ynew = ft + n;
-    double *tmp = ynew + n, *scr = tmp + n, *q1 = scr + n, *q2 = q1 + n, *U = q2 + n;
-    double *jnz = U + 6 * (size_t)n, *cw = jnz + (pt.nnz > 0 ? pt.nnz : 0);
+    double *tmp = ynew + n, *scr = tmp + n, *Q = scr + n, *U = Q + DENSE * (size_t)n;
+    double *jnz = U + STAGES * (size_t)n, *cw = jnz + (pt.nnz > 0 ? pt.nnz : 0);
     Factor fr;
     int *iw = factor_init(&fr, n, ints, bytes);
     factor_list_pattern(&fr, n, &pt);
@@ -172,7 +190,7 @@ int sm_rodas(int n, const double *w, const double *p, double t0, double *x, int 
     *t_fail = t0;
     if (rhs(&m, t, y, f0)) { code = SM_RHS; goto done; }
     double h = opt[2];
-    if (!(h > 0) && initial_step(&m, t, y, f0, t_end - t, rtol, atol, tmp, scr, ynew, &h)) {
+    if (!(h > 0) && initial_step(&m, t, y, f0, t_end - t, rtol, atol, 5, tmp, scr, ynew, &h)) {
         code = SM_RHS;
         goto done;
     }
@@ -205,7 +223,7 @@ int sm_rodas(int n, const double *w, const double *p, double t0, double *x, int 
             continue;
         }
         en = fmax(en, 1e-10);
-        double fac = fmin(1 / FAC_MIN, fmax(1 / FAC_MAX, pow(en, 0.25) / SAFE));
+        double fac = fmin(1 / FAC_MIN, fmax(1 / FAC_MAX, pow(en, 0.2) / SAFE));
         if (en > 1) {
             h /= fac;
             rejected = 1;
@@ -213,7 +231,7 @@ int sm_rodas(int n, const double *w, const double *p, double t0, double *x, int 
             continue;
         }
         if (h_acc > 0) {  /* Gustafsson's predictor */
-            double gus = h_acc / h * pow(en * en / err_acc, 0.25) / SAFE;
+            double gus = h_acc / h * pow(en * en / err_acc, 0.2) / SAFE;
             fac = fmax(fac, fmin(1 / FAC_MIN, fmax(1 / FAC_MAX, gus)));
         }
         h_acc = h;
@@ -222,14 +240,12 @@ int sm_rodas(int n, const double *w, const double *p, double t0, double *x, int 
         /* accepted: outputs in (t, t + h] from the dense output */
         double t_new = (h == t_end - t) ? t_end : t + h;
         if (k_out < nout && tout[k_out] < t_new)
-            for (int j = 0; j < n; ++j) {
-                double a = 0, b = 0;
-                for (int k = 0; k < 5; ++k) {
-                    a += DD[0][k] * U[(size_t)k * n + j];
-                    b += DD[1][k] * U[(size_t)k * n + j];
+            for (int r = 0; r < DENSE; ++r)
+                for (int j = 0; j < n; ++j) {
+                    double q = 0;
+                    for (int k = 0; k < STAGES; ++k) q += H[r][k] * U[(size_t)k * n + j];
+                    Q[(size_t)r * n + j] = q;
                 }
-                q1[j] = a, q2[j] = b;
-            }
         for (; k_out < nout && tout[k_out] <= t_new; ++k_out) {
             double *xo = xout + (size_t)k_out * n;
             if (tout[k_out] == t_new) {
@@ -238,7 +254,8 @@ int sm_rodas(int n, const double *w, const double *p, double t0, double *x, int 
             }
             double s = (tout[k_out] - t) / h, s1 = 1 - s;
             for (int j = 0; j < n; ++j)
-                xo[j] = s1 * y[j] + s * (ynew[j] + s1 * (q1[j] + s * q2[j]));
+                xo[j] = s1 * y[j]
+                      + s * (ynew[j] + s1 * (Q[j] + s * (Q[n + j] + s * Q[2 * n + j])));
         }
         stats[ST_STEPS] += 1;
         ++steps;
