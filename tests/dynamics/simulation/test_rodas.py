@@ -144,6 +144,7 @@ def test_one_step_is_the_l_stable_stability_function():
         assert abs(R(z) - np.exp(z)) < 1e-11, z  # local error O(z^6)
 
 
+@pytest.mark.slow  # compiles the method for its model (1.2 s quiet)
 def test_error_follows_the_tolerance(oscillator, oscillator_error):
     errors = []
     for rtol in (1e-4, 1e-6, 1e-8):
@@ -191,6 +192,7 @@ def test_random_chains_and_loads_against_tight_cvodes():
         assert err.max() < 1e-5, (n, load, err.max())
 
 
+@pytest.mark.slow  # compiles the method for its model (1.2 s quiet)
 def test_a_too_tight_step_limit_says_why_and_keeps_the_partial_result():
     """max_step 1 ms with at most 300 steps per call: the held segment before the step
     (0.1 s) runs, the one after it cannot; the error names the cause, the time and the
