@@ -46,7 +46,7 @@ from ..modeling.buffered import BufferedCall
 from ..modeling.model import Model
 from ..signals import Staircase, Step
 from ..units import to_si
-from . import fixed_step, guard, radau, scipy_methods, sundials  # noqa: F401  (register the methods)
+from . import fixed_step, guard, radau, rosenbrock, scipy_methods, sundials  # noqa: F401  (register the methods)
 from .common import method_options, require_step
 from .pwm import EffectiveDuty, PulseTrain
 from .settings import HELD, METHODS, InputLaw, Pieces, Segment, SolverSettings, segment_w

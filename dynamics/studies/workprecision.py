@@ -240,6 +240,7 @@ def reference(sc: Scenario, check_rtol: float = 1e-12) -> Reference:
 # --- sweeps -----------------------------------------------------------------------------
 ADAPTIVE = (
     "radau",
+    "rodas",
     "cvodes",
     "scipy_rk45",
     "scipy_radau",
@@ -462,6 +463,11 @@ def study(out_dir: Path, quick: bool = False, n: int = 3) -> dict:
     ra = wall_at_error(step_recs, "radau", 1e-6)  # the compiled Radau IIA
     metrics["radau_wall_at_1em6_s"] = ra
     metrics["speedup_radau_vs_scipy_radau"] = sn / ra if ra and sn else None
+    for name in scenarios(n):  # the Rosenbrock method against radau, every scenario
+        recs = [r for r in records if r["scenario"] == name]
+        ro, rd = (wall_at_error(recs, m, 1e-6) for m in ("rodas", "radau"))
+        metrics[f"rodas_wall_at_1em6_{name}_s"] = ro
+        metrics[f"rodas_over_radau_wall_at_1em6_{name}_ratio"] = ro / rd if ro and rd else None
     metrics["vent_min_thread_stretch_m"] = refs["vent"]["min_thread_stretch_m"]
     path = out_dir / "work_precision.json"
     path.write_text(json.dumps({"records": records, "references": refs}, indent=1))

@@ -167,3 +167,17 @@ def test_pwm_scenario_stepping_across_edges_fails_stopping_at_them_converges():
     X, _ = METHODS["rk4"].run(seg)
     crossing = wp.state_errors(np.vstack([x0, X]), dataclasses.replace(ref))[1]
     assert crossing > 20 * stopping, (crossing, stopping)
+
+
+@pytest.mark.slow  # compiles rodas and radau for the one-unit chain
+def test_rodas_is_on_the_chart_and_its_error_falls_with_tolerance(small):
+    """The Rosenbrock method is one of the chart's adaptive methods; on the step scene
+    its error falls with the tolerance as radau's does, within 10x of radau's at each."""
+    sc, ref = small
+    assert "rodas" in wp.ADAPTIVE
+    recs = wp.sweep(sc, ref, TINY, only=["rodas", "radau"])
+    assert [r["status"] for r in recs] == ["ok"] * 6, recs
+    errs = {m: [r["error_l2"] for r in recs if r["method"] == m] for m in ("rodas", "radau")}
+    assert errs["rodas"][0] > 100 * errs["rodas"][-1], errs
+    for a, b in zip(errs["rodas"], errs["radau"], strict=True):
+        assert a < 10 * b + 1e-9, errs
