@@ -46,6 +46,19 @@ def test_reference_is_cross_checked(small):
     assert ref.settings.rtol == wp.REFERENCE_RTOL
 
 
+@pytest.mark.slow  # CVODES at 1e-12 and scipy Radau: some 3 s
+def test_full_cross_check_runs_on_resting_velocities():
+    """The vent scene (n = 1, to 0.3 s: 0.1 s at rest, velocities at 0, then venting) at
+    the full run's cross-check tolerance: scipy Radau at atol 1e-15 took more than
+    20 000 steps in the first 15 ms of rest (the full run stopped: too many steps); at
+    CHECK_ATOL_MIN it runs and agrees with the CVODES reference."""
+    sc = dataclasses.replace(wp.scenarios(1)["vent"], t_final=0.3, n_out=31)
+    ref = wp.reference(sc, wp.FULL.check_rtol)
+    assert ref.crosscheck["rtol"] == wp.FULL.check_rtol
+    assert ref.crosscheck["atol"] == wp.CHECK_ATOL_MIN
+    assert ref.crosscheck["error_l2"] < 1e-10, ref.crosscheck
+
+
 def test_sweep_records_and_error_falls_with_tolerance(small):
     sc, ref = small
     started = time.perf_counter()
