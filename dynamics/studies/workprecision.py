@@ -190,7 +190,8 @@ class Reference:
     settings : SolverSettings
         How it was computed.
     crosscheck : dict
-        The second method, its settings and the errors of the reference against it.
+        The second method, its settings, its steps and the errors of the reference
+        against it.
     """
 
     result: Result
@@ -240,6 +241,7 @@ def reference(sc: Scenario, check_rtol: float = 1e-12) -> Reference:
         "atol": check.atol,
         "error_final": final,
         "error_l2": l2,
+        "n_steps": int(other.meta["n_steps"]),
         "wall_time_s": time.perf_counter() - tic,
     }
     return ref
