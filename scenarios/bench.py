@@ -34,11 +34,11 @@ from .progress import progress
 STUDIES = {  # (module holding ``study``, solver line): imported only when run
     "work-precision": (
         "sarcomere.dynamics.studies.workprecision",
-        "cvodes (reference: rtol 1e-12) against rk4, radau_fixed, collocation and scipy",
+        "cvodes (reference: rtol 1e-12) against radau, rodas, rk4, radau_fixed, collocation, scipy",
     ),
     "stability": (
         "sarcomere.dynamics.studies.stability",
-        "rk4 and euler (reference: cvodes rtol 1e-10)",
+        "rk4 and euler; rodas held at fixed steps (reference: cvodes rtol 1e-10)",
     ),
     "mpc": (
         "sarcomere.scenarios.studies.mpc_speed",

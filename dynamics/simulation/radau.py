@@ -46,8 +46,9 @@ from .settings import (
 
 SOURCE = Path(__file__).parent / "c" / "radau.c"
 """The integrator's C source (package data); it includes :data:`HEADERS`."""
-HEADERS = (Path(__file__).parent / "c" / "sparse_lu.h",)
-"""The headers :data:`SOURCE` includes (package data, copied next to it into an FMU)."""
+HEADERS = tuple(Path(__file__).parent / "c" / h for h in ("integrator.h", "sparse_lu.h"))
+"""The headers :data:`SOURCE` includes, directly or through ``integrator.h`` (what it
+shares with ``rodas.c``) (package data, copied next to it into an FMU)."""
 RUNS_SOURCE = Path(__file__).parent / "c" / "radau_runs.c"
 """The simulator's driver: several pieces in one call, states checked in C (package data)."""
 

@@ -43,7 +43,7 @@ import numpy as np
 from ..errors import ParameterError, SolverError
 from ..modeling.buffered import BufferedCall
 from ..modeling.model import Model
-from . import fixed_step, guard, radau, scipy_methods, sundials  # noqa: F401  (register the methods)
+from . import fixed_step, guard, radau, rosenbrock, scipy_methods, sundials  # noqa: F401  (register the methods)
 from .common import method_options, require_step
 from .inputs import HELD_TYPES, Const, input_ranges, number, signal_of, start_vector, values_at
 from .pwm import EffectiveDuty, PulseTrain

@@ -20,6 +20,12 @@ reference on the same grid (every step saved):
   largest reference pressure (10 Pa at 0.1 MPa);
 * ``fine``: everything else.
 
+**The Rosenbrock method.** ``rodas`` (Rodas5P) is L-stable: ``|R(z)| <= 1`` on the whole
+left half-plane and ``R(inf) = 0``, so no eigenvalue limits its step. It is run held at
+fixed steps (first = max step, error control loosened to rtol = atol = 0.5 so that no
+step is rejected: ``n_rejected`` is recorded) far beyond RK4's limit and classified
+alike: its largest fine step is an accuracy limit, not a stability one.
+
 **Laminar threshold.** The same study is repeated for ``r_lam`` = 0.995, 0.999
 (default) and 0.99999, which moves the fastest eigenvalue (the laminar conductance
 grows as ``1/sqrt(1 - r_lam)``).
@@ -123,8 +129,9 @@ def oscillation(sc: Scenario, run, ref_run) -> tuple[float, float]:
     return late / scale, early / scale
 
 
-def classify(sc: Scenario, method: str, h: float) -> dict:
-    """Run ``method`` at step ``h`` [s] (every step saved) and classify the answer."""
+def classify(sc: Scenario, method: str, h: float, settings: SolverSettings | None = None) -> dict:
+    """Run ``method`` at step ``h`` [s] (every step saved) and classify the answer
+    (``settings``: how an adaptive method is held at ``h``; default the fixed step)."""
     model, x0 = sc.setup()
     t_out = _step_grid(sc, h)
     kw = {"inputs": {P_CMD: sc.command}, "params": dict(sc.params), "x0": x0, "t_out": t_out}
@@ -133,7 +140,8 @@ def classify(sc: Scenario, method: str, h: float) -> dict:
     scale = np.abs(ref_X).max(axis=0)
     ref = Reference(ref_run, ref_X, np.where(scale > 0, scale, 1.0), SolverSettings())
     record = {"method": method, "step_s": h}
-    settings = SolverSettings(method, step=h, options=(("on_unstable", "warn"),))
+    if settings is None:
+        settings = SolverSettings(method, step=h, options=(("on_unstable", "warn"),))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", StepStabilityWarning)
         try:
@@ -165,6 +173,8 @@ def classify(sc: Scenario, method: str, h: float) -> dict:
         "oscillation_late": late,
         "oscillation_early": early,
         "guard_warned": bool(caught),
+        "n_steps": run.meta.get("n_steps"),
+        "n_rejected": run.meta.get("n_rejected"),
     }
 
 
@@ -190,6 +200,20 @@ def sweep(sc: Scenario, pred: dict, factors: Sequence[float]) -> dict:
             r["factor"] = f
         out[name] = {"predicted": pred[name], "runs": runs, "observed": observed(runs)}
     return out
+
+
+def held_step(method: str, h: float) -> SolverSettings:
+    """An adaptive method held at step ``h``: first = max step, tolerances too loose to
+    reject a step (the runs record ``n_rejected``)."""
+    return SolverSettings(method, 0.5, 0.5, options=(("first_step", h), ("max_step", h)))
+
+
+def rosenbrock_steps(sc: Scenario, steps: Sequence[float]) -> dict:
+    """``rodas`` held at each of ``steps``: the runs and the observed (accuracy) limit;
+    no predicted limit (L-stable)."""
+    runs = [classify(sc, "rodas", h, held_step("rodas", h)) for h in steps]
+    none = {"initial_s": None, "trajectory_s": None, "at_t_s": None, "why": "L-stable"}
+    return {"predicted": none, "runs": runs, "observed": observed(runs)}
 
 
 # --- charts -----------------------------------------------------------------------------
@@ -241,8 +265,9 @@ def plot_steps(studies: dict, path: Path) -> Path:
                 ax.semilogx(
                     hs, [y] * len(hs), marker, color=color, ls="", label=cls if y == 0 else None
                 )
-            h_pred = res["predicted"]["trajectory_s"] * 1e3
-            ax.plot([h_pred, h_pred], [y - 0.35, y + 0.35], color="k", lw=1.5)
+            if res["predicted"]["trajectory_s"] is not None:  # rodas: none (L-stable)
+                h_pred = res["predicted"]["trajectory_s"] * 1e3
+                ax.plot([h_pred, h_pred], [y - 0.35, y + 0.35], color="k", lw=1.5)
         ax.set_yticks(range(len(study)), list(study))
         ax.set_ylim(-0.6, len(study) - 0.4)
         ax.set_title(f"r_lam = {r_lam} (bar: predicted limit)", fontsize=9)
@@ -258,6 +283,9 @@ def plot_steps(studies: dict, path: Path) -> Path:
 # --- the whole study --------------------------------------------------------------------
 FULL_FACTORS = (0.5, 0.8, 0.9, 0.95, 0.99, 1.01, 1.05, 1.1, 1.2, 1.4, 1.7, 2.0, 3.0, 5.0, 10.0)
 QUICK_FACTORS = (0.9, 1.1, 1.5)
+FULL_RODAS_STEPS = (1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1)
+QUICK_RODAS_STEPS = (1e-3, 1e-2, 1e-1)
+"""Steps [s] at which ``rodas`` is held: from RK4's limit (about 1 ms) up 100-fold."""
 
 
 def study(out_dir: Path, quick: bool = False, n: int = 3) -> dict:
@@ -280,6 +308,9 @@ def study(out_dir: Path, quick: bool = False, n: int = 3) -> dict:
         pred = predicted(sp)
         spectra[r_lam] = sp
         studies[r_lam] = sweep(sc, pred, factors)
+        studies[r_lam]["rodas"] = rosenbrock_steps(
+            sc, QUICK_RODAS_STEPS if quick else FULL_RODAS_STEPS
+        )
         summary[r_lam] = {
             "max_abs_eig_1_s": max(sp["max_abs_eig_1_s"]),
             **{
@@ -319,4 +350,7 @@ def _metrics(summary: dict) -> dict:
             out[f"{name}_observed_first_failure_rlam{tag}_s"] = obs["first_failure_s"]
             ff = obs["first_failure_s"]
             out[f"{name}_observed_over_predicted_rlam{tag}_ratio"] = ff / pred if ff else None
+        obs = s["rodas"]["observed"]
+        out[f"rodas_largest_fine_step_rlam{tag}_s"] = obs["largest_fine_s"]
+        out[f"rodas_first_failure_rlam{tag}_s"] = obs["first_failure_s"]
     return out

@@ -190,7 +190,8 @@ class Reference:
     settings : SolverSettings
         How it was computed.
     crosscheck : dict
-        The second method, its settings and the errors of the reference against it.
+        The second method, its settings, its steps and the errors of the reference
+        against it.
     """
 
     result: Result
@@ -212,17 +213,25 @@ def state_errors(X: np.ndarray, ref: Reference) -> tuple[float, float]:
 
 
 REFERENCE_RTOL = 1e-12
+CHECK_ATOL_MIN = 1e-13
+"""The cross-check's smallest absolute tolerance [SI units of each state]: at atol 1e-15
+(rtol 1e-12) scipy's Radau cannot converge its Newton iteration on resting velocities
+(their stage equations' roundoff is above the increments it asks for), halves its step
+down to about 5 us and takes more than 20 000 steps for the vent scene's first 15 ms at
+rest (n = 1); at atol 1e-13 it takes 2 steps there (``docs/numerics.md``)."""
 
 
 def reference(sc: Scenario, check_rtol: float = 1e-12) -> Reference:
-    """CVODES at rtol 1e-12, cross-checked against scipy Radau at ``check_rtol``."""
+    """CVODES at rtol 1e-12, cross-checked against scipy Radau at ``check_rtol`` (atol
+    ``check_rtol * ATOL_PER_RTOL``, at least :data:`CHECK_ATOL_MIN`)."""
     model, _ = sc.setup()
     settings = SolverSettings("cvodes", REFERENCE_RTOL, REFERENCE_RTOL * ATOL_PER_RTOL)
     res = sc.run(settings, all_signals=True)
     X = states(res, model)
     scale = np.abs(X).max(axis=0)
     ref = Reference(res, X, np.where(scale > 0, scale, 1.0), settings)
-    check = SolverSettings("scipy_radau", check_rtol, check_rtol * ATOL_PER_RTOL)
+    check_atol = max(check_rtol * ATOL_PER_RTOL, CHECK_ATOL_MIN)
+    check = SolverSettings("scipy_radau", check_rtol, check_atol)
     tic = time.perf_counter()
     other = sc.run(check)
     final, l2 = state_errors(states(other, model), ref)
@@ -232,6 +241,7 @@ def reference(sc: Scenario, check_rtol: float = 1e-12) -> Reference:
         "atol": check.atol,
         "error_final": final,
         "error_l2": l2,
+        "n_steps": int(other.meta["n_steps"]),
         "wall_time_s": time.perf_counter() - tic,
     }
     return ref
@@ -240,6 +250,7 @@ def reference(sc: Scenario, check_rtol: float = 1e-12) -> Reference:
 # --- sweeps -----------------------------------------------------------------------------
 ADAPTIVE = (
     "radau",
+    "rodas",
     "cvodes",
     "scipy_rk45",
     "scipy_radau",
@@ -462,6 +473,11 @@ def study(out_dir: Path, quick: bool = False, n: int = 3) -> dict:
     ra = wall_at_error(step_recs, "radau", 1e-6)  # the compiled Radau IIA
     metrics["radau_wall_at_1em6_s"] = ra
     metrics["speedup_radau_vs_scipy_radau"] = sn / ra if ra and sn else None
+    for name in scenarios(n):  # the Rosenbrock method against radau, every scenario
+        recs = [r for r in records if r["scenario"] == name]
+        ro, rd = (wall_at_error(recs, m, 1e-6) for m in ("rodas", "radau"))
+        metrics[f"rodas_wall_at_1em6_{name}_s"] = ro
+        metrics[f"rodas_over_radau_wall_at_1em6_{name}_ratio"] = ro / rd if ro and rd else None
     metrics["vent_min_thread_stretch_m"] = refs["vent"]["min_thread_stretch_m"]
     path = out_dir / "work_precision.json"
     path.write_text(json.dumps({"records": records, "references": refs}, indent=1))

@@ -201,11 +201,14 @@ def test_cosim_restarts_from_a_saved_state_bit_for_bit(step_loaded):
 
 
 def test_the_cosim_integrator_is_the_simulators_radau(iso_fmu):
-    """The archive's integrator is the simulator's ``radau.c`` byte for byte, with the
-    generated right-hand side and Jacobian it calls."""
+    """The archive's integrator is the simulator's ``radau.c`` byte for byte, with every
+    header it includes (``radau.HEADERS``) and the generated right-hand side and
+    Jacobian it calls."""
     with zipfile.ZipFile(iso_fmu) as zf:
         names = zf.namelist()
         source = zf.read("sources/radau.c")
+        for header in radau.HEADERS:
+            assert zf.read(f"sources/{header.name}") == header.read_bytes()
     assert source == radau.SOURCE.read_bytes()
     assert {"sources/sm_rhs.c", "sources/sm_jac.c", "sources/sm_radau.h"} <= set(names)
     assert "sources/sm_casadi.c" in names

@@ -26,20 +26,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-int sm_rhs(const double **arg, double **res, int *iw, double *w, int mem);
-int sm_rhs_work(int *sz_arg, int *sz_res, int *sz_iw, int *sz_w);
-int sm_jac(const double **arg, double **res, int *iw, double *w, int mem);
-int sm_jac_work(int *sz_arg, int *sz_res, int *sz_iw, int *sz_w);
-const int *sm_jac_sparsity_out(int i);
-
-/* Return codes (the Python side turns them into SolverError messages). */
-enum { SM_OK = 0, SM_MAX_STEPS = 1, SM_STEP_TOO_SMALL = 2, SM_NEWTON = 3, SM_JAC = 4,
-       SM_NO_MEMORY = 5, SM_RHS = 6 };
-
-/* Statistics slots. */
-enum { ST_STEPS, ST_REJECTED, ST_RHS, ST_JAC, ST_LU, ST_NEWTON, ST_NEWTON_FAIL, ST_N };
-
-#include "sparse_lu.h"
+#include "integrator.h"
 
 /* RADAU5's reuse of the Jacobian and of the LU pair (Hairer & Wanner II, IV.8: THET,
  * QUOT1, QUOT2): after an accepted step the Jacobian is re-evaluated only if the Newton
@@ -52,61 +39,6 @@ enum { ST_STEPS, ST_REJECTED, ST_RHS, ST_JAC, ST_LU, ST_NEWTON, ST_NEWTON_FAIL, 
  * keeps its size too (scipy's rule; the error test still rejects a step that fails). */
 #define SM_THET 1e-2
 #define SM_QUOT2 2.0
-
-typedef struct {
-    int n;
-    const double *w, *p;
-    const double **arg;
-    double **res;
-    int *iw;
-    double *cw;
-    double *stats;
-    Pattern pt;
-    double *jnz; /* pt.nnz doubles: the Jacobian's nonzeros */
-} Model;
-
-/* f(t, x) into f; nonzero if the call fails or f is not finite. */
-static int rhs(Model *m, double t, const double *x, double *f)
-{
-    m->arg[0] = &t;
-    m->arg[1] = x;
-    m->arg[2] = m->w;
-    m->arg[3] = m->p;
-    m->res[0] = f;
-    m->stats[ST_RHS] += 1;
-    if (sm_rhs(m->arg, m->res, m->iw, m->cw, 0)) return 1;
-    for (int i = 0; i < m->n; ++i)
-        if (!isfinite(f[i])) return 1;
-    return 0;
-}
-
-/* The Jacobian's nonzeros at (t, x) into m->jnz; nonzero if the call fails or one is not
- * finite. */
-static int jac(Model *m, double t, const double *x)
-{
-    m->arg[0] = &t;
-    m->arg[1] = x;
-    m->arg[2] = m->w;
-    m->arg[3] = m->p;
-    m->res[0] = m->jnz;
-    m->stats[ST_JAC] += 1;
-    if (sm_jac(m->arg, m->res, m->iw, m->cw, 0)) return 1;
-    for (int k = 0; k < m->pt.nnz; ++k)
-        if (!isfinite(m->jnz[k])) return 1;
-    return 0;
-}
-
-/* Root mean square of v / s over b blocks of n entries (s: n entries, for every block). */
-static double rms(int b, int n, const double *v, const double *s)
-{
-    double acc = 0.0;
-    for (int k = 0; k < b; ++k, v += n)
-        for (int i = 0; i < n; ++i) {
-            double r = v[i] / s[i];
-            acc += r * r;
-        }
-    return sqrt(acc / ((double)b * n));
-}
 
 /* The method constants, in the order radau.py packs them. */
 typedef struct {
@@ -153,13 +85,8 @@ SmRadau *sm_radau_new(int n)
 {
     SmRadau *r = calloc(1, sizeof *r);
     if (!r) return NULL;
-    int sz_arg, sz_res, sz_iw, sz_w, a2, r2, i2, w2;
-    sm_rhs_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
-    sm_jac_work(&a2, &r2, &i2, &w2);
-    sz_arg = sz_arg > a2 ? sz_arg : a2;
-    sz_res = sz_res > r2 ? sz_res : r2;
-    sz_iw = sz_iw > i2 ? sz_iw : i2;
-    sz_w = sz_w > w2 ? sz_w : w2;
+    int sz_arg, sz_res, sz_iw, sz_w;
+    model_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
     size_t nn = (size_t)n * n;
     r->n = n;
     r->pt = jac_pattern(n);
@@ -256,20 +183,12 @@ int sm_radau(SmRadau *r, const double *w, const double *p, double t0, double *x,
         if (rhs(m, t, y, f0)) { code = SM_RHS; goto done; }
         if (jac(m, t, y)) { code = SM_JAC; goto done; }
         r->current_jac = 1;
-        /* initial step (Hairer, Norsett & Wanner I, II.4) for the order-3 error estimate */
+        /* the initial step for the error estimate, O(h^4) */
         r->h = opt[2];
-        if (!(r->h > 0)) {
-            for (int i = 0; i < n; ++i) scale[i] = atol + fabs(y[i]) * rtol;
-            double d0 = rms(1, n, y, scale), d1 = rms(1, n, f0, scale);
-            double h0 = (d0 < 1e-5 || d1 < 1e-5) ? 1e-6 : 0.01 * d0 / d1;
-            h0 = fmin(h0, t_end - t);
-            for (int i = 0; i < n; ++i) tmp[i] = y[i] + h0 * f0[i];
-            if (rhs(m, t + h0, tmp, err)) { code = SM_RHS; goto done; }
-            for (int i = 0; i < n; ++i) tmp[i] = err[i] - f0[i];
-            double d2 = rms(1, n, tmp, scale) / h0;
-            double h1 = (d1 <= 1e-15 && d2 <= 1e-15) ? fmax(1e-6, h0 * 1e-3)
-                                                       : pow(0.01 / fmax(d1, d2), 0.25);
-            r->h = fmin(100 * h0, h1);
+        if (!(r->h > 0)
+            && initial_step(m, t, y, f0, t_end - t, rtol, atol, 4, scale, tmp, err, &r->h)) {
+            code = SM_RHS;
+            goto done;
         }
     }
     r->valid = 0;

@@ -1,6 +1,6 @@
-/* The sparse LU of radau.c's iteration matrices (real and complex), over the Jacobian's
- * compressed-column pattern and the fill-in: a header of static functions, included once
- * by radau.c (and copied next to it into an FMU's sources). */
+/* The sparse LU of the integrators' iteration matrices (real and complex), over the
+ * Jacobian's compressed-column pattern and the fill-in: a header of static functions,
+ * included by integrator.h (and copied next to radau.c into an FMU's sources). */
 #ifndef SM_SPARSE_LU_H
 #define SM_SPARSE_LU_H
 

@@ -43,6 +43,23 @@ def test_runs_below_the_limit_are_fine_and_far_above_blow_up(short_step, predict
     assert above["guard_warned"]
 
 
+@pytest.mark.slow  # compiles rodas for the one-unit chain (1.1 s)
+def test_rodas_held_far_above_the_rk4_limit_is_fine_until_accuracy_fails(short_step, prediction):
+    """Rodas5P is L-stable: held at 2x and 10x RK4's predicted limit (RK4 blows up at 2x)
+    it stays fine with no step rejected; at 50 ms its error (24 %) fails the accuracy
+    criterion, and it never blows up. (Between them the classification is not monotone:
+    at 3x a period-2 pressure content of 1.05e-4 > 1e-4 is flagged, the stiff modes'
+    errors alternating in sign under R(z) < 0, |R| <= 0.12, for z < -6.5.)"""
+    h = prediction["rk4"]["trajectory_s"]
+    out = st.rosenbrock_steps(short_step, (2 * h, 10 * h, 0.05))
+    for r in out["runs"]:
+        assert r["n_rejected"] == 0 and r["n_steps"] >= round(short_step.t_final / r["step_s"])
+    assert [r["class"] for r in out["runs"]] == ["fine", "fine", "silently_wrong"], out
+    assert 0.01 < out["runs"][2]["error_l2"] < 1.0
+    assert out["observed"] == {"largest_fine_s": 10 * h, "first_failure_s": 0.05}
+    assert out["predicted"]["trajectory_s"] is None
+
+
 def test_observed_limit_from_classified_runs():
     runs = [
         {"step_s": 1.0, "class": "fine"},

@@ -46,6 +46,20 @@ def test_reference_is_cross_checked(small):
     assert ref.settings.rtol == wp.REFERENCE_RTOL
 
 
+@pytest.mark.slow  # CVODES at 1e-12 and scipy Radau: some 3 s
+def test_full_cross_check_runs_on_resting_velocities():
+    """The vent scene (n = 1, to 0.3 s: 0.1 s at rest, velocities at 0, then venting) at
+    the full run's cross-check tolerance: scipy Radau at atol 1e-15 took more than
+    20 000 steps in the first 15 ms of rest (the full run stopped: too many steps); at
+    CHECK_ATOL_MIN it takes some 5 000 in all and agrees with the CVODES reference."""
+    sc = dataclasses.replace(wp.scenarios(1)["vent"], t_final=0.3, n_out=31)
+    ref = wp.reference(sc, wp.FULL.check_rtol)
+    assert ref.crosscheck["rtol"] == wp.FULL.check_rtol
+    assert ref.crosscheck["atol"] == wp.CHECK_ATOL_MIN
+    assert ref.crosscheck["n_steps"] < 20_000, ref.crosscheck
+    assert ref.crosscheck["error_l2"] < 1e-10, ref.crosscheck
+
+
 def test_sweep_records_and_error_falls_with_tolerance(small):
     sc, ref = small
     started = time.perf_counter()
@@ -167,3 +181,17 @@ def test_pwm_scenario_stepping_across_edges_fails_stopping_at_them_converges():
     X, _ = METHODS["rk4"].run(seg)
     crossing = wp.state_errors(np.vstack([x0, X]), dataclasses.replace(ref))[1]
     assert crossing > 20 * stopping, (crossing, stopping)
+
+
+@pytest.mark.slow  # compiles rodas and radau for the one-unit chain
+def test_rodas_is_on_the_chart_and_its_error_falls_with_tolerance(small):
+    """The Rosenbrock method is one of the chart's adaptive methods; on the step scene
+    its error falls with the tolerance as radau's does, within 10x of radau's at each."""
+    sc, ref = small
+    assert "rodas" in wp.ADAPTIVE
+    recs = wp.sweep(sc, ref, TINY, only=["rodas", "radau"])
+    assert [r["status"] for r in recs] == ["ok"] * 6, recs
+    errs = {m: [r["error_l2"] for r in recs if r["method"] == m] for m in ("rodas", "radau")}
+    assert errs["rodas"][0] > 100 * errs["rodas"][-1], errs
+    for a, b in zip(errs["rodas"], errs["radau"], strict=True):
+        assert a < 10 * b + 1e-9, errs
