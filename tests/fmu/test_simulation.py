@@ -242,8 +242,15 @@ def test_cosim_continues_the_integrator_when_nothing_was_set(step_loaded, step_n
     """Between doSteps with nothing set, the integrator continues (step size, Jacobian, LU
     and error history carried); a restart takes an automatic first step. After the
     filling, 1 ms doSteps are one Radau step each when continued, two when restarted at
-    every doStep (getFMUstate between doSteps restarts); continuing moves the result only
-    within the tolerance: within 1e-6 of the length's span of the restarted run."""
+    every doStep (getFMUstate between doSteps restarts), and fewer Radau steps in all from
+    the end of the filling (doStep 30) on; continuing moves the result only within the
+    tolerance: within 1e-6 of the length's span of the restarted run.
+
+    Not claimed: fewer steps through the filling itself. There a continued doStep starts on
+    the shortened landing step of the last one (RADAU5's LU hold keeps a step within 2x),
+    and takes more Radau steps than a restart's initial-step estimate: 286 against 254
+    over the first 30 doSteps, 407 against 402 over all 100 (measured at the merge of
+    issues 26 and 27; carrying the pre-landing step instead was tried and is worse)."""
     fmi = step_loaded
     lengths, substeps = [], []
     for restart in (False, True):
@@ -264,7 +271,7 @@ def test_cosim_continues_the_integrator_when_nothing_was_set(step_loaded, step_n
     continued, restarted = substeps
     assert len(continued) == len(restarted) == 100
     assert set(continued[-20:]) == {1} and set(restarted[-20:]) == {2}
-    assert sum(continued) < sum(restarted)
+    assert sum(continued[30:]) < sum(restarted[30:])
     span = np.ptp(step_native["myofibril.length"])
     assert lengths[0] != lengths[1]
     assert abs(lengths[0] - lengths[1]) < 1e-6 * span
