@@ -184,3 +184,6 @@ def add_supply(
     sys.connect(source.port, v.port_p)
     sys.connect(v.port_a, hose.port)
     return Supply(hose.port, f"{name}.cmd", {f"{name}.cmd": opts.pwm()})
+
+
+__all__ = ["SUPPLIES", "Supply", "ValveOptions", "add_supply"]

@@ -161,3 +161,6 @@ class SwitchingValve(Component):
             q = q_in - q_ex
         b.equation(pa.m_flow, -q)
         b.output("m_flow", q, "kg/s", "net mass flow out of the working port")
+
+
+__all__ = ["WAYS", "PressureSource", "SwitchingValve"]

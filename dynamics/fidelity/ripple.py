@@ -263,3 +263,6 @@ def choose_level(
     )
     level = "averaged" if verdict == "within" else "switched"
     return ValveChoice(level, pr, tolerance, why)
+
+
+__all__ = ["RipplePrediction", "ValveChoice", "choose_level", "predict"]

@@ -69,3 +69,6 @@ def rank(
             }
         )
     return sorted(out, key=lambda r: -np.inf if r["gain"] is None else -r["gain"])
+
+
+__all__ = ["rank"]

@@ -63,3 +63,6 @@ def fit_from(
             break
         sol = problem.solve(sol.v, problem.weights(sig))
     return Fitted(sol, sig)
+
+
+__all__ = ["Fitted", "fit_from"]

@@ -191,3 +191,6 @@ def check_uses(model: Model, uses: Uses, names: Sequence[str], where: str) -> No
             raise ParameterError(f"{where} uses", pname, f"a parameter of model '{model.name}'")
         if ename not in names:
             raise ParameterError(f"{where} uses", ename, f"an estimated parameter: {list(names)}")
+
+
+__all__ = ["Estimated", "Noise", "StaticPoint", "Target", "TimeSeries", "measured"]

@@ -328,3 +328,6 @@ def _failed(problem: Problem, v0, weights, why: str) -> Solution:
 def _needed(points: Sequence[StaticPoint]) -> set[tuple[str, str]]:
     """(point, signal) pairs some later point links to."""
     return {v for pt in points for v in pt.links.values()}
+
+
+__all__ = ["Problem", "Solution"]

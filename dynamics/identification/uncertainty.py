@@ -221,3 +221,6 @@ def verdicts(problem: Problem, fis: Fisher, profiles: dict[int, Profile] | None)
             }
         )
     return out
+
+
+__all__ = ["CHI2_95", "Fisher", "Profile", "fisher", "profile", "sensitivities", "verdicts"]

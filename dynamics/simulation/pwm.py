@@ -162,3 +162,6 @@ def _mixed() -> ParameterError:
         "every other input piecewise constant (constant, step, staircase)",
         "the PWM's command is integrated as a held input between its edges",
     )
+
+
+__all__ = ["LEVELS", "PWM"]
