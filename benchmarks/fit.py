@@ -14,7 +14,7 @@ Usage::
 
 (``lsq-default``: the baseline with scipy's default finite-difference step.) Coverage,
 speed and profiles are not written yet: the engine's fit of this problem took more than 10
-CPU minutes (BENCHMARKS.md section 13); :func:`replicate_data` gives the noise replicates
+CPU minutes (BENCHMARKS.md section 15); :func:`replicate_data` gives the noise replicates
 they need.
 
 Starts: ``--starts`` points drawn log-uniformly within 0.5-2x of the truth for every
@@ -26,7 +26,7 @@ methods (``ms``, ``ss``: Radau IIA on the 1 ms samples) and scipy's (``lsq``,
 their integrators' errors. Times are CPU seconds of
 this process (``time.process_time``; the engine's Dask workers, if any, are reported by
 the engine), methods interleaved start by start. Results: ``fit_<command>.json`` in
-``--out`` (default ``out/bench/fit``) and a table on stdout; BENCHMARKS.md section 13.
+``--out`` (default ``out/bench/fit``) and a table on stdout; BENCHMARKS.md section 15.
 """
 
 from __future__ import annotations
