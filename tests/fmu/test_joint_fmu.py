@@ -46,6 +46,16 @@ output_interval = "1 ms"
 TOL = 1e-4
 """Largest error relative to each output's range (the packaged scenes' FMU target)."""
 
+TOL_K = 2e-4
+"""The same for ``stiffness.K``, the steady-state gain ``-C A^-1 B`` of the linearisation
+at the present state, which carries its own evaluation noise: natively, at the state 8 ms
+after the flexor's step, states perturbed by 1e-9 or by 1e-8 (relative, random) move K by
+the same 1.8-1.9e-5 of its value, 1.2e-4 of its range here (a floor of the solve, not of
+the state). So 1e-4 of the range is below what K itself resolves; measured FMU against
+native: 0.7e-4 before RADAU5's LU reuse (issue 27), 1.06e-4 after, the states within 1e-9
+of their ranges. Set at the merge of issues 26 and 27; a better-conditioned stiffness
+signal is the fix (named in the issue notes)."""
+
 
 def test_joint_fmu_cosimulation_matches_the_native_run(tmp_path):
     sc = parse_scenario(SCENE, "joint-fmu.toml")
@@ -79,4 +89,5 @@ def test_joint_fmu_cosimulation_matches_the_native_run(tmp_path):
         native = np.array([r[name] for r in rows])
         got = np.interp(t, fmu["time"], fmu[name])
         assert np.ptp(native) > 0, name
-        assert np.max(np.abs(got - native)) < TOL * np.ptp(native), name
+        tol = TOL_K if name == "stiffness.K" else TOL
+        assert np.max(np.abs(got - native)) < tol * np.ptp(native), name
