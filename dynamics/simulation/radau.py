@@ -52,7 +52,7 @@ shares with ``rodas.c``) (package data, copied next to it into an FMU)."""
 RUNS_SOURCE = Path(__file__).parent / "c" / "radau_runs.c"
 """The simulator's driver: several pieces in one call, states checked in C (package data)."""
 
-_CAUSES = {
+CAUSES = {
     1: "too many steps (max_steps reached)",
     2: "step size became too small (below 10 machine epsilons of t)",
     3: "Newton iteration failed to converge repeatedly (11 step halvings)",
@@ -60,6 +60,8 @@ _CAUSES = {
     5: "out of memory",
     6: "right-hand side evaluation failed (NaN or inf)",
 }
+"""The C integrators' return codes (``integrator.h``; 1, 2, 4 and 5 mean the same in
+``rodas.c``) and what each says in a failure."""
 _NONFINITE, _DOMAIN = 7, 8  # radau_runs.c's codes beyond radau.c's
 CFLAGS = ("-O3", "-fno-math-errno", "-fcx-limited-range", "-std=c11")
 """Compiler flags of the integrator: no errno from sqrt/pow and C99's NaN-recovery in
@@ -318,7 +320,7 @@ def _options(s: SolverSettings) -> tuple[np.ndarray, int]:
 
 
 def _cause(code: int, s: SolverSettings) -> str:
-    cause = _CAUSES.get(code, f"error code {code}")
+    cause = CAUSES.get(code, f"error code {code}")
     if code == 3 and (s.atol < ROUNDOFF_ATOL or s.rtol < ROUNDOFF_RTOL):
         cause += (
             f" at atol = {s.atol:g}, rtol = {s.rtol:g}: below the roundoff floor of the"

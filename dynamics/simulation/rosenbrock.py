@@ -43,10 +43,7 @@ SOURCE = Path(__file__).parent / "c" / "rodas.c"
 """The integrator's C source (package data)."""
 
 _CAUSES = {
-    1: "too many steps (max_steps reached)",
-    2: "step size became too small (below 10 machine epsilons of t)",
-    4: "Jacobian evaluation failed (NaN or inf)",
-    5: "out of memory",
+    **{code: radau.CAUSES[code] for code in (1, 2, 4, 5)},  # integrator.h's codes
     6: "right-hand side evaluation failed (NaN or inf) at 11 step sizes in a row",
     7: "iteration matrix I/(h gamma) - J singular at 11 step sizes in a row",
 }
