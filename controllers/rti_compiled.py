@@ -6,8 +6,9 @@ per-interval Functions are generated once and called in loops; with a LAPACK sol
 linearisation ``nmpc_head`` and condensing ``nmpc_tail`` around it; or a whole law built
 with a code-generable linear solver,
 ``"sparse_lu"`` or ``"qr"``) into one shared library:
-``casadi.CodeGenerator`` writes the C, gcc compiles it with :data:`CFLAGS`, and the
-library lives in the disk cache of :mod:`sarcomere.dynamics.simulation.compiled` (keyed
+``casadi.CodeGenerator`` writes the C and gcc compiles it
+(:func:`sarcomere.dynamics.simulation.compiled.casadi_library`); the library lives in the
+disk cache of :mod:`sarcomere.dynamics.simulation.compiled` (keyed
 by the Functions' serialised form, CasADi's version and the flags: a rebuilt controller of
 the same problem loads the cached file without compiling). The QP solver DAQP's generated
 C calls the DAQP library; it is linked statically from the copy the casadi wheel ships
@@ -26,9 +27,6 @@ import casadi as cs
 from sarcomere.dynamics.errors import SolverError
 from sarcomere.dynamics.simulation import compiled
 
-CFLAGS = ("-O2",)
-"""Compiler flags of the generated C (-O2: -O3 gave no measurable gain here)."""
-
 _CASADI = Path(cs.__file__).parent
 
 
@@ -44,7 +42,9 @@ def daqp_build() -> tuple[list[str], list[str]]:
 
 
 def compiled_functions(functions: Sequence[cs.Function], stem: str) -> dict[str, cs.Function]:
-    """The ``functions`` compiled into one cached shared library, by name.
+    """The ``functions`` compiled into one cached shared library, by name, with DAQP's
+    headers and static library (:func:`daqp_build`); see
+    :func:`sarcomere.dynamics.simulation.compiled.casadi_library`.
 
     Returns
     -------
@@ -57,20 +57,5 @@ def compiled_functions(functions: Sequence[cs.Function], stem: str) -> dict[str,
         When a Function cannot be generated to C (e.g. a LAPACK linear solver), or the
         compiler fails.
     """
-    inputs = [f.serialize() for f in functions] + [cs.__version__, " ".join(CFLAGS)]
-
-    def units(folder: Path) -> list[compiled.Unit]:
-        cg = cs.CodeGenerator(f"{stem}.c", {"with_header": False})
-        for f in functions:
-            cg.add(f)
-        source = cg.dump()
-        if "#error" in source:
-            line = next(s for s in source.splitlines() if "#error" in s).strip()
-            raise SolverError(f"{stem}: cannot generate C ({line})")
-        path = folder / f"{stem}.c"
-        path.write_text(source)
-        return [compiled.Unit(path, (*CFLAGS, *include))]
-
     include, link = daqp_build()
-    path, _ = compiled.shared_library(stem, inputs, units, (*link, "-lm"))
-    return {f.name(): cs.external(f.name(), str(path)) for f in functions}
+    return compiled.casadi_library(functions, stem, include, (*link, "-lm"))

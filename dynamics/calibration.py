@@ -61,6 +61,7 @@ from .errors import ParameterError, SolverError
 from .identification import uncertainty
 from .identification.estimate import fit_from
 from .identification.experiments import Estimated, Noise, StaticPoint, Target
+from .identification.gauss_newton import Options
 from .identification.problem import Problem
 from .newton import ContinuationFailure, NewtonFailure, continuation
 
@@ -262,7 +263,7 @@ def problem(
         return Target(k, expr, (values or TARGETS)[k], k)
 
     noise = {k: Noise(abs(TARGETS[k])) for k in targets}
-    tight = {"ipopt.tol": 1e-13, "ipopt.acceptable_tol": 1e-11, "ipopt.mu_init": 1e-9}
+    tight = Options(rtol=1e-20, atol=0.0, gtol=1e-12, xtol=1e-13)
     return Problem(
         params, points=points, targets=[target(k) for k in targets], noise=noise, options=tight
     )

@@ -1,43 +1,33 @@
-"""The least-squares problem of a fit: unknowns, residuals and constraints as one CasADi
-NLP, solved by IPOPT with the Gauss-Newton Hessian.
+"""The least-squares problem of a fit: unknowns, residuals and constraints, solved by a
+constrained Gauss-Newton (:mod:`.gauss_newton`).
 
 Unknowns ``v = [phi, S_1, ..., W_1, ...]``: the search variables of the estimated
 parameters (:class:`.experiments.Estimated`), the scaled node states of every time series
-(:mod:`.shooting`) and the scaled equilibrium unknowns ``[x; z]`` of every static point.
-Residuals ``r``: prediction minus data, each divided by its standard deviation
-(:class:`.experiments.Noise`; the weights are a parameter of the NLP, so estimating a
-noise level re-solves without rebuilding). Constraints ``g(v) = 0``: each record's
-equilibrium at its first sample and its continuity defects, and every static point's
-equilibrium. The cost is ``1/2 |r|^2``; IPOPT gets the exact gradient and constraint
-Jacobian and, as the Hessian of the Lagrangian, the Gauss-Newton matrix
-``J_r^T J_r`` (no second derivatives; docs/fitting.md says why this solver).
+(:mod:`.shooting`, column after column) and the scaled equilibrium unknowns ``[x; z]`` of
+every static point. Residuals ``r``: prediction minus data, each weighted by one over its
+standard deviation (:class:`.experiments.Noise`; the weights are an argument, so
+estimating a noise level re-solves without rebuilding). Constraints ``g(v) = 0``: each
+record's equilibrium at its first sample and its continuity defects, and every static
+point's equilibrium. :meth:`Problem.linearize` gives both with their exact sparse
+Jacobians: the time series from the compiled shooting engine (states and forward
+sensitivities in one call per record), the static points and targets from CasADi
+Functions of ``[phi; W]``.
 """
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
+import scipy.sparse as sp
 
 from ..equilibrium import solve_equilibrium
 from ..errors import ParameterError, SolverError
 from .experiments import Estimated, Noise, StaticPoint, Target, TimeSeries, check_uses
-from .shooting import Shooting
-
-IPOPT = {
-    "ipopt.print_level": 0,
-    "ipopt.sb": "yes",
-    "print_time": False,
-    "ipopt.tol": 1e-9,
-    "ipopt.constr_viol_tol": 1e-9,
-    "ipopt.acceptable_tol": 1e-6,
-    "ipopt.acceptable_iter": 5,
-    "ipopt.max_iter": 200,
-}
-"""IPOPT's options for every fit (tolerances on the scaled KKT conditions)."""
+from .gauss_newton import Options, gauss_newton
+from .shooting import Shooting, scales
 
 
 @dataclass
@@ -55,7 +45,7 @@ class Rows:
 class Solution:
     """One solve: search variables ``phi``, values ``theta`` (SI), all unknowns ``v``,
     ``cost`` = sum of squared weighted residuals (chi-squared with known noise), the
-    unweighted residuals, the weights used, IPOPT's status and iterations."""
+    unweighted residuals, the weights used, the solver's status and iterations."""
 
     phi: np.ndarray
     theta: np.ndarray
@@ -68,11 +58,38 @@ class Solution:
 
     @property
     def success(self) -> bool:
-        return self.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+        return self.status == "converged"
+
+
+@dataclass
+class Linearization:
+    """Residuals and constraints at ``v``: weighted ``rw`` and unweighted ``r`` residuals,
+    constraints ``g``, and (when asked) their sparse Jacobians ``Jr`` (of ``rw``), ``Jg``."""
+
+    rw: np.ndarray
+    r: np.ndarray
+    g: np.ndarray
+    Jr: sp.csc_matrix | None = None
+    Jg: sp.csc_matrix | None = None
+
+
+@dataclass
+class _Series:
+    """A record in the problem: the experiment, its shooting, where its nodes sit in
+    ``v``, the model entries the estimated values set (``idx``), the estimated values it
+    uses (``used``, indices into the parameters) and ``D`` (``p[idx] = D theta[used]``)."""
+
+    exp: TimeSeries
+    shoot: Shooting
+    offset: int
+    idx: list[int]
+    used: list[int]
+    D: np.ndarray
+    rows: list[np.ndarray]
 
 
 class Problem:
-    """The NLP of a fit (module docstring).
+    """The least-squares problem of a fit (module docstring).
 
     Parameters
     ----------
@@ -85,8 +102,8 @@ class Problem:
         Static measurements on the points.
     noise : mapping of signal name to Noise
         One per measured signal (time-series outputs and target signals).
-    options : mapping, optional
-        IPOPT options over :data:`IPOPT` (tighter tolerances for a zero-residual fit).
+    options : gauss_newton.Options, optional
+        The solver's tolerances (tighter for a zero-residual fit).
     """
 
     def __init__(
@@ -96,7 +113,7 @@ class Problem:
         points: Sequence[StaticPoint] = (),
         targets: Sequence[Target] = (),
         noise: Mapping[str, Noise] | None = None,
-        options: Mapping[str, object] | None = None,
+        options: Options | None = None,
     ) -> None:
         self.params, self.series = list(params), list(series)
         self.points, self.targets = list(points), list(targets)
@@ -104,7 +121,7 @@ class Problem:
         if len(set(names)) != len(names):
             raise ParameterError("parameters", names, "distinct names")
         self.noise = dict(noise or {})
-        self.options = {**IPOPT, **(options or {})}
+        self.options = options or Options()
         for exp in (*self.series, *self.points):
             check_uses(exp.model, exp.uses, names, f"experiment '{exp.name}'")
         measured = {s for e in self.series for s in e.outputs} | {t.signal for t in self.targets}
@@ -129,40 +146,44 @@ class Problem:
 
     def _build(self) -> None:
         n_theta = len(self.params)
-        phi = cs.MX.sym("phi", n_theta)
-        theta = [e.to_theta(phi[k]) for k, e in enumerate(self.params)]
-        unknowns, cons, preds = [phi], [], []
+        index = {e.name: k for k, e in enumerate(self.params)}
         rows = Rows([], [], [], np.zeros(0))
         data = []
-        self.shootings = []
+        offset = n_theta
+        self._series: list[_Series] = []
         for exp in self.series:
             m = exp.model
-            shoot = Shooting.of(m, exp.t, exp.u, exp.interval, exp.substeps)
-            self.shootings.append(shoot)
-            S = cs.MX.sym(f"S_{exp.name}", m.nx, shoot.nodes)
-            unknowns.append(cs.vec(S))
-            p = self._p_expr(exp, theta)
-            Xi, defects = shoot.states(S, p)
-            scale = shoot.scale()
-            u0 = cs.DM(exp.u[0])
-            cons += [m.function("ode")(scale * S[:, 0], cs.MX(0, 1), u0, p) / scale, defects]
-            n = len(exp.t)
-            sig = m.signals_function(list(exp.outputs), n)
-            Y = sig(cs.diag(cs.DM(scale)) @ Xi, cs.MX(0, n), cs.DM(exp.u.T), p)
+            idx = [i for i, n in enumerate(m.param_names) if n in exp.uses]
+            used = sorted({index[exp.uses[m.param_names[i]][0]] for i in idx})
+            D = np.zeros((len(idx), len(used)))
+            for r_, i in enumerate(idx):
+                ename, factor = exp.uses[m.param_names[i]]
+                D[r_, used.index(index[ename])] = factor
+            scale = scales(m, self._equilibria(exp))
+            shoot = Shooting.of(m, exp.t, exp.u, exp.interval, idx, len(used), exp.outputs, scale)
+            picks = []
             for j, name in enumerate(exp.outputs):
                 ok = np.flatnonzero(np.isfinite(exp.data[:, j]))
-                preds.append(Y[j, ok].T)
+                picks.append(ok)
                 data.append(exp.data[ok, j])
                 rows.experiment += [exp.name] * len(ok)
                 rows.signal += [name] * len(ok)
                 rows.sample += ok.tolist()
+            self._series.append(_Series(exp, shoot, offset, idx, used, D, picks))
+            offset += m.nx * shoot.nodes
+        self.n_series_rows = sum(len(d) for d in data)
+        # static points and targets: CasADi Functions of [phi; W]
+        phi = cs.MX.sym("phi", n_theta)
+        theta = [e.to_theta(phi[k]) for k, e in enumerate(self.params)]
+        unknowns, cons, preds = [phi], [], []
         solved: dict[tuple[str, str], cs.MX] = {}
         self.point_vars = {}
         for pt in self.points:
             m = pt.model
             w = cs.MX.sym(f"W_{pt.name}", m.nx + m.nz)
             unknowns.append(w)
-            scale = np.maximum(np.concatenate([m.nominal("x"), m.nominal("z")]), 1e-12)
+            sx = scales(m, self._equilibria(pt))
+            scale = np.concatenate([sx, np.maximum(m.nominal("z"), 1e-12)])
             x, z = scale[: m.nx] * w[: m.nx], scale[m.nx :] * w[m.nx :]
             links = {k: solved[v] for k, v in pt.links.items()}
             p = self._p_expr(pt, theta, links)
@@ -187,33 +208,138 @@ class Problem:
             rows.sample.append(-1)
         rows.data = np.concatenate(data) if data else np.zeros(0)
         self.rows = rows
-        v = cs.vertcat(*unknowns)
-        pred = cs.vertcat(*preds)
-        r = pred - rows.data
-        w = cs.MX.sym("w", r.numel())
-        rw = w * r
-        g = cs.vertcat(*cons)
-        self.n_v, self.n_g = v.numel(), g.numel()
-        self.sizes = [u.numel() for u in unknowns]
-        Jr, Jg = cs.jacobian(rw, v), cs.jacobian(g, v)
-        self.residual = cs.Function("residual", [v, w], [rw, Jr, r], ["v", "w"], ["rw", "J", "r"])
-        self.constraint = cs.Function("constraint", [v], [g, Jg], ["v"], ["g", "J"])
-        self.nlp = (v, w, rw, g, Jr)  # the symbols: unknowns, weights, residuals, constraints, J_r
-
-    @functools.cached_property
-    def ipopt(self) -> cs.Function:
-        """IPOPT on the same NLP with the Gauss-Newton Hessian (built on first use)."""
-        v, w, rw, g, Jr = self.nlp
-        lam_f, lam_g = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", g.numel())
-        hess = cs.Function(
-            "hess_lag",
-            [v, w, lam_f, lam_g],
-            [lam_f * cs.triu(cs.mtimes(Jr.T, Jr))],
-            ["x", "p", "lam_f", "lam_g"],
-            ["hess_gamma_x_x"],
+        vs = cs.vertcat(*unknowns)
+        pred = cs.vertcat(*preds) if preds else cs.MX(0, 1)
+        g = cs.vertcat(*cons) if cons else cs.MX(0, 1)
+        self._static = cs.Function(
+            "static", [vs], [pred, g, cs.jacobian(pred, vs), cs.jacobian(g, vs)]
         )
-        nlp = {"x": v, "p": w, "f": 0.5 * cs.sumsqr(rw), "g": g}
-        return cs.nlpsol("fit", "ipopt", nlp, {**self.options, "hess_lag": hess})
+        self._w_offset = offset
+        self.n_v = offset + vs.numel() - n_theta
+        self.n_g = sum(s.exp.model.nx * s.shoot.nodes for s in self._series) + g.numel()
+
+    def _equilibria(self, exp) -> list[np.ndarray]:
+        """States of the experiment's equilibria at the start values, at its first and its
+        largest inputs (for the state scales; none where a solve fails)."""
+        theta = np.array([e.start for e in self.params])
+        over = self._p_numeric(exp, theta) if not getattr(exp, "links", None) else None
+        if over is None:
+            return []
+        u = np.atleast_2d(exp.u)
+        out = []
+        for i in sorted({0, int(np.argmax(np.max(np.abs(u), axis=1)))}):
+            try:
+                inputs = dict(zip(exp.model.input_names, u[i], strict=True))
+                out.append(solve_equilibrium(exp.model, inputs, over).x)
+            except (SolverError, ParameterError):
+                pass
+        return out
+
+    @property
+    def shootings(self) -> list[Shooting]:
+        """The time series' shootings, in order."""
+        return [s.shoot for s in self._series]
+
+    # --- residuals, constraints and their Jacobians ------------------------------------
+    def _p_numeric_series(self, s: _Series, theta: np.ndarray) -> np.ndarray:
+        p = np.array(s.exp.p, dtype=float)
+        if s.idx:
+            p[s.idx] = s.D @ theta[s.used]
+        return p
+
+    def linearize(self, v: np.ndarray, weights: np.ndarray, jacobian: bool = True) -> Linearization:
+        """Residuals and constraints at ``v`` (and their Jacobians when ``jacobian``).
+        Raises SolverError where a record's simulation fails."""
+        v = np.asarray(v, dtype=float)
+        n = len(self.params)
+        phi = v[:n]
+        theta = self.values(phi)
+        dtheta = np.array([e.dtheta_dphi(t) for e, t in zip(self.params, theta, strict=True)])
+        preds, gs = [], []
+        Jr_parts, Jg_parts = [], []  # (rows, cols, values) in COO, offsets added below
+        row_r = row_g = 0
+        for s in self._series:
+            m, shoot = s.exp.model, s.shoot
+            nx, nodes = m.nx, shoot.nodes
+            p = self._p_numeric_series(s, theta)
+            S = v[s.offset : s.offset + nx * nodes].reshape(nodes, nx).T
+            if jacobian:
+                Xi, dS, dT, node = shoot.sensitivities(S, p, s.D)
+            else:
+                Xi = shoot.simulate(S, p)
+            scale = shoot.scale
+            x = scale[:, None] * Xi
+            npts = x.shape[1]
+            out = shoot.engine.mapped("outputs", npts)(x, shoot.u.T, np.tile(p[:, None], (1, npts)))
+            y = np.array(out[0])
+            for j, ok in enumerate(s.rows):
+                preds.append(y[j, ok])
+            f, Fxi, Fp = shoot.engine.equilibrium(S[:, 0], shoot.u[0], p, scale)
+            ends = [b for _, b in shoot.bounds[:-1]]
+            defects = (Xi[:, ends] - S[:, 1:]).T.ravel()
+            gs += [np.array(f).ravel(), defects]
+            if not jacobian:
+                continue
+            ny, k = len(s.rows), len(s.idx)
+            Yx = np.array(out[1]).reshape(ny, npts, nx).transpose(1, 0, 2) * scale
+            Yp = np.array(out[2]).reshape(ny, npts, k).transpose(1, 0, 2)
+            dYs = Yx @ dS  # (n, ny, nx): to the sample's node
+            scale_used = dtheta[s.used]  # d theta_used / d phi_used
+            dYt = (Yx @ dT + Yp @ s.D) * scale_used
+            r0 = row_r
+            for j, ok in enumerate(s.rows):
+                rr = r0 + np.arange(len(ok))
+                cols_node = s.offset + node[ok][:, None] * nx + np.arange(nx)[None, :]
+                Jr_parts.append((np.repeat(rr, nx), cols_node.ravel(), dYs[ok, j, :].ravel()))
+                nu_ = len(s.used)
+                Jr_parts.append(
+                    (np.repeat(rr, nu_), np.tile(np.array(s.used), len(ok)), dYt[ok, j, :].ravel())
+                )
+                r0 += len(ok)
+            # equilibrium at the first sample
+            gr = row_g + np.arange(nx)
+            Fxi, Fp = np.array(Fxi), np.array(Fp)
+            Jg_parts.append((np.repeat(gr, nx), np.tile(s.offset + np.arange(nx), nx), Fxi.ravel()))
+            Fphi = (Fp @ s.D) * scale_used if k else np.zeros((nx, len(s.used)))
+            Jg_parts.append(
+                (np.repeat(gr, len(s.used)), np.tile(np.array(s.used), nx), Fphi.ravel())
+            )
+            # continuity: X_end(node j) - node j+1
+            for j, b in enumerate(ends):
+                gr = row_g + nx * (j + 1) + np.arange(nx)
+                cj = s.offset + nx * j + np.arange(nx)
+                Jg_parts.append((np.repeat(gr, nx), np.tile(cj, nx), dS[b].ravel()))
+                Jg_parts.append((gr, cj + nx, -np.ones(nx)))
+                Jg_parts.append(
+                    (
+                        np.repeat(gr, len(s.used)),
+                        np.tile(np.array(s.used), nx),
+                        (dT[b] * scale_used).ravel(),
+                    )
+                )
+            row_r = r0
+            row_g += nx * nodes
+        vs = np.concatenate([phi, v[self._w_offset :]])
+        pred_s, g_s, Jp, Jgs = self._static(vs)
+        preds.append(np.array(pred_s).ravel())
+        gs.append(np.array(g_s).ravel())
+        pred = np.concatenate(preds) if preds else np.zeros(0)
+        r = pred - self.rows.data
+        rw = weights * r
+        g = np.concatenate(gs) if gs else np.zeros(0)
+        if not jacobian:
+            return Linearization(rw, r, g)
+        cmap = np.concatenate([np.arange(n), self._w_offset + np.arange(len(vs) - n)])
+        for target, base, J in ((Jr_parts, row_r, Jp), (Jg_parts, row_g, Jgs)):
+            Js = sp.coo_matrix(J.sparse()) if J.nnz() else None
+            if Js is not None:
+                target.append((base + Js.row, cmap[Js.col], Js.data))
+        Jr = _assemble(Jr_parts, len(r), self.n_v)
+        Jr = sp.diags(weights) @ Jr
+        Jg = _assemble(Jg_parts, len(g), self.n_v)
+        if not (np.all(np.isfinite(rw)) and np.all(np.isfinite(g))):
+            raise SolverError("a residual or constraint is not finite")
+        return Linearization(rw, r, g, Jr.tocsc(), Jg.tocsc())
 
     # --- noise ------------------------------------------------------------------------
     def weights(self, sigma: Mapping[str, float] | None = None) -> np.ndarray:
@@ -253,38 +379,70 @@ class Problem:
         over.update(links or {})
         return over
 
-    def initial_guess(self, theta: np.ndarray) -> np.ndarray:
-        """``v`` for parameter values ``theta`` (SI): each record simulated from its
-        equilibrium (the node states), each static point solved (:func:`solve_equilibrium`).
-        Raises SolverError (which experiment, why) where that fails."""
-        theta = np.asarray(theta, dtype=float)
-        parts = [np.array([e.to_phi(theta[k]) for k, e in enumerate(self.params)])]
-        for exp, shoot in zip(self.series, self.shootings, strict=True):
+    def _equilibria_of(self, theta: np.ndarray) -> tuple[list, list]:
+        """Every record's first equilibrium and every static point's, at ``theta`` (SI),
+        each continued from the last one found for it (this process's memory). Raises
+        SolverError (which experiment, why) where one fails."""
+        memory = self.__dict__.setdefault("_last_equilibria", {})
+        firsts = []
+        for exp in self.series:
+            m = exp.model
             try:
-                m = exp.model
                 over = self._p_numeric(exp, theta)
-                eq = solve_equilibrium(m, dict(zip(m.input_names, exp.u[0], strict=True)), over)
-                Xi = shoot.simulate(eq.x / shoot.scale(), eq.p)
+                inputs = dict(zip(m.input_names, exp.u[0], strict=True))
+                eq = solve_equilibrium(m, inputs, over, guess=memory.get(exp.name))
             except (SolverError, ParameterError) as exc:
                 raise SolverError(f"experiment '{exp.name}': {exc}") from None
-            starts = [a for a, _ in shoot.bounds]
-            parts.append(Xi[:, starts].T.ravel())
+            memory[exp.name] = eq
+            firsts.append(eq)
         solved: dict[tuple[str, str], float] = {}
-        guesses = {}
+        points = []
         for pt in self.points:
             m, scale = self.point_vars[pt.name]
             links = {k: solved[v] for k, v in pt.links.items()}
             try:
                 over = self._p_numeric(pt, theta, links)
                 inputs = dict(zip(m.input_names, pt.u, strict=True))
-                eq = solve_equilibrium(m, inputs, over, guess=guesses.get(m.name))
+                guess = memory.get(pt.name, memory.get(("model", m.name)))
+                eq = solve_equilibrium(m, inputs, over, guess=guess)
             except (SolverError, ParameterError) as exc:
                 raise SolverError(f"static point '{pt.name}': {exc}") from None
-            guesses.setdefault(m.name, eq)
+            memory[pt.name] = eq
+            memory.setdefault(("model", m.name), eq)
             for sname in (s for (pn, s) in _needed(self.points) if pn == pt.name):
                 solved[pt.name, sname] = eq[sname]
-            parts.append(np.concatenate([eq.x, eq.z]) / scale)
-        return np.concatenate(parts)
+            points.append(np.concatenate([eq.x, eq.z]) / scale)
+        return firsts, points
+
+    def initial_guess(self, theta: np.ndarray) -> np.ndarray:
+        """``v`` for parameter values ``theta`` (SI): each record simulated from its
+        equilibrium (the node states), each static point solved (:func:`solve_equilibrium`).
+        Raises SolverError (which experiment, why) where that fails."""
+        theta = np.asarray(theta, dtype=float)
+        self.__dict__.pop("_last_equilibria", None)
+        parts = [np.array([e.to_phi(theta[k]) for k, e in enumerate(self.params)])]
+        firsts, points = self._equilibria_of(theta)
+        for exp, shoot, eq in zip(self.series, self.shootings, firsts, strict=True):
+            try:
+                Xi = shoot.march(eq.x / shoot.scale, eq.p)
+            except SolverError as exc:
+                raise SolverError(f"experiment '{exp.name}': {exc}") from None
+            starts = [a for a, _ in shoot.bounds]
+            parts.append(Xi[:, starts].T.ravel())
+        return np.concatenate(parts + points)
+
+    def restore(self, v: np.ndarray) -> np.ndarray:
+        """``v`` with every equilibrium unknown (each record's first node, each static
+        point) solved exactly at its parameters (:func:`solve_equilibrium`, continued
+        from the last solution); the other nodes kept (lifted). Raises SolverError."""
+        v = np.array(v, dtype=float)
+        theta = self.values(v[: len(self.params)])
+        firsts, points = self._equilibria_of(theta)
+        for s, eq in zip(self._series, firsts, strict=True):
+            v[s.offset : s.offset + s.exp.model.nx] = eq.x / s.shoot.scale
+        if points:
+            v[self._w_offset :] = np.concatenate(points)
+        return v
 
     def solve(
         self,
@@ -293,26 +451,36 @@ class Problem:
         fixed: Mapping[int, float] | None = None,
     ) -> Solution:
         """Minimise from ``v0`` with the residual ``weights``; ``fixed``: parameter index ->
-        search value held (a profile). IPOPT with the Gauss-Newton Hessian; never raises
-        for a failed solve: the status says why."""
+        search value held (a profile). Constrained Gauss-Newton (:mod:`.gauss_newton`);
+        never raises for a failed solve: the status says why."""
         lo, hi = self.bounds()
         for k, val in (fixed or {}).items():
             lo[k] = hi[k] = val
-        v0 = np.clip(v0, lo, hi)
-        try:
-            sol = self.ipopt(x0=v0, p=weights, lbx=lo, ubx=hi, lbg=0, ubg=0)
-            stats = self.ipopt.stats()
-            status, iters = stats["return_status"], int(stats["iter_count"])
-        except RuntimeError as exc:
-            return _failed(self, v0, weights, f"IPOPT raised: {str(exc).splitlines()[-1][:200]}")
-        return self.evaluate(np.array(sol["x"]).ravel(), weights, status, iters)
+        n = len(self.params)
+        v0 = np.asarray(v0, dtype=float).copy()
+        v0[:n] = np.clip(v0[:n], lo[:n], hi[:n])
+
+        def evaluate(v: np.ndarray, jacobian: bool):
+            v = self.restore(v)
+            return v, self.linearize(v, weights, jacobian)
+
+        out = gauss_newton(evaluate, v0, lo[:n], hi[:n], self.options)
+        if out.linearization is None:
+            return _failed(self, out.v, weights, out.status)
+        lin = out.linearization
+        phi = out.v[:n]
+        cost = float(lin.rw @ lin.rw)
+        return Solution(
+            phi, self.values(phi), out.v, cost, lin.r, weights, out.status, out.iterations
+        )
 
     def evaluate(self, v, weights, status: str = "evaluated", iters: int = 0) -> Solution:
         """The :class:`Solution` record of unknowns ``v`` (no solve)."""
-        rw, _, r = self.residual(v, weights)
-        rw, r = np.array(rw).ravel(), np.array(r).ravel()
+        lin = self.linearize(v, weights, jacobian=False)
         phi = v[: len(self.params)]
-        return Solution(phi, self.values(phi), v, float(rw @ rw), r, weights, status, iters)
+        return Solution(
+            phi, self.values(phi), v, float(lin.rw @ lin.rw), lin.r, weights, status, iters
+        )
 
     def predictions(self, sol: Solution) -> np.ndarray:
         """The model's value at every residual row (data + residual)."""
@@ -330,4 +498,13 @@ def _needed(points: Sequence[StaticPoint]) -> set[tuple[str, str]]:
     return {v for pt in points for v in pt.links.values()}
 
 
-__all__ = ["Problem", "Solution"]
+def _assemble(parts, n_rows: int, n_cols: int) -> sp.csr_matrix:
+    if not parts:
+        return sp.csr_matrix((n_rows, n_cols))
+    rows = np.concatenate([np.asarray(p[0]) for p in parts])
+    cols = np.concatenate([np.asarray(p[1]) for p in parts])
+    vals = np.concatenate([np.asarray(p[2], dtype=float) for p in parts])
+    return sp.coo_matrix((vals, (rows, cols)), shape=(n_rows, n_cols)).tocsr()
+
+
+__all__ = ["Linearization", "Problem", "Solution"]

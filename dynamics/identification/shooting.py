@@ -1,14 +1,23 @@
-"""Multiple shooting of a time series with Radau IIA collocation and exact derivatives.
+"""Multiple shooting of a time series: fixed-step Radau IIA collocation with forward
+sensitivities, generated to C.
 
 The record is cut into shooting intervals of ``interval`` samples. The scaled state
-``xi = x / x_nominal`` at each interval's start is an unknown of the fit; inside an
-interval the states at the samples follow from it by Radau IIA steps (3 nodes, order 5:
-the equations of :func:`..simulation.collocation.residual`, one step per sample or
-``substeps`` steps) solved by ``casadi.rootfinder`` (Newton, derivatives by the implicit
-function theorem: exact, no finite differences). The inputs are linear between samples
-(the :class:`~sarcomere.dynamics.signals.Table` convention). Continuity at the interval
-ends and the equilibrium at the first sample are equality constraints; single shooting is
-one interval.
+``xi = x / x_nominal`` at each interval's start is an unknown of the fit (a node); inside
+an interval the states at the samples follow from it by one Radau IIA step per sample (3
+nodes, order 5: the equations of :func:`..simulation.collocation.residual`), the inputs
+linear between samples (the :class:`~sarcomere.dynamics.signals.Table` convention).
+
+Each step's collocation equations ``R(V, xi_k, q_k, p) = 0`` are solved for the stage
+values ``V`` by Newton (CasADi's ``fast_newton``: sparse QR, code-generable) from
+``V = xi_k`` at every node. The sensitivities of the step's end state follow at the
+converged stages by the implicit function theorem (exact, no finite differences):
+``S_{k+1} = -[R_V^-1 (R_xi S_k + [0, R_p D])]_end`` with ``S = d xi / d(node, theta_e)``
+(``theta_e``: the estimated values the experiment uses, entering ``p`` as ``p_sel = D
+theta_e``). The steps of an interval are one ``mapaccum``, the intervals one ``map``: a
+record's states (and sensitivities) are one compiled call. The C is generated once per
+(model, estimated entries, interval length, outputs) and kept in the disk cache of
+:mod:`..simulation.compiled`. A step whose Newton does not bring the scaled residual
+below :data:`RESIDUAL_TOL` is a SolverError naming its time.
 """
 
 from __future__ import annotations
@@ -20,141 +29,256 @@ import numpy as np
 
 from ..errors import SolverError
 from ..modeling.model import Model
-from ..simulation import collocation
+from ..simulation import collocation, compiled
 
 POINTS = 3
 """Radau IIA nodes per step (order 5)."""
 
-NEWTON = {"abstol": 1e-9, "abstolStep": 1e-9, "max_iter": 50, "linear_solver": "qr"}
-"""The step's Newton (scaled unknowns: states divided by their nominal values)."""
+NEWTON = {"abstol": 1e-10, "abstolStep": 1e-10, "max_iter": 30, "error_on_fail": False}
+"""The step's Newton (scaled unknowns: states divided by their nominal values); a failure
+is detected from the residual it leaves (:data:`RESIDUAL_TOL`), not by CasADi."""
+
+RESIDUAL_TOL = 1e-8
+"""Largest scaled collocation residual of an accepted step."""
 
 
-def _scales(model: Model) -> np.ndarray:
-    return np.maximum(model.nominal("x"), 1e-12)
+def scales(model: Model, states=()) -> np.ndarray:
+    """State scales ``x = scales * xi``: the larger of the model's nominal values and the
+    magnitudes in ``states`` (e.g. equilibria of the record: a set pressure whose nominal
+    is 1 Pa reaches 1e5 Pa), rounded up to a power of two (exact scaling)."""
+    mag = np.max(np.abs(np.vstack([model.nominal("x"), *states])), axis=0)
+    return 2.0 ** np.ceil(np.log2(np.maximum(mag, 1e-12)))
 
 
-def step_function(model: Model, substeps: int = 1) -> cs.Function:
-    """``step(xi0, u0, u1, h, p) -> xi1``: ``substeps`` Radau IIA steps over ``h`` [s] with
-    the inputs linear from ``u0`` to ``u1`` (scaled states; memoised on the model)."""
+@dataclass(frozen=True)
+class Engine:
+    """The compiled Functions of one (model, estimated entries ``idx``, ``ne`` estimated
+    values, interval length, outputs):
 
-    def build() -> cs.Function:
-        nx, nu, n_p = model.nx, model.u.numel(), model.p.numel()
-        scale = _scales(model)
-        ode = cs.Function("ode", [model.x, model.u, model.p], [model.ode])
-        tau, xi = cs.SX.sym("tau"), cs.SX.sym("xi", nx)
-        q = cs.SX.sym("q", 2 * nu + 3 + n_p)  # u0, u1, h, tau0, dtau (of the sample), p
-        u0, u1, h, a, b = q[:nu], q[nu : 2 * nu], q[2 * nu], q[2 * nu + 1], q[2 * nu + 2]
-        s = a + b * tau  # the position inside the sample interval
-        f = cs.Function(
-            "f",
-            [tau, xi, q],
-            [h * b * ode(scale * xi, u0 + s * (u1 - u0), q[2 * nu + 3 :]) / scale],
-        )
-        R = collocation.residual(f, nx, POINTS)
-        V, x0 = cs.SX.sym("V", nx * POINTS), cs.SX.sym("xi0", nx)
-        rf = cs.rootfinder(
-            "radau_newton", "newton", cs.Function("r", [V, x0, q], [R(x0, V, q)]), NEWTON
-        )
-        xs, us0, us1 = cs.MX.sym("xi0", nx), cs.MX.sym("u0", nu), cs.MX.sym("u1", nu)
-        hs, ps = cs.MX.sym("h"), cs.MX.sym("p", n_p)
-        x = xs
-        for k in range(substeps):
-            qk = cs.vertcat(us0, us1, hs, k / substeps, 1.0 / substeps, ps)
-            x = rf(cs.repmat(x, POINTS, 1), x, qk)[-nx:]
-        return cs.Function(
-            "step", [xs, us0, us1, hs, ps], [x], ["xi0", "u0", "u1", "h", "p"], ["xi1"]
-        )
+    * ``values(xi0, Q, p, scale) -> (Xi, res)``: one interval's scaled states after each step
+      (nx x L) and each step's residual (1 x L); ``Q`` (2 nu + 1) x L: ``u0, u1, h``.
+    * ``sens(xi0, Q, p, D, scale) -> (Xi, S, res)``: also ``S`` = nx x ((nx + ne) L), the
+      sensitivities after each step to the node and to ``theta_e``.
+    * ``outputs(x, u, p) -> (y, Y_x, Y_p)``: the measured signals and their Jacobians to
+      ``x`` (unscaled) and to ``p_sel``, at one sample (mapped over samples).
+    * ``equilibrium(xi, u, p, scale) -> (f, F_xi, F_p)``: the scaled ODE at the first sample and
+      its Jacobians to ``xi`` and ``p_sel``.
+    """
 
-    return model.cached(("identification.step", substeps), build)
+    values: cs.Function
+    sens: cs.Function
+    outputs: cs.Function
+    equilibrium: cs.Function
+    length: int
+
+    def mapped(self, which: str, n: int) -> cs.Function:
+        """``which`` mapped over ``n`` intervals or samples (memoised)."""
+        cache = self.__dict__.setdefault("_maps", {})
+        if (which, n) not in cache:
+            cache[which, n] = getattr(self, which).map(n)
+        return cache[which, n]
 
 
-def interval_function(model: Model, steps: int, substeps: int = 1) -> cs.Function:
-    """``steps`` consecutive :func:`step_function` steps: ``(xi0, U0, U1, H, p) -> Xi``,
-    ``U0, U1`` (nu x steps), ``H`` (1 x steps), ``Xi`` (nx x steps) the states after each."""
-    key = ("identification.interval", steps, substeps)
+def engine(model: Model, idx: tuple[int, ...], ne: int, length: int, outputs: tuple) -> Engine:
+    """The :class:`Engine` (generated, compiled and loaded once; memoised on the model)."""
+    key = ("identification.engine", idx, ne, length, outputs)
+    return model.cached(key, lambda: _build(model, idx, ne, length, outputs))
 
-    def build() -> cs.Function:
-        step = step_function(model, substeps)
-        f = cs.Function(
-            "f", step.mx_in(), [step(*step.mx_in())], ["xi0", "u0", "u1", "h", "p"], ["xi1"]
-        )
-        acc = f.mapaccum("interval", steps, 1, {})  # xi accumulated, p repeated per column
-        return acc
 
-    return model.cached(key, build)
+def _build(model: Model, idx: tuple[int, ...], ne: int, length: int, outputs: tuple) -> Engine:
+    nx, nu, n_p, k = model.nx, model.u.numel(), model.p.numel(), len(idx)
+    scale = cs.SX.sym("scale", nx)
+    ode = cs.Function("ode", [model.x, model.u, model.p], [model.ode])
+    tau, xi, q = cs.SX.sym("tau"), cs.SX.sym("xi", nx), cs.SX.sym("q", 2 * nu + 1)
+    p = cs.SX.sym("p", n_p)
+    u0, u1, h = q[:nu], q[nu : 2 * nu], q[2 * nu]
+    f = cs.Function(
+        "f",
+        [tau, xi, cs.vertcat(q, p, scale)],
+        [h * ode(scale * xi, u0 + tau * (u1 - u0), p) / scale],
+    )
+    V = cs.SX.sym("V", nx * POINTS)
+    r = collocation.residual(f, nx, POINTS)(xi, V, cs.vertcat(q, p, scale))
+    psel = cs.vertcat(*[p[i] for i in idx]) if idx else cs.SX(0, 1)
+    R = cs.Function("R", [V, xi, q, p, scale], [r])
+    RJ = cs.Function(
+        "RJ", [V, xi, q, p, scale], [cs.jacobian(r, V), cs.jacobian(r, xi), cs.jacobian(r, psel)]
+    )
+    newton = cs.rootfinder("radau_step", "fast_newton", R, NEWTON)
+
+    xm, qm, pm = cs.MX.sym("xi", nx), cs.MX.sym("q", q.numel()), cs.MX.sym("p", n_p)
+    Sm, Dm, cm = cs.MX.sym("S", nx, nx + ne), cs.MX.sym("D", k, ne), cs.MX.sym("scale", nx)
+    Vs = newton(cs.repmat(xm, POINTS, 1), xm, qm, pm, cm)
+    res = cs.norm_inf(R(Vs, xm, qm, pm, cm))
+    value_step = cs.Function("value_step", [xm, qm, pm, cm], [Vs[-nx:], res])
+    RV, Rx, Rp = RJ(Vs, xm, qm, pm, cm)
+    rhs = Rx @ Sm + cs.horzcat(cs.MX(nx * POINTS, nx), Rp @ Dm)
+    S1 = -cs.solve(RV, rhs, "qr")[-nx:, :]
+    sens_step = cs.Function("sens_step", [xm, Sm, qm, pm, Dm, cm], [Vs[-nx:], S1, res])
+
+    Q = cs.MX.sym("Q", q.numel(), length)
+    acc_v = value_step.mapaccum("acc_v", length, [0], [0])
+    Xi, rv = acc_v(xm, Q, cs.repmat(pm, 1, length), cs.repmat(cm, 1, length))
+    values = cs.Function(
+        "fit_values", [xm, Q, pm, cm], [Xi, rv], ["xi0", "Q", "p", "scale"], ["Xi", "res"]
+    )
+    acc_s = sens_step.mapaccum("acc_s", length, [0, 1], [0, 1])
+    S0 = cs.horzcat(cs.DM.eye(nx), cs.DM.zeros(nx, ne))
+    rep = [cs.repmat(a, 1, length) for a in (pm, Dm, cm)]
+    Xs, Ss, rs = acc_s(xm, S0, Q, *rep)
+    sens = cs.Function(
+        "fit_sens",
+        [xm, Q, pm, Dm, cm],
+        [Xs, Ss, rs],
+        ["xi0", "Q", "p", "D", "scale"],
+        ["Xi", "S", "res"],
+    )
+
+    index = {n: i for i, n in enumerate(model.signal_names)}
+    sig = model.function("signals")(model.x, cs.SX(0, 1), model.u, model.p)
+    y = cs.vertcat(*[sig[index[o]] for o in outputs]) if outputs else cs.SX(0, 1)
+    psel_m = cs.vertcat(*[model.p[i] for i in idx]) if idx else cs.SX(0, 1)
+    out = cs.Function(
+        "fit_outputs",
+        [model.x, model.u, model.p],
+        [y, cs.jacobian(y, model.x), cs.jacobian(y, psel_m)],
+        ["x", "u", "p"],
+        ["y", "Y_x", "Y_p"],
+    )
+    fe = ode(scale * xi, model.u, p) / scale
+    eq = cs.Function(
+        "fit_equilibrium",
+        [xi, model.u, p, scale],
+        [fe, cs.jacobian(fe, xi), cs.jacobian(fe, psel)],
+        ["xi", "u", "p", "scale"],
+        ["f", "F_xi", "F_p"],
+    )
+    stem = f"fit_{model.name}".replace(".", "_")
+    lib = compiled.casadi_library([values, sens, out, eq], stem)
+    return Engine(
+        lib["fit_values"], lib["fit_sens"], lib["fit_outputs"], lib["fit_equilibrium"], length
+    )
 
 
 @dataclass
 class Shooting:
-    """The shooting of one record: interval boundaries (sample indices), the node
-    unknowns' size and the Functions that build its symbolic parts."""
+    """The shooting of one record: its model, samples ``t`` (n,) [s], inputs ``u`` (n, nu),
+    the interval boundaries (sample indices), and the :class:`Engine`; ``idx``: the model
+    parameters the estimated values set, ``ne`` how many estimated values the record uses.
+    """
 
     model: Model
     t: np.ndarray
     u: np.ndarray
     bounds: list[tuple[int, int]]
-    substeps: int
+    engine: Engine
+    scale: np.ndarray
 
     @classmethod
-    def of(cls, model: Model, t, u, interval: int | None, substeps: int) -> Shooting:
+    def of(cls, model: Model, t, u, interval: int | None, idx, ne: int, outputs, scale) -> Shooting:
         n = len(t)
-        size = n - 1 if interval is None else interval
+        size = n - 1 if interval is None else min(interval, n - 1)
         edges = list(range(0, n - 1, size)) + [n - 1]
-        return cls(
-            model,
-            np.asarray(t),
-            np.asarray(u),
-            list(zip(edges[:-1], edges[1:], strict=True)),
-            substeps,
-        )
+        bounds = list(zip(edges[:-1], edges[1:], strict=True))
+        eng = engine(model, tuple(idx), ne, size, tuple(outputs))
+        return cls(model, np.asarray(t, float), np.asarray(u, float), bounds, eng, scale)
 
     @property
     def nodes(self) -> int:
         return len(self.bounds)
 
-    def _interval_args(self, a: int, b: int, p):
-        u = self.u.T
-        h = np.diff(self.t[a : b + 1])[None, :]
-        steps = b - a
-        return interval_function(self.model, steps, self.substeps), (
-            u[:, a:b],
-            u[:, a + 1 : b + 1],
-            h,
-            cs.repmat(p, 1, steps) if isinstance(p, cs.MX) else np.tile(p[:, None], (1, steps)),
-        )
-
-    def states(self, S, p) -> tuple[cs.MX, cs.MX]:
-        """Symbolic scaled states at every sample (nx x n) from the node unknowns ``S``
-        (nx x nodes), and the continuity defects (nx * (nodes - 1))."""
-        cols, defects = [S[:, 0]], []
-        for j, (a, b) in enumerate(self.bounds):
-            F, args = self._interval_args(a, b, p)
-            X = F(S[:, j], *args)
-            cols.append(X)
-            if j + 1 < self.nodes:
-                defects.append(X[:, -1] - S[:, j + 1])
-        return cs.horzcat(*cols), cs.vertcat(*defects) if defects else cs.MX(0, 1)
-
-    def simulate(self, xi0: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """Scaled states at every sample (nx x n), integrated from ``xi0`` at ``p``
-        (numeric: the node guesses of a start). Raises SolverError where a step fails."""
-        cols = [np.asarray(xi0, dtype=float)[:, None]]
+    def _q(self) -> np.ndarray:
+        """``Q`` of every interval side by side, each padded to the interval length with
+        steps of zero length at the last input (their states repeat, unused)."""
+        L, u = self.engine.length, self.u
+        cols = []
         for a, b in self.bounds:
-            F, args = self._interval_args(a, b, p)
-            try:
-                X = np.array(F(cols[-1][:, -1], *args))
-            except RuntimeError as exc:
-                raise SolverError(
-                    f"the Radau IIA step failed between t = {self.t[a]:g} s and {self.t[b]:g} s "
-                    f"({str(exc).splitlines()[-1][:120]})"
-                ) from None
-            if not np.all(np.isfinite(X)):
-                raise SolverError(
-                    f"the simulation diverged between t = {self.t[a]:g} s and {self.t[b]:g} s"
-                )
-            cols.append(X)
+            steps = np.arange(a, a + L)
+            live = steps < b
+            k0 = np.minimum(steps, b)
+            k1 = np.where(live, steps + 1, b)
+            h = np.where(live, self.t[np.minimum(steps + 1, len(self.t) - 1)] - self.t[k0], 0.0)
+            cols.append(np.vstack([u[k0].T, u[k1].T, h[None, :]]))
         return np.hstack(cols)
 
-    def scale(self) -> np.ndarray:
-        """Nominal state values: ``x = scale * xi``."""
-        return _scales(self.model)
+    def _check(self, res: np.ndarray) -> None:
+        L = self.engine.length
+        for j, (a, b) in enumerate(self.bounds):
+            rj = res[j * L : j * L + (b - a)]
+            bad = np.flatnonzero(~(rj <= RESIDUAL_TOL))
+            if bad.size:
+                k = a + int(bad[0])
+                raise SolverError(
+                    f"the Radau IIA step from t = {self.t[k]:g} s to {self.t[k + 1]:g} s "
+                    f"failed: Newton left a scaled residual of {rj[bad[0]]:.3g} "
+                    f"(above {RESIDUAL_TOL:g})"
+                )
+
+    def _gather(self, X: np.ndarray, S0: np.ndarray) -> np.ndarray:
+        """States at every sample (nx x n) from the intervals' outputs ``X`` (nx x L B):
+        sample 0 is the first node, the rest come from the interval they end in."""
+        L = self.engine.length
+        cols = [S0[:, :1]]
+        for j, (a, b) in enumerate(self.bounds):
+            cols.append(X[:, j * L : j * L + (b - a)])
+        return np.hstack(cols)
+
+    def simulate(self, S: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Scaled states at every sample (nx x n) from the nodes ``S`` (nx x nodes) at the
+        parameter vector ``p``. Raises SolverError where a step fails."""
+        B = self.nodes
+        X, res = self.engine.mapped("values", B)(
+            S, self._q(), np.tile(p[:, None], (1, B)), np.tile(self.scale[:, None], (1, B))
+        )
+        X, res = np.array(X), np.array(res).ravel()
+        self._check(res)
+        if not np.all(np.isfinite(X)):
+            raise SolverError("the simulation gave a non-finite state")
+        return self._gather(X, S)
+
+    def march(self, xi0: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Scaled states at every sample integrated from ``xi0`` (each interval from the
+        last one's end: the node guesses of a start)."""
+        cols = [np.asarray(xi0, float)[:, None]]
+        L, Q = self.engine.length, self._q()
+        for j, (a, b) in enumerate(self.bounds):
+            X, res = self.engine.values(cols[-1][:, -1], Q[:, j * L : (j + 1) * L], p, self.scale)
+            X, res = np.array(X), np.array(res).ravel()
+            rj = res[: b - a]
+            if not np.all(rj <= RESIDUAL_TOL) or not np.all(np.isfinite(X)):
+                raise SolverError(
+                    f"the simulation failed between t = {self.t[a]:g} s and {self.t[b]:g} s "
+                    f"(largest scaled Newton residual {np.nanmax(rj):.3g})"
+                )
+            cols.append(X[:, : b - a])
+        return np.hstack(cols)
+
+    def sensitivities(self, S: np.ndarray, p: np.ndarray, D: np.ndarray):
+        """States at every sample (nx x n) and their sensitivities: ``dS`` (n, nx, nx) to
+        the node of the interval the sample lies in (sample 0: the identity to node 0),
+        ``dT`` (n, nx, ne) to ``theta_e``, and that node's index per sample (n,)."""
+        B, L, nx = self.nodes, self.engine.length, self.model.nx
+        ne = D.shape[1]
+        X, Sens, res = self.engine.mapped("sens", B)(
+            S,
+            self._q(),
+            np.tile(p[:, None], (1, B)),
+            np.tile(D, (1, B)),
+            np.tile(self.scale[:, None], (1, B)),
+        )
+        X, Sens, res = np.array(X), np.array(Sens), np.array(res).ravel()
+        self._check(res)
+        blocks = Sens.reshape(nx, B * L, nx + ne).transpose(1, 0, 2)
+        n = len(self.t)
+        dS, dT, node = np.zeros((n, nx, nx)), np.zeros((n, nx, ne)), np.zeros(n, int)
+        dS[0] = np.eye(nx)
+        for j, (a, b) in enumerate(self.bounds):
+            part = blocks[j * L : j * L + (b - a)]
+            dS[a + 1 : b + 1], dT[a + 1 : b + 1], node[a + 1 : b + 1] = (
+                part[:, :, :nx],
+                part[:, :, nx:],
+                j,
+            )
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(blocks))):
+            raise SolverError("the simulation gave a non-finite state or sensitivity")
+        return self._gather(X, S), dS, dT, node

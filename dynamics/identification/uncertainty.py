@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .problem import Problem, Solution
@@ -44,10 +43,9 @@ vector exceeds this."""
 
 def sensitivities(problem: Problem, sol: Solution) -> np.ndarray:
     """``S = d r_w / d phi`` along the constraints (rows: residuals, columns: parameters)."""
-    _, Jr, _ = problem.residual(sol.v, sol.weights)
-    _, Jg = problem.constraint(sol.v)
+    lin = problem.linearize(sol.v, sol.weights)
     n = len(problem.params)
-    Jr, Jg = sp.csc_matrix(Jr.sparse()), sp.csc_matrix(Jg.sparse())
+    Jr, Jg = lin.Jr, lin.Jg
     S = Jr[:, :n].toarray()
     if Jg.shape[0]:
         X = spla.splu(Jg[:, n:].tocsc()).solve(Jg[:, :n].toarray())
