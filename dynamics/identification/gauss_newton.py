@@ -97,7 +97,7 @@ def gauss_newton(
         step = _step(lin, v, lo, hi, mu, options.max_step)
         if step is None:
             return Outcome(v, SINGULAR, it, lin)
-        dv, pred, lam, level = step
+        dv, pred, level = step
         viol = level(lin.g)
         if np.max(np.abs(viol), initial=0.0) <= options.gtol and _small(
             dv[:n], pred, cost, options
@@ -146,7 +146,7 @@ THETA_MAX = 0.1
 SINGULAR = "singular constraint Jacobian (a node or equilibrium the constraints do not fix)"
 
 ACCEPT = 1e-4
-"""A step is taken when the merit falls by at least this fraction of the decrease the
+"""A step is taken when the cost falls by at least this fraction of the decrease the
 linear model predicts (Levenberg-Marquardt's gain ratio); the damping then falls fivefold
 above a ratio of 0.5, twofold above 0.25, else doubles; a rejected step raises it by a
 factor that doubles with each rejection in a row."""
@@ -170,9 +170,9 @@ def _small(dphi: np.ndarray, pred: float, cost: float, options: Options) -> bool
 
 def _step(lin, v: np.ndarray, lo: np.ndarray, hi: np.ndarray, mu: float, max_step: float):
     """The condensed Gauss-Newton step ``dv``, the predicted cost decrease of the full
-    step, the multipliers of the constraints measured as ``G_y^-1 g`` (the node change
-    that would restore them: a natural level, in scaled state units whatever the rows'
-    scaling) and that measure as a function; None where ``G_y`` is singular."""
+    step, and the constraints' measure ``g -> G_y^-1 g`` (the node change that would
+    restore them: a natural level, in scaled state units whatever the rows' scaling);
+    None where ``G_y`` is singular."""
     n = len(lo)
     Jr, Jg = lin.Jr, lin.Jg
     A_phi, A_y = Jr[:, :n].toarray(), Jr[:, n:]
@@ -210,12 +210,11 @@ def _step(lin, v: np.ndarray, lo: np.ndarray, hi: np.ndarray, mu: float, max_ste
     dy = dy_a + E @ dphi
     lin_r = r0 + J @ dphi
     pred = 0.5 * float(lin.rw @ lin.rw) - 0.5 * float(lin_r @ lin_r)
-    lam = -(A_y.T @ lin_r)  # the multipliers of G_y^-1 g = 0
 
     def level(g: np.ndarray) -> np.ndarray:
         return lu.solve(g) if lu is not None else g
 
-    return np.concatenate([dphi, dy]), pred, lam, level
+    return np.concatenate([dphi, dy]), pred, level
 
 
 __all__ = ["Options", "Outcome", "gauss_newton"]
