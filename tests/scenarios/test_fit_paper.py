@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 
 from sarcomere.dynamics import calibration
+from sarcomere.dynamics.errors import ParameterError, SolverError
+from sarcomere.scenarios.calibrate import calibrate_file
 from sarcomere.scenarios.cli import main
 from sarcomere.scenarios.fit.data import read_table
 from sarcomere.scenarios.fit.run import Fit
@@ -81,3 +83,36 @@ def test_compliance_split_flagged_when_L_r_is_fitted(tmp_path):
     sv = summary["singular_values"]
     assert min(sv) < 1e-8 * max(sv)
     assert summary["cost_chi2"] < 1e-12  # every member of the family meets the targets
+
+
+@pytest.mark.slow
+def test_sarcomere_calibrate_runs_the_packaged_file(calibrated, tmp_path, monkeypatch):
+    """`sarcomere calibrate` fits through fit-paper.toml (one home for fitting): the
+    status names the file, the parameters are calibrate()'s; a file whose data moved is
+    refused by the independent check, not reported as the calibration."""
+    assert main(["calibrate", "--out", str(tmp_path / "cal")]) == 0
+    record = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    assert "fit file 'fit-paper'" in record["status"]
+    for k, v in calibrated.items():
+        assert record["fitted"][k]["value"] == pytest.approx(v, rel=1e-8, abs=0)
+    folder = tmp_path / "fits"
+    shutil.copytree(FITS, folder)
+    csv = folder / "data" / "paper-contraction-0g.csv"
+    csv.write_text(csv.read_text().replace("0.1,0.875", "0.1,0.88"))
+    with pytest.raises(SolverError, match="targets other than calibration.TARGETS"):
+        calibrate_file(folder / "fit-paper.toml")
+
+
+def test_calibrate_file_refuses_other_parameters(tmp_path):
+    folder = tmp_path / "fits"
+    shutil.copytree(FITS, folder)
+    path = folder / "fit-paper.toml"
+    path.write_text(path.read_text().replace('"aps.k_s"]', '"aps.C1"]', 1))
+    path.write_text(
+        path.read_text().replace(
+            'start = "694 N/m"\nbounds = ["35 N/m", "14000 N/m"]',
+            'start = "0.096 MPa"\nbounds = ["0.01 MPa", "1 MPa"]',
+        )
+    )
+    with pytest.raises(ParameterError, match="estimates of aps.A_p, aps.A_r, aps.k_s"):
+        calibrate_file(path)
