@@ -176,8 +176,27 @@ def test_percent_column_and_shared_reference(tmp_path):
             "experiments[1].reference.inputs.presure",
             "not an input of model 'hanging_n1_full'; did you mean 'pressure'",
         ),
+        (
+            REF.replace('"ratio",', '"ratio", experiment = 3,'),
+            "experiments[1].reference.experiment",
+            "expected an experiment's name, got 3",
+        ),
+        (
+            'reference = { form = "ratio", inputs = "0 MPa" }',
+            "experiments[1].reference.inputs",
+            "expected a table, got '0 MPa'",
+        ),
     ],
-    ids=["form", "experiment", "unknown-key", "no-inputs", "empty-inputs", "not-an-input"],
+    ids=[
+        "form",
+        "experiment",
+        "unknown-key",
+        "no-inputs",
+        "empty-inputs",
+        "not-an-input",
+        "experiment-not-a-name",
+        "inputs-not-a-table",
+    ],
 )
 def test_bad_reference_entries(tmp_path, ref, key, words):
     err = _error(_write(tmp_path, ref=ref))
