@@ -286,6 +286,24 @@ def fit(
         raise ParameterError("targets", targets, f"{len(fitted)} names from {tuple(TARGETS)}")
     theta, iterations, steps = _solve(start, fitted, targets, rest_length, verbose)
     values = {k: float(v) for k, v in zip(fitted, theta, strict=True)}
+    how = (
+        f"least squares (IPOPT, Gauss-Newton Hessian) in {iterations} iterations, "
+        f"{steps} continuation step(s)"
+    )
+    return verified(start, values, how, iterations, targets, rest_length)
+
+
+def verified(
+    start: APSParams,
+    values: dict[str, float],
+    how: str,
+    iterations: int,
+    targets: tuple[str, ...] = tuple(TARGETS),
+    rest_length: str = "hanging",
+) -> Fit:
+    """The :class:`Fit` of fitted ``values`` (fields of ``start``) that a solver reached
+    (``how``, in ``iterations``), accepted only when its equilibria re-solved from scratch
+    (:func:`evaluate`) meet the ``targets`` to :data:`VERIFY_RTOL`; SolverError otherwise."""
     p_fit = replace(start, **values)
     every = evaluate(p_fit, rest_length)
     achieved = {k: every[k] for k in targets}
@@ -295,12 +313,11 @@ def fit(
         raise SolverError(
             f"calibration failed: the fit does not hold when its equilibria are re-solved "
             f"from scratch (worst relative target residual {worst:.3g} > {VERIFY_RTOL:g}: "
-            "another equilibrium branch)"
+            "another equilibrium branch, or targets other than calibration.TARGETS)"
         )
     status = (
-        f"converged: least squares (IPOPT, Gauss-Newton Hessian) in {iterations} "
-        f"iterations, {steps} continuation step(s); verified by equilibrium solves from "
-        f"scratch (worst relative target residual {worst:.2g})"
+        f"converged: {how}; verified by equilibrium solves from scratch (worst relative "
+        f"target residual {worst:.2g})"
     )
     return Fit(p_fit, values, achieved, residuals, status, iterations)
 
@@ -368,7 +385,12 @@ def compliance_split(p: APSParams) -> dict:
 def calibrate(start: APSParams | None = None, verbose: bool = False) -> CalibrationResult:
     """Fit ``A_p``, ``A_r``, ``k_s`` to :data:`TARGETS` from ``start`` (default: the
     packaged parameters; any start in :data:`START_REGION`), with identifiability."""
-    f = fit(start or APSParams.from_paper(), verbose=verbose)
+    return assessed(fit(start or APSParams.from_paper(), verbose=verbose))
+
+
+def assessed(f: Fit) -> CalibrationResult:
+    """A verified fit of :data:`FITTED` with the identifiability of the candidates
+    (:func:`sensitivities`) and the compliance split (:func:`compliance_split`)."""
     sens, sv, weak = sensitivities(f.params)
     return CalibrationResult(
         **vars(f),

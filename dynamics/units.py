@@ -4,9 +4,10 @@ Plain numbers are taken to be in the SI unit asked for already (``bare_ok=False`
 scenario files, refuses a bare non-zero number of a dimensioned unit instead). Strings are
 parsed by pint; a wrong dimension raises :class:`~sarcomere.dynamics.errors.ParameterError`.
 The common case, a plain number and one of the units in :data:`_UNITS` ("0.1 MPa",
-"50 g", "10 ms"), is converted without pint (pint's import and registry cost 0.35 s of
-every CLI run: BENCHMARKS.md, start-up), with pint's own arithmetic (the magnitude times
-the unit's factor: the same float, tested against pint); anything else goes to pint.
+"50 g", "10 ms", "694 N/m"), is converted without pint (pint's import and registry cost
+0.35 s of every CLI run: BENCHMARKS.md, start-up), with pint's own arithmetic (the
+magnitude times the unit's factor: the same float, tested against pint); anything else
+goes to pint.
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ _UNITS = {
     "min": ("time", 60.0),
     "N": ("force", 1.0),
     "mN": ("force", 1e-3),
+    "m^2": ("area", 1.0),
+    "N/m": ("stiffness", 1.0),
     "Hz": ("frequency", 1.0),
     "kHz": ("frequency", 1e3),
     "%": ("1", 1e-2),
@@ -43,7 +46,9 @@ _UNITS = {
 }
 """Units converted without pint: symbol -> (dimension, factor to its SI unit)."""
 
-_PLAIN = re.compile(r"\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-z%]*)\s*")
+_PLAIN = re.compile(
+    r"\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-z%]*(?:\^2|/[A-Za-z]+)?|1)\s*"
+)
 
 
 @functools.cache
@@ -67,7 +72,9 @@ def _fast(text: str, unit: str) -> float | None:
     if m is None or unit not in _UNITS or m.group(2) not in _UNITS:
         return None
     (dim, factor), (target_dim, target_factor) = _UNITS[m.group(2)], _UNITS[unit]
-    if m.group(2) in ("", "1") or dim != target_dim or target_factor != 1.0:
+    if dim != target_dim or target_factor != 1.0:
+        return None
+    if m.group(2) in ("", "1") and dim != "1":  # a bare number: pint's and the caller's rule
         return None
     return float(m.group(1)) * factor
 

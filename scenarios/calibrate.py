@@ -1,4 +1,11 @@
-"""``sarcomere calibrate``: fit the effective APS parameters to the paper's targets."""
+"""``sarcomere calibrate``: fit the effective APS parameters to the paper's targets.
+
+The fit is the packaged fit file ``fits/fit-paper.toml`` (:data:`FIT_PAPER`: the paper's
+three numbers as data, through the fit engine: one home for fitting), its result verified
+and assessed by :mod:`sarcomere.dynamics.calibration` (the targets re-solved from scratch,
+the candidates' sensitivities, the compliance split); the same parameters as
+``calibration.calibrate()`` to 1e-8 (tests/scenarios/test_fit_paper.py).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +16,9 @@ from pathlib import Path
 
 from .outdir import check_out_dir, staged
 from .progress import progress
+
+FIT_PAPER = Path(__file__).parent / "fits" / "fit-paper.toml"
+"""The packaged fit of the calibration (docs/fitting.md, "fit-paper")."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,12 +48,12 @@ def handler(args: argparse.Namespace) -> int:
     """
     # imported here, not at the top: `sarcomere calibrate --help` and argument errors
     # stay light (no CasADi)
-    from sarcomere.dynamics.calibration import TARGETS, calibrate, family
+    from sarcomere.dynamics.calibration import TARGETS, family
 
     out = check_out_dir(args.out, "--out")
     tic = time.perf_counter()
     with progress("calibrate", enabled=not args.verbose):
-        res = calibrate(verbose=args.verbose)
+        res = calibrate_file(FIT_PAPER, verbose=args.verbose)
         members = family() if args.family else None
     wall = time.perf_counter() - tic
     record = {**res.to_dict(), "wall_time_s": wall}
@@ -76,6 +86,36 @@ def handler(args: argparse.Namespace) -> int:
     )
     print(f"wrote {out}/: {written}")
     return 0
+
+
+def calibrate_file(path: str | Path = FIT_PAPER, verbose: bool = False):
+    """The calibration of fit file ``path`` (default :data:`FIT_PAPER`) through the fit
+    engine (one start, no profiles), verified and assessed as
+    :func:`~sarcomere.dynamics.calibration.calibrate`'s: a
+    :class:`~sarcomere.dynamics.calibration.CalibrationResult`. The file must estimate
+    exactly ``aps.A_p``, ``aps.A_r`` and ``aps.k_s`` (calibration.FITTED)."""
+    from sarcomere.dynamics.calibration import FITTED, assessed, verified
+    from sarcomere.dynamics.components.aps import APSParams
+    from sarcomere.dynamics.errors import ParameterError
+
+    from .fit.run import Fit
+
+    fit = Fit.from_file(path)
+    names = sorted(e.name for e in fit.built.params)
+    if names != sorted(f"aps.{k}" for k in FITTED):
+        raise ParameterError(
+            "calibration fit file", f"{path}: {names}", f"estimates of aps.{', aps.'.join(FITTED)}"
+        )
+    run = fit.run(None, plots=False, profiles=False)
+    sol = run.solution
+    if verbose:
+        print(f"calibration: fit file {path}: {sol.status}, {sol.iterations} iterations")
+    values = {name.removeprefix("aps."): value for name, (value, _) in run.estimates.items()}
+    how = (
+        f"fit file '{fit.built.spec.name}', least squares (IPOPT, Gauss-Newton Hessian) in "
+        f"{sol.iterations} iterations"
+    )
+    return assessed(verified(APSParams.from_paper(), values, how, sol.iterations))
 
 
 def _write_family(members, out: Path) -> None:

@@ -35,9 +35,15 @@ from ..binding import INPUT_ALIASES, bind, command_range, fidelity_level
 from ..loader import scenario_from_dict
 from ..spec import did_you_mean
 from .data import Table, read_table
+from .reference import is_ratio, output_unit, reference_inputs, relative
 from .spec import ExperimentSpec, FitError, FitSpec, ParameterSpec
 
 _PROBE = 1.25  # the factor an aps.<field> is changed by to find where it enters
+
+FIXTURE = "fixture.s0"
+"""The isometric fixture's position: in a static experiment, linked to the hanging chain's
+rest equilibrium (the set-up's definition, :func:`~sarcomere.dynamics.assemblies.isometric`),
+so that it follows the estimated parameters as in the calibration."""
 
 
 @dataclass
@@ -52,6 +58,12 @@ class Bound:
     fidelity: str
     uses: dict = dataclasses.field(default_factory=dict)
     fixed: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def linked(self) -> bool:
+        """Whether the fixture position is linked to a rest equilibrium (a static
+        experiment on the isometric set-up)."""
+        return self.spec.kind == "static" and FIXTURE in self.model.param_names
 
 
 @dataclass
@@ -125,6 +137,8 @@ def _uses(spec: FitSpec, b: Bound, p: ParameterSpec, name: str) -> tuple[dict, s
         other = dataclasses.replace(binding, aps=aps, scenario=None).build(b.fidelity)
         p0, p1 = model.parameters(), other.parameters()
         moved = np.flatnonzero(~np.isclose(p0, p1, rtol=1e-14, atol=0))
+        if b.linked:  # the fixture follows its rest equilibrium, and the hook's start with it
+            moved = moved[moved != model.param_names.index(FIXTURE)]
         if not moved.size or not np.allclose(p1[moved] / p0[moved], _PROBE, rtol=1e-12):
             raise spec.error(
                 p.path,
@@ -132,7 +146,7 @@ def _uses(spec: FitSpec, b: Bound, p: ParameterSpec, name: str) -> tuple[dict, s
                 "(it sets a start value or a derived quantity): fit the model parameters it "
                 "sets instead",
             )
-        if not np.allclose(model.x0(), other.x0(p0), rtol=1e-12, atol=1e-15):
+        if not b.linked and not np.allclose(model.x0(), other.x0(p0), rtol=1e-12, atol=1e-15):
             raise spec.error(p.path, f"'{p.name}' also sets start values of model '{model.name}'")
         uses = {model.param_names[i]: (name, float(p0[i] / base)) for i in moved}
         return uses, APSParams.unit(field)
@@ -224,7 +238,8 @@ def _outputs(spec: FitSpec, b: Bound) -> np.ndarray:
             raise FitError(
                 b.table.file, s, f"no column '{s} [unit]' (listed in outputs)", b.table.header_line
             )
-        cols.append(b.table.si(s, model.variables[s].unit))
+        why = "a ratio to the reference: write [1] or [%]" if is_ratio(exp) else None
+        cols.append(b.table.si(s, output_unit(exp, model, s), why))
     used = {"time", *exp.inputs, *exp.outputs}
     extra = [c for c in b.table.columns if c not in used]
     if extra:
@@ -280,8 +295,8 @@ def build(spec: FitSpec) -> Built:
 def _noise(spec: FitSpec, bound: list[Bound]) -> dict[str, Noise]:
     out = {}
     for signal, nz in spec.noise.items():
-        model = next(b.model for b in bound if signal in b.spec.outputs)
-        unit = model.variables[signal].unit
+        b = next(b for b in bound if signal in b.spec.outputs)
+        unit = output_unit(b.spec, b.model, signal)
         sigma = None
         if nz.sigma is not None:
             try:
@@ -298,6 +313,7 @@ def _noise(spec: FitSpec, bound: list[Bound]) -> dict[str, Noise]:
 
 def _experiments(spec: FitSpec, bound: list[Bound], which: list[Bound]):
     series, points, targets = [], [], []
+    statics = _Statics(spec, bound, points)
     for b in which:
         model = b.model
         uses = b.uses
@@ -315,11 +331,59 @@ def _experiments(spec: FitSpec, bound: list[Bound], which: list[Bound]):
                     b.spec.name, model, b.table.time, u, b.spec.outputs, data, p, uses, interval
                 )
             )
-        else:
-            for i in range(n):
-                pt = f"{b.spec.name}#{i + 1}"
-                points.append(StaticPoint(pt, model, u[i], p, uses))
-                targets += [
-                    measured(pt, s, float(data[i, j])) for j, s in enumerate(b.spec.outputs)
-                ]
+            continue
+        ref = b.spec.reference
+        ref_point = statics.reference(b) if ref is not None else None
+        for i in range(n):
+            pt = statics.add(f"{b.spec.name}#{i + 1}", b, u[i])
+            for j, s in enumerate(b.spec.outputs):
+                value = float(data[i, j])
+                targets.append(
+                    measured(pt, s, value)
+                    if ref_point is None
+                    else relative(pt, ref_point, s, value, ref.form)
+                )
     return series, points, targets
+
+
+class _Statics:
+    """The static points of one problem, in solve order: each experiment's, a reference
+    equilibrium once per set-up and inputs, and before an isometric experiment's points
+    the hanging chain's rest equilibrium its fixture position links to (:data:`FIXTURE`)."""
+
+    def __init__(self, spec: FitSpec, bound: list[Bound], points: list) -> None:
+        self.spec, self.bound, self.points = spec, bound, points
+        self.names: dict[tuple, str] = {}
+
+    def add(self, name: str, b: Bound, u: np.ndarray) -> str:
+        p = b.model.parameters({**b.binding.overrides, **b.fixed})
+        links = {FIXTURE: (self._rest(b), "load.s")} if b.linked else {}
+        self.points.append(StaticPoint(name, b.model, u, p, b.uses, links))
+        return name
+
+    def reference(self, b: Bound) -> str:
+        """The reference point of static experiment ``b`` (made on first use)."""
+        ref = b.spec.reference
+        of = next(x for x in self.bound if x.spec.name == (ref.experiment or b.spec.name))
+        p = of.model.parameters({**of.binding.overrides, **of.fixed})
+        u = reference_inputs(self.spec, ref, of.model, of.model.u0(p))
+        key = ("reference", of.spec.name, u.tobytes())
+        if key not in self.names:
+            k = sum(1 for x in self.names if x[:2] == key[:2]) + 1
+            self.names[key] = self.add(f"{of.spec.name}#reference{k}", of, u)
+        return self.names[key]
+
+    def _rest(self, b: Bound) -> str:
+        """The rest point of isometric experiment ``b``: its chain hanging at 0 Pa with no
+        load (the 1 g hook only), the estimated parameters entering as in ``b``'s model."""
+        key = ("rest", b.spec.name)
+        if key not in self.names:
+            rest = dataclasses.replace(b.binding, setup="hanging", load_kg=0.0, scenario=None)
+            model = rest.build(b.fidelity)
+            uses = {k: v for k, v in b.uses.items() if k in model.param_names}
+            p = model.parameters({k: v for k, v in b.fixed.items() if k in model.param_names})
+            u = np.zeros_like(model.u0(p))  # 0 Pa (every input at 0)
+            name = f"{b.spec.name}#rest"
+            self.points.append(StaticPoint(name, model, u, p, uses))
+            self.names[key] = name
+        return self.names[key]

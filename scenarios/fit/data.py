@@ -33,16 +33,18 @@ class Table:
     rows: list[int]
     header_line: int
 
-    def si(self, name: str, unit: str) -> np.ndarray:
-        """Column ``name`` in the model's unit ``unit`` (FitError for another dimension)."""
+    def si(self, name: str, unit: str, why: str | None = None) -> np.ndarray:
+        """Column ``name`` in the model's unit ``unit`` (FitError for another dimension;
+        ``why``: what sets ``unit``, default the model's unit of ``name``)."""
         written, values = self.columns[name]
         try:
-            factor = to_si(f"1 {written}", unit, name)
+            factor = to_si(f"1 {written}", unit, name, bare_ok=False)
         except ParameterError:
+            why = why or f"the model's unit of '{name}'"
             raise FitError(
                 self.file,
                 name,
-                f"unit '{written}' is not a unit of {unit} (the model's unit of '{name}')",
+                f"unit '{written}' is not a unit of {unit} ({why})",
                 self.header_line,
             ) from None
         return values * factor

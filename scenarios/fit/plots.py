@@ -12,6 +12,8 @@ from matplotlib.figure import Figure
 
 from sarcomere.dynamics.identification.uncertainty import CHI2_95
 
+from .reference import output_unit, relative_label
+
 
 def _figure(size=(7, 5)) -> Figure:
     fig = Figure(figsize=size)
@@ -26,7 +28,7 @@ def _experiment(result, name: str, record: dict, path: Path, title: str) -> None
     static = bound.spec.kind == "static"
     for i, s in enumerate(signals):
         r = record[s]
-        unit = bound.model.variables[s].unit
+        unit = output_unit(bound.spec, bound.model, s)
         y, yh = np.array(r["data"]), np.array(r["prediction"])
         if static:
             ax = fig.add_subplot(len(signals), 1, i + 1)
@@ -37,9 +39,9 @@ def _experiment(result, name: str, record: dict, path: Path, title: str) -> None
                 x = bound.table.columns[col][1]
                 xlabel = f"{col} [{bound.table.columns[col][0]}]"
             ax.plot(x, y, "o", label="measured")
-            ax.plot(x, yh, "-", label="fitted")
+            ax.plot(x, yh, "x-", label="fitted")
             ax.set_xlabel(xlabel)
-            ax.set_ylabel(f"{s} [{unit}]", fontsize=8)
+            ax.set_ylabel(f"{relative_label(bound.spec, s)} [{unit}]", fontsize=8)
             ax.legend(fontsize=7)
             continue
         t = bound.table.time[np.array(r["sample"], dtype=int)]

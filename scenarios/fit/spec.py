@@ -17,6 +17,7 @@ from sarcomere.dynamics.files import read_text
 
 from ..loader import Reader, key_lines
 from ..spec import KeyPath, did_you_mean, line_of
+from .reference import ReferenceSpec, check_references, parse_reference
 
 METHODS = ("multiple-shooting", "single-shooting")
 KINDS = ("time-series", "static")
@@ -26,7 +27,17 @@ DESIGN_KINDS = ("step", "staircase")
 FIT_KEYS = ("name", "description", "method", "starts", "seed", "interval")
 PARAM_KEYS = ("start", "bounds", "scale", "per_experiment")
 NOISE_KEYS = ("sigma", "relative")
-EXP_KEYS = ("name", "kind", "data", "inputs", "outputs", "validation", "initial", "model")
+EXP_KEYS = (
+    "name",
+    "kind",
+    "data",
+    "inputs",
+    "outputs",
+    "validation",
+    "initial",
+    "model",
+    "reference",
+)
 MAX_STARTS = 10_000
 
 
@@ -70,6 +81,7 @@ class ExperimentSpec:
     validation: bool
     model: dict
     path: KeyPath
+    reference: ReferenceSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -268,7 +280,10 @@ def _experiments(r: _Reader, value: object, base: Path) -> list[ExperimentSpec]:
                 (*path, "initial"), f"{initial!r}: only 'equilibrium' (at the first input value)"
             )
         model = r.table(e["model"], (*path, "model"))
-        out.append(ExperimentSpec(i, name, kind, data, inputs, outputs, validation, model, path))
+        ref = parse_reference(r, e["reference"], (*path, "reference")) if "reference" in e else None
+        out.append(
+            ExperimentSpec(i, name, kind, data, inputs, outputs, validation, model, path, ref)
+        )
     return out
 
 
@@ -316,6 +331,7 @@ def _cross_checks(spec: FitSpec) -> None:
                 "true with a single fitted experiment: one value per experiment is the shared "
                 "value; set per_experiment = false",
             )
+    check_references(spec)
     measured = {s for e in spec.experiments for s in e.outputs}
     for signal, nz in spec.noise.items():
         if signal not in measured:

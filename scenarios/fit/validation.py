@@ -7,7 +7,6 @@ structure, e.g. a missing time constant, shows as non-white residuals)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from sarcomere.dynamics.identification.problem import Problem, Solution
 
@@ -24,6 +23,8 @@ def ljung_box(e: np.ndarray, lags: int | None = None) -> tuple[float, float, int
     denom = float(e @ e)
     if n < 3 or denom == 0:
         return 0.0, 1.0, h
+    from scipy import stats  # here: its import (0.6 s of CPU) serves time series only
+
     rho = np.array([float(e[k:] @ e[:-k]) / denom for k in range(1, h + 1)])
     q = n * (n + 2) * float(np.sum(rho**2 / (n - np.arange(1, h + 1))))
     return q, float(stats.chi2.sf(q, h)), h

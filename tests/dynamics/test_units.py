@@ -10,7 +10,16 @@ from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.units import to_si
 
 UREG = pint.UnitRegistry()
-SI = {"pressure": "Pa", "length": "m", "mass": "kg", "time": "s", "force": "N", "frequency": "Hz"}
+SI = {
+    "pressure": "Pa",
+    "length": "m",
+    "mass": "kg",
+    "time": "s",
+    "force": "N",
+    "frequency": "Hz",
+    "area": "m^2",
+    "stiffness": "N/m",
+}
 
 
 def _pint(text: str, unit: str) -> float:
@@ -29,6 +38,13 @@ def test_the_fast_path_gives_pints_float_exactly(symbol):
     for text in texts:
         assert units._fast(text, target) is not None, text
         assert to_si(text, target) == _pint(text, target), text
+
+
+@pytest.mark.parametrize("text", ["0.875", "1.07 1", "87.5 %", " -2e-3 ", ".5%"])
+def test_dimensionless_values_without_pint(text):
+    """A ratio in a fit's data or noise ("0.875", "87.5 %"): pint's float, without pint."""
+    assert units._fast(text, "1") is not None
+    assert to_si(text, "1") == _pint(text, "dimensionless")
 
 
 def test_pint_still_decides_what_the_table_does_not_hold():
