@@ -263,7 +263,7 @@ def problem(
         return Target(k, expr, (values or TARGETS)[k], k)
 
     noise = {k: Noise(abs(TARGETS[k])) for k in targets}
-    tight = Options(rtol=1e-20, atol=0.0, gtol=1e-12, xtol=1e-13)
+    tight = Options(rtol=1e-20, atol=0.0, gtol=1e-8, xtol=1e-12)
     return Problem(
         params, points=points, targets=[target(k) for k in targets], noise=noise, options=tight
     )

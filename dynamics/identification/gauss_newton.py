@@ -21,9 +21,8 @@ Globalisation (Levenberg-Marquardt with a constraint cap): the constraints are m
 by the node change that would restore them, ``theta = max |G_y^-1 g|`` with the
 iteration's ``G_y`` (Deuflhard's natural level: raw equilibrium rows, scaled by stiff
 forces, would otherwise dominate any merit). A step is taken when it leaves ``theta``
-at most :data:`THETA_MAX` (or no larger than before) and the cost falls by at least
-:data:`ACCEPT` of the decrease the model predicts, or it halves ``theta`` within the
-model's cost; ``mu`` then falls, else it rises. It stops when ``theta <= gtol`` and the
+at most :data:`THETA_MAX` (or no larger than before) and either the cost falls by at
+least :data:`ACCEPT` of the decrease the model predicts or ``theta`` at least halves; ``mu`` then falls, else it rises. It stops when ``theta <= gtol`` and the
 predicted decrease is below :class:`Options`' thresholds (or the step below ``xtol``);
 otherwise it reports why it stopped. An evaluation that raises SolverError (a step whose
 Newton fails) is a rejected step.
@@ -115,8 +114,8 @@ def gauss_newton(
             v_t, trial, cost_t, theta_t = None, None, np.inf, np.inf
         rho = (cost - cost_t) / pred if pred > 0 else -np.inf
         feasible = theta_t <= max(THETA_MAX, theta)
-        if feasible and not rho > ACCEPT and theta_t <= 0.5 * theta and cost_t <= cost + abs(pred):
-            rho = ACCEPT * 2  # a restoring step: constraints halved, cost within the model
+        if feasible and not rho > ACCEPT and theta_t <= 0.5 * theta:
+            rho = ACCEPT * 2  # a restoring step: the constraints at least halved
         if not feasible:
             rho = -np.inf
         if report:
