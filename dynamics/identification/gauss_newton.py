@@ -22,7 +22,8 @@ by the node change that would restore them, ``theta = max |G_y^-1 g|`` with the
 iteration's ``G_y`` (Deuflhard's natural level: raw equilibrium rows, scaled by stiff
 forces, would otherwise dominate any merit). A step is taken when it leaves ``theta``
 at most :data:`THETA_MAX` (or no larger than before) and either the cost falls by at
-least :data:`ACCEPT` of the decrease the model predicts or ``theta`` at least halves; ``mu`` then falls, else it rises. It stops when ``theta <= gtol`` and the
+least :data:`ACCEPT` of the decrease the model predicts or ``theta`` at least halves;
+``mu`` then falls, else it rises. It stops when ``theta <= gtol`` and the
 predicted decrease is below :class:`Options`' thresholds (or the step below ``xtol``);
 otherwise it reports why it stopped. An evaluation that raises SolverError (a step whose
 Newton fails) is a rejected step.
