@@ -26,7 +26,7 @@ the I-band series stiffness ``k_s``, in log space, by the identification engine
 set, six equilibria (:class:`~.identification.experiments.StaticPoint`, the isometric
 fixture linked to the hanging chain's rest position) and three targets with the
 relative residuals ``(t - T) / T``, solved as one least-squares problem with the
-equilibria as constraints (IPOPT, Gauss-Newton Hessian, exact CasADi Jacobians; the
+equilibria as constraints (constrained Gauss-Newton, exact CasADi Jacobians; the
 start's equilibria solved by :func:`.equilibrium.solve_equilibrium`). The result is
 accepted only after an independent check (:func:`evaluate`: every equilibrium re-solved
 from scratch) meets the targets to :data:`VERIFY_RTOL`; a failure raises
@@ -287,7 +287,7 @@ def fit(
     theta, iterations, steps = _solve(start, fitted, targets, rest_length, verbose)
     values = {k: float(v) for k, v in zip(fitted, theta, strict=True)}
     how = (
-        f"least squares (IPOPT, Gauss-Newton Hessian) in {iterations} iterations, "
+        f"least squares (constrained Gauss-Newton) in {iterations} iterations, "
         f"{steps} continuation step(s)"
     )
     return verified(start, values, how, iterations, targets, rest_length)

@@ -112,7 +112,7 @@ def calibrate_file(path: str | Path = FIT_PAPER, verbose: bool = False):
         print(f"calibration: fit file {path}: {sol.status}, {sol.iterations} iterations")
     values = {name.removeprefix("aps."): value for name, (value, _) in run.estimates.items()}
     how = (
-        f"fit file '{fit.built.spec.name}', least squares (IPOPT, Gauss-Newton Hessian) in "
+        f"fit file '{fit.built.spec.name}', least squares (constrained Gauss-Newton) in "
         f"{sol.iterations} iterations"
     )
     return assessed(verified(APSParams.from_paper(), values, how, sol.iterations))

@@ -32,8 +32,10 @@ from .validation import experiment_metrics
 LOCAL_STARTS = 4
 """Up to this many starts (and their profiles) run in this process; more go to Dask."""
 
-SAME_OPTIMUM = 1e-6
-"""Relative cost difference within which a start counts as reaching the best optimum."""
+SAME_OPTIMUM = 1e-5
+"""Relative cost difference within which a start counts as reaching the best optimum
+(the solver stops at 1e-5 of the cost's predicted decrease: :class:`~sarcomere.dynamics.
+identification.gauss_newton.Options`)."""
 
 
 @dataclass
