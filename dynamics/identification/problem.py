@@ -160,7 +160,9 @@ class Problem:
                 ename, factor = exp.uses[m.param_names[i]]
                 D[r_, used.index(index[ename])] = factor
             scale = scales(m, self._equilibria(exp))
-            shoot = Shooting.of(m, exp.t, exp.u, exp.interval, idx, len(used), exp.outputs, scale)
+            shoot = Shooting.of(
+                m, exp.t, exp.u, exp.interval, idx, len(used), exp.outputs, scale, exp.substeps
+            )
             picks = []
             for j, name in enumerate(exp.outputs):
                 ok = np.flatnonzero(np.isfinite(exp.data[:, j]))

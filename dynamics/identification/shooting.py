@@ -4,8 +4,9 @@ sensitivities, generated to C.
 The record is cut into shooting intervals of ``interval`` samples. The scaled state
 ``xi = x / x_nominal`` at each interval's start is an unknown of the fit (a node); inside
 an interval the states at the samples follow from it by one Radau IIA step per sample (3
-nodes, order 5: the equations of :func:`..simulation.collocation.residual`), the inputs
-linear between samples (the :class:`~sarcomere.dynamics.signals.Table` convention).
+nodes, order 5: the equations of :func:`..simulation.collocation.residual`; or
+``substeps`` equal steps), the inputs linear between samples (the
+:class:`~sarcomere.dynamics.signals.Table` convention).
 
 Each step's collocation equations ``R(V, xi_k, q_k, p) = 0`` are solved for the stage
 values ``V`` by Newton (CasADi's ``fast_newton``: sparse QR, code-generable) from
@@ -79,13 +80,18 @@ class Engine:
         return cache[which, n]
 
 
-def engine(model: Model, idx: tuple[int, ...], ne: int, length: int, outputs: tuple) -> Engine:
-    """The :class:`Engine` (generated, compiled and loaded once; memoised on the model)."""
-    key = ("identification.engine", idx, ne, length, outputs)
-    return model.cached(key, lambda: _build(model, idx, ne, length, outputs))
+def engine(
+    model: Model, idx: tuple[int, ...], ne: int, length: int, outputs: tuple, substeps: int = 1
+) -> Engine:
+    """The :class:`Engine` (generated, compiled and loaded once; memoised on the model);
+    ``substeps`` Radau IIA steps per sample."""
+    key = ("identification.engine", idx, ne, length, outputs, substeps)
+    return model.cached(key, lambda: _build(model, idx, ne, length, outputs, substeps))
 
 
-def _build(model: Model, idx: tuple[int, ...], ne: int, length: int, outputs: tuple) -> Engine:
+def _build(
+    model: Model, idx: tuple[int, ...], ne: int, length: int, outputs: tuple, substeps: int
+) -> Engine:
     nx, nu, n_p, k = model.nx, model.u.numel(), model.p.numel(), len(idx)
     scale = cs.SX.sym("scale", nx)
     ode = cs.Function("ode", [model.x, model.u, model.p], [model.ode])
@@ -108,13 +114,31 @@ def _build(model: Model, idx: tuple[int, ...], ne: int, length: int, outputs: tu
 
     xm, qm, pm = cs.MX.sym("xi", nx), cs.MX.sym("q", q.numel()), cs.MX.sym("p", n_p)
     Sm, Dm, cm = cs.MX.sym("S", nx, nx + ne), cs.MX.sym("D", k, ne), cs.MX.sym("scale", nx)
-    Vs = newton(cs.repmat(xm, POINTS, 1), xm, qm, pm, cm)
-    res = cs.norm_inf(R(Vs, xm, qm, pm, cm))
-    value_step = cs.Function("value_step", [xm, qm, pm, cm], [Vs[-nx:], res])
-    RV, Rx, Rp = RJ(Vs, xm, qm, pm, cm)
-    rhs = Rx @ Sm + cs.horzcat(cs.MX(nx * POINTS, nx), Rp @ Dm)
-    S1 = -cs.solve(RV, rhs, "qr")[-nx:, :]
-    sens_step = cs.Function("sens_step", [xm, Sm, qm, pm, Dm, cm], [Vs[-nx:], S1, res])
+
+    def advance(x, S):
+        """The sample's step (``substeps`` equal parts, inputs interpolated); ``S`` carried
+        along when given."""
+        res = cs.MX(0)
+        for j in range(substeps):
+            a, b = j / substeps, (j + 1) / substeps
+            qj = cs.vertcat(
+                qm[:nu] + a * (qm[nu : 2 * nu] - qm[:nu]),
+                qm[:nu] + b * (qm[nu : 2 * nu] - qm[:nu]),
+                qm[2 * nu] / substeps,
+            )
+            Vs = newton(cs.repmat(x, POINTS, 1), x, qj, pm, cm)
+            res = cs.fmax(res, cs.norm_inf(R(Vs, x, qj, pm, cm)))
+            if S is not None:
+                RV, Rx, Rp = RJ(Vs, x, qj, pm, cm)
+                rhs = Rx @ S + cs.horzcat(cs.MX(nx * POINTS, nx), Rp @ Dm)
+                S = -cs.solve(RV, rhs, "qr")[-nx:, :]
+            x = Vs[-nx:]
+        return x, S, res
+
+    x1, _, r1 = advance(xm, None)
+    value_step = cs.Function("value_step", [xm, qm, pm, cm], [x1, r1])
+    x1, S1, r1 = advance(xm, Sm)
+    sens_step = cs.Function("sens_step", [xm, Sm, qm, pm, Dm, cm], [x1, S1, r1])
 
     Q = cs.MX.sym("Q", q.numel(), length)
     acc_v = value_step.mapaccum("acc_v", length, [0], [0])
@@ -175,12 +199,14 @@ class Shooting:
     scale: np.ndarray
 
     @classmethod
-    def of(cls, model: Model, t, u, interval: int | None, idx, ne: int, outputs, scale) -> Shooting:
+    def of(
+        cls, model: Model, t, u, interval: int | None, idx, ne: int, outputs, scale, substeps=1
+    ) -> Shooting:
         n = len(t)
         size = n - 1 if interval is None else min(interval, n - 1)
         edges = list(range(0, n - 1, size)) + [n - 1]
         bounds = list(zip(edges[:-1], edges[1:], strict=True))
-        eng = engine(model, tuple(idx), ne, size, tuple(outputs))
+        eng = engine(model, tuple(idx), ne, size, tuple(outputs), substeps)
         return cls(model, np.asarray(t, float), np.asarray(u, float), bounds, eng, scale)
 
     @property
