@@ -227,17 +227,24 @@ class Shooting:
             cols.append(np.vstack([u[k0].T, u[k1].T, h[None, :]]))
         return np.hstack(cols)
 
-    def _check(self, res: np.ndarray) -> None:
+    def _check(self, res: np.ndarray, X: np.ndarray) -> None:
+        """A SolverError naming the first step whose Newton left a residual above
+        :data:`RESIDUAL_TOL` or whose state is not finite."""
         L = self.engine.length
+        finite = np.all(np.isfinite(X), axis=0)
         for j, (a, b) in enumerate(self.bounds):
-            rj = res[j * L : j * L + (b - a)]
-            bad = np.flatnonzero(~(rj <= RESIDUAL_TOL))
+            part = slice(j * L, j * L + (b - a))
+            bad = np.flatnonzero(~(res[part] <= RESIDUAL_TOL) | ~finite[part])
             if bad.size:
-                k = a + int(bad[0])
+                k, r = a + int(bad[0]), res[part][bad[0]]
+                why = (
+                    "a non-finite state"
+                    if not finite[part][bad[0]]
+                    else f"Newton left a scaled residual of {r:.3g} (above {RESIDUAL_TOL:g})"
+                )
                 raise SolverError(
                     f"the Radau IIA step from t = {self.t[k]:g} s to {self.t[k + 1]:g} s "
-                    f"failed: Newton left a scaled residual of {rj[bad[0]]:.3g} "
-                    f"(above {RESIDUAL_TOL:g})"
+                    f"failed: {why}"
                 )
 
     def _gather(self, X: np.ndarray, S0: np.ndarray) -> np.ndarray:
@@ -257,9 +264,7 @@ class Shooting:
             S, self._q(), np.tile(p[:, None], (1, B)), np.tile(self.scale[:, None], (1, B))
         )
         X, res = np.array(X), np.array(res).ravel()
-        self._check(res)
-        if not np.all(np.isfinite(X)):
-            raise SolverError("the simulation gave a non-finite state")
+        self._check(res, X)
         return self._gather(X, S)
 
     def march(self, xi0: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -293,7 +298,7 @@ class Shooting:
             np.tile(self.scale[:, None], (1, B)),
         )
         X, Sens, res = np.array(X), np.array(Sens), np.array(res).ravel()
-        self._check(res)
+        self._check(res, X)
         blocks = Sens.reshape(nx, B * L, nx + ne).transpose(1, 0, 2)
         n = len(self.t)
         dS, dT, node = np.zeros((n, nx, nx)), np.zeros((n, nx, ne)), np.zeros(n, int)
