@@ -310,6 +310,6 @@ class Shooting:
                 part[:, :, nx:],
                 j,
             )
-        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(blocks))):
-            raise SolverError("the simulation gave a non-finite state or sensitivity")
+        if not np.all(np.isfinite(blocks)):
+            raise SolverError("the sensitivities of the simulation are not finite")
         return self._gather(X, S), dS, dT, node
