@@ -14,6 +14,7 @@ weighted residual's max-norm is at most ``tol``, or when every step component is
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -162,7 +163,9 @@ def row_weights(J, scale: np.ndarray) -> np.ndarray:
 def _newton_step(J, r: np.ndarray) -> tuple[np.ndarray, str]:
     """``dx = -J^-1 r``, or why there is none."""
     try:
-        with np.errstate(over="ignore", invalid="ignore"):
+        # a singular J is reported below (a non-finite step): not scipy's warning as well
+        with np.errstate(over="ignore", invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", spla.MatrixRankWarning)
             dx = spla.spsolve(J, -r) if sp.issparse(J) else np.linalg.solve(J, -np.ravel(r))
     except (np.linalg.LinAlgError, RuntimeError) as exc:
         return np.empty(0), f"singular Jacobian ({exc})"

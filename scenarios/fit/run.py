@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -105,7 +106,10 @@ class Fit:
             return first[None, :]
         from scipy.stats import qmc
 
-        unit = qmc.Sobol(len(params), scramble=True, seed=self.built.spec.seed).random(n - 1)
+        with warnings.catch_warnings():  # any count of starts is allowed (the fit file's)
+            warnings.filterwarnings("ignore", "The balance properties of Sobol", UserWarning)
+            sobol = qmc.Sobol(len(params), scramble=True, seed=self.built.spec.seed)
+            unit = sobol.random(n - 1)
         lo = np.array([e.to_phi(e.low) for e in params])
         hi = np.array([e.to_phi(e.high) for e in params])
         phi = lo + unit * (hi - lo)
