@@ -159,7 +159,7 @@ class Problem:
             for r_, i in enumerate(idx):
                 ename, factor = exp.uses[m.param_names[i]]
                 D[r_, used.index(index[ename])] = factor
-            scale = scales(m, self._equilibria(exp))
+            scale = scales(m, self._scale_states(exp))
             shoot = Shooting.of(
                 m, exp.t, exp.u, exp.interval, idx, len(used), exp.outputs, scale, exp.substeps
             )
@@ -173,7 +173,6 @@ class Problem:
                 rows.sample += ok.tolist()
             self._series.append(_Series(exp, shoot, offset, idx, used, D, picks))
             offset += m.nx * shoot.nodes
-        self.n_series_rows = sum(len(d) for d in data)
         # static points and targets: CasADi Functions of [phi; W]
         phi = cs.MX.sym("phi", n_theta)
         theta = [e.to_theta(phi[k]) for k, e in enumerate(self.params)]
@@ -184,7 +183,7 @@ class Problem:
             m = pt.model
             w = cs.MX.sym(f"W_{pt.name}", m.nx + m.nz)
             unknowns.append(w)
-            sx = scales(m, self._equilibria(pt))
+            sx = scales(m, self._scale_states(pt))
             scale = np.concatenate([sx, np.maximum(m.nominal("z"), 1e-12)])
             x, z = scale[: m.nx] * w[: m.nx], scale[m.nx :] * w[m.nx :]
             links = {k: solved[v] for k, v in pt.links.items()}
@@ -220,7 +219,7 @@ class Problem:
         self.n_v = offset + vs.numel() - n_theta
         self.n_g = sum(s.exp.model.nx * s.shoot.nodes for s in self._series) + g.numel()
 
-    def _equilibria(self, exp) -> list[np.ndarray]:
+    def _scale_states(self, exp) -> list[np.ndarray]:
         """States of the experiment's equilibria at the start values, at its first and its
         largest inputs (for the state scales; none where a solve fails)."""
         theta = np.array([e.start for e in self.params])
@@ -392,7 +391,7 @@ class Problem:
             try:
                 over = self._p_numeric(exp, theta)
                 inputs = dict(zip(m.input_names, exp.u[0], strict=True))
-                eq = solve_equilibrium(m, inputs, over, guess=memory.get(exp.name))
+                eq = _continued(m, inputs, over, memory.get(exp.name))
             except (SolverError, ParameterError) as exc:
                 raise SolverError(f"experiment '{exp.name}': {exc}") from None
             memory[exp.name] = eq
@@ -406,7 +405,7 @@ class Problem:
                 over = self._p_numeric(pt, theta, links)
                 inputs = dict(zip(m.input_names, pt.u, strict=True))
                 guess = memory.get(pt.name, memory.get(("model", m.name)))
-                eq = solve_equilibrium(m, inputs, over, guess=guess)
+                eq = _continued(m, inputs, over, guess)
             except (SolverError, ParameterError) as exc:
                 raise SolverError(f"static point '{pt.name}': {exc}") from None
             memory[pt.name] = eq
@@ -493,6 +492,16 @@ def _failed(problem: Problem, v0, weights, why: str) -> Solution:
     phi = v0[: len(problem.params)]
     nan = np.full(len(problem.rows.data), np.nan)
     return Solution(phi, problem.values(phi), v0, np.inf, nan, weights, why, 0)
+
+
+def _continued(model, inputs, over, guess):
+    """The equilibrium continued from ``guess``, else solved from the model's own start."""
+    if guess is not None:
+        try:
+            return solve_equilibrium(model, inputs, over, guess=guess)
+        except SolverError:
+            pass
+    return solve_equilibrium(model, inputs, over)
 
 
 def _needed(points: Sequence[StaticPoint]) -> set[tuple[str, str]]:
