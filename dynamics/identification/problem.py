@@ -270,20 +270,17 @@ class Problem:
                 Xi = shoot.simulate(S, p)
             scale = shoot.scale
             x = scale[:, None] * Xi
-            npts = x.shape[1]
-            out = shoot.engine.mapped("outputs", npts)(x, shoot.u.T, np.tile(p[:, None], (1, npts)))
-            y = np.array(out[0])
+            y, Yx, Yp = shoot.outputs(x, p)
             for j, ok in enumerate(s.rows):
                 preds.append(y[j, ok])
             f, Fxi, Fp = shoot.engine.equilibrium(S[:, 0], shoot.u[0], p, scale)
             ends = [b for _, b in shoot.bounds[:-1]]
             defects = (Xi[:, ends] - S[:, 1:]).T.ravel()
-            gs += [np.array(f).ravel(), defects]
+            gs += [f.ravel(), defects]
             if not jacobian:
                 continue
-            ny, k = len(s.rows), len(s.idx)
-            Yx = np.array(out[1]).reshape(ny, npts, nx).transpose(1, 0, 2) * scale
-            Yp = np.array(out[2]).reshape(ny, npts, k).transpose(1, 0, 2)
+            k = len(s.idx)
+            Yx = Yx * scale
             dYs = Yx @ dS  # (n, ny, nx): to the sample's node
             scale_used = dtheta[s.used]  # d theta_used / d phi_used
             dYt = (Yx @ dT + Yp @ s.D) * scale_used
@@ -299,7 +296,6 @@ class Problem:
                 r0 += len(ok)
             # equilibrium at the first sample
             gr = row_g + np.arange(nx)
-            Fxi, Fp = np.array(Fxi), np.array(Fp)
             Jg_parts.append((np.repeat(gr, nx), np.tile(s.offset + np.arange(nx), nx), Fxi.ravel()))
             Fphi = (Fp @ s.D) * scale_used if k else np.zeros((nx, len(s.used)))
             Jg_parts.append(

@@ -54,30 +54,24 @@ def scales(model: Model, states=()) -> np.ndarray:
 @dataclass(frozen=True)
 class Engine:
     """The compiled Functions of one (model, estimated entries ``idx``, ``ne`` estimated
-    values, interval length, outputs):
+    values, interval length ``L``, outputs), called on numpy arrays
+    (:class:`~..simulation.compiled.NumpyFunction`):
 
-    * ``values(xi0, Q, p, scale) -> (Xi, res)``: one interval's scaled states after each step
-      (nx x L) and each step's residual (1 x L); ``Q`` (2 nu + 1) x L: ``u0, u1, h``.
+    * ``values(xi0, Q, p, scale) -> (Xi, res)``: one interval's scaled states after each
+      step (nx x L) and each step's residual (1 x L); ``Q`` (2 nu + 1) x L: ``u0, u1, h``.
     * ``sens(xi0, Q, p, D, scale) -> (Xi, S, res)``: also ``S`` = nx x ((nx + ne) L), the
       sensitivities after each step to the node and to ``theta_e``.
-    * ``outputs(x, u, p) -> (y, Y_x, Y_p)``: the measured signals and their Jacobians to
-      ``x`` (unscaled) and to ``p_sel``, at one sample (mapped over samples).
-    * ``equilibrium(xi, u, p, scale) -> (f, F_xi, F_p)``: the scaled ODE at the first sample and
-      its Jacobians to ``xi`` and ``p_sel``.
+    * ``outputs(X, U, p) -> (y, Y_x, Y_p)``: the measured signals at ``L`` samples and
+      their Jacobians to ``x`` (unscaled) and to ``p_sel``, side by side.
+    * ``equilibrium(xi, u, p, scale) -> (f, F_xi, F_p)``: the scaled ODE at the first
+      sample and its Jacobians to ``xi`` and ``p_sel``.
     """
 
-    values: cs.Function
-    sens: cs.Function
-    outputs: cs.Function
-    equilibrium: cs.Function
+    values: compiled.NumpyFunction
+    sens: compiled.NumpyFunction
+    outputs: compiled.NumpyFunction
+    equilibrium: compiled.NumpyFunction
     length: int
-
-    def mapped(self, which: str, n: int) -> cs.Function:
-        """``which`` mapped over ``n`` intervals or samples (memoised)."""
-        cache = self.__dict__.setdefault("_maps", {})
-        if (which, n) not in cache:
-            cache[which, n] = getattr(self, which).map(n)
-        return cache[which, n]
 
 
 def engine(
@@ -178,9 +172,12 @@ def _build(
         ["f", "F_xi", "F_p"],
     )
     stem = f"fit_{model.name}".replace(".", "_")
-    lib = compiled.casadi_library([values, sens, out, eq], stem)
+    Xo, Uo = cs.MX.sym("X", nx, length), cs.MX.sym("U", nu, length)
+    out_map = out.map(length)
+    outs = cs.Function("fit_outputs_map", [Xo, Uo, pm], out_map(Xo, Uo, cs.repmat(pm, 1, length)))
+    lib = compiled.numpy_library([values, sens, outs, eq], stem)
     return Engine(
-        lib["fit_values"], lib["fit_sens"], lib["fit_outputs"], lib["fit_equilibrium"], length
+        lib["fit_values"], lib["fit_sens"], lib["fit_outputs_map"], lib["fit_equilibrium"], length
     )
 
 
@@ -259,11 +256,13 @@ class Shooting:
     def simulate(self, S: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Scaled states at every sample (nx x n) from the nodes ``S`` (nx x nodes) at the
         parameter vector ``p``. Raises SolverError where a step fails."""
-        B = self.nodes
-        X, res = self.engine.mapped("values", B)(
-            S, self._q(), np.tile(p[:, None], (1, B)), np.tile(self.scale[:, None], (1, B))
-        )
-        X, res = np.array(X), np.array(res).ravel()
+        L, Q = self.engine.length, self._q()
+        parts = [
+            self.engine.values(S[:, j], Q[:, j * L : (j + 1) * L], p, self.scale)
+            for j in range(self.nodes)
+        ]
+        X = np.hstack([x for x, _ in parts])
+        res = np.concatenate([r.ravel() for _, r in parts])
         self._check(res, X)
         return self._gather(X, S)
 
@@ -274,7 +273,7 @@ class Shooting:
         L, Q = self.engine.length, self._q()
         for j, (a, b) in enumerate(self.bounds):
             X, res = self.engine.values(cols[-1][:, -1], Q[:, j * L : (j + 1) * L], p, self.scale)
-            X, res = np.array(X), np.array(res).ravel()
+            res = res.ravel()
             rj = res[: b - a]
             if not np.all(rj <= RESIDUAL_TOL) or not np.all(np.isfinite(X)):
                 raise SolverError(
@@ -284,20 +283,38 @@ class Shooting:
             cols.append(X[:, : b - a])
         return np.hstack(cols)
 
+    def outputs(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The measured signals at every sample (ny x n) from the unscaled states ``x``
+        (nx x n), and their Jacobians ``Y_x`` (n, ny, nx) and ``Y_p`` (n, ny, k)."""
+        L, n = self.engine.length, x.shape[1]
+        chunks = -(-n // L)
+        pad = chunks * L - n
+        X = np.hstack([x, np.repeat(x[:, -1:], pad, axis=1)])
+        U = np.vstack([self.u, np.repeat(self.u[-1:], pad, axis=0)]).T
+        parts = [
+            self.engine.outputs(X[:, c * L : (c + 1) * L], U[:, c * L : (c + 1) * L], p)
+            for c in range(chunks)
+        ]
+        y = np.hstack([a for a, _, _ in parts])[:, :n]
+        ny, nx = y.shape[0], x.shape[0]
+        Yx = np.hstack([b for _, b, _ in parts]).reshape(ny, -1, nx)[:, :n].transpose(1, 0, 2)
+        k = parts[0][2].shape[1] // L
+        Yp = np.hstack([c for _, _, c in parts]).reshape(ny, -1, k)[:, :n].transpose(1, 0, 2)
+        return y, Yx, Yp
+
     def sensitivities(self, S: np.ndarray, p: np.ndarray, D: np.ndarray):
         """States at every sample (nx x n) and their sensitivities: ``dS`` (n, nx, nx) to
         the node of the interval the sample lies in (sample 0: the identity to node 0),
         ``dT`` (n, nx, ne) to ``theta_e``, and that node's index per sample (n,)."""
         B, L, nx = self.nodes, self.engine.length, self.model.nx
         ne = D.shape[1]
-        X, Sens, res = self.engine.mapped("sens", B)(
-            S,
-            self._q(),
-            np.tile(p[:, None], (1, B)),
-            np.tile(D, (1, B)),
-            np.tile(self.scale[:, None], (1, B)),
-        )
-        X, Sens, res = np.array(X), np.array(Sens), np.array(res).ravel()
+        Q = self._q()
+        parts = [
+            self.engine.sens(S[:, j], Q[:, j * L : (j + 1) * L], p, D, self.scale) for j in range(B)
+        ]
+        X = np.hstack([x for x, _, _ in parts])
+        Sens = np.hstack([sj for _, sj, _ in parts])
+        res = np.concatenate([r.ravel() for _, _, r in parts])
         self._check(res, X)
         blocks = Sens.reshape(nx, B * L, nx + ne).transpose(1, 0, 2)
         n = len(self.t)

@@ -14,6 +14,7 @@ the folder to clear the cache (``docs/numerics.md``).
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import hashlib
 import os
@@ -28,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as cs
+import numpy as np
 
 from ..errors import SolverError
 
@@ -178,7 +180,22 @@ def casadi_library(
     Raises SolverError when a Function cannot be generated to C (e.g. a LAPACK linear
     solver or a rootfinder plugin without code generation) or the compiler fails.
     """
-    cflags = (*CASADI_CFLAGS, *flags)
+    path = _generated(functions, stem, (*CASADI_CFLAGS, *flags), link_flags)
+    return {f.name(): cs.external(f.name(), str(path)) for f in functions}
+
+
+def numpy_library(functions: Sequence[cs.Function], stem: str) -> dict[str, NumpyFunction]:
+    """Like :func:`casadi_library`, but each Function is called through ctypes on numpy
+    arrays (:class:`NumpyFunction`): no conversion to and from CasADi matrices, which
+    costs more than the C itself for outputs of 1e5 entries."""
+    handle = ctypes.CDLL(str(_generated(functions, stem, CASADI_CFLAGS, ("-lm",))))
+    return {f.name(): NumpyFunction(f, handle) for f in functions}
+
+
+def _generated(
+    functions: Sequence[cs.Function], stem: str, cflags: Sequence[str], link_flags: Sequence[str]
+) -> Path:
+    """The cached library of ``functions`` generated to C (built first if absent)."""
     inputs = [f.serialize() for f in functions] + [cs.__version__, " ".join(cflags)]
 
     def units(folder: Path) -> list[Unit]:
@@ -191,7 +208,66 @@ def casadi_library(
             raise SolverError(f"{stem}: cannot generate C ({line})")
         path = folder / f"{stem}.c"
         path.write_text(source)
-        return [Unit(path, cflags)]
+        return [Unit(path, tuple(cflags))]
 
-    path, _ = shared_library(stem, inputs, units, tuple(link_flags))
-    return {f.name(): cs.external(f.name(), str(path)) for f in functions}
+    return shared_library(stem, inputs, units, tuple(link_flags))[0]
+
+
+class NumpyFunction:
+    """A generated CasADi Function called on numpy arrays: inputs dense (any shape with
+    the right number of entries, read column-major as CasADi stores them), outputs dense
+    arrays of the Function's shapes. Not thread-safe (one work area per object)."""
+
+    def __init__(self, f: cs.Function, handle: ctypes.CDLL) -> None:
+        name = f.name()
+        self.name = name
+        self._call = getattr(handle, name)
+        self._call.restype = ctypes.c_int
+        sizes = [ctypes.c_longlong() for _ in range(4)]
+        getattr(handle, f"{name}_work")(*(ctypes.byref(z) for z in sizes))
+        n_arg, n_res, n_iw, n_w = (int(z.value) for z in sizes)
+        getattr(handle, f"{name}_incref")()
+        self._mem = int(getattr(handle, f"{name}_checkout")())
+        self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
+        self._w = np.zeros(max(n_w, 1))
+        self._arg = (ctypes.c_void_p * max(n_arg, 1))()
+        self._res = (ctypes.c_void_p * max(n_res, 1))()
+        self._shapes_in = [(f.size1_in(i), f.size2_in(i)) for i in range(f.n_in())]
+        for i in range(f.n_in()):
+            if not f.sparsity_in(i).is_dense():
+                raise SolverError(f"{name}: input {i} is sparse (dense inputs only)")
+        self._out = []
+        for i in range(f.n_out()):
+            sp = f.sparsity_out(i)
+            rows, cols = sp.get_triplet()
+            self._out.append(
+                (sp.shape, sp.nnz(), np.array(rows, int), np.array(cols, int), sp.is_dense())
+            )
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        keep = []
+        for i, (a, shape) in enumerate(zip(args, self._shapes_in, strict=True)):
+            arr = np.ascontiguousarray(np.asarray(a, dtype=float).reshape(shape, order="F").T)
+            keep.append(arr)
+            self._arg[i] = arr.ctypes.data
+        raw = [np.empty(nnz) for _, nnz, _, _, _ in self._out]
+        for i, r in enumerate(raw):
+            self._res[i] = r.ctypes.data
+        rc = self._call(
+            self._arg,
+            self._res,
+            self._iw.ctypes.data_as(ctypes.c_void_p),
+            self._w.ctypes.data_as(ctypes.c_void_p),
+            self._mem,
+        )
+        if rc:
+            raise SolverError(f"{self.name}: the generated C returned {rc}")
+        out = []
+        for r, (shape, _, rows, cols, dense) in zip(raw, self._out, strict=True):
+            if dense:
+                out.append(r.reshape(shape[::-1]).T)
+            else:
+                full = np.zeros(shape)
+                full[rows, cols] = r
+                out.append(full)
+        return out
