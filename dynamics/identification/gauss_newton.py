@@ -43,17 +43,18 @@ from ..errors import SolverError
 
 @dataclass(frozen=True)
 class Options:
-    """Stopping rules: ``max_iter`` iterations; converged when ``max |g| <= gtol`` (scaled
-    constraint units) and the predicted cost decrease is below ``atol`` or ``rtol (1 +
-    cost)``, or ``max |dphi| <= xtol``; also when a step is rejected while its predicted
-    decrease is below ``floor cost + 1e-14`` (or ``floor (1 + cost)`` once the damping is
-    at its largest): the cost (half the weighted sum of squares)
-    cannot resolve more (its evaluation noise from the inner Newton and equilibrium
-    tolerances was measured at 5e-3 on fit-synthetic's 2949, 1.7e-6 of it), and the
-    Gauss-Newton decrease is the step's size in the Fisher metric, ``dphi^T F dphi / 2``:
-    1e-5 of a chi-squared of order the data count is far below a 95 % threshold of 1.92.
-    ``mu0``: the first damping (relative to the column norms); ``max_step``: the largest
-    change of a search variable per iteration (1 in log space: a factor e).
+    """Stopping rules: ``max_iter`` iterations; converged when ``max |G_y^-1 g| <= gtol``
+    (scaled states) and the predicted cost decrease is below ``atol``, ``rtol (1 + cost)``
+    or ``floor cost``, or ``max |dphi| <= xtol``; also when a step is rejected while its
+    predicted decrease is below ``floor cost + 1e-14`` (or ``floor (1 + cost)`` once the
+    damping is at its largest). The cost (half the weighted sum of squares) cannot resolve
+    more: its evaluation noise from the inner Newton and equilibrium tolerances was
+    measured at 5e-3 on fit-synthetic's 2949 (1.7e-6 of it); and the Gauss-Newton decrease
+    is the step's size in the Fisher metric, ``dphi^T F dphi / 2``: 1e-5 of a chi-squared
+    of order the data count is far below a 95 % threshold of 1.92. A zero-residual fit
+    (cost near 0) goes on to ``rtol``/``xtol``. ``mu0``: the first damping (relative to
+    the column norms); ``max_step``: the largest change of a search variable per
+    iteration (1 in log space: a factor e).
     """
 
     max_iter: int = 100
@@ -175,7 +176,7 @@ MU_MAX = 1e10
 
 
 def _small(dphi: np.ndarray, pred: float, cost: float, options: Options) -> bool:
-    if pred <= max(options.atol, options.rtol * (1 + cost)):
+    if pred <= max(options.atol, options.rtol * (1 + cost), options.floor * cost):
         return True
     return np.max(np.abs(dphi), initial=0) <= options.xtol
 
