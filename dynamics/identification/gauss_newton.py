@@ -149,9 +149,9 @@ def gauss_newton(
     return Outcome(v, f"no convergence in {options.max_iter} iterations", options.max_iter, lin)
 
 
-THETA_MAX = 0.1
+THETA_MAX = 0.5
 """The largest constraint violation a step may leave, as node change ``max |G_y^-1 g|``
-(scaled states: a tenth of a state's scale), unless it was larger before."""
+(scaled states: half a state's scale), unless it was larger before."""
 
 SINGULAR = (
     "no Gauss-Newton step: a singular constraint Jacobian (a node or equilibrium the "
@@ -161,8 +161,9 @@ SINGULAR = (
 ACCEPT = 1e-4
 """A step is taken when the cost falls by at least this fraction of the decrease the
 linear model predicts (Levenberg-Marquardt's gain ratio); the damping then falls fivefold
-above a ratio of 0.5, twofold above 0.25, else doubles; a rejected step raises it by a
-factor that doubles with each rejection in a row."""
+above a ratio of 0.5, twofold above 0.25, else doubles; a rejected step raises it to at
+least ``mu0``, by a factor that doubles with each rejection in a row (measured on
+fit-synthetic: 9 iterations, against 15 when a rejection only quadruples it)."""
 
 MU_MIN = 1e-6
 """The smallest damping: a parameter combination the data do not determine (a flat
