@@ -411,7 +411,10 @@ class Simulator:
         m = self.model
         lens = [len(q[1]) for q in plan]
         ends = np.cumsum(lens, dtype=np.int32)
+        # one piece: its times as they are, unless a strided view (t_out[::4], a CSV's
+        # column) that C would read as contiguous (it read every row, not every 4th)
         all_times = np.concatenate([q[1] for q in plan]) if len(plan) > 1 else plan[0][1]
+        all_times = np.ascontiguousarray(all_times)
         Wm = np.ascontiguousarray([q[0] for q in plan], dtype=float)
         run = Pieces(m, self.settings, self.p, law, Wm, self._t, self._x, all_times, ends,
                      self.stats)  # fmt: skip

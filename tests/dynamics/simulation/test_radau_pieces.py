@@ -115,6 +115,22 @@ def test_a_breakpoint_between_output_points_is_integrated_to_and_left_out():
     assert one.meta["n_segments"] == 2
 
 
+def test_a_strided_output_grid_is_read_as_its_own_times():
+    """``t_out`` a strided view (``grid[::4]``, or a column of a CSV's 2-D array): the one
+    call read its memory as contiguous, integrated to the wrong times (every row of the
+    grid, not every 4th) and returned states 2 mm off on the n = 3 chain, silently."""
+    m = model()
+    grid = np.linspace(0.0, 1.0, 1001)
+    assert not grid[::4].flags.c_contiguous
+    u = {"osc.u": 1e5}  # held, no breakpoint: one piece, its times not copied
+    strided = simulate(m, 1.0, u, t_out=grid[::4], settings=SETTINGS)
+    copied = simulate(m, 1.0, u, t_out=grid[::4].copy(), settings=SETTINGS)
+    np.testing.assert_array_equal(strided["osc.x"], copied["osc.x"])
+    tight = SolverSettings("cvodes", rtol=1e-10, atol=1e-13)
+    reference = simulate(m, 1.0, u, t_out=grid[::4].copy(), settings=tight)
+    np.testing.assert_allclose(strided["osc.x"], reference["osc.x"], atol=1e-5)
+
+
 @pytest.mark.slow  # two runs to the failure each way, a compile on a cold cache
 def test_the_domain_check_in_c_fails_as_the_python_one():
     """x overshoots its bound 1.2 m after the step at 0.3 s: the one call stops at the
