@@ -35,6 +35,7 @@ import argparse
 import functools
 import json
 import math
+import os
 import re
 import tempfile
 import time
@@ -59,6 +60,8 @@ from sarcomere.scenarios.loader import scenario_from_dict
 FIT = "fit-synthetic.toml"
 #: Success: the final cost within this many chi-squared units (2 x cost) of the best.
 SUCCESS_DCHI2 = 1.0
+#: Structurally non-identifiable by design: only their ratio enters (the fit file).
+NON_IDENTIFIABLE = ("aps.C_tube", "aps.V0")
 #: The tuned baseline's finite-difference step (scipy's ``diff_step``).
 DIFF_STEP = 1e-5
 
@@ -261,29 +264,49 @@ def starts(truth: dict, names: list[str], count: int, seed: int = 0) -> np.ndarr
     return centre + rng.uniform(np.log(0.5), np.log(2.0), (count, len(names)))
 
 
-def fit_least_squares(problem: Problem, theta0: np.ndarray, tuned: bool = True) -> dict:
+def fit_least_squares(
+    problem: Problem, theta0: np.ndarray, tuned: bool = True, trace: bool = False
+) -> dict:
     """The baseline: scipy's TRF with 2-point finite differences, from ``theta0``;
     ``tuned``: a finite-difference step of :data:`DIFF_STEP` (relative, on the
     log-parameters) instead of scipy's default 1.5e-8, which is below the simulation's
-    own error at ``rtol`` 1e-8 (the default stops early on noise: ``lsq-default``)."""
+    own error at ``rtol`` 1e-8 (the default stops early on noise: ``lsq-default``).
+    ``trace``: also each residual evaluation's (CPU s, wall s, cost) since the start."""
     low, high = problem.bounds()
     problem.evaluations = 0
-    cpu = time.process_time()
+    log: list[tuple[float, float, float]] = []
+    cpu, wall = time.process_time(), time.perf_counter()
+
+    def residuals(theta: np.ndarray) -> np.ndarray:
+        r = problem.residuals(theta)
+        log.append((time.process_time() - cpu, time.perf_counter() - wall, 0.5 * float(r @ r)))
+        return r
+
     sol = least_squares(
-        problem.residuals,
+        residuals,
         np.clip(theta0, low + 1e-9, high - 1e-9),
         bounds=(low, high),
         method="trf",
         diff_step=DIFF_STEP if tuned else None,
     )
-    return {
+    out = {
         "cost": float(sol.cost),
         "theta": sol.x.tolist(),
         "cpu_s": time.process_time() - cpu,
+        "wall_s": time.perf_counter() - wall,
         "evaluations": problem.evaluations,
         "status": int(sol.status),
         "message": str(sol.message),
     }
+    if trace:
+        out["trace"] = log
+    return out
+
+
+def time_to_reach(trace, cost: float) -> tuple[float, float] | None:
+    """The (CPU, wall) seconds of the first evaluation in ``trace`` ((CPU, wall, cost)
+    rows, in order) whose cost is at most ``cost``; None when none is."""
+    return next(((c, w) for c, w, f in trace if f <= cost), None)
 
 
 @functools.lru_cache(maxsize=4)
@@ -309,18 +332,22 @@ def fit_engine(method: str, names: list[str], theta0: np.ndarray, data_dir=None)
     fit = engine(method, data_dir)
     order = [e.name for e in fit.built.params]
     start = dict(zip(names, np.exp(theta0), strict=True))
-    cpu = time.process_time()
+    cpu, wall = time.process_time(), time.perf_counter()
+    iterations = 0
     try:
         sol = fit_from(fit.built.problem, np.array([start[n] for n in order])).solution
         cost, status, theta = 0.5 * sol.cost, sol.status, sol.theta.tolist()
+        iterations = sol.iterations
         if not sol.success:
             cost = math.inf
     except SarcomereError as exc:
         cost, status, theta = math.inf, f"dropped: {exc}"[:200], None
     return {
         "cost": cost,  # 1/2 chi-squared, as least_squares reports it
-        "theta": theta,
+        "theta": theta,  # in the engine's order (``fit.built.params``)
         "cpu_s": time.process_time() - cpu,
+        "wall_s": time.perf_counter() - wall,
+        "iterations": iterations,
         "status": status,
     }
 
@@ -375,14 +402,285 @@ def convergence(args) -> dict:
     }
 
 
+def _children_cpu() -> float:
+    """CPU seconds of this process's finished children (the C compiler)."""
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def file_start(names: list[str]) -> np.ndarray:
+    """The fit file's start values as log-parameters in ``names``' order."""
+    fit = engine("multiple-shooting")
+    start = {e.name: e.start for e in fit.built.params}
+    return np.log([start[n] for n in names])
+
+
+def speed(args) -> dict:
+    """One fit from the file's start values: the engine (multiple shooting, a warm-up then
+    ``--repeats`` fits in this process) interleaved with the baseline (``--baseline``
+    fits); the time the baseline takes to come within ``SUCCESS_DCHI2`` of its best cost."""
+    cpu, wall, child = time.process_time(), time.perf_counter(), _children_cpu()
+    fit = engine("multiple-shooting")  # Fit.from_file: bind, build (and compile if needed)
+    build = {
+        "cpu_s": time.process_time() - cpu,
+        "wall_s": time.perf_counter() - wall,
+        "compiler_cpu_s": _children_cpu() - child,
+    }
+    print(f"build {build}", flush=True)
+    params, experiments, truth = read_fit()
+    problem = Problem(params, experiments)
+    names = problem.names()
+    theta0 = file_start(names)
+    runs: dict[str, list] = {"ms": [], "lsq": []}
+    first = None
+    for k in range(args.repeats + 1):
+        child = _children_cpu()
+        r = fit_engine("multiple-shooting", names, theta0)
+        r["compiler_cpu_s"] = _children_cpu() - child
+        print(
+            f"{'warm-up' if k == 0 else f'repeat {k}'} ms: 1/2 chi2 {r['cost']:.6f} "
+            f"cpu {r['cpu_s']:.2f} s wall {r['wall_s']:.2f} s iterations {r['iterations']} "
+            f"{r['status']}",
+            flush=True,
+        )
+        if k == 0:
+            first = r
+        else:
+            runs["ms"].append(r)
+        if 1 <= k <= args.baseline:
+            b = fit_least_squares(problem, theta0, trace=True)
+            print(f"repeat {k} lsq: cost {b['cost']:.6f} cpu {b['cpu_s']:.2f} s", flush=True)
+            runs["lsq"].append(b)
+    theta_true = np.log([truth[n] for n in names])
+    reference = fit_least_squares(problem, theta_true) if runs["lsq"] else None
+    best = min([reference["cost"], *(b["cost"] for b in runs["lsq"])]) if reference else None
+    for b in runs["lsq"]:
+        b["to_best"] = time_to_reach(b.pop("trace"), best + 0.5 * SUCCESS_DCHI2)
+    order = [e.name for e in fit.built.params]
+    at = dict(zip(order, runs["ms"][0]["theta"], strict=True)) if runs["ms"] else None
+    # the engine's optimum on the baseline's cost (CVODES): the same optimum?
+    lsq_at_engine = problem.cost(np.log([at[n] for n in names])) if at else None
+
+    def median(rs, key):
+        return float(np.median([r[key] for r in rs])) if rs else None
+
+    summary = {
+        "engine": {
+            "cpu_median_s": median(runs["ms"], "cpu_s"),
+            "wall_median_s": median(runs["ms"], "wall_s"),
+            "iterations": [r["iterations"] for r in runs["ms"]],
+            "half_chi2": runs["ms"][0]["cost"] if runs["ms"] else None,
+        },
+        "baseline": {
+            "cpu_median_s": median(runs["lsq"], "cpu_s"),
+            "wall_median_s": median(runs["lsq"], "wall_s"),
+            "cpu_to_best_median_s": float(np.median([b["to_best"][0] for b in runs["lsq"]]))
+            if runs["lsq"] and all(b["to_best"] for b in runs["lsq"])
+            else None,
+            "evaluations": [b["evaluations"] for b in runs["lsq"]],
+            "best_cost": best,
+            "cost_at_engine_optimum": lsq_at_engine,
+        },
+    }
+    if runs["ms"] and summary["baseline"]["cpu_median_s"]:
+        e, b = summary["engine"], summary["baseline"]
+        summary["ratio_cpu"] = b["cpu_median_s"] / e["cpu_median_s"]
+        if b["cpu_to_best_median_s"]:
+            summary["ratio_cpu_to_best"] = b["cpu_to_best_median_s"] / e["cpu_median_s"]
+    return {
+        "names": names,
+        "start": np.exp(theta0).tolist(),
+        "build": build,
+        "first_fit": first,
+        "reference_from_truth": reference,
+        "summary": summary,
+        "runs": runs,
+        "load_average": list(os.getloadavg()),
+    }
+
+
+def replicate_vector(rows, draws: dict) -> np.ndarray:
+    """The data vector in the order of a problem's residual ``rows`` (experiment, signal,
+    sample; a static target ``<experiment>#<level>:<signal>`` at sample -1) from
+    ``draws``: experiment -> signal -> values (SI, per sample or per level)."""
+    out = np.empty(len(rows.experiment))
+    for i, (name, signal, sample) in enumerate(
+        zip(rows.experiment, rows.signal, rows.sample, strict=True)
+    ):
+        if sample < 0:
+            name, level = name.split(":")[0].split("#")
+            sample = int(level) - 1
+        out[i] = draws[name][signal][sample]
+    return out
+
+
+def replicate_fit(r: int, from_truth: bool, profile_names: tuple[str, ...]) -> dict:
+    """Noise replicate ``r``: the engine's fit (multiple shooting, known noise) from the
+    truth (else the file's start), its 95 % Fisher intervals and verdicts, and the
+    profile intervals of ``profile_names``. The problem is built once per process; the
+    replicate's data replace its ``rows.data`` (the residuals are prediction - data)."""
+    from sarcomere.dynamics.identification import uncertainty
+    from sarcomere.dynamics.identification.estimate import fit_from
+
+    fit = engine("multiple-shooting")
+    problem = fit.built.problem
+    names = [e.name for e in problem.params]
+    signals: dict[str, set] = {}
+    for name, signal in zip(problem.rows.experiment, problem.rows.signal, strict=True):
+        signals.setdefault(name.split(":")[0].split("#")[0], set()).add(signal)
+    draws = {n: replicate_data(n, r, sorted(s)) for n, s in signals.items()}
+    problem.rows.data = replicate_vector(problem.rows, draws)
+    truth = _truth()
+    start = [truth[n] for n in names] if from_truth else [e.start for e in problem.params]
+    cpu = time.process_time()
+    out = {"replicate": r, "names": names, "truth": [truth[n] for n in names]}
+    try:
+        sol = fit_from(problem, np.array(start)).solution
+    except SarcomereError as exc:
+        return {**out, "status": f"dropped: {exc}"[:300], "cpu_s": time.process_time() - cpu}
+    out.update(status=sol.status, chi2=sol.cost, iterations=sol.iterations)
+    out["theta"] = sol.theta.tolist()
+    if not sol.success:
+        return {**out, "cpu_s": time.process_time() - cpu}
+    fis = uncertainty.fisher(problem, sol)
+    out["fisher"] = fis.interval.tolist()
+    out["verdict"] = [v["verdict"] for v in uncertainty.verdicts(problem, fis, None)]
+    out["fit_cpu_s"] = time.process_time() - cpu
+    prof = {}
+    for name in profile_names:
+        k = names.index(name)
+        tic = time.process_time()
+        pr = uncertainty.profile(problem, sol, k, float(fis.sd_phi[k]))
+        e = problem.params[k]
+        prof[name] = {
+            "interval": [pr.low, pr.high],
+            "open_to": [e.low, e.high],
+            "failed": pr.failed,
+            "cpu_s": time.process_time() - tic,
+        }
+    out["profile"] = prof
+    out["cpu_s"] = time.process_time() - cpu
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def _truth() -> dict:
+    return read_fit()[2]
+
+
+def contains(interval, value: float, open_to=None) -> bool:
+    """Whether ``interval`` (low, high; a None end is open, up to ``open_to``'s bound)
+    holds ``value``."""
+    lo, hi = interval
+    lo = (open_to[0] if open_to else -math.inf) if lo is None else lo
+    hi = (open_to[1] if open_to else math.inf) if hi is None else hi
+    return lo <= value <= hi
+
+
+def coverage_rates(results: list[dict]) -> dict:
+    """Per parameter: replicates whose Fisher (and profile, where computed) 95 % interval
+    holds the truth, out of the converged replicates, with the rate's own 95 %
+    (Clopper-Pearson) interval; the verdicts counted."""
+    from scipy.special import betaincinv
+
+    ok = [r for r in results if r.get("status") == "converged"]
+    if not ok:
+        return {}
+    names, truth = ok[0]["names"], ok[0]["truth"]
+
+    def rate(hits: list[bool]) -> dict:
+        k, n = sum(hits), len(hits)
+        low = float(betaincinv(k, n - k + 1, 0.025)) if k > 0 else 0.0
+        high = float(betaincinv(k + 1, n - k, 0.975)) if k < n else 1.0
+        return {"hits": f"{k}/{n}", "rate": k / n, "rate_ci95": [low, high]}
+
+    out = {}
+    for j, name in enumerate(names):
+        row = {"fisher": rate([contains(r["fisher"][j], truth[j]) for r in ok])}
+        verdicts = [r["verdict"][j] for r in ok]
+        row["verdicts"] = {v: verdicts.count(v) for v in sorted(set(verdicts))}
+        with_profile = [r for r in ok if name in r.get("profile", {})]
+        if with_profile:
+            prof = [r["profile"][name] for r in with_profile]
+            row["profile"] = rate([contains(p["interval"], truth[j], p["open_to"]) for p in prof])
+            row["profile_open"] = sum(None in p["interval"] for p in prof)
+        out[name] = row
+    return out
+
+
+def coverage(args) -> dict:
+    """``--replicates`` noise replicates (0, 1, ...: the generator's fixed seeds) fitted on
+    ``--workers`` processes; the first ``--profiles`` also get profile intervals."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    params, experiments, truth = read_fit()
+    names = Problem(params, experiments).names()
+    shown = tuple(n for n in names if n not in NON_IDENTIFIABLE)
+    args.out.mkdir(parents=True, exist_ok=True)
+    log = args.out / "fit_coverage_replicates.jsonl"
+    results = []
+    tic = time.perf_counter()
+    ctx = multiprocessing.get_context("fork")  # the workers inherit this module
+    with ProcessPoolExecutor(args.workers, mp_context=ctx) as pool, log.open("w") as f:
+        futures = [
+            pool.submit(replicate_fit, r, args.start == "truth", shown if r < args.profiles else ())
+            for r in range(args.replicates)
+        ]
+        for done, fut in enumerate(as_completed(futures), 1):
+            r = fut.result()
+            results.append(r)
+            f.write(json.dumps(r) + "\n")
+            f.flush()
+            inside = (
+                "".join(
+                    "+" if contains(iv, t) else "-"
+                    for iv, t in zip(r["fisher"], r["truth"], strict=True)
+                )
+                if "fisher" in r
+                else "-"
+            )
+            print(
+                f"{done}/{args.replicates} replicate {r['replicate']} {r['status']} "
+                f"cpu {r['cpu_s']:.1f} s fisher {inside} "
+                f"wall {time.perf_counter() - tic:.0f} s load {os.getloadavg()[0]:.1f}",
+                flush=True,
+            )
+    results.sort(key=lambda r: r["replicate"])
+    failed = [
+        {"replicate": r["replicate"], "status": r["status"]}
+        for r in results
+        if r["status"] != "converged"
+    ]
+    return {
+        "replicates": args.replicates,
+        "profiled": min(args.profiles, args.replicates),
+        "start": args.start,
+        "wall_s": time.perf_counter() - tic,
+        "fit_cpu_median_s": float(np.median([r["fit_cpu_s"] for r in results if "fit_cpu_s" in r])),
+        "failed": failed,
+        "summary": coverage_rates(results),
+        "load_average": list(os.getloadavg()),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python benchmarks/fit.py")
-    parser.add_argument("command", choices=("convergence",))
+    parser.add_argument("command", choices=("convergence", "speed", "coverage"))
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--baseline", type=int, default=5)
+    parser.add_argument("--replicates", type=int, default=200)
+    parser.add_argument("--profiles", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--start", choices=("truth", "file"), default="truth")
     parser.add_argument("--starts", type=int, default=50)
     parser.add_argument("--methods", default="lsq", type=lambda s: s.split(","))
     parser.add_argument("--out", type=Path, default=Path("out/bench/fit"))
     args = parser.parse_args(argv)
-    result = {"convergence": convergence}[args.command](args)
+    commands = {"convergence": convergence, "speed": speed, "coverage": coverage}
+    result = commands[args.command](args)
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"fit_{args.command}.json"
     path.write_text(json.dumps(result, indent=1) + "\n")
