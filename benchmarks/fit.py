@@ -11,11 +11,27 @@ shared dynamic estimates and ``load.m`` per experiment
 Usage::
 
     python benchmarks/fit.py convergence [--starts 50] [--methods lsq,ms,ss] [--out DIR]
+    python benchmarks/fit.py speed [--repeats 5] [--baseline 5]
+    python benchmarks/fit.py profiles --repeats 1 [--workers 2]   (0: no Dask round)
+    python benchmarks/fit.py coverage [--replicates 200] [--profiles 0] [--workers 2]
+        [--start truth|file]
 
-(``lsq-default``: the baseline with scipy's default finite-difference step.) Coverage,
-speed and profiles are not written yet: the engine's fit of this problem took more than 10
-CPU minutes (BENCHMARKS.md section 15); :func:`replicate_data` gives the noise replicates
-they need.
+(``lsq-default``: the baseline with scipy's default finite-difference step.)
+
+``speed``: from the fit file's start values, the engine's fit (multiple shooting,
+``fit_from`` on the built problem, known noise: a warm-up, then ``--repeats``) interleaved
+with the baseline's (``--baseline``); the baseline's CPU time until its cost first comes
+within ``SUCCESS_DCHI2`` of its best (its fits and one from the truth), and the engine's
+optimum on the baseline's cost. The first-ever run's compile: run it with an empty
+``SARCOMERE_CACHE_DIR`` (the ``build`` and ``first_fit`` records). ``profiles``: the
+profiles of every parameter at that optimum as ``Fit.run`` computes them (one Dask task
+per parameter on an embedded cluster of ``--workers``), then each alone in this process.
+``coverage``: noise replicates ``0 .. R-1`` (:func:`replicate_data`, the generator's
+fixed seeds), each fitted by the engine from the truth (or the file's start) on
+``--workers`` forked processes, with the Fisher 95 % intervals; the first ``--profiles``
+replicates also with profile intervals of the parameters other than
+:data:`NON_IDENTIFIABLE`; per parameter the fraction of replicates whose interval holds
+the truth, with that fraction's Clopper-Pearson 95 % interval.
 
 Starts: ``--starts`` points drawn log-uniformly within 0.5-2x of the truth for every
 fitted parameter (fixed seed 0), the same for every method. A start *succeeds* when its
@@ -32,6 +48,7 @@ the engine), methods interleaved start by start. Results: ``fit_<command>.json``
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import json
 import math
@@ -367,11 +384,19 @@ def convergence(args) -> dict:
     theta_true = np.log([truth[n] for n in names])
     points = starts(truth, names, args.starts)
     runs = {m: [] for m in args.methods}
-    for k, theta0 in enumerate(points):
-        for m in args.methods:  # interleaved start by start
-            r = METHODS[m](problem, names, theta0)
-            runs[m].append(r)
-            print(f"start {k:2d} {m:4s} cost {r['cost']:.6g} cpu {r['cpu_s']:.1f} s", flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / "fit_convergence_runs.jsonl").open("w") as log:  # kept if stopped
+        for k, theta0 in enumerate(points):
+            for m in args.methods:  # interleaved start by start
+                r = METHODS[m](problem, names, theta0)
+                runs[m].append(r)
+                log.write(json.dumps({"start": k, "method": m, **r}) + "\n")
+                log.flush()
+                print(
+                    f"start {k:2d} {m:4s} cost {r['cost']:.6g} cpu {r['cpu_s']:.1f} s "
+                    f"{r['status']} load {os.getloadavg()[0]:.1f}",
+                    flush=True,
+                )
     reference = fit_least_squares(problem, theta_true)  # from the truth: the optimum near it
     family = {m: "engine" if m in ("ms", "ss") else "scipy" for m in runs}
     best = {
@@ -417,6 +442,31 @@ def file_start(names: list[str]) -> np.ndarray:
     return np.log([start[n] for n in names])
 
 
+def engine_trace(theta0: np.ndarray) -> list[tuple[float, float, float, float]]:
+    """One engine fit (multiple shooting) from ``theta0`` (SI, the engine's order) with
+    each linearisation's (CPU s, wall s, 1/2 chi-squared, largest constraint) since the
+    start: the lifted iterates are not feasible (continuity defects) until the end."""
+    from sarcomere.dynamics.identification.estimate import fit_from
+
+    problem = engine("multiple-shooting").built.problem
+    inner, log = problem.linearize, []
+    cpu, wall = time.process_time(), time.perf_counter()
+
+    def traced(v, weights, jacobian=True):
+        lin = inner(v, weights, jacobian)
+        g = float(np.max(np.abs(lin.g))) if lin.g.size else 0.0
+        half = 0.5 * float(lin.rw @ lin.rw)
+        log.append((time.process_time() - cpu, time.perf_counter() - wall, half, g))
+        return lin
+
+    problem.linearize = traced  # this instance only
+    try:
+        fit_from(problem, theta0)
+    finally:
+        del problem.linearize
+    return log
+
+
 def speed(args) -> dict:
     """One fit from the file's start values: the engine (multiple shooting, a warm-up then
     ``--repeats`` fits in this process) interleaved with the baseline (``--baseline``
@@ -459,6 +509,9 @@ def speed(args) -> dict:
     for b in runs["lsq"]:
         b["to_best"] = time_to_reach(b.pop("trace"), best + 0.5 * SUCCESS_DCHI2)
     order = [e.name for e in fit.built.params]
+    trace = engine_trace(np.exp([dict(zip(names, theta0, strict=True))[n] for n in order]))
+    best_ms = min((r["cost"] for r in runs["ms"]), default=math.inf)
+    feasible = [(c, w, f) for c, w, f, g in trace if g <= 1e-6]  # gauss_newton's gtol
     at = dict(zip(order, runs["ms"][0]["theta"], strict=True)) if runs["ms"] else None
     # the engine's optimum on the baseline's cost (CVODES): the same optimum?
     lsq_at_engine = problem.cost(np.log([at[n] for n in names])) if at else None
@@ -472,6 +525,8 @@ def speed(args) -> dict:
             "wall_median_s": median(runs["ms"], "wall_s"),
             "iterations": [r["iterations"] for r in runs["ms"]],
             "half_chi2": runs["ms"][0]["cost"] if runs["ms"] else None,
+            "traced_cpu_to_best_s": time_to_reach(feasible, best_ms + 0.5 * SUCCESS_DCHI2),
+            "traced_cpu_total_s": trace[-1][0] if trace else None,
         },
         "baseline": {
             "cpu_median_s": median(runs["lsq"], "cpu_s"),
@@ -497,6 +552,60 @@ def speed(args) -> dict:
         "reference_from_truth": reference,
         "summary": summary,
         "runs": runs,
+        "engine_trace": trace,
+        "load_average": list(os.getloadavg()),
+    }
+
+
+def profiles(args) -> dict:
+    """The profiles of every fitted parameter at the optimum from the file's start, as
+    ``Fit.run`` computes them (``Fit._profiles``: one parameter per Dask task) on an
+    embedded cluster of ``--workers`` processes, ``--repeats`` times (the first: the
+    workers import and build the problem); then each profile alone in this process (its
+    CPU time)."""
+    from sarcomere.dynamics.identification import uncertainty
+    from sarcomere.dynamics.identification.estimate import fit_from
+    from sarcomere.scenarios.explore.engine import cluster_client
+
+    fit = engine("multiple-shooting")
+    problem = fit.built.problem
+    names = [e.name for e in problem.params]
+    sol = fit_from(problem, np.array([e.start for e in problem.params])).solution
+    fis = uncertainty.fisher(problem, sol)
+    walls, profs, cluster_s = [], {}, None
+    tic = time.perf_counter()
+    with cluster_client(args.workers) if args.repeats else contextlib.nullcontext() as client:
+        cluster_s = time.perf_counter() - tic
+        for k in range(args.repeats):
+            t = time.perf_counter()
+            profs = fit._profiles(sol, fis, client)
+            walls.append(time.perf_counter() - t)
+            print(f"dask {k}: {len(profs)} profiles, wall {walls[-1]:.1f} s", flush=True)
+    alone = {}
+    for k, name in enumerate(names):
+        cpu, wall = time.process_time(), time.perf_counter()
+        pr = uncertainty.profile(problem, sol, k, float(fis.sd_phi[k]))
+        alone[name] = {
+            "cpu_s": time.process_time() - cpu,
+            "wall_s": time.perf_counter() - wall,
+            "points": len(pr.values),
+            "failed": pr.failed,
+            "interval": [pr.low, pr.high],
+            "fisher": fis.interval[k].tolist(),
+            "estimate": float(sol.theta[k]),
+        }
+        print(f"{name}: {alone[name]}", flush=True)
+    return {
+        "workers": args.workers,
+        "cluster_start_wall_s": cluster_s,
+        "dask_wall_s": walls,
+        "dask_intervals": {names[k]: [p.low, p.high] for k, p in profs.items()},
+        "alone": alone,
+        "summary": {
+            "dask_wall_first_s": walls[0] if walls else None,
+            "dask_wall_warm_median_s": float(np.median(walls[1:])) if len(walls) > 1 else None,
+            "alone_cpu_total_s": sum(a["cpu_s"] for a in alone.values()),
+        },
         "load_average": list(os.getloadavg()),
     }
 
@@ -668,7 +777,7 @@ def coverage(args) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python benchmarks/fit.py")
-    parser.add_argument("command", choices=("convergence", "speed", "coverage"))
+    parser.add_argument("command", choices=("convergence", "speed", "coverage", "profiles"))
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--baseline", type=int, default=5)
     parser.add_argument("--replicates", type=int, default=200)
@@ -679,7 +788,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", default="lsq", type=lambda s: s.split(","))
     parser.add_argument("--out", type=Path, default=Path("out/bench/fit"))
     args = parser.parse_args(argv)
-    commands = {"convergence": convergence, "speed": speed, "coverage": coverage}
+    commands = {
+        "convergence": convergence,
+        "speed": speed,
+        "coverage": coverage,
+        "profiles": profiles,
+    }
     result = commands[args.command](args)
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"fit_{args.command}.json"
