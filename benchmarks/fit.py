@@ -775,9 +775,32 @@ def coverage(args) -> dict:
     }
 
 
+def coverage_summary(args) -> dict:
+    """The coverage rates of the replicates logged so far by ``coverage`` in ``--out``
+    (a run stopped early: the replicates it finished)."""
+    log = args.out / "fit_coverage_replicates.jsonl"
+    results = sorted(
+        (json.loads(line) for line in log.read_text().splitlines()), key=lambda r: r["replicate"]
+    )
+    return {
+        "replicates_done": [r["replicate"] for r in results],
+        "fit_cpu_median_s": float(np.median([r["fit_cpu_s"] for r in results if "fit_cpu_s" in r])),
+        "iterations_median": float(np.median([r.get("iterations", 0) for r in results])),
+        "failed": [
+            {"replicate": r["replicate"], "status": r["status"]}
+            for r in results
+            if r["status"] != "converged"
+        ],
+        "summary": coverage_rates(results),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python benchmarks/fit.py")
-    parser.add_argument("command", choices=("convergence", "speed", "coverage", "profiles"))
+    parser.add_argument(
+        "command",
+        choices=("convergence", "speed", "coverage", "coverage-summary", "profiles"),
+    )
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--baseline", type=int, default=5)
     parser.add_argument("--replicates", type=int, default=200)
@@ -793,10 +816,11 @@ def main(argv: list[str] | None = None) -> int:
         "speed": speed,
         "coverage": coverage,
         "profiles": profiles,
+        "coverage-summary": coverage_summary,
     }
     result = commands[args.command](args)
     args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"fit_{args.command}.json"
+    path = args.out / f"fit_{args.command.replace('-', '_')}.json"
     path.write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result.get("summary", {}), indent=1))
     print(f"wrote {path}")
