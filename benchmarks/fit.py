@@ -377,6 +377,56 @@ METHODS = {
 }
 
 
+def success_summary(runs: dict[str, list[dict]], reference_cost: float | None = None):
+    """Per family (``engine``: ms, ss; ``scipy``: lsq, lsq-default, with the baseline's
+    ``reference_cost`` from the truth) the best cost; per method the starts within
+    :data:`SUCCESS_DCHI2` of its family's best (failed ones have an infinite cost), the
+    CPU median and total, and the failures' statuses."""
+    family = {m: "engine" if m in ("ms", "ss") else "scipy" for m in runs}
+    best = {
+        f: min(
+            [*([reference_cost] if f == "scipy" and reference_cost is not None else [])]
+            + [r["cost"] for m, rs in runs.items() if family[m] == f for r in rs]
+        )
+        for f in set(family.values())
+    }
+    summary = {}
+    for m, rs in runs.items():
+        ok = [2 * (r["cost"] - best[family[m]]) <= SUCCESS_DCHI2 for r in rs]
+        cpu = [r["cpu_s"] for r in rs]
+        summary[m] = {
+            "success": f"{sum(ok)}/{len(ok)}",
+            "success_rate": sum(ok) / len(ok),
+            "cpu_median_s": float(np.median(cpu)),
+            "cpu_total_s": float(np.sum(cpu)),
+            "failures": {
+                str(r.get("start", k)): [r["cost"], r["status"]]
+                for k, (r, good) in enumerate(zip(rs, ok, strict=True))
+                if not good
+            },
+        }
+    return best, summary
+
+
+def convergence_summary(args) -> dict:
+    """The success rates of the starts logged so far by ``convergence`` in ``--out`` (a
+    run stopped early: the starts every method finished), the baseline's reference cost
+    from the truth taken from ``fit_speed.json`` there when present."""
+    text = (args.out / "fit_convergence_runs.jsonl").read_text()
+    rows = [json.loads(x) for x in text.splitlines()]
+    methods = sorted({r["method"] for r in rows})
+    done = sorted(
+        k
+        for k in {r["start"] for r in rows}
+        if all(any(r["start"] == k and r["method"] == m for r in rows) for m in methods)
+    )
+    runs = {m: [r for r in rows if r["method"] == m and r["start"] in done] for m in methods}
+    speed = args.out / "fit_speed.json"
+    ref = json.loads(speed.read_text())["reference_from_truth"]["cost"] if speed.exists() else None
+    best, summary = success_summary(runs, ref)
+    return {"starts_done": len(done), "reference_cost": ref, "best_cost": best, "summary": summary}
+
+
 def convergence(args) -> dict:
     params, experiments, truth = read_fit()
     problem = Problem(params, experiments)
@@ -398,24 +448,7 @@ def convergence(args) -> dict:
                     flush=True,
                 )
     reference = fit_least_squares(problem, theta_true)  # from the truth: the optimum near it
-    family = {m: "engine" if m in ("ms", "ss") else "scipy" for m in runs}
-    best = {
-        f: min(
-            [*([reference["cost"]] if f == "scipy" else [])]
-            + [r["cost"] for m, rs in runs.items() if family[m] == f for r in rs]
-        )
-        for f in set(family.values())
-    }
-    summary = {}
-    for m, rs in runs.items():
-        ok = [2 * (r["cost"] - best[family[m]]) <= SUCCESS_DCHI2 for r in rs]
-        cpu = [r["cpu_s"] for r in rs]
-        summary[m] = {
-            "success": f"{sum(ok)}/{len(ok)}",
-            "success_rate": sum(ok) / len(ok),
-            "cpu_median_s": float(np.median(cpu)),
-            "cpu_total_s": float(np.sum(cpu)),
-        }
+    best, summary = success_summary(runs, reference["cost"])
     return {
         "names": names,
         "truth": dict(zip(names, np.exp(theta_true).tolist(), strict=True)),
@@ -799,7 +832,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python benchmarks/fit.py")
     parser.add_argument(
         "command",
-        choices=("convergence", "speed", "coverage", "coverage-summary", "profiles"),
+        choices=(
+            "convergence",
+            "convergence-summary",
+            "speed",
+            "coverage",
+            "coverage-summary",
+            "profiles",
+        ),
     )
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--baseline", type=int, default=5)
@@ -817,6 +857,7 @@ def main(argv: list[str] | None = None) -> int:
         "coverage": coverage,
         "profiles": profiles,
         "coverage-summary": coverage_summary,
+        "convergence-summary": convergence_summary,
     }
     result = commands[args.command](args)
     args.out.mkdir(parents=True, exist_ok=True)

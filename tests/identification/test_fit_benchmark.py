@@ -91,3 +91,28 @@ def test_coverage_rate_interval_is_clopper_pearson():
             assert 1 - bdtr(k - 1, n, low) == pytest.approx(0.025, abs=1e-9)
         if k < n:
             assert bdtr(k, n, high) == pytest.approx(0.025, abs=1e-9)
+
+
+def test_success_is_within_one_chi2_of_the_family_best():
+    from benchmarks.fit import success_summary
+
+    inf = float("inf")
+    runs = {
+        "ms": [
+            {"cost": 10.0, "cpu_s": 1.0, "status": "converged"},
+            {"cost": inf, "cpu_s": 9.0, "status": "stuck"},
+        ],
+        "ss": [
+            {"cost": 10.4, "cpu_s": 2.0, "status": "converged"},
+            {"cost": 10.6, "cpu_s": 4.0, "status": "converged"},
+        ],
+        "lsq": [
+            {"cost": 20.0, "cpu_s": 3.0, "status": 2},
+            {"cost": 21.0, "cpu_s": 5.0, "status": 3},
+        ],
+    }
+    best, out = success_summary(runs, reference_cost=19.8)
+    assert best == {"engine": 10.0, "scipy": 19.8}  # each family its own best
+    assert out["ms"]["success"] == "1/2" and out["ms"]["failures"] == {"1": [inf, "stuck"]}
+    assert out["ss"]["success"] == "1/2"  # 10.6: chi-squared 1.2 above the best
+    assert out["lsq"]["success"] == "1/2" and out["lsq"]["cpu_median_s"] == 4.0
