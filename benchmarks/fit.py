@@ -11,11 +11,27 @@ shared dynamic estimates and ``load.m`` per experiment
 Usage::
 
     python benchmarks/fit.py convergence [--starts 50] [--methods lsq,ms,ss] [--out DIR]
+    python benchmarks/fit.py speed [--repeats 5] [--baseline 5]
+    python benchmarks/fit.py profiles --repeats 1 [--workers 2]   (0: no Dask round)
+    python benchmarks/fit.py coverage [--replicates 200] [--profiles 0] [--workers 2]
+        [--start truth|file]
 
-(``lsq-default``: the baseline with scipy's default finite-difference step.) Coverage,
-speed and profiles are not written yet: the engine's fit of this problem took more than 10
-CPU minutes (BENCHMARKS.md section 15); :func:`replicate_data` gives the noise replicates
-they need.
+(``lsq-default``: the baseline with scipy's default finite-difference step.)
+
+``speed``: from the fit file's start values, the engine's fit (multiple shooting,
+``fit_from`` on the built problem, known noise: a warm-up, then ``--repeats``) interleaved
+with the baseline's (``--baseline``); the baseline's CPU time until its cost first comes
+within ``SUCCESS_DCHI2`` of its best (its fits and one from the truth), and the engine's
+optimum on the baseline's cost. The first-ever run's compile: run it with an empty
+``SARCOMERE_CACHE_DIR`` (the ``build`` and ``first_fit`` records). ``profiles``: the
+profiles of every parameter at that optimum as ``Fit.run`` computes them (one Dask task
+per parameter on an embedded cluster of ``--workers``), then each alone in this process.
+``coverage``: noise replicates ``0 .. R-1`` (:func:`replicate_data`, the generator's
+fixed seeds), each fitted by the engine from the truth (or the file's start) on
+``--workers`` forked processes, with the Fisher 95 % intervals; the first ``--profiles``
+replicates also with profile intervals of the parameters other than
+:data:`NON_IDENTIFIABLE`; per parameter the fraction of replicates whose interval holds
+the truth, with that fraction's Clopper-Pearson 95 % interval.
 
 Starts: ``--starts`` points drawn log-uniformly within 0.5-2x of the truth for every
 fitted parameter (fixed seed 0), the same for every method. A start *succeeds* when its
@@ -32,9 +48,11 @@ the engine), methods interleaved start by start. Results: ``fit_<command>.json``
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import json
 import math
+import os
 import re
 import tempfile
 import time
@@ -59,6 +77,8 @@ from sarcomere.scenarios.loader import scenario_from_dict
 FIT = "fit-synthetic.toml"
 #: Success: the final cost within this many chi-squared units (2 x cost) of the best.
 SUCCESS_DCHI2 = 1.0
+#: Structurally non-identifiable by design: only their ratio enters (the fit file).
+NON_IDENTIFIABLE = ("aps.C_tube", "aps.V0")
 #: The tuned baseline's finite-difference step (scipy's ``diff_step``).
 DIFF_STEP = 1e-5
 
@@ -261,29 +281,49 @@ def starts(truth: dict, names: list[str], count: int, seed: int = 0) -> np.ndarr
     return centre + rng.uniform(np.log(0.5), np.log(2.0), (count, len(names)))
 
 
-def fit_least_squares(problem: Problem, theta0: np.ndarray, tuned: bool = True) -> dict:
+def fit_least_squares(
+    problem: Problem, theta0: np.ndarray, tuned: bool = True, trace: bool = False
+) -> dict:
     """The baseline: scipy's TRF with 2-point finite differences, from ``theta0``;
     ``tuned``: a finite-difference step of :data:`DIFF_STEP` (relative, on the
     log-parameters) instead of scipy's default 1.5e-8, which is below the simulation's
-    own error at ``rtol`` 1e-8 (the default stops early on noise: ``lsq-default``)."""
+    own error at ``rtol`` 1e-8 (the default stops early on noise: ``lsq-default``).
+    ``trace``: also each residual evaluation's (CPU s, wall s, cost) since the start."""
     low, high = problem.bounds()
     problem.evaluations = 0
-    cpu = time.process_time()
+    log: list[tuple[float, float, float]] = []
+    cpu, wall = time.process_time(), time.perf_counter()
+
+    def residuals(theta: np.ndarray) -> np.ndarray:
+        r = problem.residuals(theta)
+        log.append((time.process_time() - cpu, time.perf_counter() - wall, 0.5 * float(r @ r)))
+        return r
+
     sol = least_squares(
-        problem.residuals,
+        residuals,
         np.clip(theta0, low + 1e-9, high - 1e-9),
         bounds=(low, high),
         method="trf",
         diff_step=DIFF_STEP if tuned else None,
     )
-    return {
+    out = {
         "cost": float(sol.cost),
         "theta": sol.x.tolist(),
         "cpu_s": time.process_time() - cpu,
+        "wall_s": time.perf_counter() - wall,
         "evaluations": problem.evaluations,
         "status": int(sol.status),
         "message": str(sol.message),
     }
+    if trace:
+        out["trace"] = log
+    return out
+
+
+def time_to_reach(trace, cost: float) -> tuple[float, float] | None:
+    """The (CPU, wall) seconds of the first evaluation in ``trace`` ((CPU, wall, cost)
+    rows, in order) whose cost is at most ``cost``; None when none is."""
+    return next(((c, w) for c, w, f in trace if f <= cost), None)
 
 
 @functools.lru_cache(maxsize=4)
@@ -309,18 +349,22 @@ def fit_engine(method: str, names: list[str], theta0: np.ndarray, data_dir=None)
     fit = engine(method, data_dir)
     order = [e.name for e in fit.built.params]
     start = dict(zip(names, np.exp(theta0), strict=True))
-    cpu = time.process_time()
+    cpu, wall = time.process_time(), time.perf_counter()
+    iterations = 0
     try:
         sol = fit_from(fit.built.problem, np.array([start[n] for n in order])).solution
         cost, status, theta = 0.5 * sol.cost, sol.status, sol.theta.tolist()
+        iterations = sol.iterations
         if not sol.success:
             cost = math.inf
     except SarcomereError as exc:
         cost, status, theta = math.inf, f"dropped: {exc}"[:200], None
     return {
         "cost": cost,  # 1/2 chi-squared, as least_squares reports it
-        "theta": theta,
+        "theta": theta,  # in the engine's order (``fit.built.params``)
         "cpu_s": time.process_time() - cpu,
+        "wall_s": time.perf_counter() - wall,
+        "iterations": iterations,
         "status": status,
     }
 
@@ -333,23 +377,15 @@ METHODS = {
 }
 
 
-def convergence(args) -> dict:
-    params, experiments, truth = read_fit()
-    problem = Problem(params, experiments)
-    names = problem.names()
-    theta_true = np.log([truth[n] for n in names])
-    points = starts(truth, names, args.starts)
-    runs = {m: [] for m in args.methods}
-    for k, theta0 in enumerate(points):
-        for m in args.methods:  # interleaved start by start
-            r = METHODS[m](problem, names, theta0)
-            runs[m].append(r)
-            print(f"start {k:2d} {m:4s} cost {r['cost']:.6g} cpu {r['cpu_s']:.1f} s", flush=True)
-    reference = fit_least_squares(problem, theta_true)  # from the truth: the optimum near it
+def success_summary(runs: dict[str, list[dict]], reference_cost: float | None = None):
+    """Per family (``engine``: ms, ss; ``scipy``: lsq, lsq-default, with the baseline's
+    ``reference_cost`` from the truth) the best cost; per method the starts within
+    :data:`SUCCESS_DCHI2` of its family's best (failed ones have an infinite cost), the
+    CPU median and total, and the failures' statuses."""
     family = {m: "engine" if m in ("ms", "ss") else "scipy" for m in runs}
     best = {
         f: min(
-            [*([reference["cost"]] if f == "scipy" else [])]
+            [*([reference_cost] if f == "scipy" and reference_cost is not None else [])]
             + [r["cost"] for m, rs in runs.items() if family[m] == f for r in rs]
         )
         for f in set(family.values())
@@ -363,7 +399,56 @@ def convergence(args) -> dict:
             "success_rate": sum(ok) / len(ok),
             "cpu_median_s": float(np.median(cpu)),
             "cpu_total_s": float(np.sum(cpu)),
+            "failures": {
+                str(r.get("start", k)): [r["cost"], r["status"]]
+                for k, (r, good) in enumerate(zip(rs, ok, strict=True))
+                if not good
+            },
         }
+    return best, summary
+
+
+def convergence_summary(args) -> dict:
+    """The success rates of the starts logged so far by ``convergence`` in ``--out`` (a
+    run stopped early: the starts every method finished), the baseline's reference cost
+    from the truth taken from ``fit_speed.json`` there when present."""
+    text = (args.out / "fit_convergence_runs.jsonl").read_text()
+    rows = [json.loads(x) for x in text.splitlines()]
+    methods = sorted({r["method"] for r in rows})
+    done = sorted(
+        k
+        for k in {r["start"] for r in rows}
+        if all(any(r["start"] == k and r["method"] == m for r in rows) for m in methods)
+    )
+    runs = {m: [r for r in rows if r["method"] == m and r["start"] in done] for m in methods}
+    speed = args.out / "fit_speed.json"
+    ref = json.loads(speed.read_text())["reference_from_truth"]["cost"] if speed.exists() else None
+    best, summary = success_summary(runs, ref)
+    return {"starts_done": len(done), "reference_cost": ref, "best_cost": best, "summary": summary}
+
+
+def convergence(args) -> dict:
+    params, experiments, truth = read_fit()
+    problem = Problem(params, experiments)
+    names = problem.names()
+    theta_true = np.log([truth[n] for n in names])
+    points = starts(truth, names, args.starts)
+    runs = {m: [] for m in args.methods}
+    args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / "fit_convergence_runs.jsonl").open("w") as log:  # kept if stopped
+        for k, theta0 in enumerate(points):
+            for m in args.methods:  # interleaved start by start
+                r = METHODS[m](problem, names, theta0)
+                runs[m].append(r)
+                log.write(json.dumps({"start": k, "method": m, **r}) + "\n")
+                log.flush()
+                print(
+                    f"start {k:2d} {m:4s} cost {r['cost']:.6g} cpu {r['cpu_s']:.1f} s "
+                    f"{r['status']} load {os.getloadavg()[0]:.1f}",
+                    flush=True,
+                )
+    reference = fit_least_squares(problem, theta_true)  # from the truth: the optimum near it
+    best, summary = success_summary(runs, reference["cost"])
     return {
         "names": names,
         "truth": dict(zip(names, np.exp(theta_true).tolist(), strict=True)),
@@ -375,16 +460,408 @@ def convergence(args) -> dict:
     }
 
 
+def _children_cpu() -> float:
+    """CPU seconds of this process's finished children (the C compiler)."""
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def file_start(names: list[str]) -> np.ndarray:
+    """The fit file's start values as log-parameters in ``names``' order."""
+    fit = engine("multiple-shooting")
+    start = {e.name: e.start for e in fit.built.params}
+    return np.log([start[n] for n in names])
+
+
+def engine_trace(theta0: np.ndarray) -> list[tuple[float, float, float, float]]:
+    """One engine fit (multiple shooting) from ``theta0`` (SI, the engine's order) with
+    each linearisation's (CPU s, wall s, 1/2 chi-squared, largest constraint) since the
+    start: the lifted iterates are not feasible (continuity defects) until the end."""
+    from sarcomere.dynamics.identification.estimate import fit_from
+
+    problem = engine("multiple-shooting").built.problem
+    inner, log = problem.linearize, []
+    cpu, wall = time.process_time(), time.perf_counter()
+
+    def traced(v, weights, jacobian=True):
+        lin = inner(v, weights, jacobian)
+        g = float(np.max(np.abs(lin.g))) if lin.g.size else 0.0
+        half = 0.5 * float(lin.rw @ lin.rw)
+        log.append((time.process_time() - cpu, time.perf_counter() - wall, half, g))
+        return lin
+
+    problem.linearize = traced  # this instance only
+    try:
+        fit_from(problem, theta0)
+    finally:
+        del problem.linearize
+    return log
+
+
+def speed(args) -> dict:
+    """One fit from the file's start values: the engine (multiple shooting, a warm-up then
+    ``--repeats`` fits in this process) interleaved with the baseline (``--baseline``
+    fits); the time the baseline takes to come within ``SUCCESS_DCHI2`` of its best cost."""
+    cpu, wall, child = time.process_time(), time.perf_counter(), _children_cpu()
+    fit = engine("multiple-shooting")  # Fit.from_file: bind, build (and compile if needed)
+    build = {
+        "cpu_s": time.process_time() - cpu,
+        "wall_s": time.perf_counter() - wall,
+        "compiler_cpu_s": _children_cpu() - child,
+    }
+    print(f"build {build}", flush=True)
+    params, experiments, truth = read_fit()
+    problem = Problem(params, experiments)
+    names = problem.names()
+    theta0 = file_start(names)
+    runs: dict[str, list] = {"ms": [], "lsq": []}
+    first = None
+    for k in range(args.repeats + 1):
+        child = _children_cpu()
+        r = fit_engine("multiple-shooting", names, theta0)
+        r["compiler_cpu_s"] = _children_cpu() - child
+        print(
+            f"{'warm-up' if k == 0 else f'repeat {k}'} ms: 1/2 chi2 {r['cost']:.6f} "
+            f"cpu {r['cpu_s']:.2f} s wall {r['wall_s']:.2f} s iterations {r['iterations']} "
+            f"{r['status']}",
+            flush=True,
+        )
+        if k == 0:
+            first = r
+        else:
+            runs["ms"].append(r)
+        if 1 <= k <= args.baseline:
+            b = fit_least_squares(problem, theta0, trace=True)
+            print(f"repeat {k} lsq: cost {b['cost']:.6f} cpu {b['cpu_s']:.2f} s", flush=True)
+            runs["lsq"].append(b)
+    theta_true = np.log([truth[n] for n in names])
+    reference = fit_least_squares(problem, theta_true) if runs["lsq"] else None
+    best = min([reference["cost"], *(b["cost"] for b in runs["lsq"])]) if reference else None
+    for b in runs["lsq"]:
+        b["to_best"] = time_to_reach(b.pop("trace"), best + 0.5 * SUCCESS_DCHI2)
+    order = [e.name for e in fit.built.params]
+    trace = engine_trace(np.exp([dict(zip(names, theta0, strict=True))[n] for n in order]))
+    best_ms = min((r["cost"] for r in runs["ms"]), default=math.inf)
+    feasible = [(c, w, f) for c, w, f, g in trace if g <= 1e-6]  # gauss_newton's gtol
+    at = dict(zip(order, runs["ms"][0]["theta"], strict=True)) if runs["ms"] else None
+    # the engine's optimum on the baseline's cost (CVODES): the same optimum?
+    lsq_at_engine = problem.cost(np.log([at[n] for n in names])) if at else None
+
+    def median(rs, key):
+        return float(np.median([r[key] for r in rs])) if rs else None
+
+    summary = {
+        "engine": {
+            "cpu_median_s": median(runs["ms"], "cpu_s"),
+            "wall_median_s": median(runs["ms"], "wall_s"),
+            "iterations": [r["iterations"] for r in runs["ms"]],
+            "half_chi2": runs["ms"][0]["cost"] if runs["ms"] else None,
+            "traced_cpu_to_best_s": time_to_reach(feasible, best_ms + 0.5 * SUCCESS_DCHI2),
+            "traced_cpu_total_s": trace[-1][0] if trace else None,
+        },
+        "baseline": {
+            "cpu_median_s": median(runs["lsq"], "cpu_s"),
+            "wall_median_s": median(runs["lsq"], "wall_s"),
+            "cpu_to_best_median_s": float(np.median([b["to_best"][0] for b in runs["lsq"]]))
+            if runs["lsq"] and all(b["to_best"] for b in runs["lsq"])
+            else None,
+            "evaluations": [b["evaluations"] for b in runs["lsq"]],
+            "best_cost": best,
+            "cost_at_engine_optimum": lsq_at_engine,
+        },
+    }
+    if runs["ms"] and summary["baseline"]["cpu_median_s"]:
+        e, b = summary["engine"], summary["baseline"]
+        summary["ratio_cpu"] = b["cpu_median_s"] / e["cpu_median_s"]
+        if b["cpu_to_best_median_s"]:
+            summary["ratio_cpu_to_best"] = b["cpu_to_best_median_s"] / e["cpu_median_s"]
+    return {
+        "names": names,
+        "start": np.exp(theta0).tolist(),
+        "build": build,
+        "first_fit": first,
+        "reference_from_truth": reference,
+        "summary": summary,
+        "runs": runs,
+        "engine_trace": trace,
+        "load_average": list(os.getloadavg()),
+    }
+
+
+def profiles(args) -> dict:
+    """The profiles of every fitted parameter at the optimum from the file's start, as
+    ``Fit.run`` computes them (``Fit._profiles``: one parameter per Dask task) on an
+    embedded cluster of ``--workers`` processes, ``--repeats`` times (the first: the
+    workers import and build the problem); then each profile alone in this process (its
+    CPU time)."""
+    from sarcomere.dynamics.identification import uncertainty
+    from sarcomere.dynamics.identification.estimate import fit_from
+    from sarcomere.scenarios.explore.engine import cluster_client
+
+    fit = engine("multiple-shooting")
+    problem = fit.built.problem
+    names = [e.name for e in problem.params]
+    sol = fit_from(problem, np.array([e.start for e in problem.params])).solution
+    fis = uncertainty.fisher(problem, sol)
+    walls, profs, cluster_s = [], {}, None
+    tic = time.perf_counter()
+    with cluster_client(args.workers) if args.repeats else contextlib.nullcontext() as client:
+        cluster_s = time.perf_counter() - tic
+        for k in range(args.repeats):
+            t = time.perf_counter()
+            profs = fit._profiles(sol, fis, client)
+            walls.append(time.perf_counter() - t)
+            print(f"dask {k}: {len(profs)} profiles, wall {walls[-1]:.1f} s", flush=True)
+    alone = {}
+    for k, name in enumerate(names):
+        cpu, wall = time.process_time(), time.perf_counter()
+        pr = uncertainty.profile(problem, sol, k, float(fis.sd_phi[k]))
+        alone[name] = {
+            "cpu_s": time.process_time() - cpu,
+            "wall_s": time.perf_counter() - wall,
+            "points": len(pr.values),
+            "failed": pr.failed,
+            "interval": [pr.low, pr.high],
+            "fisher": fis.interval[k].tolist(),
+            "estimate": float(sol.theta[k]),
+        }
+        print(f"{name}: {alone[name]}", flush=True)
+    return {
+        "workers": args.workers,
+        "cluster_start_wall_s": cluster_s,
+        "dask_wall_s": walls,
+        "dask_intervals": {names[k]: [p.low, p.high] for k, p in profs.items()},
+        "alone": alone,
+        "summary": {
+            "dask_wall_first_s": walls[0] if walls else None,
+            "dask_wall_warm_median_s": float(np.median(walls[1:])) if len(walls) > 1 else None,
+            "alone_cpu_total_s": sum(a["cpu_s"] for a in alone.values()),
+        },
+        "load_average": list(os.getloadavg()),
+    }
+
+
+def replicate_vector(rows, draws: dict) -> np.ndarray:
+    """The data vector in the order of a problem's residual ``rows`` (experiment, signal,
+    sample; a static target ``<experiment>#<level>:<signal>`` at sample -1) from
+    ``draws``: experiment -> signal -> values (SI, per sample or per level)."""
+    out = np.empty(len(rows.experiment))
+    for i, (name, signal, sample) in enumerate(
+        zip(rows.experiment, rows.signal, rows.sample, strict=True)
+    ):
+        if sample < 0:
+            name, level = name.split(":")[0].split("#")
+            sample = int(level) - 1
+        out[i] = draws[name][signal][sample]
+    return out
+
+
+def replicate_fit(r: int, from_truth: bool, profile_names: tuple[str, ...]) -> dict:
+    """Noise replicate ``r``: the engine's fit (multiple shooting, known noise) from the
+    truth (else the file's start), its 95 % Fisher intervals and verdicts, and the
+    profile intervals of ``profile_names``. The problem is built once per process; the
+    replicate's data replace its ``rows.data`` (the residuals are prediction - data)."""
+    from sarcomere.dynamics.identification import uncertainty
+    from sarcomere.dynamics.identification.estimate import fit_from
+
+    fit = engine("multiple-shooting")
+    problem = fit.built.problem
+    names = [e.name for e in problem.params]
+    signals: dict[str, set] = {}
+    for name, signal in zip(problem.rows.experiment, problem.rows.signal, strict=True):
+        signals.setdefault(name.split(":")[0].split("#")[0], set()).add(signal)
+    draws = {n: replicate_data(n, r, sorted(s)) for n, s in signals.items()}
+    problem.rows.data = replicate_vector(problem.rows, draws)
+    truth = _truth()
+    start = [truth[n] for n in names] if from_truth else [e.start for e in problem.params]
+    cpu = time.process_time()
+    out = {"replicate": r, "names": names, "truth": [truth[n] for n in names]}
+    try:
+        sol = fit_from(problem, np.array(start)).solution
+    except SarcomereError as exc:
+        return {**out, "status": f"dropped: {exc}"[:300], "cpu_s": time.process_time() - cpu}
+    out.update(status=sol.status, chi2=sol.cost, iterations=sol.iterations)
+    out["theta"] = sol.theta.tolist()
+    if not sol.success:
+        return {**out, "cpu_s": time.process_time() - cpu}
+    fis = uncertainty.fisher(problem, sol)
+    out["fisher"] = fis.interval.tolist()
+    out["verdict"] = [v["verdict"] for v in uncertainty.verdicts(problem, fis, None)]
+    out["fit_cpu_s"] = time.process_time() - cpu
+    prof = {}
+    for name in profile_names:
+        k = names.index(name)
+        tic = time.process_time()
+        pr = uncertainty.profile(problem, sol, k, float(fis.sd_phi[k]))
+        e = problem.params[k]
+        prof[name] = {
+            "interval": [pr.low, pr.high],
+            "open_to": [e.low, e.high],
+            "failed": pr.failed,
+            "cpu_s": time.process_time() - tic,
+        }
+    out["profile"] = prof
+    out["cpu_s"] = time.process_time() - cpu
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def _truth() -> dict:
+    return read_fit()[2]
+
+
+def contains(interval, value: float, open_to=None) -> bool:
+    """Whether ``interval`` (low, high; a None end is open, up to ``open_to``'s bound)
+    holds ``value``."""
+    lo, hi = interval
+    lo = (open_to[0] if open_to else -math.inf) if lo is None else lo
+    hi = (open_to[1] if open_to else math.inf) if hi is None else hi
+    return lo <= value <= hi
+
+
+def coverage_rates(results: list[dict]) -> dict:
+    """Per parameter: replicates whose Fisher (and profile, where computed) 95 % interval
+    holds the truth, out of the converged replicates, with the rate's own 95 %
+    (Clopper-Pearson) interval; the verdicts counted."""
+    from scipy.special import betaincinv
+
+    ok = [r for r in results if r.get("status") == "converged"]
+    if not ok:
+        return {}
+    names, truth = ok[0]["names"], ok[0]["truth"]
+
+    def rate(hits: list[bool]) -> dict:
+        k, n = sum(hits), len(hits)
+        low = float(betaincinv(k, n - k + 1, 0.025)) if k > 0 else 0.0
+        high = float(betaincinv(k + 1, n - k, 0.975)) if k < n else 1.0
+        return {"hits": f"{k}/{n}", "rate": k / n, "rate_ci95": [low, high]}
+
+    out = {}
+    for j, name in enumerate(names):
+        row = {"fisher": rate([contains(r["fisher"][j], truth[j]) for r in ok])}
+        verdicts = [r["verdict"][j] for r in ok]
+        row["verdicts"] = {v: verdicts.count(v) for v in sorted(set(verdicts))}
+        with_profile = [r for r in ok if name in r.get("profile", {})]
+        if with_profile:
+            prof = [r["profile"][name] for r in with_profile]
+            row["profile"] = rate([contains(p["interval"], truth[j], p["open_to"]) for p in prof])
+            row["profile_open"] = sum(None in p["interval"] for p in prof)
+        out[name] = row
+    return out
+
+
+def coverage(args) -> dict:
+    """``--replicates`` noise replicates (0, 1, ...: the generator's fixed seeds) fitted on
+    ``--workers`` processes; the first ``--profiles`` also get profile intervals."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    params, experiments, truth = read_fit()
+    names = Problem(params, experiments).names()
+    shown = tuple(n for n in names if n not in NON_IDENTIFIABLE)
+    args.out.mkdir(parents=True, exist_ok=True)
+    log = args.out / "fit_coverage_replicates.jsonl"
+    results = []
+    tic = time.perf_counter()
+    ctx = multiprocessing.get_context("fork")  # the workers inherit this module
+    with ProcessPoolExecutor(args.workers, mp_context=ctx) as pool, log.open("w") as f:
+        futures = [
+            pool.submit(replicate_fit, r, args.start == "truth", shown if r < args.profiles else ())
+            for r in range(args.replicates)
+        ]
+        for done, fut in enumerate(as_completed(futures), 1):
+            r = fut.result()
+            results.append(r)
+            f.write(json.dumps(r) + "\n")
+            f.flush()
+            inside = (
+                "".join(
+                    "+" if contains(iv, t) else "-"
+                    for iv, t in zip(r["fisher"], r["truth"], strict=True)
+                )
+                if "fisher" in r
+                else "-"
+            )
+            print(
+                f"{done}/{args.replicates} replicate {r['replicate']} {r['status']} "
+                f"cpu {r['cpu_s']:.1f} s fisher {inside} "
+                f"wall {time.perf_counter() - tic:.0f} s load {os.getloadavg()[0]:.1f}",
+                flush=True,
+            )
+    results.sort(key=lambda r: r["replicate"])
+    failed = [
+        {"replicate": r["replicate"], "status": r["status"]}
+        for r in results
+        if r["status"] != "converged"
+    ]
+    return {
+        "replicates": args.replicates,
+        "profiled": min(args.profiles, args.replicates),
+        "start": args.start,
+        "wall_s": time.perf_counter() - tic,
+        "fit_cpu_median_s": float(np.median([r["fit_cpu_s"] for r in results if "fit_cpu_s" in r])),
+        "failed": failed,
+        "summary": coverage_rates(results),
+        "load_average": list(os.getloadavg()),
+    }
+
+
+def coverage_summary(args) -> dict:
+    """The coverage rates of the replicates logged so far by ``coverage`` in ``--out``
+    (a run stopped early: the replicates it finished)."""
+    log = args.out / "fit_coverage_replicates.jsonl"
+    results = sorted(
+        (json.loads(line) for line in log.read_text().splitlines()), key=lambda r: r["replicate"]
+    )
+    return {
+        "replicates_done": [r["replicate"] for r in results],
+        "fit_cpu_median_s": float(np.median([r["fit_cpu_s"] for r in results if "fit_cpu_s" in r])),
+        "iterations_median": float(np.median([r.get("iterations", 0) for r in results])),
+        "failed": [
+            {"replicate": r["replicate"], "status": r["status"]}
+            for r in results
+            if r["status"] != "converged"
+        ],
+        "summary": coverage_rates(results),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python benchmarks/fit.py")
-    parser.add_argument("command", choices=("convergence",))
+    parser.add_argument(
+        "command",
+        choices=(
+            "convergence",
+            "convergence-summary",
+            "speed",
+            "coverage",
+            "coverage-summary",
+            "profiles",
+        ),
+    )
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--baseline", type=int, default=5)
+    parser.add_argument("--replicates", type=int, default=200)
+    parser.add_argument("--profiles", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--start", choices=("truth", "file"), default="truth")
     parser.add_argument("--starts", type=int, default=50)
     parser.add_argument("--methods", default="lsq", type=lambda s: s.split(","))
     parser.add_argument("--out", type=Path, default=Path("out/bench/fit"))
     args = parser.parse_args(argv)
-    result = {"convergence": convergence}[args.command](args)
+    commands = {
+        "convergence": convergence,
+        "speed": speed,
+        "coverage": coverage,
+        "profiles": profiles,
+        "coverage-summary": coverage_summary,
+        "convergence-summary": convergence_summary,
+    }
+    result = commands[args.command](args)
     args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"fit_{args.command}.json"
+    path = args.out / f"fit_{args.command.replace('-', '_')}.json"
     path.write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result.get("summary", {}), indent=1))
     print(f"wrote {path}")
