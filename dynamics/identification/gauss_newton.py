@@ -7,7 +7,7 @@ and its continuity make it block bidiagonal). Each iteration linearises once and
 condenses the Gauss-Newton model onto ``phi`` (the lifted multiple-shooting step of Bock;
 Albersmeyer and Diehl): with the linearised constraints solved for ``dy = a + E dphi``
 (``a = -G_y^-1 g``, ``E = -G_y^-1 G_phi``, one sparse LU), the step ``dphi`` solves the
-small bounded linear least-squares problem
+small bounded linear least-squares problem::
 
     min |r + J_y a + (J_phi + J_y E) dphi|^2 + mu |diag(d) dphi|^2,
     lo <= phi + dphi <= hi,  |dphi| <= max_step
