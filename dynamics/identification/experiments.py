@@ -113,7 +113,9 @@ class TimeSeries:
     ``model.signal_names``); ``data`` (n, ny) in SI (NaN: not measured at that sample);
     ``p``: the model's parameter vector for this experiment, ``uses``: where the estimated
     parameters enter it. ``interval``: samples per shooting interval (multiple shooting;
-    ``None``: one interval, single shooting); ``substeps``: Radau IIA steps per sample.
+    ``None``: one interval, single shooting); ``step``: samples one Radau IIA step spans
+    at most (steps also end at every kink of the inputs; ``None``: chosen by
+    :func:`.shooting.auto_step` at the start values).
     """
 
     name: str
@@ -125,7 +127,7 @@ class TimeSeries:
     p: np.ndarray
     uses: Uses = field(default_factory=dict)
     interval: int | None = 50
-    substeps: int = 1
+    step: int | None = None
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=float)
@@ -147,9 +149,9 @@ class TimeSeries:
             )
         if self.data.shape[1] != len(self.outputs):
             raise ParameterError(f"experiment '{self.name}' data", self.data.shape, "n x outputs")
-        for s in (self.interval, self.substeps):
+        for key, s in (("interval", self.interval), ("step", self.step)):
             if s is not None and (isinstance(s, bool) or not isinstance(s, int) or s < 1):
-                raise ParameterError(f"experiment '{self.name}' interval/substeps", s, ">= 1")
+                raise ParameterError(f"experiment '{self.name}' {key}", s, "an integer >= 1")
 
 
 @dataclass

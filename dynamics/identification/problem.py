@@ -27,7 +27,7 @@ from ..equilibrium import solve_equilibrium
 from ..errors import ParameterError, SolverError
 from .experiments import Estimated, Noise, StaticPoint, Target, TimeSeries, check_uses
 from .gauss_newton import Options, gauss_newton
-from .shooting import Shooting, scales
+from .shooting import Shooting, auto_step, scales, step_error
 
 
 @dataclass
@@ -159,10 +159,20 @@ class Problem:
             for r_, i in enumerate(idx):
                 ename, factor = exp.uses[m.param_names[i]]
                 D[r_, used.index(index[ename])] = factor
-            scale = scales(m, self._scale_states(exp))
-            shoot = Shooting.of(
-                m, exp.t, exp.u, exp.interval, idx, len(used), exp.outputs, scale, exp.substeps
-            )
+            states = self._scale_states(exp)
+            scale = scales(m, list(states.values()))
+
+            def make(step, exp=exp, idx=idx, used=used, scale=scale):
+                args = (exp.interval, idx, len(used), exp.outputs, scale, step)
+                return Shooting.of(exp.model, exp.t, exp.u, *args)
+
+            step = exp.step
+            if step is None:  # at the start values, from the first equilibrium
+                start = np.array([e.start for e in self.params])
+                p0 = np.array(exp.p, dtype=float)
+                p0[idx] = D @ start[used]
+                step = auto_step(make, states[0] / scale, p0, exp.data) if 0 in states else 1
+            shoot = make(step)
             picks = []
             for j, name in enumerate(exp.outputs):
                 ok = np.flatnonzero(np.isfinite(exp.data[:, j]))
@@ -183,7 +193,7 @@ class Problem:
             m = pt.model
             w = cs.MX.sym(f"W_{pt.name}", m.nx + m.nz)
             unknowns.append(w)
-            sx = scales(m, self._scale_states(pt))
+            sx = scales(m, list(self._scale_states(pt).values()))
             scale = np.concatenate([sx, np.maximum(m.nominal("z"), 1e-12)])
             x, z = scale[: m.nx] * w[: m.nx], scale[m.nx :] * w[m.nx :]
             links = {k: solved[v] for k, v in pt.links.items()}
@@ -219,21 +229,45 @@ class Problem:
         self.n_v = offset + vs.numel() - n_theta
         self.n_g = sum(s.exp.model.nx * s.shoot.nodes for s in self._series) + g.numel()
 
-    def _scale_states(self, exp) -> list[np.ndarray]:
+    def _scale_states(self, exp) -> dict[int, np.ndarray]:
         """States of the experiment's equilibria at the start values, at its first and its
-        largest inputs (for the state scales; none where a solve fails)."""
+        largest inputs, by sample index (for the state scales and the step; none where a
+        solve fails)."""
         theta = np.array([e.start for e in self.params])
         over = self._p_numeric(exp, theta) if not getattr(exp, "links", None) else None
         if over is None:
-            return []
+            return {}
         u = np.atleast_2d(exp.u)
-        out = []
+        out = {}
         for i in sorted({0, int(np.argmax(np.max(np.abs(u), axis=1)))}):
             try:
                 inputs = dict(zip(exp.model.input_names, u[i], strict=True))
-                out.append(solve_equilibrium(exp.model, inputs, over).x)
+                out[i] = solve_equilibrium(exp.model, inputs, over).x
             except (SolverError, ParameterError):
                 pass
+        return out
+
+    def grid_report(self, theta: np.ndarray) -> dict[str, dict]:
+        """Per time series at ``theta`` (SI): the samples a Radau IIA step spans at most,
+        the steps, the shooting intervals, and per output the largest difference of the
+        predicted signal from one step per sample as a fraction of the data's noise
+        level (:func:`.shooting.step_error`; :data:`.shooting.STEP_TOLERANCE` is the
+        bound the automatic step keeps at the start values). Raises SolverError."""
+        firsts, _ = self._equilibria_of(np.asarray(theta, dtype=float))
+        out = {}
+        for s, eq in zip(self._series, firsts, strict=True):
+            sh, exp = s.shoot, s.exp
+            xi0 = eq.x / sh.scale
+            fine = Shooting.of(
+                exp.model, exp.t, exp.u, exp.interval, s.idx, len(s.used), exp.outputs, sh.scale
+            )
+            err = step_error(sh, fine.predict(xi0, eq.p), xi0, eq.p, exp.data)
+            out[exp.name] = {
+                "samples_per_step": sh.step,
+                "steps": len(sh.grid.k0),
+                "intervals": sh.nodes,
+                "error_per_noise": dict(zip(exp.outputs, err.tolist(), strict=True)),
+            }
         return out
 
     @property

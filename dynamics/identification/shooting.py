@@ -1,22 +1,28 @@
-"""Multiple shooting of a time series: fixed-step Radau IIA collocation with forward
-sensitivities, generated to C.
+"""Multiple shooting of a time series: Radau IIA collocation steps that may span several
+samples, with forward sensitivities, generated to C.
 
-The record is cut into shooting intervals of ``interval`` samples. The scaled state
-``xi = x / x_nominal`` at each interval's start is an unknown of the fit (a node); inside
-an interval the states at the samples follow from it by one Radau IIA step per sample (3
-nodes, order 5: the equations of :func:`..simulation.collocation.residual`; or
-``substeps`` equal steps), the inputs linear between samples (the
-:class:`~sarcomere.dynamics.signals.Table` convention).
+The record is cut into shooting intervals of ``interval`` samples (or a few more: each
+ends at a step's end). The scaled state
+``xi = x / x_nominal`` at each interval's start is an unknown of the fit (a node). Inside
+an interval the states follow from it by Radau IIA steps (3 nodes, order 5: the equations
+of :func:`..simulation.collocation.residual`) on a grid of samples: a step spans at most
+``step`` samples and ends at every kink of the inputs (a sample where their slope
+changes; after a kink the steps grow from one sample, doubling, as the response to a
+kink is least smooth there), so the inputs, linear between samples (the
+:class:`~sarcomere.dynamics.signals.Table` convention), are linear inside each step and
+the step integrates them exactly. The states at the samples a step spans come from its
+collocation polynomial (through the step's start and its three stage values; exact at
+its end). :func:`auto_step` picks ``step`` so that this costs less than
+:data:`STEP_TOLERANCE` of the data's noise.
 
 Each step's collocation equations ``R(V, xi_k, q_k, p) = 0`` are solved for the stage
 values ``V`` by Newton (CasADi's ``fast_newton``: sparse QR, code-generable) from
-``V = xi_k`` at every node. The sensitivities of the step's end state follow at the
-converged stages by the implicit function theorem (exact, no finite differences):
-``S_{k+1} = -[R_V^-1 (R_xi S_k + [0, R_p D])]_end`` with ``S = d xi / d(node, theta_e)``
-(``theta_e``: the estimated values the experiment uses, entering ``p`` as ``p_sel = D
-theta_e``). The steps of an interval are one ``mapaccum``, the intervals one ``map``: a
-record's states (and sensitivities) are one compiled call. The C is generated once per
-(model, estimated entries, interval length, outputs) and kept in the disk cache of
+``V = xi_k``. The stage sensitivities follow at the converged stages by the implicit
+function theorem (exact, no finite differences): ``S_V = -R_V^-1 (R_xi S_k + [0, R_p
+D])`` with ``S = d xi / d(node, theta_e)`` (``theta_e``: the estimated values the
+experiment uses, entering ``p`` as ``p_sel = D theta_e``), and ``S_{k+1}`` is its last
+block. One step is one compiled call on numpy arrays; the C is generated once per
+(model, estimated entries, outputs) and kept in the disk cache of
 :mod:`..simulation.compiled`. A step whose Newton does not bring the scaled residual
 below :data:`RESIDUAL_TOL` is a SolverError naming its time.
 """
@@ -42,6 +48,17 @@ is detected from the residual it leaves (:data:`RESIDUAL_TOL`), not by CasADi.""
 RESIDUAL_TOL = 1e-8
 """Largest scaled collocation residual of an accepted step."""
 
+STEPS = (32, 16, 8, 4, 2)
+"""The samples per step :func:`auto_step` tries, largest first (1 if none passes)."""
+
+STEP_TOLERANCE = 0.01
+"""Largest difference :func:`auto_step` allows between a coarse grid's outputs and one
+step per sample, as a fraction of each signal's noise level [-]: a bias of 1 % of the
+noise moves chi-squared by about 1e-4 per sample."""
+
+OUTPUT_CHUNK = 256
+"""Samples per call of the compiled outputs Function."""
+
 
 def scales(model: Model, states=()) -> np.ndarray:
     """State scales ``x = scales * xi``: the larger of the model's nominal values and the
@@ -51,41 +68,49 @@ def scales(model: Model, states=()) -> np.ndarray:
     return 2.0 ** np.ceil(np.log2(np.maximum(mag, 1e-12)))
 
 
+def noise_level(data: np.ndarray) -> np.ndarray:
+    """Each column's noise standard deviation estimated from its second differences
+    (robust: 1.4826 times their median absolute value, over sqrt(6), the factor of white
+    noise), NaN rows left out; 0 for a column with fewer than 3 values."""
+    data = np.asarray(data, dtype=float).reshape(len(data), -1)
+    out = np.zeros(data.shape[1])
+    for j in range(data.shape[1]):
+        col = data[np.isfinite(data[:, j]), j]
+        if len(col) >= 3:
+            out[j] = 1.4826 * np.median(np.abs(np.diff(col, 2))) / np.sqrt(6.0)
+    return out
+
+
 @dataclass(frozen=True)
 class Engine:
-    """The compiled Functions of one (model, estimated entries ``idx``, ``ne`` estimated
-    values, interval length ``L``, outputs), called on numpy arrays
-    (:class:`~..simulation.compiled.NumpyFunction`):
+    """The compiled Functions of one (model, estimated entries, ``ne`` estimated values,
+    outputs), called on numpy arrays (:class:`~..simulation.compiled.NumpyFunction`):
 
-    * ``values(xi0, Q, p, scale) -> (Xi, res)``: one interval's scaled states after each
-      step (nx x L) and each step's residual (1 x L); ``Q`` (2 nu + 1) x L: ``u0, u1, h``.
-    * ``sens(xi0, Q, p, D, scale) -> (Xi, S, res)``: also ``S`` = nx x ((nx + ne) L), the
-      sensitivities after each step to the node and to ``theta_e``.
-    * ``outputs(X, U, p) -> (y, Y_x, Y_p)``: the measured signals at ``L`` samples and
-      their Jacobians to ``x`` (unscaled) and to ``p_sel``, side by side.
+    * ``step(xi, guess, q, p, scale) -> (V, res)``: one step's scaled stage values (nx x
+      3, the last is the step's end; Newton from ``guess``) and its scaled collocation
+      residual; ``q = (u0, u1, h)``.
+    * ``sens(V, xi, S, q, p, D, scale) -> S_V``: the sensitivities of the converged
+      stages ``V`` (3 nx x (nx + ne)) from the start's ``S`` (nx x (nx + ne)).
+    * ``outputs(X, U, p) -> (y, Y_x, Y_p)``: the measured signals at
+      :data:`OUTPUT_CHUNK` samples and their Jacobians to ``x`` (unscaled) and to
+      ``p_sel``, side by side.
     * ``equilibrium(xi, u, p, scale) -> (f, F_xi, F_p)``: the scaled ODE at the first
       sample and its Jacobians to ``xi`` and ``p_sel``.
     """
 
-    values: compiled.NumpyFunction
+    step: compiled.NumpyFunction
     sens: compiled.NumpyFunction
     outputs: compiled.NumpyFunction
     equilibrium: compiled.NumpyFunction
-    length: int
 
 
-def engine(
-    model: Model, idx: tuple[int, ...], ne: int, length: int, outputs: tuple, substeps: int = 1
-) -> Engine:
-    """The :class:`Engine` (generated, compiled and loaded once; memoised on the model);
-    ``substeps`` Radau IIA steps per sample."""
-    key = ("identification.engine", idx, ne, length, outputs, substeps)
-    return model.cached(key, lambda: _build(model, idx, ne, length, outputs, substeps))
+def engine(model: Model, idx: tuple[int, ...], ne: int, outputs: tuple) -> Engine:
+    """The :class:`Engine` (generated, compiled and loaded once; memoised on the model)."""
+    key = ("identification.engine", idx, ne, outputs)
+    return model.cached(key, lambda: _build(model, idx, ne, outputs))
 
 
-def _build(
-    model: Model, idx: tuple[int, ...], ne: int, length: int, outputs: tuple, substeps: int
-) -> Engine:
+def _build(model: Model, idx: tuple[int, ...], ne: int, outputs: tuple) -> Engine:
     nx, nu, n_p, k = model.nx, model.u.numel(), model.p.numel(), len(idx)
     scale = cs.SX.sym("scale", nx)
     ode = cs.Function("ode", [model.x, model.u, model.p], [model.ode])
@@ -108,48 +133,21 @@ def _build(
 
     xm, qm, pm = cs.MX.sym("xi", nx), cs.MX.sym("q", q.numel()), cs.MX.sym("p", n_p)
     Sm, Dm, cm = cs.MX.sym("S", nx, nx + ne), cs.MX.sym("D", k, ne), cs.MX.sym("scale", nx)
-
-    def advance(x, S):
-        """The sample's step (``substeps`` equal parts, inputs interpolated); ``S`` carried
-        along when given."""
-        res = cs.MX(0)
-        for j in range(substeps):
-            a, b = j / substeps, (j + 1) / substeps
-            qj = cs.vertcat(
-                qm[:nu] + a * (qm[nu : 2 * nu] - qm[:nu]),
-                qm[:nu] + b * (qm[nu : 2 * nu] - qm[:nu]),
-                qm[2 * nu] / substeps,
-            )
-            Vs = newton(cs.repmat(x, POINTS, 1), x, qj, pm, cm)
-            res = cs.fmax(res, cs.norm_inf(R(Vs, x, qj, pm, cm)))
-            if S is not None:
-                RV, Rx, Rp = RJ(Vs, x, qj, pm, cm)
-                rhs = Rx @ S + cs.horzcat(cs.MX(nx * POINTS, nx), Rp @ Dm)
-                S = -cs.solve(RV, rhs, "qr")[-nx:, :]
-            x = Vs[-nx:]
-        return x, S, res
-
-    x1, _, r1 = advance(xm, None)
-    value_step = cs.Function("value_step", [xm, qm, pm, cm], [x1, r1])
-    x1, S1, r1 = advance(xm, Sm)
-    sens_step = cs.Function("sens_step", [xm, Sm, qm, pm, Dm, cm], [x1, S1, r1])
-
-    Q = cs.MX.sym("Q", q.numel(), length)
-    acc_v = value_step.mapaccum("acc_v", length, [0], [0])
-    Xi, rv = acc_v(xm, Q, cs.repmat(pm, 1, length), cs.repmat(cm, 1, length))
-    values = cs.Function(
-        "fit_values", [xm, Q, pm, cm], [Xi, rv], ["xi0", "Q", "p", "scale"], ["Xi", "res"]
-    )
-    acc_s = sens_step.mapaccum("acc_s", length, [0, 1], [0, 1])
-    S0 = cs.horzcat(cs.DM.eye(nx), cs.DM.zeros(nx, ne))
-    rep = [cs.repmat(a, 1, length) for a in (pm, Dm, cm)]
-    Xs, Ss, rs = acc_s(xm, S0, Q, *rep)
+    Gm = cs.MX.sym("guess", nx, POINTS)
+    Vs = newton(cs.vec(Gm), xm, qm, pm, cm)
+    res = cs.norm_inf(R(Vs, xm, qm, pm, cm))
+    Vm = cs.reshape(Vs, nx, POINTS)
+    names = ["xi", "guess", "q", "p", "scale"]
+    step = cs.Function("fit_step", [xm, Gm, qm, pm, cm], [Vm, res], names, ["V", "res"])
+    Vk = cs.MX.sym("V", nx, POINTS)
+    RV, Rx, Rp = RJ(cs.vec(Vk), xm, qm, pm, cm)
+    rhs = Rx @ Sm + cs.horzcat(cs.MX(nx * POINTS, nx), Rp @ Dm)
     sens = cs.Function(
         "fit_sens",
-        [xm, Q, pm, Dm, cm],
-        [Xs, Ss, rs],
-        ["xi0", "Q", "p", "D", "scale"],
-        ["Xi", "S", "res"],
+        [Vk, xm, Sm, qm, pm, Dm, cm],
+        [-cs.solve(RV, rhs, "qr")],
+        ["V", "xi", "S", "q", "p", "D", "scale"],
+        ["S_V"],
     )
 
     index = {n: i for i, n in enumerate(model.signal_names)}
@@ -172,21 +170,100 @@ def _build(
         ["f", "F_xi", "F_p"],
     )
     stem = f"fit_{model.name}".replace(".", "_")
-    Xo, Uo = cs.MX.sym("X", nx, length), cs.MX.sym("U", nu, length)
-    out_map = out.map(length)
-    outs = cs.Function("fit_outputs_map", [Xo, Uo, pm], out_map(Xo, Uo, cs.repmat(pm, 1, length)))
-    lib = compiled.numpy_library([values, sens, outs, eq], stem)
-    return Engine(
-        lib["fit_values"], lib["fit_sens"], lib["fit_outputs_map"], lib["fit_equilibrium"], length
-    )
+    L = OUTPUT_CHUNK
+    Xo, Uo = cs.MX.sym("X", nx, L), cs.MX.sym("U", nu, L)
+    outs = cs.Function("fit_outputs_map", [Xo, Uo, pm], out.map(L)(Xo, Uo, cs.repmat(pm, 1, L)))
+    lib = compiled.numpy_library([step, sens, outs, eq], stem)
+    return Engine(lib["fit_step"], lib["fit_sens"], lib["fit_outputs_map"], lib["fit_equilibrium"])
+
+
+def kinks(t: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The samples (indices, first and last excluded) where an input's slope changes by
+    more than 1e-9 of its range over the record's duration per second."""
+    u = np.asarray(u, dtype=float).reshape(len(t), -1)
+    if len(t) < 3:
+        return np.zeros(0, int)
+    slope = np.diff(u, axis=0) / np.diff(t)[:, None]
+    span = np.ptp(u, axis=0) / (t[-1] - t[0])
+    bent = np.abs(np.diff(slope, axis=0)) > 1e-9 * np.maximum(span, 1e-300)
+    return np.flatnonzero(np.any(bent, axis=1)) + 1
+
+
+def _lagrange(theta: np.ndarray) -> np.ndarray:
+    """Weights (len(theta), 4) of the collocation polynomial through ``(0, x0)`` and the
+    stage values at the Radau nodes, at the fractions ``theta`` of a step."""
+    tau = np.concatenate([[0.0], collocation.nodes(POINTS)])
+    w = np.ones((len(theta), len(tau)))
+    for i, ti in enumerate(tau):
+        for j, tj in enumerate(tau):
+            if j != i:
+                w[:, i] *= (theta - tj) / (ti - tj)
+    return w
+
+
+@dataclass(frozen=True)
+class Grid:
+    """The Radau IIA steps of a record: step ``s`` goes from sample ``k0[s]`` to ``k1[s]``;
+    shooting interval ``j``'s steps are ``first[j]:first[j + 1]``; sample ``k >= 1`` lies in step
+    ``of[k]`` with polynomial weights ``w[k]`` (exactly ``(0, 0, 0, 1)`` at a step's end);
+    ``ahead[s]`` (3 x 4): step ``s - 1``'s polynomial at step ``s``'s Radau nodes."""
+
+    k0: np.ndarray
+    k1: np.ndarray
+    first: np.ndarray
+    of: np.ndarray
+    w: np.ndarray
+    ahead: np.ndarray
+
+    @classmethod
+    def of_record(cls, t: np.ndarray, u: np.ndarray, step: int, interval: int | None) -> Grid:
+        """The grid of samples ``t`` and inputs ``u``: steps of at most ``step`` samples
+        (none across a kink; after one, no longer than the time since it), and an
+        interval ending at the first step end ``interval`` or more samples after the
+        last (``None``: one interval). The steps do not depend on ``interval``: single
+        and multiple shooting integrate alike."""
+        bent = kinks(t, u)
+        k0, k1 = [], []
+        k, n = 0, len(t)
+        while k < n - 1:
+            i = np.searchsorted(bent, k, "right")  # the first kink after k
+            since = k - bent[i - 1] if i else step  # samples since the last kink
+            end = min(k + min(step, max(since, 1)), n - 1)
+            if i < len(bent):
+                end = min(end, int(bent[i]))
+            k0.append(k)
+            k1.append(end)
+            k = end
+        first, cut = [0], 0
+        for s, end in enumerate(k1[:-1]):
+            if interval is not None and end - cut >= interval:
+                first.append(s + 1)
+                cut = end
+        first.append(len(k0))
+        k0a, k1a = np.array(k0), np.array(k1)
+        n = len(t)
+        of = np.zeros(n, int)
+        for s, (a, b) in enumerate(zip(k0a, k1a, strict=True)):
+            of[a + 1 : b + 1] = s
+        frac = (t[1:] - t[k0a[of[1:]]]) / (t[k1a[of[1:]]] - t[k0a[of[1:]]])
+        w = np.zeros((n, POINTS + 1))
+        w[1:] = _lagrange(frac)
+        ends = np.flatnonzero(np.arange(1, n) == k1a[of[1:]]) + 1
+        w[ends] = 0.0
+        w[ends, -1] = 1.0
+        h = t[k1a] - t[k0a]
+        ratio = h / np.concatenate([[1.0], h[:-1]]) if len(h) else h
+        tau = collocation.nodes(POINTS)
+        ahead = _lagrange((1.0 + np.outer(ratio, tau)).ravel()).reshape(len(h), POINTS, -1)
+        return cls(k0a, k1a, np.array(first), of, w, ahead)
 
 
 @dataclass
 class Shooting:
     """The shooting of one record: its model, samples ``t`` (n,) [s], inputs ``u`` (n, nu),
-    the interval boundaries (sample indices), and the :class:`Engine`; ``idx``: the model
-    parameters the estimated values set, ``ne`` how many estimated values the record uses.
-    """
+    the interval boundaries (sample indices: every ``interval`` samples or more, at a
+    step's end), the :class:`Engine`, the state scales, the step :class:`Grid` and the
+    samples a step spans at most."""
 
     model: Model
     t: np.ndarray
@@ -194,99 +271,124 @@ class Shooting:
     bounds: list[tuple[int, int]]
     engine: Engine
     scale: np.ndarray
+    grid: Grid
+    step: int
 
     @classmethod
     def of(
-        cls, model: Model, t, u, interval: int | None, idx, ne: int, outputs, scale, substeps=1
+        cls, model: Model, t, u, interval: int | None, idx, ne: int, outputs, scale, step: int = 1
     ) -> Shooting:
-        n = len(t)
-        size = n - 1 if interval is None else min(interval, n - 1)
-        edges = list(range(0, n - 1, size)) + [n - 1]
-        bounds = list(zip(edges[:-1], edges[1:], strict=True))
-        eng = engine(model, tuple(idx), ne, size, tuple(outputs), substeps)
-        return cls(model, np.asarray(t, float), np.asarray(u, float), bounds, eng, scale)
+        t = np.asarray(t, float)
+        u = np.asarray(u, float).reshape(len(t), -1)
+        grid = Grid.of_record(t, u, step, interval)
+        bounds = [
+            (int(grid.k0[a]), int(grid.k1[b - 1]))
+            for a, b in zip(grid.first[:-1], grid.first[1:], strict=True)
+        ]
+        eng = engine(model, tuple(idx), ne, tuple(outputs))
+        return cls(model, t, u, bounds, eng, scale, grid, step)
 
     @property
     def nodes(self) -> int:
         return len(self.bounds)
 
-    def _q(self) -> np.ndarray:
-        """``Q`` of every interval side by side, each padded to the interval length with
-        steps of zero length at the last input (their states repeat, unused)."""
-        L, u = self.engine.length, self.u
-        cols = []
-        for a, b in self.bounds:
-            steps = np.arange(a, a + L)
-            live = steps < b
-            k0 = np.minimum(steps, b)
-            k1 = np.where(live, steps + 1, b)
-            h = np.where(live, self.t[np.minimum(steps + 1, len(self.t) - 1)] - self.t[k0], 0.0)
-            cols.append(np.vstack([u[k0].T, u[k1].T, h[None, :]]))
-        return np.hstack(cols)
+    def _q(self, s: int) -> np.ndarray:
+        a, b = self.grid.k0[s], self.grid.k1[s]
+        return np.concatenate([self.u[a], self.u[b], [self.t[b] - self.t[a]]])
 
-    def _check(self, res: np.ndarray, X: np.ndarray) -> None:
-        """A SolverError naming the first step whose Newton left a residual above
-        :data:`RESIDUAL_TOL` or whose state is not finite."""
-        L = self.engine.length
-        finite = np.all(np.isfinite(X), axis=0)
-        for j, (a, b) in enumerate(self.bounds):
-            part = slice(j * L, j * L + (b - a))
-            bad = np.flatnonzero(~(res[part] <= RESIDUAL_TOL) | ~finite[part])
-            if bad.size:
-                k, r = a + int(bad[0]), res[part][bad[0]]
-                why = (
-                    "a non-finite state"
-                    if not finite[part][bad[0]]
-                    else f"Newton left a scaled residual of {r:.3g} (above {RESIDUAL_TOL:g})"
-                )
-                raise SolverError(
-                    f"the Radau IIA step from t = {self.t[k]:g} s to {self.t[k + 1]:g} s "
-                    f"failed: {why}"
-                )
+    def _fail(self, s: int, r: float, finite: bool) -> SolverError:
+        why = (
+            "a non-finite state"
+            if not finite
+            else f"Newton left a scaled residual of {r:.3g} (above {RESIDUAL_TOL:g})"
+        )
+        a, b = self.grid.k0[s], self.grid.k1[s]
+        return SolverError(
+            f"the Radau IIA step from t = {self.t[a]:g} s to {self.t[b]:g} s failed: {why}"
+        )
 
-    def _gather(self, X: np.ndarray, S0: np.ndarray) -> np.ndarray:
-        """States at every sample (nx x n) from the intervals' outputs ``X`` (nx x L B):
-        sample 0 is the first node, the rest come from the interval they end in."""
-        L = self.engine.length
-        cols = [S0[:, :1]]
-        for j, (a, b) in enumerate(self.bounds):
-            cols.append(X[:, j * L : j * L + (b - a)])
-        return np.hstack(cols)
+    def _run(self, p, S=None, xi0=None, D=None):
+        """The steps of every interval, from the nodes ``S`` (nx x nodes) or, with ``xi0``,
+        each interval from the last one's end. Returns the node values (steps, 4, nx): the
+        step's start and its stages, and with ``D`` their sensitivities (steps, 4, nx,
+        nx + ne).
+
+        Each step's Newton starts from the last call's stages when the call repeats the
+        last one's parameters and nodes (a Jacobian at the point just simulated), else
+        from the previous step's polynomial extrapolated, across interval ends too, so
+        that single and multiple shooting compute alike (the step's start repeated at
+        the first step, or where the extrapolated start fails)."""
+        g, nx, eng = self.grid, self.model.nx, self.engine
+        m = len(g.k0)
+        key = (np.asarray(p, float).tobytes(), None if S is None else S.tobytes(), xi0 is None)
+        last = self.__dict__.get("_last")
+        known = last[1] if last is not None and last[0] == key else None
+        vals = np.empty((m, POINTS + 1, nx))
+        sens = None if D is None else np.empty((m, POINTS + 1, nx, nx + D.shape[1]))
+        x = None if xi0 is None else np.asarray(xi0, float)
+        for j in range(self.nodes):
+            if S is not None:
+                x = S[:, j]
+            if sens is not None:
+                Sx = np.hstack([np.eye(nx), np.zeros((nx, D.shape[1]))])
+            for s in range(g.first[j], g.first[j + 1]):
+                q = self._q(s)
+                if known is not None:  # converged stages of the same point
+                    V = known[s, 1:].T
+                else:
+                    ahead = (g.ahead[s] @ vals[s - 1]).T if s else None
+                    V = self._step(s, x, ahead, q, p)
+                if sens is not None:
+                    (SV,) = eng.sens(V, x, Sx, q, p, D, self.scale)
+                    sens[s, 0] = Sx
+                    sens[s, 1:] = SV.reshape(POINTS, nx, -1)
+                    Sx = sens[s, -1]
+                vals[s, 0] = x
+                vals[s, 1:] = V.T
+                x = vals[s, -1]
+        self.__dict__["_last"] = (key, vals)
+        return vals, sens
+
+    def _step(self, s: int, x: np.ndarray, ahead, q: np.ndarray, p) -> np.ndarray:
+        """Step ``s``'s converged stages (nx x 3) from ``x``: Newton from ``ahead`` (the
+        previous step's polynomial) when given, then from ``x`` repeated. Raises
+        SolverError naming the step's time where neither converges."""
+        flat = np.tile(x[:, None], (1, POINTS))
+        for guess in (flat,) if ahead is None else (ahead, flat):
+            V, r = self.engine.step(x, guess, q, p, self.scale)
+            r = float(r.ravel()[0])
+            finite = bool(np.all(np.isfinite(V)))
+            if r <= RESIDUAL_TOL and finite:
+                return V
+        raise self._fail(s, r, finite)
+
+    def _at_samples(self, first: np.ndarray, nodal: np.ndarray) -> np.ndarray:
+        """Values at every sample (n, ...) from the step values ``nodal`` (steps, 4, ...),
+        sample 0 being ``first``."""
+        g = self.grid
+        out = np.einsum("ki,ki...->k...", g.w[1:], nodal[g.of[1:]])
+        return np.concatenate([first[None], out])
 
     def simulate(self, S: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Scaled states at every sample (nx x n) from the nodes ``S`` (nx x nodes) at the
         parameter vector ``p``. Raises SolverError where a step fails."""
-        L, Q = self.engine.length, self._q()
-        parts = [
-            self.engine.values(S[:, j], Q[:, j * L : (j + 1) * L], p, self.scale)
-            for j in range(self.nodes)
-        ]
-        X = np.hstack([x for x, _ in parts])
-        res = np.concatenate([r.ravel() for _, r in parts])
-        self._check(res, X)
-        return self._gather(X, S)
+        vals, _ = self._run(p, S=S)
+        return self._at_samples(S[:, 0], vals).T
 
     def march(self, xi0: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Scaled states at every sample integrated from ``xi0`` (each interval from the
-        last one's end: the node guesses of a start)."""
-        cols = [np.asarray(xi0, float)[:, None]]
-        L, Q = self.engine.length, self._q()
-        for j, (a, b) in enumerate(self.bounds):
-            X, res = self.engine.values(cols[-1][:, -1], Q[:, j * L : (j + 1) * L], p, self.scale)
-            res = res.ravel()
-            rj = res[: b - a]
-            if not np.all(rj <= RESIDUAL_TOL) or not np.all(np.isfinite(X)):
-                raise SolverError(
-                    f"the simulation failed between t = {self.t[a]:g} s and {self.t[b]:g} s "
-                    f"(largest scaled Newton residual {np.nanmax(rj):.3g})"
-                )
-            cols.append(X[:, : b - a])
-        return np.hstack(cols)
+        last one's end: the node guesses of a start). Raises SolverError."""
+        vals, _ = self._run(p, xi0=xi0)
+        return self._at_samples(np.asarray(xi0, float), vals).T
+
+    def predict(self, xi0: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """The measured signals at every sample (ny x n), integrated from ``xi0``."""
+        return self.outputs(self.scale[:, None] * self.march(xi0, p), p)[0]
 
     def outputs(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
         """The measured signals at every sample (ny x n) from the unscaled states ``x``
         (nx x n), and their Jacobians ``Y_x`` (n, ny, nx) and ``Y_p`` (n, ny, k)."""
-        L, n = self.engine.length, x.shape[1]
+        L, n = OUTPUT_CHUNK, x.shape[1]
         chunks = -(-n // L)
         pad = chunks * L - n
         X = np.hstack([x, np.repeat(x[:, -1:], pad, axis=1)])
@@ -299,34 +401,48 @@ class Shooting:
         ny, nx = y.shape[0], x.shape[0]
         Yx = np.hstack([b for _, b, _ in parts]).reshape(ny, -1, nx)[:, :n].transpose(1, 0, 2)
         k = parts[0][2].shape[1] // L
-        Yp = np.hstack([c for _, _, c in parts]).reshape(ny, -1, k)[:, :n].transpose(1, 0, 2)
+        Yp = np.hstack([c for _, _, c in parts]).reshape(ny, chunks * L, k)[:, :n]
+        Yp = Yp.transpose(1, 0, 2)
         return y, Yx, Yp
 
     def sensitivities(self, S: np.ndarray, p: np.ndarray, D: np.ndarray):
         """States at every sample (nx x n) and their sensitivities: ``dS`` (n, nx, nx) to
         the node of the interval the sample lies in (sample 0: the identity to node 0),
         ``dT`` (n, nx, ne) to ``theta_e``, and that node's index per sample (n,)."""
-        B, L, nx = self.nodes, self.engine.length, self.model.nx
-        ne = D.shape[1]
-        Q = self._q()
-        parts = [
-            self.engine.sens(S[:, j], Q[:, j * L : (j + 1) * L], p, D, self.scale) for j in range(B)
-        ]
-        X = np.hstack([x for x, _, _ in parts])
-        Sens = np.hstack([sj for _, sj, _ in parts])
-        res = np.concatenate([r.ravel() for _, _, r in parts])
-        self._check(res, X)
-        blocks = Sens.reshape(nx, B * L, nx + ne).transpose(1, 0, 2)
-        n = len(self.t)
-        dS, dT, node = np.zeros((n, nx, nx)), np.zeros((n, nx, ne)), np.zeros(n, int)
-        dS[0] = np.eye(nx)
-        for j, (a, b) in enumerate(self.bounds):
-            part = blocks[j * L : j * L + (b - a)]
-            dS[a + 1 : b + 1], dT[a + 1 : b + 1], node[a + 1 : b + 1] = (
-                part[:, :, :nx],
-                part[:, :, nx:],
-                j,
-            )
-        if not np.all(np.isfinite(blocks)):
+        nx, ne = self.model.nx, D.shape[1]
+        vals, sens = self._run(p, S=S, D=D)
+        if not np.all(np.isfinite(sens)):
             raise SolverError("the sensitivities of the simulation are not finite")
-        return self._gather(X, S), dS, dT, node
+        X = self._at_samples(S[:, 0], vals).T
+        first = np.hstack([np.eye(nx), np.zeros((nx, ne))])
+        full = self._at_samples(first, sens)
+        step_node = np.searchsorted(self.grid.first, np.arange(len(self.grid.k0)), "right") - 1
+        node = np.concatenate([[0], step_node[self.grid.of[1:]]])
+        return X, full[:, :, :nx], full[:, :, nx:], node
+
+
+def step_error(coarse: Shooting, reference: np.ndarray, xi0, p, data: np.ndarray) -> np.ndarray:
+    """Per output, the largest difference of ``coarse``'s outputs (integrated from
+    ``xi0`` at ``p``) from ``reference`` (ny x n: one step per sample) as a fraction of
+    the :func:`noise_level` of ``data`` (inf where that level is 0)."""
+    gap = np.max(np.abs(coarse.predict(xi0, p) - reference), axis=1)
+    level = noise_level(data)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(level > 0, gap / level, np.where(gap > 0, np.inf, 0.0))
+
+
+def auto_step(make, xi0: np.ndarray, p: np.ndarray, data: np.ndarray) -> int:
+    """The largest of :data:`STEPS` samples per step whose outputs, integrated from
+    ``xi0`` at ``p``, differ from one step per sample by at most :data:`STEP_TOLERANCE` of
+    each signal's :func:`noise_level` in ``data`` (n, ny); 1 when none does (noise-free
+    data ask for the finest grid). ``make(step)`` gives the record's :class:`Shooting`."""
+    if not np.all(noise_level(data) > 0):
+        return 1
+    reference = make(1).predict(xi0, p)
+    for step in STEPS:
+        try:
+            if np.all(step_error(make(step), reference, xi0, p, data) <= STEP_TOLERANCE):
+                return step
+        except SolverError:
+            continue
+    return 1

@@ -230,6 +230,8 @@ class NumpyFunction:
         self._mem = int(getattr(handle, f"{name}_checkout")())
         self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
         self._w = np.zeros(max(n_w, 1))
+        self._iw_ptr = self._iw.ctypes.data_as(ctypes.c_void_p)
+        self._w_ptr = self._w.ctypes.data_as(ctypes.c_void_p)
         self._arg = (ctypes.c_void_p * max(n_arg, 1))()
         self._res = (ctypes.c_void_p * max(n_res, 1))()
         self._shapes_in = [(f.size1_in(i), f.size2_in(i)) for i in range(f.n_in())]
@@ -243,29 +245,31 @@ class NumpyFunction:
             self._out.append(
                 (sp.shape, sp.nnz(), np.array(rows, int), np.array(cols, int), sp.is_dense())
             )
+        # one buffer per input and output, their addresses set once (numpy's ``ctypes.data``
+        # costs more per call than the copies)
+        self._inputs = [np.empty(r * c) for r, c in self._shapes_in]
+        self._outputs = [np.empty(nnz) for _, nnz, _, _, _ in self._out]
+        for i, buf in enumerate(self._inputs):
+            self._arg[i] = buf.ctypes.data
+        for i, buf in enumerate(self._outputs):
+            self._res[i] = buf.ctypes.data
 
     def __call__(self, *args) -> list[np.ndarray]:
-        keep = []
-        for i, (a, shape) in enumerate(zip(args, self._shapes_in, strict=True)):
-            arr = np.ascontiguousarray(np.asarray(a, dtype=float).reshape(shape, order="F").T)
-            keep.append(arr)
-            self._arg[i] = arr.ctypes.data
-        raw = [np.empty(nnz) for _, nnz, _, _, _ in self._out]
-        for i, r in enumerate(raw):
-            self._res[i] = r.ctypes.data
-        rc = self._call(
-            self._arg,
-            self._res,
-            self._iw.ctypes.data_as(ctypes.c_void_p),
-            self._w.ctypes.data_as(ctypes.c_void_p),
-            self._mem,
-        )
+        if len(args) != len(self._inputs):
+            raise TypeError(f"{self.name}: {len(args)} inputs given, {len(self._inputs)} taken")
+        for i, (a, buf) in enumerate(zip(args, self._inputs, strict=True)):
+            a = np.asarray(a, dtype=float)
+            if a.size != buf.size:
+                shape = self._shapes_in[i]
+                raise ValueError(f"{self.name}: input {i} has {a.size} entries, not {shape}")
+            buf[:] = a.ravel(order="F")  # column-major, as CasADi reads it
+        rc = self._call(self._arg, self._res, self._iw_ptr, self._w_ptr, self._mem)
         if rc:
             raise SolverError(f"{self.name}: the generated C returned {rc}")
         out = []
-        for r, (shape, _, rows, cols, dense) in zip(raw, self._out, strict=True):
+        for r, (shape, _, rows, cols, dense) in zip(self._outputs, self._out, strict=True):
             if dense:
-                out.append(r.reshape(shape[::-1]).T)
+                out.append(r.copy().reshape(shape[::-1]).T)
             else:
                 full = np.zeros(shape)
                 full[rows, cols] = r

@@ -94,6 +94,7 @@ def summary(result) -> dict:
         },
         "design": result.design,
         "solver": {"status": result.solution.status, "iterations": result.solution.iterations},
+        "integration": result.grid,
         "wall_time_s": result.wall_time,
     }
 

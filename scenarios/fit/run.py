@@ -54,7 +54,8 @@ class Start:
 class FitResult:
     """What ``Fit.run`` returns: the built fit, the best solution and noise levels, the
     starts, the Fisher record, the profiles, verdicts, per-experiment metrics (fitted and
-    held out), and the wall time [s]."""
+    held out), the wall time [s], the experiment ranking, the files written, and each
+    time series' step grid at the fit (``Problem.grid_report``)."""
 
     built: Built
     solution: Solution
@@ -68,6 +69,7 @@ class FitResult:
     wall_time: float
     design: list[dict] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
+    grid: dict[str, dict] = field(default_factory=dict)
 
     @property
     def estimates(self) -> dict[str, tuple[float, str]]:
@@ -160,6 +162,7 @@ class Fit:
             0.0,
         )
         result.design = ranking(self.built, sol, fitted.sigma)
+        result.grid = self.built.problem.grid_report(sol.theta)
         result.wall_time = time.perf_counter() - tic
         if folder is not None:
             from .report import write

@@ -141,6 +141,10 @@ def test_fit_runs_end_to_end(fit_dir, monkeypatch):
     # the held-out static curve is predicted (fit % per signal) and the record whitened
     assert summary["validation"]["static"]["myofibril.length"]["fit_percent"] > 99.0
     assert "ljung_box_p" in summary["fitted"]["step"]["myofibril.length"]
+    # the record's step grid, and its integration error at the fit, in units of its noise
+    grid = summary["integration"]["step"]
+    assert grid["samples_per_step"] >= 1 and 1 <= grid["intervals"] <= grid["steps"]
+    assert 0 <= grid["error_per_noise"]["myofibril.length"] <= 0.05, grid
     # the experiment ranking: four candidates, best first, each naming a parameter
     gains = [r["gain"] for r in summary["design"]]
     assert len(gains) == 4 and gains == sorted(gains, reverse=True) and gains[0] > 0
