@@ -328,7 +328,16 @@ def _experiments(spec: FitSpec, bound: list[Bound], which: list[Bound]):
             interval = spec.interval if spec.method == "multiple-shooting" else None
             series.append(
                 TimeSeries(
-                    b.spec.name, model, b.table.time, u, b.spec.outputs, data, p, uses, interval
+                    b.spec.name,
+                    model,
+                    b.table.time,
+                    u,
+                    b.spec.outputs,
+                    data,
+                    p,
+                    uses,
+                    interval,
+                    spec.step,
                 )
             )
             continue

@@ -24,7 +24,7 @@ KINDS = ("time-series", "static")
 SECTIONS = ("fit", "parameters", "noise", "experiments", "design")
 DESIGN_KEYS = ("kinds", "levels", "loads", "duration", "sample", "outputs")
 DESIGN_KINDS = ("step", "staircase")
-FIT_KEYS = ("name", "description", "method", "starts", "seed", "interval")
+FIT_KEYS = ("name", "description", "method", "starts", "seed", "interval", "step")
 PARAM_KEYS = ("start", "bounds", "scale", "per_experiment")
 NOISE_KEYS = ("sigma", "relative")
 EXP_KEYS = (
@@ -39,6 +39,8 @@ EXP_KEYS = (
     "reference",
 )
 MAX_STARTS = 10_000
+MAX_STEP = 64
+"""The most samples a Radau IIA step of a time series may span (``[fit] step``)."""
 
 
 class FitError(ScenarioError):
@@ -107,6 +109,7 @@ class FitSpec:
     starts: int
     seed: int
     interval: int
+    step: int | None  # samples per Radau IIA step at most; None: chosen per record
     parameters: list[ParameterSpec]
     noise: dict[str, NoiseSpec]
     experiments: list[ExperimentSpec]
@@ -189,6 +192,9 @@ def parse_fit(text: str, file: str = "<string>") -> FitSpec:
         raise r.error(("fit", "starts"), f"{starts}: at most {MAX_STARTS}")
     seed = r.integer(head, ("fit",), "seed", 0, 0)
     interval = r.integer(head, ("fit",), "interval", 1, 50)
+    step = r.integer(head, ("fit",), "step", 1, None)
+    if step is not None and step > MAX_STEP:
+        raise r.error(("fit", "step"), f"{step}: at most {MAX_STEP} samples per step")
     params = _parameters(r, data["parameters"])
     noise = _noise(r, data.get("noise", {}))
     exps = _experiments(r, data["experiments"], Path(file).parent)
@@ -200,6 +206,7 @@ def parse_fit(text: str, file: str = "<string>") -> FitSpec:
         starts,
         seed,
         interval,
+        step,
         params,
         noise,
         exps,

@@ -1,7 +1,7 @@
 """The compiled shooting engine and the Gauss-Newton under it, on generated records (fixed
 seeds): the Jacobians of the residuals and constraints against central differences of
-the engine's own values (every parameter column, random node columns, with substeps), the
-state scales, and a stalled step named by its time."""
+the engine's own values (every parameter column, random node columns, steps of 1 and 3
+samples), the state scales, and a stalled step named by its time."""
 
 from __future__ import annotations
 

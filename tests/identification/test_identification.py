@@ -45,7 +45,7 @@ def _record(seed: int, truth: dict, dt: float = 2e-3, t_end: float = 0.2):
     return m, t, u, np.column_stack([res[o] for o in OUTS])
 
 
-def _problem(m, t, u, data, names, interval=10, substeps=2):
+def _problem(m, t, u, data, names, interval=10, step=2):
     params = [
         Estimated(
             n,
@@ -57,7 +57,7 @@ def _problem(m, t, u, data, names, interval=10, substeps=2):
         for n in names
     ]
     uses = {n: (n, 1.0) for n in names}
-    ts = TimeSeries("step", m, t, u[:, None], OUTS, data, m.parameters(), uses, interval, substeps)
+    ts = TimeSeries("step", m, t, u[:, None], OUTS, data, m.parameters(), uses, interval, step)
     noise = {o: Noise(SIGMA[o]) for o in OUTS}
     return Problem(params, [ts], noise=noise)
 

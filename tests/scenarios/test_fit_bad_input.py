@@ -183,3 +183,21 @@ def test_cli_prints_one_line_and_exits_2(tmp_path, capsys):
 
 def test_fit_error_is_a_sarcomere_error():
     assert issubclass(FitError, SarcomereError)
+
+
+@pytest.mark.parametrize(
+    ("value", "words"), [("0", "expected an integer >= 1"), ("65", "at most 64"), ('"8"', "'8'")]
+)
+def test_a_bad_step_names_the_key(tmp_path, value, words):
+    path = _write(tmp_path)
+    path.write_text(path.read_text().replace('name = "bad"', f'name = "bad"\nstep = {value}'))
+    err = _error(path)
+    assert err.file.endswith("fit.toml") and err.line == 3 and err.key.endswith("step")
+    assert words in str(err)
+
+
+def test_a_step_the_file_sets_is_the_grid(tmp_path):
+    path = _write(tmp_path)
+    path.write_text(path.read_text().replace('name = "bad"', 'name = "bad"\nstep = 2'))
+    built = build(load_fit(path))
+    assert built.problem.shootings[0].step == 2
