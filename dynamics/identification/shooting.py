@@ -241,7 +241,6 @@ class Grid:
                 cut = end
         first.append(len(k0))
         k0a, k1a = np.array(k0), np.array(k1)
-        n = len(t)
         of = np.zeros(n, int)
         for s, (a, b) in enumerate(zip(k0a, k1a, strict=True)):
             of[a + 1 : b + 1] = s
@@ -252,7 +251,7 @@ class Grid:
         w[ends] = 0.0
         w[ends, -1] = 1.0
         h = t[k1a] - t[k0a]
-        ratio = h / np.concatenate([[1.0], h[:-1]]) if len(h) else h
+        ratio = h / np.concatenate([h[:1], h[:-1]])  # to the previous step (the first: 1)
         tau = collocation.nodes(POINTS)
         ahead = _lagrange((1.0 + np.outer(ratio, tau)).ravel()).reshape(len(h), POINTS, -1)
         return cls(k0a, k1a, np.array(first), of, w, ahead)
