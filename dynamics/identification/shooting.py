@@ -291,9 +291,15 @@ class Shooting:
     def nodes(self) -> int:
         return len(self.bounds)
 
-    def _q(self, s: int) -> np.ndarray:
-        a, b = self.grid.k0[s], self.grid.k1[s]
-        return np.concatenate([self.u[a], self.u[b], [self.t[b] - self.t[a]]])
+    @property
+    def _q(self) -> np.ndarray:
+        """Each step's ``q = (u0, u1, h)`` (steps x (2 nu + 1)), made once."""
+        q = self.__dict__.get("_q_rows")
+        if q is None:
+            g = self.grid
+            h = (self.t[g.k1] - self.t[g.k0])[:, None]
+            q = self.__dict__["_q_rows"] = np.hstack([self.u[g.k0], self.u[g.k1], h])
+        return q
 
     def _fail(self, s: int, r: float, finite: bool) -> SolverError:
         why = (
@@ -325,13 +331,14 @@ class Shooting:
         vals = np.empty((m, POINTS + 1, nx))
         sens = None if D is None else np.empty((m, POINTS + 1, nx, nx + D.shape[1]))
         x = None if xi0 is None else np.asarray(xi0, float)
+        Q = self._q
         for j in range(self.nodes):
             if S is not None:
                 x = S[:, j]
             if sens is not None:
                 Sx = np.hstack([np.eye(nx), np.zeros((nx, D.shape[1]))])
             for s in range(g.first[j], g.first[j + 1]):
-                q = self._q(s)
+                q = Q[s]
                 if known is not None:  # converged stages of the same point
                     V = known[s, 1:].T
                 else:
@@ -352,8 +359,9 @@ class Shooting:
         """Step ``s``'s converged stages (nx x 3) from ``x``: Newton from ``ahead`` (the
         previous step's polynomial) when given, then from ``x`` repeated. Raises
         SolverError naming the step's time where neither converges."""
-        flat = np.tile(x[:, None], (1, POINTS))
-        for guess in (flat,) if ahead is None else (ahead, flat):
+        for guess in (None,) if ahead is None else (ahead, None):
+            if guess is None:  # the step's start at every node
+                guess = np.repeat(x[:, None], POINTS, axis=1)
             V, r = self.engine.step(x, guess, q, p, self.scale)
             r = float(r.ravel()[0])
             finite = bool(np.all(np.isfinite(V)))
