@@ -14,8 +14,9 @@ Verdicts (docs/fitting.md): **structurally non-identifiable** where a singular v
 ``S`` is below :data:`FLAT` of the largest and the parameter takes part in its singular
 vector (above :data:`TAKES_PART`): the data determine only a combination; **practically
 non-identifiable** where its profile does not rise by the 95 % chi-squared threshold
-(:data:`CHI2_95`, 1 degree of freedom) before a bound on one side; **identifiable**
-otherwise.
+(:data:`CHI2_95`, 1 degree of freedom) before a bound on one side, or rises there only
+while a parameter correlated with it beyond :data:`COUPLED` sits on one of its bounds
+(the bound, not the data, closes the valley); **identifiable** otherwise.
 """
 
 from __future__ import annotations
@@ -39,6 +40,13 @@ FLAT = 1e-6
 TAKES_PART = 0.2
 """A parameter takes part in a flat direction where its share of the (unit) singular
 vector exceeds this."""
+
+COUPLED = 0.9
+"""A profile's crossing does not count where a parameter whose Fisher correlation with
+the profiled one exceeds this (in magnitude) is on a bound at the crossing point."""
+
+ON_BOUND = 1e-6
+"""A search variable within this of a bound is on it."""
 
 
 def sensitivities(problem: Problem, sol: Solution) -> np.ndarray:
@@ -117,13 +125,15 @@ def combination(names: list[str], direction: np.ndarray, log: list[bool]) -> str
 class Profile:
     """A profile likelihood: values (SI) and the rise of the cost ``chi2 - chi2_min``
     (sorted by value), the 95 % interval ends (None: the bound came first, an open
-    side), and solves that failed."""
+    side), solves that failed, and per side the other parameters (indices) on a bound
+    at the point where the profile crossed."""
 
     values: list[float]
     rise: list[float]
     low: float | None
     high: float | None
     failed: int = 0
+    on_bounds: tuple[tuple[int, ...], tuple[int, ...]] = ((), ())
 
     @property
     def crosses(self) -> bool:
@@ -145,10 +155,10 @@ def profile(
     lo, hi = e.to_phi(e.low), e.to_phi(e.high)
     first = 0.5 * sd_phi if np.isfinite(sd_phi) and sd_phi > 0 else 0.1
     first = float(np.clip(first, 1e-4 * max(1.0, abs(hi - lo)), 0.5))
-    values, rises, ends, failed = [sol.phi[k]], [0.0], [], 0
+    values, rises, ends, failed, pinned = [sol.phi[k]], [0.0], [], 0, []
     for sign in (-1.0, 1.0):
         step, last_phi, last_rise, v = first, float(sol.phi[k]), 0.0, sol.v
-        end = None
+        end, held = None, ()
         for _ in range(max_points):
             target = float(np.clip(last_phi + sign * step, lo, hi))
             if target == last_phi:
@@ -164,6 +174,7 @@ def profile(
             if rise >= threshold:
                 frac = (threshold - last_rise) / (rise - last_rise)
                 end = last_phi + frac * (target - last_phi)
+                held = _on_bounds(problem, s.phi, k)
                 break
             # aim the next step at the threshold (a quadratic profile), within x0.5..x3
             grow = np.sqrt(threshold / max(rise, 1e-12)) if rise > 0 else 3.0
@@ -175,9 +186,21 @@ def profile(
             if target in (lo, hi):
                 break
         ends.append(None if end is None else float(e.to_theta(float(end))))
+        pinned.append(held)
     order = np.argsort(values)
     vals = [float(e.to_theta(float(values[i]))) for i in order]
-    return Profile(vals, [float(rises[i]) for i in order], ends[0], ends[1], failed)
+    rise_sorted = [float(rises[i]) for i in order]
+    return Profile(vals, rise_sorted, ends[0], ends[1], failed, (pinned[0], pinned[1]))
+
+
+def _on_bounds(problem: Problem, phi: np.ndarray, k: int) -> tuple[int, ...]:
+    """The parameters other than ``k`` whose search variable is on a bound."""
+    out = []
+    for j, e in enumerate(problem.params):
+        lo, hi = e.to_phi(e.low), e.to_phi(e.high)
+        if j != k and min(phi[j] - lo, hi - phi[j]) <= ON_BOUND * max(1.0, hi - lo):
+            out.append(j)
+    return tuple(out)
 
 
 def verdicts(problem: Problem, fis: Fisher, profiles: dict[int, Profile] | None) -> list[dict]:
@@ -200,6 +223,19 @@ def verdicts(problem: Problem, fis: Fisher, profiles: dict[int, Profile] | None)
             )
             continue
         prof = (profiles or {}).get(k)
+        held = _held_by(prof, fis, k) if prof is not None and prof.crosses else []
+        if held:
+            sides = " and ".join(side for side, _ in held)
+            j = held[0][1]
+            out.append(
+                {
+                    "verdict": "practically non-identifiable",
+                    "why": f"on the {sides} side the profile reaches the 95 % threshold only "
+                    f"with {names[j]} (correlation {fis.correlation[k, j]:+.4f}) on a bound: "
+                    "the bound, not the data, closes the valley",
+                }
+            )
+            continue
         if prof is not None and not prof.crosses:
             side = "lower" if prof.low is None else "upper"
             out.append(
@@ -218,6 +254,17 @@ def verdicts(problem: Problem, fis: Fisher, profiles: dict[int, Profile] | None)
                 else "Fisher information non-singular (no profile computed)",
             }
         )
+    return out
+
+
+def _held_by(prof: Profile, fis: Fisher, k: int) -> list[tuple[str, int]]:
+    """The sides (and a parameter) where the crossing came with a parameter correlated
+    with ``k`` beyond :data:`COUPLED` on a bound."""
+    out = []
+    for side, held in zip(("lower", "upper"), prof.on_bounds, strict=True):
+        coupled = [j for j in held if abs(fis.correlation[k, j]) > COUPLED]
+        if coupled:
+            out.append((side, coupled[0]))
     return out
 
 

@@ -51,7 +51,15 @@ def summary(result) -> dict:
                 "sd_fisher": _num(result.fisher.sd[k]),
                 "interval_fisher_95": [_num(x) for x in result.fisher.interval[k]],
                 "interval_profile_95": [_num(prof.low), _num(prof.high)] if prof else None,
-                "profile": {"values": prof.values, "rise": prof.rise, "failed_solves": prof.failed}
+                "profile": {
+                    "values": prof.values,
+                    "rise": prof.rise,
+                    "failed_solves": prof.failed,
+                    "on_bounds_at_crossing": {
+                        side: [b.params[j].name for j in held]
+                        for side, held in zip(("lower", "upper"), prof.on_bounds, strict=True)
+                    },
+                }
                 if prof
                 else None,
                 **result.verdicts[k],

@@ -135,6 +135,33 @@ def test_product_pair_flagged_structurally_non_identifiable():
     assert np.isinf(fis.sd[1]) and np.isfinite(fis.sd[0])
 
 
+def test_a_crossing_closed_by_a_correlated_bound_is_not_identifiability():
+    """The tube's conductance C and the chamber's dead volume V0 set the filling rate
+    mostly as C / V0 (correlation 0.9999999): with V0 boxed in to -3 % / +50 %, C's profile
+    crosses the threshold on both sides, but only because V0 sits on a bound there. The
+    verdict says so (before, C read "identifiable" with a 0.1 %-wide interval)."""
+    m, t, u, data = _record(5, {})
+    data = data + np.random.default_rng(0).standard_normal(data.shape) * [SIGMA[o] for o in OUTS]
+    V = "myofibril.aps1.chamber.V0"
+    c, v = m.variables[C].value, m.variables[V].value
+    params = [
+        Estimated(C, m.variables[C].unit, c, c / 20, c * 20),
+        Estimated(V, m.variables[V].unit, v, v * 0.97, v * 1.5),
+    ]
+    uses = {n: (n, 1.0) for n in (C, V)}
+    ts = TimeSeries("step", m, t, u[:, None], OUTS, data, m.parameters(), uses, 10)
+    pb = Problem(params, [ts], noise={o: Noise(SIGMA[o]) for o in OUTS})
+    sol = fit_from(pb, np.array([c, v])).solution
+    assert sol.success, sol.status
+    fis = uncertainty.fisher(pb, sol)
+    assert abs(fis.correlation[0, 1]) > uncertainty.COUPLED
+    prof = uncertainty.profile(pb, sol, 0, fis.sd_phi[0])
+    assert prof.crosses and prof.on_bounds == ((1,), (1,))
+    verdict = uncertainty.verdicts(pb, fis, {0: prof})[0]
+    assert verdict["verdict"] == "practically non-identifiable", verdict
+    assert "lower and upper side" in verdict["why"] and V in verdict["why"]
+
+
 @pytest.mark.slow
 def test_fisher_covariance_matches_replicate_spread():
     """8 noise replicates (fixed seed): the spread of the estimates agrees with the Fisher
