@@ -150,11 +150,14 @@ def profile(
 ) -> Profile:
     """The profile of parameter ``k``: the others re-optimised with ``phi_k`` held, stepping
     out from the optimum in both directions until the cost has risen by ``threshold`` or a
-    bound is reached; the interval ends by linear interpolation of the crossing."""
+    bound is reached; the interval ends by interpolating the crossing linearly in the
+    square root of the rise (exact for a quadratic profile: linear in the rise itself put
+    the end of a well-determined parameter, reached in one step of 3.4 sd, at 1.1 sd
+    instead of 1.96)."""
     e = problem.params[k]
     lo, hi = e.to_phi(e.low), e.to_phi(e.high)
     first = 0.5 * sd_phi if np.isfinite(sd_phi) and sd_phi > 0 else 0.1
-    first = float(np.clip(first, 1e-4 * max(1.0, abs(hi - lo)), 0.5))
+    first = float(np.clip(first, 1e-9 * max(1.0, abs(hi - lo)), 0.5))
     values, rises, ends, failed, pinned = [sol.phi[k]], [0.0], [], 0, []
     for sign in (-1.0, 1.0):
         step, last_phi, last_rise, v = first, float(sol.phi[k]), 0.0, sol.v
@@ -171,9 +174,9 @@ def profile(
             rise = max(s.cost - sol.cost, 0.0)
             values.append(target)
             rises.append(rise)
-            if rise >= threshold:
-                frac = (threshold - last_rise) / (rise - last_rise)
-                end = last_phi + frac * (target - last_phi)
+            if rise >= threshold:  # interpolated in the signed root (exact if quadratic)
+                a, b = np.sqrt(last_rise), np.sqrt(rise)
+                end = last_phi + (np.sqrt(threshold) - a) / (b - a) * (target - last_phi)
                 held = _on_bounds(problem, s.phi, k)
                 break
             # aim the next step at the threshold (a quadratic profile), within x0.5..x3
