@@ -92,8 +92,9 @@ def gauss_newton(
     (when ``jacobian``) the sparse ``Jr``, ``Jg``; ``lo <= phi <= hi`` (equal
     bounds hold a parameter). ``report``: called with a line per iteration."""
     n = len(lo)
+    v = np.asarray(v0, dtype=float)
     try:
-        v, lin = evaluate(np.asarray(v0, dtype=float), True)
+        v, lin = evaluate(v, True)
     except SolverError as exc:
         return Outcome(v, f"evaluation failed at the start ({exc})", 0, None)
     mu, grow = options.mu0, 2.0

@@ -29,6 +29,7 @@ below :data:`RESIDUAL_TOL` is a SolverError naming its time.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import casadi as cs
@@ -55,6 +56,10 @@ STEP_TOLERANCE = 0.01
 """Largest difference :func:`auto_step` allows between a coarse grid's outputs and one
 step per sample, as a fraction of each signal's noise level [-]: a bias of 1 % of the
 noise moves chi-squared by about 1e-4 per sample."""
+
+RESCUE = (2, 4, 8, 16)
+"""Substeps per step tried, in turn, to guess the stages of a step whose Newton failed
+from the previous step's polynomial and from its start."""
 
 OUTPUT_CHUNK = 256
 """Samples per call of the compiled outputs Function."""
@@ -325,7 +330,7 @@ class Shooting:
         the first step, or where the extrapolated start fails)."""
         g, nx, eng = self.grid, self.model.nx, self.engine
         m = len(g.k0)
-        key = (np.asarray(p, float).tobytes(), None if S is None else S.tobytes(), xi0 is None)
+        key = tuple(None if a is None else np.asarray(a, float).tobytes() for a in (p, S, xi0))
         last = self.__dict__.get("_last")
         known = last[1] if last is not None and last[0] == key else None
         vals = np.empty((m, POINTS + 1, nx))
@@ -357,17 +362,43 @@ class Shooting:
 
     def _step(self, s: int, x: np.ndarray, ahead, q: np.ndarray, p) -> np.ndarray:
         """Step ``s``'s converged stages (nx x 3) from ``x``: Newton from ``ahead`` (the
-        previous step's polynomial) when given, then from ``x`` repeated. Raises
-        SolverError naming the step's time where neither converges."""
-        for guess in (None,) if ahead is None else (ahead, None):
-            if guess is None:  # the step's start at every node
-                guess = np.repeat(x[:, None], POINTS, axis=1)
-            V, r = self.engine.step(x, guess, q, p, self.scale)
-            r = float(r.ravel()[0])
-            finite = bool(np.all(np.isfinite(V)))
+        previous step's polynomial) when given, then from ``x`` repeated, then from the
+        step taken as 2, 4, ... :data:`RESCUE` equal substeps (their polynomials at the
+        step's nodes: the same step's solution, found from closer). Raises SolverError
+        naming the step's time where none converges."""
+        starts = [ahead] if ahead is not None else []
+        starts.append(np.repeat(x[:, None], POINTS, axis=1))
+        starts += [functools.partial(self._substepped, x, q, p, m) for m in RESCUE]
+        r, finite = np.inf, True
+        for guess in starts:
+            guess = guess() if callable(guess) else guess
+            if guess is None:  # a substep failed
+                continue
+            V, res = self.engine.step(x, guess, q, p, self.scale)
+            r, finite = float(res.ravel()[0]), bool(np.all(np.isfinite(V)))
             if r <= RESIDUAL_TOL and finite:
                 return V
         raise self._fail(s, r, finite)
+
+    def _substepped(self, x: np.ndarray, q: np.ndarray, p, m: int) -> np.ndarray | None:
+        """The stages of the step ``q`` from ``x`` guessed by ``m`` equal substeps (inputs
+        interpolated), each from its start repeated; None where a substep fails."""
+        nu = (len(q) - 1) // 2
+        u0, u1, h = q[:nu], q[nu : 2 * nu], q[-1]
+        tau = collocation.nodes(POINTS)
+        holder = np.minimum((tau * m).astype(int), m - 1)  # the substep of each node
+        guess = np.empty((len(x), POINTS))
+        for j in range(m):
+            qj = np.concatenate([u0 + j / m * (u1 - u0), u0 + (j + 1) / m * (u1 - u0), [h / m]])
+            V, res = self.engine.step(x, np.repeat(x[:, None], POINTS, axis=1), qj, p, self.scale)
+            if not (float(res.ravel()[0]) <= RESIDUAL_TOL and np.all(np.isfinite(V))):
+                return None
+            mine = holder == j
+            if mine.any():
+                w = _lagrange(tau[mine] * m - j)  # (k, 4) on (x, V1, V2, V3)
+                guess[:, mine] = np.column_stack([x, V]) @ w.T
+            x = V[:, -1]
+        return guess
 
     def _at_samples(self, first: np.ndarray, nodal: np.ndarray) -> np.ndarray:
         """Values at every sample (n, ...) from the step values ``nodal`` (steps, 4, ...),

@@ -78,3 +78,15 @@ def test_a_failing_step_is_an_error_naming_its_time():
     S = np.full((shoot.model.nx, shoot.nodes), np.nan)
     with pytest.raises(SolverError, match=r"Radau IIA step from t = 0 s .* failed"):
         shoot.simulate(S, shoot.model.parameters())
+
+
+def test_a_solve_whose_start_cannot_be_simulated_fails_with_its_reason():
+    """A profile point may start where a step fails: the solve returns a failed Solution
+    saying why (it raised UnboundLocalError before), and the profile goes on."""
+    pb = _problem(2)
+    v = pb.initial_guess(np.array([e.start for e in pb.params]))
+    n = len(pb.params)
+    v[n:] = np.nan  # no state can be stepped from
+    sol = pb.solve(v, pb.weights())
+    assert not sol.success and sol.cost == np.inf
+    assert sol.status.startswith("evaluation failed at the start (") and "finite" in sol.status

@@ -138,3 +138,50 @@ def test_the_automatic_step_meets_its_tolerance_and_is_one_for_exact_data():
     assert step > 1
     gap = np.max(np.abs(make(step).predict(x0 / scale, p) - make(1).predict(x0 / scale, p)), 1)
     assert np.all(gap <= 0.01 * noise_level(noisy)), (step, gap)
+
+
+def test_a_march_from_another_start_is_not_the_last_one():
+    """The stages kept for a repeated call are keyed on the start state too: two marches
+    at the same parameters from different states give their own results."""
+    m, t, u, x0, _ = _record(4)
+    scale = scales(m, [x0])
+    sh = Shooting.of(m, t, u[:, None], 50, (), 0, OUTS, scale, 8)
+    p = m.parameters()
+    other = x0 / scale * 1.001
+    first, second = sh.march(x0 / scale, p), sh.march(other, p)
+    fresh = Shooting.of(m, t, u[:, None], 50, (), 0, OUTS, scale, 8).march(other, p)
+    assert np.abs(first - second).max() > 1e-6
+    np.testing.assert_array_equal(second, fresh)
+
+
+def test_a_step_whose_newton_fails_is_found_from_substeps():
+    """Newton made to fail on the whole 8-sample steps unless it starts within 1e-3
+    (relative) of their solution: the stages guessed from substeps are that close (2e-4
+    after the input's step), the step's start and the previous polynomial are not (0.4
+    and 2e-2), and the march ends
+    where the unhindered one does."""
+    import dataclasses
+
+    m, t, u, x0, _ = _record(2)
+    scale = scales(m, [x0])
+    p = m.parameters()
+    plain = Shooting.of(m, t, u[:, None], 50, (), 0, OUTS, scale, 8)
+    want = plain.march(x0 / scale, p)
+    inner = plain.engine.step
+    big = 8 * (t[1] - t[0])
+    rescued = []
+
+    def step(x, guess, q, p_, sc):
+        V, r = inner(x, guess, q, p_, sc)
+        off = np.abs(np.reshape(guess, V.shape) - V) / np.maximum(np.abs(V), 1.0)
+        if abs(q[-1] - big) < 1e-12 and off.max() > 1e-3:
+            return V, np.array([[1.0]])  # "Newton failed"
+        if q[-1] < big - 1e-12:
+            rescued.append(q[-1])
+        return V, r
+
+    hindered = Shooting.of(m, t, u[:, None], 50, (), 0, OUTS, scale, 8)
+    hindered.engine = dataclasses.replace(plain.engine, step=step)
+    got = hindered.march(x0 / scale, p)
+    assert rescued  # some steps were found from substeps
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
