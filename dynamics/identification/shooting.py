@@ -473,10 +473,14 @@ def auto_step(make, xi0: np.ndarray, p: np.ndarray, data: np.ndarray) -> int:
     """The largest of :data:`STEPS` samples per step whose outputs, integrated from
     ``xi0`` at ``p``, differ from one step per sample by at most :data:`STEP_TOLERANCE` of
     each signal's :func:`noise_level` in ``data`` (n, ny); 1 when none does (noise-free
-    data ask for the finest grid). ``make(step)`` gives the record's :class:`Shooting`."""
+    data ask for the finest grid) or the record cannot be simulated at ``p``.
+    ``make(step)`` gives the record's :class:`Shooting`."""
     if not np.all(noise_level(data) > 0):
         return 1
-    reference = make(1).predict(xi0, p)
+    try:
+        reference = make(1).predict(xi0, p)
+    except SolverError:  # the start values cannot be simulated: the fit will say so
+        return 1
     for step in STEPS:
         try:
             if np.all(step_error(make(step), reference, xi0, p, data) <= STEP_TOLERANCE):
