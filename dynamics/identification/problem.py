@@ -168,9 +168,7 @@ class Problem:
 
             step = exp.step
             if step is None:  # at the start values, from the first equilibrium
-                start = np.array([e.start for e in self.params])
-                p0 = np.array(exp.p, dtype=float)
-                p0[idx] = D @ start[used]
+                p0 = _record_p(exp, idx, D, used, np.array([e.start for e in self.params]))
                 step = auto_step(make, states[0] / scale, p0, exp.data) if 0 in states else 1
             shoot = make(step)
             picks = []
@@ -277,10 +275,7 @@ class Problem:
 
     # --- residuals, constraints and their Jacobians ------------------------------------
     def _p_numeric_series(self, s: _Series, theta: np.ndarray) -> np.ndarray:
-        p = np.array(s.exp.p, dtype=float)
-        if s.idx:
-            p[s.idx] = s.D @ theta[s.used]
-        return p
+        return _record_p(s.exp, s.idx, s.D, s.used, theta)
 
     def linearize(self, v: np.ndarray, weights: np.ndarray, jacobian: bool = True) -> Linearization:
         """Residuals and constraints at ``v`` (and their Jacobians when ``jacobian``).
@@ -516,6 +511,15 @@ class Problem:
     def predictions(self, sol: Solution) -> np.ndarray:
         """The model's value at every residual row (data + residual)."""
         return self.rows.data + sol.residuals
+
+
+def _record_p(exp: TimeSeries, idx, D: np.ndarray, used, theta: np.ndarray) -> np.ndarray:
+    """A time series' parameter vector with the estimated values ``theta`` (SI) entered:
+    ``p[idx] = D theta[used]``."""
+    p = np.array(exp.p, dtype=float)
+    if len(idx):
+        p[list(idx)] = D @ theta[used]
+    return p
 
 
 def _failed(problem: Problem, v0, weights, why: str) -> Solution:
