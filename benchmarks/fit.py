@@ -15,6 +15,7 @@ Usage::
     python benchmarks/fit.py profiles --repeats 1 [--workers 2]   (0: no Dask round)
     python benchmarks/fit.py coverage [--replicates 200] [--profiles 0] [--workers 2]
         [--start truth|file]
+    python benchmarks/fit.py noisy-input [--noise-kpa 0.2] [--repeats 5]
 
 (``lsq-default``: the baseline with scipy's default finite-difference step.)
 
@@ -828,6 +829,64 @@ def coverage_summary(args) -> dict:
     }
 
 
+def noisy_input_data(folder: Path, noise_kpa: float, seed: int = 0) -> None:
+    """The packaged records into ``folder`` with Gaussian noise of ``noise_kpa`` on the
+    pressure column of the time series (``|p + noise|``: a pressure stays >= 0), as a
+    recorded supply pressure; the static curves as they are."""
+    root = resources.files("sarcomere.scenarios.fits") / "data"
+    rng = np.random.default_rng(seed)
+    for f in sorted(root.iterdir(), key=lambda f: f.name):
+        if not f.name.endswith(".csv"):
+            continue
+        lines = f.read_text().splitlines()
+        first = next(i for i, ln in enumerate(lines) if ln[:1].isdigit())
+        header = lines[first - 1].split(",")
+        col = next(i for i, h in enumerate(header) if h.startswith("pressure"))
+        per_kpa = to_si(1.0, "kPa") / to_si(1.0, header[col].split("[")[1].rstrip("]").strip())
+        rows = lines[first:]
+        if header[0].startswith("time"):  # a time series (a static curve has none)
+            rows = []
+            for ln in lines[first:]:
+                parts = ln.split(",")
+                noisy = float(parts[col]) + noise_kpa * per_kpa * rng.standard_normal()
+                parts[col] = repr(abs(noisy))
+                rows.append(",".join(parts))
+        (folder / f.name).write_text("\n".join(lines[:first] + rows) + "\n")
+
+
+def noisy_input(args) -> dict:
+    """The engine's fit from the file's start on records whose applied pressure is a noisy
+    measurement (every sample a kink: one Radau IIA step per sample), ``--repeats``
+    times after a warm-up; the steps per record."""
+    from sarcomere.dynamics.identification.estimate import fit_from
+
+    folder = Path(tempfile.mkdtemp(prefix="fitnoisy"))
+    noisy_input_data(folder, args.noise_kpa)
+    fit = engine("multiple-shooting", str(folder))
+    problem = fit.built.problem
+    start = np.array([e.start for e in fit.built.params])
+    fit_from(problem, start)
+    runs = []
+    for _ in range(args.repeats):
+        cpu = time.process_time()
+        sol = fit_from(problem, start).solution
+        runs.append(
+            {
+                "cpu_s": time.process_time() - cpu,
+                "iterations": sol.iterations,
+                "status": sol.status,
+                "half_chi2": 0.5 * sol.cost,
+            }
+        )
+        print(f"noisy input: cpu {runs[-1]['cpu_s']:.2f} s, {sol.iterations} iterations")
+    return {
+        "noise_kpa": args.noise_kpa,
+        "steps": {s.model.name + f"#{k}": len(s.grid.k0) for k, s in enumerate(problem.shootings)},
+        "runs": runs,
+        "summary": {"cpu_median_s": float(np.median([r["cpu_s"] for r in runs]))},
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python benchmarks/fit.py")
     parser.add_argument(
@@ -839,6 +898,7 @@ def main(argv: list[str] | None = None) -> int:
             "coverage",
             "coverage-summary",
             "profiles",
+            "noisy-input",
         ),
     )
     parser.add_argument("--repeats", type=int, default=5)
@@ -849,6 +909,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--start", choices=("truth", "file"), default="truth")
     parser.add_argument("--starts", type=int, default=50)
     parser.add_argument("--methods", default="lsq", type=lambda s: s.split(","))
+    parser.add_argument("--noise-kpa", type=float, default=0.2)
     parser.add_argument("--out", type=Path, default=Path("out/bench/fit"))
     args = parser.parse_args(argv)
     commands = {
@@ -858,6 +919,7 @@ def main(argv: list[str] | None = None) -> int:
         "profiles": profiles,
         "coverage-summary": coverage_summary,
         "convergence-summary": convergence_summary,
+        "noisy-input": noisy_input,
     }
     result = commands[args.command](args)
     args.out.mkdir(parents=True, exist_ok=True)

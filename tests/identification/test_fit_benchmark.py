@@ -116,3 +116,31 @@ def test_success_is_within_one_chi2_of_the_family_best():
     assert out["ms"]["success"] == "1/2" and out["ms"]["failures"] == {"1": [inf, "stuck"]}
     assert out["ss"]["success"] == "1/2"  # 10.6: chi-squared 1.2 above the best
     assert out["lsq"]["success"] == "1/2" and out["lsq"]["cpu_median_s"] == 4.0
+
+
+def test_noisy_input_data_touches_only_the_time_series_pressure(tmp_path):
+    """The records of the noisy-input benchmark: the step and staircase pressure columns
+    carry the stated noise (never below 0), everything else is the packaged file."""
+    from importlib import resources
+
+    from benchmarks.fit import noisy_input_data
+
+    noisy_input_data(tmp_path, noise_kpa=0.2, seed=1)
+    root = resources.files("sarcomere.scenarios.fits") / "data"
+    for f in sorted(p for p in root.iterdir() if p.name.endswith(".csv")):
+        old, new = f.read_text().splitlines(), (tmp_path / f.name).read_text().splitlines()
+        first = next(i for i, ln in enumerate(old) if ln[:1].isdigit())
+        assert new[:first] == old[:first] and len(new) == len(old)
+        col = (
+            old[first - 1]
+            .split(",")
+            .index(next(h for h in old[first - 1].split(",") if h.startswith("pressure")))
+        )
+        a = np.array([[float(x) for x in ln.split(",")] for ln in old[first:]])
+        b = np.array([[float(x) for x in ln.split(",")] for ln in new[first:]])
+        np.testing.assert_array_equal(np.delete(a, col, axis=1), np.delete(b, col, axis=1))
+        if old[first - 1].startswith("time"):  # a time series: pressure [kPa] noisy
+            assert np.all(b[:, col] >= 0)
+            assert np.std(b[:, col] - a[:, col]) == pytest.approx(0.2, rel=0.2)
+        else:
+            np.testing.assert_array_equal(a, b)
