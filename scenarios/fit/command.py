@@ -38,7 +38,8 @@ def handler(args: argparse.Namespace) -> int:
     )
     print(
         f"fit '{fit.built.spec.name}': {res.converged_starts} of {len(res.starts)} starts "
-        f"reached the best optimum ({sum(s.dropped for s in res.starts)} dropped); "
+        f"reached the best optimum, {res.equivalent_starts} within chi-squared 1 of it "
+        f"({sum(s.dropped for s in res.starts)} dropped); "
         f"chi2 = {res.solution.cost:.6g}; {res.wall_time:.1f} s"
     )
     for k, (name, (value, unit)) in enumerate(res.estimates.items()):

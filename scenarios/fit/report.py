@@ -97,6 +97,7 @@ def summary(result) -> dict:
         "starts": {
             "total": len(starts),
             "reached_best": result.converged_starts,
+            "within_chi2_1_of_best": result.equivalent_starts,
             "dropped": sum(s.dropped for s in starts),
             "dropped_why": sorted({s.status for s in starts if s.dropped}),
         },

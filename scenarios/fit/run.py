@@ -6,7 +6,9 @@ the search variables: log-uniform for log-scaled parameters), ``[fit] seed``. Mo
 an embedded local cluster, or the one at ``scheduler``), one start per task, and so do
 the profiles, one parameter per task. A start whose initial simulation or solve fails is
 dropped and counted; a start "reaches the best optimum" when its cost is within
-:data:`SAME_OPTIMUM` (relative) of the best.
+:data:`SAME_OPTIMUM` (relative) of the best, and is "statistically the same" when its
+chi-squared is within :data:`SAME_STATISTICALLY` of the best (along a flat valley the
+first can be few while the second are all).
 """
 
 from __future__ import annotations
@@ -37,6 +39,10 @@ SAME_OPTIMUM = 1e-5
 """Relative cost difference within which a start counts as reaching the best optimum
 (the solver stops at 1e-5 of the cost's predicted decrease: :class:`~sarcomere.dynamics.
 identification.gauss_newton.Options`)."""
+
+SAME_STATISTICALLY = 1.0
+"""Chi-squared difference within which a start ends statistically at the best optimum
+(far below the 3.84 of a 95 % interval)."""
 
 
 @dataclass
@@ -81,12 +87,19 @@ class FitResult:
 
     @property
     def converged_starts(self) -> int:
+        """Starts whose cost is within :data:`SAME_OPTIMUM` (relative) of the best."""
         best = self.solution.cost
         return sum(
             1
             for s in self.starts
             if not s.dropped and s.cost <= best + SAME_OPTIMUM * max(abs(best), 1.0)
         )
+
+    @property
+    def equivalent_starts(self) -> int:
+        """Starts whose chi-squared is within :data:`SAME_STATISTICALLY` of the best."""
+        best = self.solution.cost
+        return sum(1 for s in self.starts if not s.dropped and s.cost <= best + SAME_STATISTICALLY)
 
 
 class Fit:

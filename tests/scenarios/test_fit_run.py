@@ -133,6 +133,7 @@ def test_fit_runs_end_to_end(fit_dir, monkeypatch):
     assert summary["starts"] == {
         "total": 3,
         "reached_best": 2,
+        "within_chi2_1_of_best": 2,
         "dropped": 1,
         "dropped_why": ["dropped: simulated failure of the second start"],
     }
@@ -156,3 +157,18 @@ def test_fit_runs_end_to_end(fit_dir, monkeypatch):
     assert "fitted by sarcomere fit 'unit' to step" in fitted["sources"]["regulator.tau"]
     names = {p.name for p in out.iterdir()}
     assert {"fit-step.png", "validation-static.png", "profiles.png", "correlation.png"} <= names
+
+
+def test_starts_at_the_best_and_statistically_the_same():
+    """Along a flat valley few starts end within 1e-5 of the best cost while all end
+    within chi-squared 1 of it: both counts, a dropped start in neither."""
+    from types import SimpleNamespace
+
+    from sarcomere.scenarios.fit.run import FitResult, Start
+
+    costs = [5897.05, 5897.08, 5897.6, 5898.2]
+    starts = [Start([1.0], [1.0], c, "converged", False) for c in costs]
+    starts.append(Start([1.0], None, float("inf"), "dropped: no convergence", True))
+    res = SimpleNamespace(solution=SimpleNamespace(cost=5897.05), starts=starts)
+    assert FitResult.converged_starts.fget(res) == 2  # 0.03 < 1e-5 * 5897
+    assert FitResult.equivalent_starts.fget(res) == 3  # 0.55 < 1, 1.15 > 1
