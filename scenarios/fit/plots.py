@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from sarcomere.dynamics.identification.uncertainty import CHI2_95
 
@@ -84,8 +85,12 @@ def draw(result, out: Path) -> None:
             ax.set_xlabel(f"{params[k].name} [{params[k].unit}]", fontsize=7)
             ax.set_ylabel("chi2 - chi2_min", fontsize=7)
             ax.set_title(result.verdicts[k]["verdict"], fontsize=7)
-            if params[k].log:
-                ax.set_xscale("log")
+            values = np.asarray(prof.values, dtype=float)
+            if params[k].log and values.min() > 0 and values.max() > 10 * values.min():
+                ax.set_xscale("log")  # a wide profile; a narrow one reads better linear
+            else:
+                ax.xaxis.set_major_locator(MaxNLocator(4))
+            ax.tick_params(labelsize=7)
         fig.tight_layout()
         fig.savefig(out / "profiles.png", dpi=110)
     n = len(params)
