@@ -194,18 +194,6 @@ def kinks(t: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.any(bent, axis=1)) + 1
 
 
-def _lagrange(theta: np.ndarray) -> np.ndarray:
-    """Weights (len(theta), 4) of the collocation polynomial through ``(0, x0)`` and the
-    stage values at the Radau nodes, at the fractions ``theta`` of a step."""
-    tau = np.concatenate([[0.0], collocation.nodes(POINTS)])
-    w = np.ones((len(theta), len(tau)))
-    for i, ti in enumerate(tau):
-        for j, tj in enumerate(tau):
-            if j != i:
-                w[:, i] *= (theta - tj) / (ti - tj)
-    return w
-
-
 @dataclass(frozen=True)
 class Grid:
     """The Radau IIA steps of a record: step ``s`` goes from sample ``k0[s]`` to ``k1[s]``;
@@ -251,14 +239,16 @@ class Grid:
             of[a + 1 : b + 1] = s
         frac = (t[1:] - t[k0a[of[1:]]]) / (t[k1a[of[1:]]] - t[k0a[of[1:]]])
         w = np.zeros((n, POINTS + 1))
-        w[1:] = _lagrange(frac)
+        w[1:] = collocation.interpolation(frac)
         ends = np.flatnonzero(np.arange(1, n) == k1a[of[1:]]) + 1
         w[ends] = 0.0
         w[ends, -1] = 1.0
         h = t[k1a] - t[k0a]
         ratio = h / np.concatenate([h[:1], h[:-1]])  # to the previous step (the first: 1)
         tau = collocation.nodes(POINTS)
-        ahead = _lagrange((1.0 + np.outer(ratio, tau)).ravel()).reshape(len(h), POINTS, -1)
+        ahead = collocation.interpolation((1.0 + np.outer(ratio, tau)).ravel()).reshape(
+            len(h), POINTS, -1
+        )
         return cls(k0a, k1a, np.array(first), of, w, ahead)
 
 
@@ -395,7 +385,7 @@ class Shooting:
                 return None
             mine = holder == j
             if mine.any():
-                w = _lagrange(tau[mine] * m - j)  # (k, 4) on (x, V1, V2, V3)
+                w = collocation.interpolation(tau[mine] * m - j)  # (k, 4) on (x, V1, V2, V3)
                 guess[:, mine] = np.column_stack([x, V]) @ w.T
             x = V[:, -1]
         return guess

@@ -54,6 +54,22 @@ def differentiation(points: int = 3) -> np.ndarray:
     return _nodes_and_derivative(points)[1].copy()
 
 
+def interpolation(theta, points: int = 3) -> np.ndarray:
+    """Weights ``(len(theta), points + 1)`` of the interpolating polynomial through ``(0,
+    x0), (tau_r, V_r)`` at the normalised times ``theta`` (any, extrapolation too): the
+    state there is ``sum_r W[., r] [x0, V]_r`` (the same polynomial as the dense output
+    ``P`` of :func:`radau5_tableau`, in the Lagrange basis)."""
+    _check_points(points)
+    theta = np.asarray(theta, dtype=float).ravel()
+    tau = np.concatenate([[0.0], _nodes_and_derivative(points)[0]])
+    w = np.ones((len(theta), len(tau)))
+    for i, ti in enumerate(tau):
+        for j, tj in enumerate(tau):
+            if j != i:
+                w[:, i] *= (theta - tj) / (ti - tj)
+    return w
+
+
 def butcher(points: int = 3) -> np.ndarray:
     """The Runge-Kutta matrix ``A`` of Radau IIA (``V_i = x0 + sum_j A[i, j] f_j`` in
     normalised time): the inverse of the stage block of :func:`differentiation`."""

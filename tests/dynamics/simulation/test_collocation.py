@@ -66,3 +66,23 @@ def test_residual_argument_order_and_shapes():
 def test_bad_points_are_refused(bad):
     with pytest.raises(ParameterError, match="points"):
         collocation.nodes(bad)
+
+
+def test_interpolation_is_the_dense_output_polynomial():
+    """The Lagrange weights through (0, x0) and the nodes give the C integrator's dense
+    output ``x + sum_k (sum_i Z_i P[i, k]) s^(k+1)`` (``Z_i = V_i - x``), reproduce the
+    nodes exactly, and are exact for cubics (points 3)."""
+    rng = np.random.default_rng(2)
+    x0, V = rng.normal(size=2), rng.normal(size=(3, 2))
+    s = np.linspace(-0.3, 2.0, 9)  # inside the step, and extrapolated
+    W = collocation.interpolation(s)
+    P = collocation.radau5_tableau()["P"]
+    dense = x0 + (s[:, None] ** np.arange(1, 4)) @ P.T @ (V - x0)
+    np.testing.assert_allclose(W @ np.vstack([x0, V]), dense, rtol=1e-12, atol=1e-12)
+    at_nodes = collocation.interpolation(np.concatenate([[0.0], collocation.nodes(3)]))
+    np.testing.assert_allclose(at_nodes, np.eye(4), atol=1e-14)
+    cubic = lambda t: 1 - 2 * t + 0.5 * t**2 + 3 * t**3  # noqa: E731
+    knots = np.concatenate([[0.0], collocation.nodes(3)])
+    np.testing.assert_allclose(W @ cubic(knots), cubic(s), rtol=1e-12)
+    with pytest.raises(ParameterError):
+        collocation.interpolation(s, points=0)
