@@ -21,7 +21,8 @@ values ``V`` by Newton (CasADi's ``fast_newton``: sparse QR, code-generable) fro
 function theorem (exact, no finite differences): ``S_V = -R_V^-1 (R_xi S_k + [0, R_p
 D])`` with ``S = d xi / d(node, theta_e)`` (``theta_e``: the estimated values the
 experiment uses, entering ``p`` as ``p_sel = D theta_e``), and ``S_{k+1}`` is its last
-block. One step is one compiled call on numpy arrays; the C is generated once per
+block. A step and its sensitivities are each one compiled call on numpy arrays (the
+sensitivities at the stages just solved: no second Newton); the C is generated once per
 (model, estimated entries, outputs) and kept in the disk cache of
 :mod:`..simulation.compiled`. A step whose Newton does not bring the scaled residual
 below :data:`RESIDUAL_TOL` is a SolverError naming its time.
@@ -199,7 +200,8 @@ class Grid:
     """The Radau IIA steps of a record: step ``s`` goes from sample ``k0[s]`` to ``k1[s]``;
     shooting interval ``j``'s steps are ``first[j]:first[j + 1]``; sample ``k >= 1`` lies in step
     ``of[k]`` with polynomial weights ``w[k]`` (exactly ``(0, 0, 0, 1)`` at a step's end);
-    ``ahead[s]`` (3 x 4): step ``s - 1``'s polynomial at step ``s``'s Radau nodes."""
+    ``ahead[s]`` (3 x 4): step ``s - 1``'s polynomial at step ``s``'s Radau nodes;
+    ``q[s] = (u0, u1, h)``: its inputs at both ends and its length [s]."""
 
     k0: np.ndarray
     k1: np.ndarray
@@ -207,6 +209,7 @@ class Grid:
     of: np.ndarray
     w: np.ndarray
     ahead: np.ndarray
+    q: np.ndarray
 
     @classmethod
     def of_record(cls, t: np.ndarray, u: np.ndarray, step: int, interval: int | None) -> Grid:
@@ -215,6 +218,7 @@ class Grid:
         interval ending at the first step end ``interval`` or more samples after the
         last (``None``: one interval). The steps do not depend on ``interval``: single
         and multiple shooting integrate alike."""
+        u = np.asarray(u, dtype=float).reshape(len(t), -1)
         bent = kinks(t, u)
         k0, k1 = [], []
         k, n = 0, len(t)
@@ -249,7 +253,8 @@ class Grid:
         ahead = collocation.interpolation((1.0 + np.outer(ratio, tau)).ravel()).reshape(
             len(h), POINTS, -1
         )
-        return cls(k0a, k1a, np.array(first), of, w, ahead)
+        q = np.hstack([u[k0a], u[k1a], h[:, None]])
+        return cls(k0a, k1a, np.array(first), of, w, ahead, q)
 
 
 @dataclass
@@ -286,16 +291,6 @@ class Shooting:
     def nodes(self) -> int:
         return len(self.bounds)
 
-    @property
-    def _q(self) -> np.ndarray:
-        """Each step's ``q = (u0, u1, h)`` (steps x (2 nu + 1)), made once."""
-        q = self.__dict__.get("_q_rows")
-        if q is None:
-            g = self.grid
-            h = (self.t[g.k1] - self.t[g.k0])[:, None]
-            q = self.__dict__["_q_rows"] = np.hstack([self.u[g.k0], self.u[g.k1], h])
-        return q
-
     def _fail(self, s: int, r: float, finite: bool) -> SolverError:
         why = (
             "a non-finite state"
@@ -311,43 +306,30 @@ class Shooting:
         """The steps of every interval, from the nodes ``S`` (nx x nodes) or, with ``xi0``,
         each interval from the last one's end. Returns the node values (steps, 4, nx): the
         step's start and its stages, and with ``D`` their sensitivities (steps, 4, nx,
-        nx + ne).
-
-        Each step's Newton starts from the last call's stages when the call repeats the
-        last one's parameters and nodes (a Jacobian at the point just simulated), else
-        from the previous step's polynomial extrapolated, across interval ends too, so
-        that single and multiple shooting compute alike (the step's start repeated at
-        the first step, or where the extrapolated start fails)."""
+        nx + ne). Each step's Newton starts from the previous step's polynomial
+        extrapolated, across interval ends too, so that single and multiple shooting
+        compute alike (:meth:`_step`)."""
         g, nx, eng = self.grid, self.model.nx, self.engine
         m = len(g.k0)
-        key = tuple(None if a is None else np.asarray(a, float).tobytes() for a in (p, S, xi0))
-        last = self.__dict__.get("_last")
-        known = last[1] if last is not None and last[0] == key else None
         vals = np.empty((m, POINTS + 1, nx))
         sens = None if D is None else np.empty((m, POINTS + 1, nx, nx + D.shape[1]))
         x = None if xi0 is None else np.asarray(xi0, float)
-        Q = self._q
         for j in range(self.nodes):
             if S is not None:
                 x = S[:, j]
             if sens is not None:
                 Sx = np.hstack([np.eye(nx), np.zeros((nx, D.shape[1]))])
             for s in range(g.first[j], g.first[j + 1]):
-                q = Q[s]
-                if known is not None:  # converged stages of the same point
-                    V = known[s, 1:].T
-                else:
-                    ahead = (g.ahead[s] @ vals[s - 1]).T if s else None
-                    V = self._step(s, x, ahead, q, p)
+                ahead = (g.ahead[s] @ vals[s - 1]).T if s else None
+                V = self._step(s, x, ahead, g.q[s], p)
                 if sens is not None:
-                    (SV,) = eng.sens(V, x, Sx, q, p, D, self.scale)
+                    (SV,) = eng.sens(V, x, Sx, g.q[s], p, D, self.scale)
                     sens[s, 0] = Sx
                     sens[s, 1:] = SV.reshape(POINTS, nx, -1)
                     Sx = sens[s, -1]
                 vals[s, 0] = x
                 vals[s, 1:] = V.T
                 x = vals[s, -1]
-        self.__dict__["_last"] = (key, vals)
         return vals, sens
 
     def _step(self, s: int, x: np.ndarray, ahead, q: np.ndarray, p) -> np.ndarray:

@@ -141,8 +141,9 @@ def test_the_automatic_step_meets_its_tolerance_and_is_one_for_exact_data():
 
 
 def test_a_march_from_another_start_is_not_the_last_one():
-    """The stages kept for a repeated call are keyed on the start state too: two marches
-    at the same parameters from different states give their own results."""
+    """A shooting keeps nothing from one call to the next (a cache of stages once reused
+    the last march's for another start): two marches at the same parameters from
+    different states give their own results, those of a fresh shooting."""
     m, t, u, x0, _ = _record(4)
     scale = scales(m, [x0])
     sh = Shooting.of(m, t, u[:, None], 50, (), 0, OUTS, scale, 8)
