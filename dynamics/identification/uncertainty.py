@@ -82,8 +82,11 @@ def fisher(problem: Problem, sol: Solution, S: np.ndarray | None = None) -> Fish
     """The :class:`Fisher` record at ``sol`` (``S``: the sensitivities if known)."""
     S = sensitivities(problem, sol) if S is None else S
     n = S.shape[1]
-    # full V: with fewer residuals than parameters the missing singular values are 0
-    _, s, Vt = np.linalg.svd(S, full_matrices=True) if S.size else (None, np.zeros(0), np.eye(n))
+    # V n x n: full matrices only with fewer residuals than parameters (the missing
+    # singular values are 0); else U stays thin (a full U of fit-synthetic's 6013 rows
+    # took 0.7 s of the 0.8 s of this function)
+    wide = S.shape[0] < n
+    _, s, Vt = np.linalg.svd(S, full_matrices=wide) if S.size else (None, np.zeros(0), np.eye(n))
     s = np.concatenate([s, np.zeros(n - len(s))])
     top = s[0] if len(s) and s[0] > 0 else 1.0
     keep = s > FLAT * top
