@@ -16,6 +16,7 @@ Functions of ``[phi; W]``.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -161,11 +162,7 @@ class Problem:
                 D[r_, used.index(index[ename])] = factor
             states = self._scale_states(exp)
             scale = scales(m, list(states.values()))
-
-            def make(step, exp=exp, idx=idx, used=used, scale=scale):
-                args = (exp.interval, idx, len(used), exp.outputs, scale, step)
-                return Shooting.of(exp.model, exp.t, exp.u, *args)
-
+            make = functools.partial(_shooting, exp, idx, len(used), scale)
             step = exp.step
             if step is None:  # at the start values, from the first equilibrium
                 p0 = _record_p(exp, idx, D, used, np.array([e.start for e in self.params]))
@@ -256,9 +253,7 @@ class Problem:
         for s, eq in zip(self._series, firsts, strict=True):
             sh, exp = s.shoot, s.exp
             xi0 = eq.x / sh.scale
-            fine = Shooting.of(
-                exp.model, exp.t, exp.u, exp.interval, s.idx, len(s.used), exp.outputs, sh.scale
-            )
+            fine = _shooting(exp, s.idx, len(s.used), sh.scale, 1)
             err = step_error(sh, fine.predict(xi0, eq.p), xi0, eq.p, exp.data)
             out[exp.name] = {
                 "samples_per_step": sh.step,
@@ -511,6 +506,11 @@ class Problem:
     def predictions(self, sol: Solution) -> np.ndarray:
         """The model's value at every residual row (data + residual)."""
         return self.rows.data + sol.residuals
+
+
+def _shooting(exp: TimeSeries, idx, ne: int, scale: np.ndarray, step: int) -> Shooting:
+    """The shooting of a time series on a grid of at most ``step`` samples per step."""
+    return Shooting.of(exp.model, exp.t, exp.u, exp.interval, idx, ne, exp.outputs, scale, step)
 
 
 def _record_p(exp: TimeSeries, idx, D: np.ndarray, used, theta: np.ndarray) -> np.ndarray:

@@ -201,12 +201,10 @@ def profile(
 
 def _on_bounds(problem: Problem, phi: np.ndarray, k: int) -> tuple[int, ...]:
     """The parameters other than ``k`` whose search variable is on a bound."""
-    out = []
-    for j, e in enumerate(problem.params):
-        lo, hi = e.to_phi(e.low), e.to_phi(e.high)
-        if j != k and min(phi[j] - lo, hi - phi[j]) <= ON_BOUND * max(1.0, hi - lo):
-            out.append(j)
-    return tuple(out)
+    n = len(problem.params)
+    lo, hi = (b[:n] for b in problem.bounds())
+    near = np.minimum(phi[:n] - lo, hi - phi[:n]) <= ON_BOUND * np.maximum(1.0, hi - lo)
+    return tuple(int(j) for j in np.flatnonzero(near) if j != k)
 
 
 def verdicts(problem: Problem, fis: Fisher, profiles: dict[int, Profile] | None) -> list[dict]:
