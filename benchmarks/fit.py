@@ -67,6 +67,7 @@ from scipy.optimize import least_squares
 
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import SarcomereError
+from sarcomere.dynamics.identification.shooting import kinks
 from sarcomere.dynamics.signals import Table
 from sarcomere.dynamics.simulation.settings import SolverSettings
 from sarcomere.dynamics.units import to_si
@@ -187,9 +188,9 @@ def replicate_data(name: str, replicate: int, outputs) -> dict:
 
 def corners(t: np.ndarray, values: np.ndarray) -> Table:
     """The piecewise-linear input through ``(t, values)`` as a Table of its corners only
-    (the same function): a 1001-row table would restart the integrator at every row."""
-    slope = np.diff(values) / np.diff(t)
-    keep = np.r_[True, ~np.isclose(slope[1:], slope[:-1], rtol=1e-12, atol=1e-9), True]
+    (the same function; the engine's :func:`~sarcomere.dynamics.identification.shooting.
+    kinks`): a 1001-row table would restart the integrator at every row."""
+    keep = np.r_[0, kinks(t, values), len(t) - 1]
     return Table(times=tuple(t[keep]), values=tuple(values[keep]), unit="Pa")
 
 
