@@ -31,6 +31,7 @@ below :data:`RESIDUAL_TOL` is a SolverError naming its time.
 from __future__ import annotations
 
 import functools
+import itertools
 from dataclasses import dataclass
 
 import casadi as cs
@@ -260,14 +261,12 @@ class Grid:
 @dataclass
 class Shooting:
     """The shooting of one record: its model, samples ``t`` (n,) [s], inputs ``u`` (n, nu),
-    the interval boundaries (sample indices: every ``interval`` samples or more, at a
-    step's end), the :class:`Engine`, the state scales, the step :class:`Grid` and the
-    samples a step spans at most."""
+    the :class:`Engine`, the state scales, the step :class:`Grid` and the samples a step
+    spans at most."""
 
     model: Model
     t: np.ndarray
     u: np.ndarray
-    bounds: list[tuple[int, int]]
     engine: Engine
     scale: np.ndarray
     grid: Grid
@@ -280,16 +279,19 @@ class Shooting:
         t = np.asarray(t, float)
         u = np.asarray(u, float).reshape(len(t), -1)
         grid = Grid.of_record(t, u, step, interval)
-        bounds = [
-            (int(grid.k0[a]), int(grid.k1[b - 1]))
-            for a, b in zip(grid.first[:-1], grid.first[1:], strict=True)
-        ]
         eng = engine(model, tuple(idx), ne, tuple(outputs))
-        return cls(model, t, u, bounds, eng, scale, grid, step)
+        return cls(model, t, u, eng, scale, grid, step)
+
+    @property
+    def bounds(self) -> list[tuple[int, int]]:
+        """The shooting intervals (first and last sample index): every ``interval``
+        samples or more, each at a step's end."""
+        g = self.grid
+        return [(int(g.k0[a]), int(g.k1[b - 1])) for a, b in itertools.pairwise(g.first)]
 
     @property
     def nodes(self) -> int:
-        return len(self.bounds)
+        return len(self.grid.first) - 1
 
     def _fail(self, s: int, r: float, finite: bool) -> SolverError:
         why = (
