@@ -19,11 +19,15 @@ Usage::
 
 (``lsq-default``: the baseline with scipy's default finite-difference step.)
 
-``speed``: from the fit file's start values, the engine's fit (multiple shooting,
-``fit_from`` on the built problem, known noise: a warm-up, then ``--repeats``) interleaved
-with the baseline's (``--baseline``); the baseline's CPU time until its cost first comes
-within ``SUCCESS_DCHI2`` of its best (its fits and one from the truth), and the engine's
-optimum on the baseline's cost. The first-ever run's compile: run it with an empty
+``speed``: from the fit file's start values, the engine's fit (multiple shooting, the
+fit file's method, and single shooting; ``fit_from`` on the built problem, known noise: a
+warm-up, then ``--repeats``) interleaved with the baseline's (``--baseline``); the
+baseline's CPU time until its cost first comes within ``SUCCESS_DCHI2`` of its best (its
+fits and one from the truth), and the engine's optimum on the baseline's cost. Ratios
+"to best": the baseline's time to that cost over the engine's whole fit
+(``ratio_cpu_to_best``) and over the engine's own time to within ``SUCCESS_DCHI2`` of its
+best, from a traced fit, at a feasible iterate (``ratio_cpu_both_to_best``). The
+first-ever run's compile: run it with an empty
 ``SARCOMERE_CACHE_DIR`` (the ``build`` and ``first_fit`` records). ``profiles``: the
 profiles of every parameter at that optimum as ``Fit.run`` computes them (one Dask task
 per parameter on an embedded cluster of ``--workers``), then each alone in this process.
@@ -371,6 +375,9 @@ def fit_engine(method: str, names: list[str], theta0: np.ndarray, data_dir=None)
     }
 
 
+#: The engine's methods the ``speed`` command runs side by side (key: its ``runs`` entry).
+ENGINE_METHODS = {"ms": "multiple-shooting", "ss": "single-shooting"}
+
 METHODS = {
     "lsq": lambda problem, names, theta0: fit_least_squares(problem, theta0),
     "lsq-default": lambda problem, names, theta0: fit_least_squares(problem, theta0, False),
@@ -477,13 +484,16 @@ def file_start(names: list[str]) -> np.ndarray:
     return np.log([start[n] for n in names])
 
 
-def engine_trace(theta0: np.ndarray) -> list[tuple[float, float, float, float]]:
-    """One engine fit (multiple shooting) from ``theta0`` (SI, the engine's order) with
-    each linearisation's (CPU s, wall s, 1/2 chi-squared, largest constraint) since the
-    start: the lifted iterates are not feasible (continuity defects) until the end."""
+def engine_trace(
+    theta0: np.ndarray, method: str = "multiple-shooting"
+) -> list[tuple[float, float, float, float]]:
+    """One engine fit (``method``) from ``theta0`` (SI, the engine's order) with each
+    linearisation's (CPU s, wall s, 1/2 chi-squared, largest constraint) since the start:
+    multiple shooting's lifted iterates are not feasible (continuity defects) until the
+    end; single shooting's always are."""
     from sarcomere.dynamics.identification.estimate import fit_from
 
-    problem = engine("multiple-shooting").built.problem
+    problem = engine(method).built.problem
     inner, log = problem.linearize, []
     cpu, wall = time.process_time(), time.perf_counter()
 
@@ -518,22 +528,23 @@ def speed(args) -> dict:
     problem = Problem(params, experiments)
     names = problem.names()
     theta0 = file_start(names)
-    runs: dict[str, list] = {"ms": [], "lsq": []}
+    runs: dict[str, list] = {"ms": [], "ss": [], "lsq": []}
     first = None
     for k in range(args.repeats + 1):
-        child = _children_cpu()
-        r = fit_engine("multiple-shooting", names, theta0)
-        r["compiler_cpu_s"] = _children_cpu() - child
-        print(
-            f"{'warm-up' if k == 0 else f'repeat {k}'} ms: 1/2 chi2 {r['cost']:.6f} "
-            f"cpu {r['cpu_s']:.2f} s wall {r['wall_s']:.2f} s iterations {r['iterations']} "
-            f"{r['status']}",
-            flush=True,
-        )
-        if k == 0:
-            first = r
-        else:
-            runs["ms"].append(r)
+        for key, method in ENGINE_METHODS.items():
+            child = _children_cpu()
+            r = fit_engine(method, names, theta0)
+            r["compiler_cpu_s"] = _children_cpu() - child
+            print(
+                f"{'warm-up' if k == 0 else f'repeat {k}'} {key}: 1/2 chi2 {r['cost']:.6f} "
+                f"cpu {r['cpu_s']:.2f} s wall {r['wall_s']:.2f} s iterations "
+                f"{r['iterations']} {r['status']}",
+                flush=True,
+            )
+            if k == 0:
+                first = first or r  # multiple shooting's: the first-ever fit
+            else:
+                runs[key].append(r)
         if 1 <= k <= args.baseline:
             b = fit_least_squares(problem, theta0, trace=True)
             print(f"repeat {k} lsq: cost {b['cost']:.6f} cpu {b['cpu_s']:.2f} s", flush=True)
@@ -544,9 +555,8 @@ def speed(args) -> dict:
     for b in runs["lsq"]:
         b["to_best"] = time_to_reach(b.pop("trace"), best + 0.5 * SUCCESS_DCHI2)
     order = [e.name for e in fit.built.params]
-    trace = engine_trace(np.exp([dict(zip(names, theta0, strict=True))[n] for n in order]))
-    best_ms = min((r["cost"] for r in runs["ms"]), default=math.inf)
-    feasible = [(c, w, f) for c, w, f, g in trace if g <= 1e-6]  # gauss_newton's gtol
+    start_si = np.exp([dict(zip(names, theta0, strict=True))[n] for n in order])
+    traces = {key: engine_trace(start_si, method) for key, method in ENGINE_METHODS.items()}
     at = dict(zip(order, runs["ms"][0]["theta"], strict=True)) if runs["ms"] else None
     # the engine's optimum on the baseline's cost (CVODES): the same optimum?
     lsq_at_engine = problem.cost(np.log([at[n] for n in names])) if at else None
@@ -554,15 +564,22 @@ def speed(args) -> dict:
     def median(rs, key):
         return float(np.median([r[key] for r in rs])) if rs else None
 
-    summary = {
-        "engine": {
-            "cpu_median_s": median(runs["ms"], "cpu_s"),
-            "wall_median_s": median(runs["ms"], "wall_s"),
-            "iterations": [r["iterations"] for r in runs["ms"]],
-            "half_chi2": runs["ms"][0]["cost"] if runs["ms"] else None,
-            "traced_cpu_to_best_s": time_to_reach(feasible, best_ms + 0.5 * SUCCESS_DCHI2),
+    def engine_summary(key: str) -> dict:
+        trace = traces[key]
+        best = min((r["cost"] for r in runs[key]), default=math.inf)
+        feasible = [(c, w, f) for c, w, f, g in trace if g <= 1e-6]  # gauss_newton's gtol
+        return {
+            "cpu_median_s": median(runs[key], "cpu_s"),
+            "wall_median_s": median(runs[key], "wall_s"),
+            "iterations": [r["iterations"] for r in runs[key]],
+            "half_chi2": runs[key][0]["cost"] if runs[key] else None,
+            "traced_cpu_to_best_s": time_to_reach(feasible, best + 0.5 * SUCCESS_DCHI2),
             "traced_cpu_total_s": trace[-1][0] if trace else None,
-        },
+        }
+
+    summary = {
+        "engine": engine_summary("ms"),
+        "single_shooting": engine_summary("ss"),
         "baseline": {
             "cpu_median_s": median(runs["lsq"], "cpu_s"),
             "wall_median_s": median(runs["lsq"], "wall_s"),
@@ -574,11 +591,18 @@ def speed(args) -> dict:
             "cost_at_engine_optimum": lsq_at_engine,
         },
     }
-    if runs["ms"] and summary["baseline"]["cpu_median_s"]:
-        e, b = summary["engine"], summary["baseline"]
-        summary["ratio_cpu"] = b["cpu_median_s"] / e["cpu_median_s"]
-        if b["cpu_to_best_median_s"]:
-            summary["ratio_cpu_to_best"] = b["cpu_to_best_median_s"] / e["cpu_median_s"]
+    for key, prefix in (("engine", ""), ("single_shooting", "single_shooting_")):
+        e, b = summary[key], summary["baseline"]
+        if e["cpu_median_s"] and b["cpu_median_s"]:
+            summary[f"{prefix}ratio_cpu"] = b["cpu_median_s"] / e["cpu_median_s"]
+            if b["cpu_to_best_median_s"]:  # the engine's whole fit: at least its time there
+                summary[f"{prefix}ratio_cpu_to_best"] = (
+                    b["cpu_to_best_median_s"] / e["cpu_median_s"]
+                )
+            if b["cpu_to_best_median_s"] and e["traced_cpu_to_best_s"]:
+                total = e["traced_cpu_total_s"]  # traced: scale to the untraced median
+                there = e["traced_cpu_to_best_s"][0] / total * e["cpu_median_s"]
+                summary[f"{prefix}ratio_cpu_both_to_best"] = b["cpu_to_best_median_s"] / there
     return {
         "names": names,
         "start": np.exp(theta0).tolist(),
@@ -587,7 +611,8 @@ def speed(args) -> dict:
         "reference_from_truth": reference,
         "summary": summary,
         "runs": runs,
-        "engine_trace": trace,
+        "engine_trace": traces["ms"],
+        "single_shooting_trace": traces["ss"],
         "load_average": list(os.getloadavg()),
     }
 
