@@ -52,6 +52,34 @@ def drawn_png():
     return check
 
 
+@pytest.fixture(scope="session")
+def tight_record():
+    """``record(model, t, u, params, outputs) -> (n, len(outputs)) array``: the response of
+    ``model`` to the supply command ``u`` (Pa at the samples ``t``, linear between them)
+    from its equilibrium at ``u[0]``, simulated by CVODES at rtol 1e-10: the independent
+    reference a fit must reproduce (not the fit's own Radau steps)."""
+    import numpy as np
+
+    from sarcomere.dynamics.equilibrium import solve_equilibrium
+    from sarcomere.dynamics.signals import Table
+    from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
+
+    def record(model, t, u, params, outputs):
+        eq = solve_equilibrium(model, {"regulator.p_cmd": float(u[0])}, params)
+        res = simulate(
+            model,
+            t[-1],
+            x0=eq.x,
+            inputs={"regulator.p_cmd": Table(times=tuple(t), values=tuple(u), unit="Pa")},
+            params=params,
+            t_out=t,
+            settings=SolverSettings(rtol=1e-10, atol=1e-12),
+        )
+        return np.column_stack([res[o] for o in outputs])
+
+    return record
+
+
 @pytest.fixture(scope="session", autouse=True)
 def compile_cache(tmp_path_factory):
     """Compiled libraries (``radau``) go to a session folder, never the user's cache."""

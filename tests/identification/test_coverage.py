@@ -12,13 +12,10 @@ import numpy as np
 import pytest
 
 from sarcomere.dynamics.assemblies import hanging_load
-from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.identification import uncertainty
 from sarcomere.dynamics.identification.estimate import fit_from
 from sarcomere.dynamics.identification.experiments import Estimated, Noise, TimeSeries
 from sarcomere.dynamics.identification.problem import Problem
-from sarcomere.dynamics.signals import Table
-from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 OUTS = ("myofibril.length", "myofibril.aps1.chamber.p_gauge")
 SIGMA = np.array([2e-6, 20.0])  # m, Pa
@@ -27,7 +24,7 @@ REPLICATES = 12
 
 
 @pytest.mark.slow
-def test_fisher_intervals_cover_the_truth():
+def test_fisher_intervals_cover_the_truth(tight_record):
     """At least 10 of 12 replicates' 95 % intervals hold the truth (for a true 95 %
     interval, fewer happens with probability 2 %), and not by inflated intervals: each
     median half-width over 1.96 x the replicates' spread is below 2.5."""
@@ -38,17 +35,7 @@ def test_fisher_intervals_cover_the_truth():
     }
     t = np.arange(0.0, 0.12 + 1e-3, 2e-3)
     u = np.where(t < 0.02, 0.0, 6e4)
-    eq = solve_equilibrium(model, {"regulator.p_cmd": 0.0}, truth)
-    res = simulate(
-        model,
-        t[-1],
-        x0=eq.x,
-        inputs={"regulator.p_cmd": Table(times=tuple(t), values=tuple(u), unit="Pa")},
-        params=truth,
-        t_out=t,
-        settings=SolverSettings(rtol=1e-10, atol=1e-12),
-    )
-    clean = np.column_stack([res[o] for o in OUTS])
+    clean = tight_record(model, t, u, truth, OUTS)
     params = [
         Estimated(n, model.variables[n].unit, truth[n], truth[n] / 5, truth[n] * 5) for n in NAMES
     ]

@@ -15,13 +15,10 @@ import numpy as np
 import pytest
 
 from sarcomere.dynamics.assemblies import hanging_load
-from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.identification import uncertainty
 from sarcomere.dynamics.identification.estimate import fit_from
 from sarcomere.dynamics.identification.experiments import Estimated, Noise, TimeSeries
 from sarcomere.dynamics.identification.problem import Problem
-from sarcomere.dynamics.signals import Table
-from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 SIGMA_LENGTH, SIGMA_PRESSURE = 5e-6, 50.0  # m, Pa
 DT = 2e-3  # s: 500 Hz
@@ -37,9 +34,10 @@ def sigma(n: int) -> dict[str, float]:
     return {o: SIGMA_LENGTH if o.endswith("length") else SIGMA_PRESSURE for o in outputs(n)}
 
 
-def generated(seed: int, n: int):
+def generated(record, seed: int, n: int):
     """``n`` units; the muscle, its record (t, u, noisy data), the true values, the
-    estimated parameters and where they enter the model."""
+    estimated parameters and where they enter the model (``record``: the
+    ``tight_record`` fixture)."""
     rng = np.random.default_rng(seed)
     m = hanging_load(n, load_kg=float(rng.uniform(0.02, 0.12)))
     tubes = [f"myofibril.tube{i}.C" for i in range(1, n + 1)]
@@ -54,17 +52,7 @@ def generated(seed: int, n: int):
     u = np.zeros_like(t)
     for when, level in zip(times, levels, strict=True):
         u[t >= when] = level
-    eq = solve_equilibrium(m, {"regulator.p_cmd": 0.0}, params)
-    res = simulate(
-        m,
-        t[-1],
-        x0=eq.x,
-        inputs={"regulator.p_cmd": Table(times=tuple(t), values=tuple(u), unit="Pa")},
-        params=params,
-        t_out=t,
-        settings=SolverSettings(rtol=1e-10, atol=1e-12),
-    )
-    clean = np.column_stack([res[o] for o in outputs(n)])
+    clean = record(m, t, u, params, outputs(n))
     data = clean + rng.standard_normal(clean.shape) * list(sigma(n).values())
     estimated = [
         Estimated("regulator.tau", "s", tau0, tau0 / 5, tau0 * 5),
@@ -76,8 +64,8 @@ def generated(seed: int, n: int):
 
 @pytest.mark.slow  # a CVODES record and two fits per seed, and each n's engine compiled once
 @pytest.mark.parametrize(("seed", "n"), [(0, 2), (1, 3), (2, 5)])
-def test_a_generated_muscle_is_recovered_within_its_fisher_intervals(seed, n):
-    m, t, u, data, truth, estimated, uses = generated(seed, n)
+def test_a_generated_muscle_is_recovered_within_its_fisher_intervals(tight_record, seed, n):
+    m, t, u, data, truth, estimated, uses = generated(tight_record, seed, n)
     noise = {o: Noise(sd) for o, sd in sigma(n).items()}
     start = np.array([e.start for e in estimated])
     costs = []

@@ -9,40 +9,33 @@ import numpy as np
 import pytest
 
 from sarcomere.dynamics.assemblies import hanging_load
-from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import ParameterError
 from sarcomere.dynamics.identification import uncertainty
 from sarcomere.dynamics.identification.estimate import fit_from
 from sarcomere.dynamics.identification.experiments import Estimated, Noise, TimeSeries
 from sarcomere.dynamics.identification.problem import Problem
-from sarcomere.dynamics.signals import Table
-from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 
 OUTS = ["myofibril.length", "myofibril.aps1.chamber.p_gauge"]
 SIGMA = {"myofibril.length": 2e-6, "myofibril.aps1.chamber.p_gauge": 20.0}
 C = "myofibril.tube1.C"
 
 
-def _record(seed: int, truth: dict, dt: float = 2e-3, t_end: float = 0.2):
-    """A random load and step level (fixed seed), and the response simulated by CVODES at
-    rtol 1e-10 from the equilibrium (the reference the fit must reproduce)."""
-    rng = np.random.default_rng(seed)
-    load = float(rng.uniform(0.02, 0.1))
-    level = float(rng.uniform(3e4, 8e4))
-    m = hanging_load(1, load_kg=load)
-    t = np.arange(0.0, t_end + dt / 2, dt)
-    u = np.where(t < 0.02, 0.0, level)
-    eq = solve_equilibrium(m, {"regulator.p_cmd": 0.0}, truth)
-    res = simulate(
-        m,
-        t[-1],
-        x0=eq.x,
-        inputs={"regulator.p_cmd": Table(times=tuple(t), values=tuple(u), unit="Pa")},
-        params=truth,
-        t_out=t,
-        settings=SolverSettings(rtol=1e-10, atol=1e-12),
-    )
-    return m, t, u, np.column_stack([res[o] for o in OUTS])
+@pytest.fixture
+def record(tight_record):
+    """``record(seed, truth, dt=2e-3, t_end=0.2) -> (model, t, u, data)``: a random load
+    and step level (fixed ``seed``) and the response from the equilibrium, by CVODES at
+    rtol 1e-10 (the reference the fit must reproduce)."""
+
+    def make(seed: int, truth: dict, dt: float = 2e-3, t_end: float = 0.2):
+        rng = np.random.default_rng(seed)
+        load = float(rng.uniform(0.02, 0.1))
+        level = float(rng.uniform(3e4, 8e4))
+        m = hanging_load(1, load_kg=load)
+        t = np.arange(0.0, t_end + dt / 2, dt)
+        u = np.where(t < 0.02, 0.0, level)
+        return m, t, u, tight_record(m, t, u, truth, OUTS)
+
+    return make
 
 
 def _problem(m, t, u, data, names, interval=10, step=2):
@@ -67,10 +60,10 @@ def _truth(m, factors):
 
 
 @pytest.mark.slow
-def test_recovers_known_parameters_from_noise_free_data():
+def test_recovers_known_parameters_from_noise_free_data(record):
     base = hanging_load(1)
     truth = _truth(base, {"regulator.tau": 1.4, C: 0.6})
-    m, t, u, data = _record(7, truth)
+    m, t, u, data = record(7, truth)
     pb = _problem(m, t, u, data, list(truth))
     fit = fit_from(pb, np.array([m.variables[n].value for n in truth]))
     assert fit.solution.success, fit.solution.status
@@ -78,10 +71,10 @@ def test_recovers_known_parameters_from_noise_free_data():
 
 
 @pytest.mark.slow
-def test_single_shooting_is_the_same_problem():
+def test_single_shooting_is_the_same_problem(record):
     base = hanging_load(1)
     truth = _truth(base, {"regulator.tau": 1.2})
-    m, t, u, data = _record(3, truth, t_end=0.08)
+    m, t, u, data = record(3, truth, t_end=0.08)
     multi = _problem(m, t, u, data, list(truth), interval=10)
     single = _problem(m, t, u, data, list(truth), interval=None)
     assert single.shootings[0].nodes == 1 and multi.shootings[0].nodes == 4
@@ -92,10 +85,10 @@ def test_single_shooting_is_the_same_problem():
 
 
 @pytest.mark.slow
-def test_sensitivities_match_central_differences():
+def test_sensitivities_match_central_differences(record):
     base = hanging_load(1)
     truth = _truth(base, {"regulator.tau": 0.8, C: 1.3})
-    m, t, u, data = _record(11, truth, t_end=0.1)
+    m, t, u, data = record(11, truth, t_end=0.1)
     pb = _problem(m, t, u, data, list(truth))
     theta = np.array(list(truth.values()))
     w = pb.weights()
@@ -113,10 +106,10 @@ def test_sensitivities_match_central_differences():
 
 
 @pytest.mark.slow
-def test_product_pair_flagged_structurally_non_identifiable():
+def test_product_pair_flagged_structurally_non_identifiable(record):
     """The tube's conductance C and its reference density rho0 enter only as C * rho0
     (ISO 6358 mass flow): a flat direction, named, for both."""
-    m, t, u, data = _record(5, {})
+    m, t, u, data = record(5, {})
     pb = _problem(m, t, u, data, ["regulator.tau", C, "myofibril.tube1.rho0"])
     theta = np.array([m.variables[n].value for n in ("regulator.tau", C, "myofibril.tube1.rho0")])
     sol = pb.evaluate(pb.initial_guess(theta), pb.weights())
@@ -135,12 +128,12 @@ def test_product_pair_flagged_structurally_non_identifiable():
     assert np.isinf(fis.sd[1]) and np.isfinite(fis.sd[0])
 
 
-def test_a_crossing_closed_by_a_correlated_bound_is_not_identifiability():
+def test_a_crossing_closed_by_a_correlated_bound_is_not_identifiability(record):
     """The tube's conductance C and the chamber's dead volume V0 set the filling rate
     mostly as C / V0 (correlation 0.9999999): with V0 boxed in to -3 % / +50 %, C's profile
     crosses the threshold on both sides, but only because V0 sits on a bound there. The
     verdict says so (before, C read "identifiable" with a 0.1 %-wide interval)."""
-    m, t, u, data = _record(5, {})
+    m, t, u, data = record(5, {})
     data = data + np.random.default_rng(0).standard_normal(data.shape) * [SIGMA[o] for o in OUTS]
     V = "myofibril.aps1.chamber.V0"
     c, v = m.variables[C].value, m.variables[V].value
@@ -162,11 +155,11 @@ def test_a_crossing_closed_by_a_correlated_bound_is_not_identifiability():
     assert "lower and upper side" in verdict["why"] and V in verdict["why"]
 
 
-def test_profile_interval_of_a_near_linear_parameter_is_the_fisher_interval():
+def test_profile_interval_of_a_near_linear_parameter_is_the_fisher_interval(record):
     """The hanging mass enters the length almost linearly: its profile is a parabola
     and its 95 % profile interval must be the Fisher one (before, the crossing was
     interpolated linearly in the rise, from one step of 3.4 sd: 0.57 of the width)."""
-    m, t, u, data = _record(11, {})
+    m, t, u, data = record(11, {})
     data = data + np.random.default_rng(1).standard_normal(data.shape) * [SIGMA[o] for o in OUTS]
     names = ["regulator.tau", "load.m"]
     pb = _problem(m, t, u, data, names)
@@ -180,13 +173,13 @@ def test_profile_interval_of_a_near_linear_parameter_is_the_fisher_interval():
 
 
 @pytest.mark.slow
-def test_fisher_covariance_matches_replicate_spread():
+def test_fisher_covariance_matches_replicate_spread(record):
     """8 noise replicates (fixed seed): the spread of the estimates agrees with the Fisher
     standard deviations (the sample sd of 8 values is within 0.4-1.7x of the true one
     with 99 % probability)."""
     base = hanging_load(1)
     truth = _truth(base, {"regulator.tau": 1.3, C: 0.7})
-    m, t, u, clean = _record(21, truth, t_end=0.12)
+    m, t, u, clean = record(21, truth, t_end=0.12)
     rng = np.random.default_rng(1)
     sd = np.array([SIGMA[o] for o in OUTS])
     theta0 = np.array(list(truth.values()))

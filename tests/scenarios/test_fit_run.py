@@ -13,8 +13,6 @@ import pytest
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import SolverError
-from sarcomere.dynamics.signals import Table
-from sarcomere.dynamics.simulation.simulate import SolverSettings, simulate
 from sarcomere.dynamics.units import to_si
 from sarcomere.scenarios.fit import run as run_module
 from sarcomere.scenarios.fit.run import Fit
@@ -69,7 +67,7 @@ sample = "4 ms"
 
 
 @pytest.fixture(scope="module")
-def fit_dir(tmp_path_factory):
+def fit_dir(tmp_path_factory, tight_record):
     rng = np.random.default_rng(2)
     load = round(float(rng.uniform(20, 80)), 1)
     level = round(float(rng.uniform(30, 90)), 1)
@@ -77,20 +75,10 @@ def fit_dir(tmp_path_factory):
     truth = {"regulator.tau": TAU}
     t = np.arange(0.0, 0.12 + 1e-9, 2e-3)
     u = np.where(t < 0.01, 0.0, level * 1e3)
-    eq = solve_equilibrium(m, {"regulator.p_cmd": 0.0}, truth)
-    res = simulate(
-        m,
-        t[-1],
-        x0=eq.x,
-        inputs={"regulator.p_cmd": Table(times=tuple(t), values=tuple(u), unit="Pa")},
-        params=truth,
-        t_out=t,
-        settings=SolverSettings(rtol=1e-10, atol=1e-12),
-    )
+    length = tight_record(m, t, u, truth, ["myofibril.length"])[:, 0]
     d = tmp_path_factory.mktemp("fit")
     rows = [
-        f"{1e3 * a:.6f},{b / 1e3:.6f},{1e3 * c:.12g}"
-        for a, b, c in zip(t, u, res["myofibril.length"], strict=True)
+        f"{1e3 * a:.6f},{b / 1e3:.6f},{1e3 * c:.12g}" for a, b, c in zip(t, u, length, strict=True)
     ]
     (d / "step.csv").write_text(
         "time [ms],pressure [kPa],myofibril.length [mm]\n" + "\n".join(rows) + "\n"
