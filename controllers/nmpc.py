@@ -132,14 +132,16 @@ class NMPCSettings:
     compiled : bool
         Run the RTI as generated C, compiled with gcc and cached on disk
         (:mod:`.rti_compiled`): the linearisation, the condensing, the feedback and the
-        update, with the lifted linear solves as the kept sparse LU of :mod:`.sparse_lu`
-        (``linear_solver`` "auto"; only the small per-interval Functions are generated
-        once, the horizon's loops call them). Default false (BENCHMARKS.md, section 5:
-        measured compile time against the time saved).
+        update, with the lifted linear solves as the kept sparse LU of
+        :mod:`~sarcomere.dynamics.simulation.sparse_lu` (``linear_solver`` "auto"; only the
+        small per-interval Functions are generated once, the horizon's loops call them).
+        Default false (BENCHMARKS.md, section 5: measured compile time against the time
+        saved).
     linear_solver : str
         Linear solver of the lifted Radau equations (:mod:`.rti_lift`): "lapacklu", "qr"
         (CasADi's sparse QR; both solve every sensitivity in the preparation),
-        "sparse_lu" (:mod:`.sparse_lu`, the factors as SX expressions with the Jacobians,
+        "sparse_lu" (:mod:`~sarcomere.dynamics.simulation.sparse_lu`, the factors as SX
+        expressions with the Jacobians,
         kept, each use solving only the right-hand sides it needs; with "qr" the ones
         that generate C: use it for a law to export), "banded" (the same order of solves
         with the factors in numpy: scipy's LAPACK banded LU with the regulator's

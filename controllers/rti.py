@@ -34,8 +34,9 @@ LINEAR_SOLVERS = ("auto", "lapacklu", "qr", "sparse_lu", "banded")
 """Linear solvers of the RTI's lifted Radau equations (:mod:`.rti_lift`): LAPACK's dense
 LU or CasADi's own sparse QR (generates C, slowly) of every sensitivity in the
 preparation (:class:`~.rti_lift.DenseLift`), or the sparse LU written out as SX
-expressions with the Jacobians and kept (:mod:`.sparse_lu`, :class:`~.rti_lift.
-FactoredLift`: generates C, the fastest compiled), or "banded": the dense lift's solves
+expressions with the Jacobians and kept
+(:mod:`~sarcomere.dynamics.simulation.sparse_lu`, :class:`~.rti_lift.FactoredLift`:
+generates C, the fastest compiled), or "banded": the dense lift's solves
 by scipy's bordered banded LU (:mod:`.banded_lu`) between the preparation's two CasADi
 Functions (the :attr:`~RealTimeIteration.law` Function keeps LAPACK's dense LU; refused
 when the Jacobian has no band that pays); "auto": "sparse_lu" when ``compiled``, else

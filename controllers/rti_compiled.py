@@ -1,7 +1,8 @@
 """The NMPC real-time iteration's CasADi Functions generated to C, compiled and cached.
 
 :func:`compiled_functions` turns pure CasADi Functions (the RTI's ``nmpc_prepare``,
-``nmpc_feedback`` and ``nmpc_update`` with the kept sparse LU of :mod:`.sparse_lu`, whose
+``nmpc_feedback`` and ``nmpc_update`` with the kept sparse LU of
+:mod:`~sarcomere.dynamics.simulation.sparse_lu`, whose
 per-interval Functions are generated once and called in loops; with a LAPACK solver, the
 linearisation ``nmpc_head`` and condensing ``nmpc_tail`` around it; or a whole law built
 with a code-generable linear solver,

@@ -12,8 +12,9 @@ interval's end, ``A_k dx``) and the update (:meth:`stages`: ``dV_k`` itself).
   "lapacklu" or "qr"): ``L_k = -R_V^{-1} [R, R_x, R_v]`` solved in the preparation with
   ``1 + nx + nu`` right-hand sides per interval and kept; its end rows give ``A_k``,
   ``B_k``.
-* :class:`FactoredLift` (``"sparse_lu"``): the sparse LU of ``R_V`` (:class:`~.sparse_lu.
-  Factors`, generated with the Jacobians) is kept instead, and each use solves with what
+* :class:`FactoredLift` (``"sparse_lu"``): the sparse LU of ``R_V``
+  (:class:`~sarcomere.dynamics.simulation.sparse_lu.Factors`, generated with the
+  Jacobians) is kept instead, and each use solves with what
   it needs: the condensing carries the input moves' directions forward (``1 + (k + 1) nu``
   right-hand sides at interval ``k``: ``N + N (N + 1) nu / 2`` in all, against
   ``N (1 + nx + nu)``, which grows with the chain), the feedback one per interval, the
@@ -26,7 +27,7 @@ from __future__ import annotations
 import casadi as cs
 import numpy as np
 
-from . import sparse_lu
+from ..dynamics.simulation import sparse_lu
 
 
 class DenseLift:

@@ -18,7 +18,7 @@ split into its feedback (the measurement-to-command latency: the affine update o
 condensed QP and the QP), its preparation (linearisation and condensing, and the update of
 the guess, made after the command) and the Python around them; it runs in Python (CasADi's
 virtual machine) and compiled (``compiled = true``: generated C, the lifted solves the
-sparse LU of :mod:`sarcomere.controllers.sparse_lu`), and the two, with the compiled one on
+sparse LU of :mod:`sarcomere.dynamics.simulation.sparse_lu`), and the two, with the compiled one on
 LAPACK's LU as a third, also run interleaved, sample by sample in one loop, for
 like-for-like ratios. The plain ``Opti`` formulation
 (RK4 multiple shooting with 15 substeps per interval, unscaled, ``opti.solve()`` each

@@ -164,7 +164,7 @@ def test_the_sparse_lu_solves_like_a_dense_lu():
     1e-6 to 1e3 (the dense lift's LAPACK solve as the reference)."""
     import casadi as cs
 
-    from sarcomere.controllers import sparse_lu
+    from sarcomere.dynamics.simulation import sparse_lu
 
     rng = np.random.default_rng(3)
     A = np.where(rng.random((12, 12)) < 0.3, rng.normal(size=(12, 12)), 0.0) + 5 * np.eye(12)

@@ -1,6 +1,9 @@
 """A sparse LU of the Radau collocation Jacobian written out as CasADi SX expressions.
 
-The RTI's lifted solves ``R_V^{-1} B`` per interval (:mod:`.rti_lift`) have a
+Two users solve with the Jacobian ``R_V`` of a Radau IIA step's collocation equations
+in generated C: the NMPC's lifted solves ``R_V^{-1} B`` per interval
+(:mod:`sarcomere.controllers.rti_lift`) and the fit's steps, their Newton and their
+sensitivities (:mod:`sarcomere.dynamics.identification.shooting`). ``R_V`` is a
 54 x 54 matrix at n = 3, degree 3, with 387 of its 2916 entries structurally nonzero
 (159 x 159 with 1269 at n = 10):
 ``R_V = h blockdiag(J_1 .. J_d) - D kron I`` (``J_j`` the ODE's Jacobian at collocation point
@@ -15,7 +18,8 @@ sides as a use needs: the factorisation is made once per interval and kept.
 
 No pivoting: the pivots are the diagonal ``d x d`` blocks' (``h J_ii - D``, dominated by
 ``D``'s well-conditioned entries for the stiff states' negative ``J_ii``). A zero pivot
-gives a non-finite solution, which the RTI treats as a failed sample.
+gives a non-finite solution, which the RTI treats as a failed sample and the fit's step
+as a failed Newton (it falls back to CasADi's pivoting sparse QR).
 """
 
 from __future__ import annotations
