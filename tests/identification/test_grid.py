@@ -11,6 +11,7 @@ import pytest
 from sarcomere.dynamics.assemblies import hanging_load
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.identification.shooting import (
+    RESIDUAL_TOL,
     Grid,
     Shooting,
     auto_step,
@@ -156,11 +157,11 @@ def test_a_march_from_another_start_is_not_the_last_one():
 
 
 def test_a_step_whose_newton_fails_is_found_from_substeps():
-    """Newton made to fail on the whole 8-sample steps unless it starts within 1e-3
-    (relative) of their solution: the stages guessed from substeps are that close (2e-4
-    after the input's step), the step's start and the previous polynomial are not (0.4
-    and 2e-2), and the march ends
-    where the unhindered one does."""
+    """Newton (both the sparse LU's and CasADi's) made to fail on the whole 8-sample steps
+    unless it starts within 1e-3 (relative) of their solution: the stages guessed from
+    substeps are that close (2e-4 after the input's step), the step's start and the
+    previous polynomial are not (0.4 and 2e-2), and the march ends where the unhindered
+    one does."""
     import dataclasses
 
     m, t, u, x0, _ = _record(2)
@@ -181,8 +182,43 @@ def test_a_step_whose_newton_fails_is_found_from_substeps():
             rescued.append(q[-1])
         return V, r
 
+    lu_inner = plain.engine.lu_step
+
+    def lu_step(x, guess, q, p_, sc):  # the sparse LU's Newton hindered alike
+        V, r, last = lu_inner(x, guess, q, p_, sc)
+        off = np.abs(np.reshape(guess, V.shape) - V) / np.maximum(np.abs(V), 1.0)
+        if abs(q[-1] - big) < 1e-12 and off.max() > 1e-3:
+            return np.reshape(guess, V.shape), np.array([[1.0]]), np.array([[1.0]])  # no progress
+        return V, r, last
+
     hindered = Shooting.of(m, t, u[:, None], 50, (), 0, OUTS, scale, 8)
-    hindered.engine = dataclasses.replace(plain.engine, step=step)
+    hindered.engine = dataclasses.replace(plain.engine, step=step, lu_step=lu_step)
     got = hindered.march(x0 / scale, p)
     assert rescued  # some steps were found from substeps
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [2, 5])
+def test_the_sparse_lu_newton_lands_where_casadis_pivoting_qr_does(seed):
+    """Every step of a generated march (1-3 units, a two-level staircase): the engine's
+    Newton with the sparse LU (no pivoting), from the previous step's polynomial, and
+    CasADi's ``fast_newton`` (pivoting sparse QR) from the same guess agree to 1e-9 in
+    scaled states, each with a residual the engine accepts (``RESIDUAL_TOL``)."""
+    m, t, u, x0, _ = _record(seed)
+    scale = scales(m, [x0])
+    p = m.parameters()
+    sh = Shooting.of(m, t, u[:, None], None, (), 0, OUTS, scale, 4)
+    g, eng = sh.grid, sh.engine
+    x, last = x0 / scale, None
+    for s in range(len(g.k0)):
+        guess = np.repeat(x[:, None], 3, axis=1) if last is None else (g.ahead[s] @ last).T
+        V_lu = guess
+        for _ in range(3):
+            V_lu, res_lu, dv = eng.lu_step(x, V_lu, g.q[s], p, scale)
+            if dv.item() <= 1e-10:
+                break
+        V_qr, res_qr = eng.step(x, guess, g.q[s], p, scale)
+        assert max(res_lu.item(), res_qr.item()) <= RESIDUAL_TOL, (s, res_lu, res_qr)
+        np.testing.assert_allclose(V_lu, V_qr, rtol=0, atol=1e-9)
+        last = np.vstack([x, V_qr.T])
+        x = V_qr[:, -1]
