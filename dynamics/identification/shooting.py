@@ -156,8 +156,6 @@ def _build(model: Model, idx: tuple[int, ...], ne: int, outputs: tuple) -> Engin
     )
     lu_solve = lu.solve_function("fit_lu_solve")
     factor = cs.Function("fit_lu_factor", [V, xi, q, p, scale], [lu.values])
-    dv = lu_solve(lu.values, r)
-    iterate = cs.Function("fit_lu_iteration", [V, xi, q, p, scale], [V - dv, cs.norm_inf(dv)])
     RJ = cs.Function("RJ", [V, xi, q, p, scale], [cs.jacobian(r, xi), cs.jacobian(r, psel)])
     newton = cs.rootfinder("radau_step", "fast_newton", R, NEWTON)
 
@@ -170,8 +168,9 @@ def _build(model: Model, idx: tuple[int, ...], ne: int, outputs: tuple) -> Engin
     names = ["xi", "guess", "q", "p", "scale"]
     step = cs.Function("fit_step", [xm, Gm, qm, pm, cm], [Vm, res], names, ["V", "res"])
     Vl, last = cs.vec(Gm), None
-    for _ in range(LU_ITERATIONS):
-        Vl, last = iterate(Vl, xm, qm, pm, cm)
+    for _ in range(LU_ITERATIONS):  # the factorisation and the solve generated once each
+        dv = lu_solve(factor(Vl, xm, qm, pm, cm), R(Vl, xm, qm, pm, cm))
+        Vl, last = Vl - dv, cs.norm_inf(dv)
     lu_step = cs.Function(
         "fit_lu_step",
         [xm, Gm, qm, pm, cm],
@@ -431,8 +430,12 @@ class Shooting:
         """Values at every sample (n, ...) from the step values ``nodal`` (steps, 4, ...),
         sample 0 being ``first``."""
         g = self.grid
-        out = np.einsum("ki,ki...->k...", g.w[1:], nodal[g.of[1:]])
-        return np.concatenate([first[None], out])
+        flat = nodal.reshape(len(nodal), POINTS + 1, -1)
+        out = np.empty((len(g.of), flat.shape[2]))
+        out[0] = np.ravel(first)
+        for s, (a, b) in enumerate(zip(g.k0, g.k1, strict=True)):  # a step's samples at once
+            out[a + 1 : b + 1] = g.w[a + 1 : b + 1] @ flat[s]
+        return out.reshape(len(g.of), *nodal.shape[2:])
 
     def simulate(self, S: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Scaled states at every sample (nx x n) from the nodes ``S`` (nx x nodes) at the
