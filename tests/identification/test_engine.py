@@ -90,3 +90,42 @@ def test_a_solve_whose_start_cannot_be_simulated_fails_with_its_reason():
     sol = pb.solve(v, pb.weights())
     assert not sol.success and sol.cost == np.inf
     assert sol.status.startswith("evaluation failed at the start (") and "finite" in sol.status
+
+
+@pytest.mark.parametrize("seed", [1, 4])
+def test_equilibria_restored_by_quick_newton_equal_the_continued_ones(seed):
+    """``restore`` at a trial point (parameters moved, equilibrium unknowns at a linear
+    guess 1 % off) solves every equilibrium (a record's first node, three static points)
+    as :func:`solve_equilibrium` does from the model's start, to 1e-7 in scaled units
+    (both to a weighted residual of 1e-10, which leaves the unknowns about 1e-8 apart; the
+    Gauss-Newton's constraint tolerance is 1e-6); a guess the quick Newton cannot use
+    (NaN) falls back to that continuation."""
+    from sarcomere.dynamics.identification.experiments import StaticPoint, measured
+
+    pb0 = _problem(seed)
+    m, ts = pb0.series[0].model, pb0.series[0]
+    points = [
+        StaticPoint(f"s{k}", m, np.array([level]), m.parameters(), ts.uses)
+        for k, level in enumerate((2e4, 5e4, 8e4))
+    ]
+    targets = [measured(pt.name, "myofibril.length", 0.1) for pt in points]
+    pb = Problem(pb0.params, [ts], points, targets, noise=NOISE)
+    theta = np.array([e.start for e in pb.params])
+    v = pb.initial_guess(theta)
+    rng = np.random.default_rng(seed)
+    moved = theta * rng.uniform(0.8, 1.25, len(theta))
+    trial = v.copy()
+    trial[: len(theta)] = [e.to_phi(t) for e, t in zip(pb.params, moved, strict=True)]
+    ts_slots = np.arange(len(theta), len(theta) + m.nx)
+    eq_slots = np.r_[ts_slots, np.arange(pb._w_offset, len(v))]
+    trial[eq_slots] *= 1.01  # the Gauss-Newton step's linear guess is close, not exact
+    quick = pb.restore(trial)
+    np.testing.assert_array_equal(pb._restored_quickly(trial), quick)  # not the fallback
+    exact = pb.initial_guess(moved)  # continued by solve_equilibrium from the model's start
+    np.testing.assert_allclose(quick[eq_slots], exact[eq_slots], rtol=0, atol=1e-7)
+    # the nodes other than the first are left as they were (lifted)
+    rest = np.setdiff1d(np.arange(len(theta), pb._w_offset), ts_slots)
+    np.testing.assert_array_equal(quick[rest], trial[rest])
+    unusable = trial.copy()
+    unusable[eq_slots] = np.nan
+    np.testing.assert_allclose(pb.restore(unusable)[eq_slots], exact[eq_slots], atol=1e-7)
