@@ -27,7 +27,7 @@ from __future__ import annotations
 import casadi as cs
 import numpy as np
 
-from ..dynamics.simulation import sparse_lu
+from sarcomere.dynamics.simulation import sparse_lu
 
 
 class DenseLift:
