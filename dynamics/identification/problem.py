@@ -24,9 +24,10 @@ import casadi as cs
 import numpy as np
 import scipy.sparse as sp
 
-from ..equilibrium import EQUILIBRIUM_TOL, out_of_domain, solve_equilibrium
+from ..equilibrium import solve_equilibrium
 from ..errors import ParameterError, SolverError
-from ..newton import NewtonFailure, damped_newton, row_weights
+from ..newton import NewtonFailure
+from .equilibria import check_domain, continued, quick_newton
 from .experiments import Estimated, Noise, StaticPoint, Target, TimeSeries, check_uses
 from .gauss_newton import Options, gauss_newton
 from .shooting import Shooting, auto_step, scales, step_error
@@ -416,7 +417,7 @@ class Problem:
             try:
                 over = self._p_numeric(exp, theta)
                 inputs = dict(zip(m.input_names, exp.u[0], strict=True))
-                eq = _continued(m, inputs, over, memory.get(exp.name))
+                eq = continued(m, inputs, over, memory.get(exp.name))
             except (SolverError, ParameterError) as exc:
                 raise SolverError(f"experiment '{exp.name}': {exc}") from None
             memory[exp.name] = eq
@@ -430,7 +431,7 @@ class Problem:
                 over = self._p_numeric(pt, theta, links)
                 inputs = dict(zip(m.input_names, pt.u, strict=True))
                 guess = memory.get(pt.name, memory.get(("model", m.name)))
-                eq = _continued(m, inputs, over, guess)
+                eq = continued(m, inputs, over, guess)
             except (SolverError, ParameterError) as exc:
                 raise SolverError(f"static point '{pt.name}': {exc}") from None
             memory[pt.name] = eq
@@ -481,7 +482,7 @@ class Problem:
         :func:`solve_equilibrium`'s) from their values in ``v`` (the Gauss-Newton step's
         linear prediction) on the fit's own Functions: each record's first node on its
         compiled ``equilibrium``, the static points together on ``static_newton``. No
-        continuation and at most :data:`QUICK_ITERATIONS` iterations: raises
+        continuation and at most :data:`.equilibria.QUICK_ITERATIONS` iterations: raises
         NewtonFailure where that does not converge or a solution leaves a signal's
         physical domain (the caller then continues from the last solutions)."""
         n = len(self.params)
@@ -494,9 +495,9 @@ class Problem:
                 f, F, _ = shoot.engine.equilibrium(xi, u0, p, shoot.scale)
                 return f.ravel(), F
 
-            xi = _quick_newton(fun, v[s.offset : s.offset + m.nx])
+            xi = quick_newton(fun, v[s.offset : s.offset + m.nx])
             signals = m.function("signals")(shoot.scale * xi, cs.DM(0, 1), u0, p)
-            _in_domain(m, np.array(signals))
+            check_domain(m, np.array(signals))
             out[s.offset : s.offset + m.nx] = xi
         if self.points:
             phi = v[:n]
@@ -505,12 +506,12 @@ class Problem:
                 g, G = self._static_newton(np.concatenate([phi, w]))
                 return np.array(g).ravel(), np.array(G)
 
-            w = _quick_newton(static, v[self._w_offset :])
+            w = quick_newton(static, v[self._w_offset :])
             values = np.array(self._point_signals(np.concatenate([phi, w]))).ravel()
             k = 0
             for pt in self.points:
                 size = len(pt.model.signal_names)
-                _in_domain(pt.model, values[k : k + size, None])
+                check_domain(pt.model, values[k : k + size, None])
                 k += size
             out[self._w_offset :] = w
         return out
@@ -576,36 +577,6 @@ def _failed(problem: Problem, v0, weights, why: str) -> Solution:
     phi = v0[: len(problem.params)]
     nan = np.full(len(problem.rows.data), np.nan)
     return Solution(phi, problem.values(phi), v0, np.inf, nan, weights, why, 0)
-
-
-QUICK_ITERATIONS = 10
-"""Most damped Newton iterations of :meth:`Problem._restored_quickly` (from the Gauss-Newton
-step's prediction it needs 2-4) before the continuation of :func:`solve_equilibrium`."""
-
-
-def _quick_newton(fun, x0: np.ndarray) -> np.ndarray:
-    """The root of ``fun`` (``x -> (r, J)``, J dense) from ``x0`` by damped Newton with
-    :func:`solve_equilibrium`'s row weights and tolerance; raises NewtonFailure."""
-    scale = np.maximum(np.abs(x0), 1e-6)
-    weights = functools.partial(row_weights, scale=scale)
-    return damped_newton(fun, x0, tol=EQUILIBRIUM_TOL, max_iter=QUICK_ITERATIONS, weights=weights).x
-
-
-def _in_domain(model, signals: np.ndarray) -> None:
-    """Raise NewtonFailure where a signal (rows of ``signals``) is outside its domain."""
-    bad = out_of_domain(model, signals)
-    if bad:
-        raise NewtonFailure(bad, np.inf, 0)
-
-
-def _continued(model, inputs, over, guess):
-    """The equilibrium continued from ``guess``, else solved from the model's own start."""
-    if guess is not None:
-        try:
-            return solve_equilibrium(model, inputs, over, guess=guess)
-        except SolverError:
-            pass
-    return solve_equilibrium(model, inputs, over)
 
 
 def _needed(points: Sequence[StaticPoint]) -> set[tuple[str, str]]:
