@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import casadi as cs
@@ -110,7 +111,7 @@ class Engine:
       the result and the last Newton step's size; ``q = (u0, u1, h)``.
     * ``step(xi, guess, q, p, scale) -> (V, res)``: the same step by CasADi's
       ``fast_newton`` (pivoting sparse QR; about 3x slower per iteration, measured): the
-      fallback where ``lu_step`` does not converge.
+      fallback where ``lu_step`` does not converge, compiled on its first call.
     * ``sens(V, xi, S, q, p, D, scale) -> S_V``: the sensitivities of the converged
       stages ``V`` (3 nx x (nx + ne)) from the start's ``S`` (nx x (nx + ne)), every
       column solved with one sparse LU of the collocation Jacobian.
@@ -121,7 +122,7 @@ class Engine:
       sample and its Jacobians to ``xi`` and ``p_sel``.
     """
 
-    step: compiled.NumpyFunction
+    step: Callable[..., tuple]
     lu_step: compiled.NumpyFunction
     sens: compiled.NumpyFunction
     outputs: compiled.NumpyFunction
@@ -213,14 +214,28 @@ def _build(model: Model, idx: tuple[int, ...], ne: int, outputs: tuple) -> Engin
     L = OUTPUT_CHUNK
     Xo, Uo = cs.MX.sym("X", nx, L), cs.MX.sym("U", nu, L)
     outs = cs.Function("fit_outputs_map", [Xo, Uo, pm], out.map(L)(Xo, Uo, cs.repmat(pm, 1, L)))
-    lib = compiled.numpy_library([step, lu_step, sens, outs, eq], stem)
+    lib = compiled.numpy_library([lu_step, sens, outs, eq], stem)
+    fallback = _Compiled(lambda: compiled.numpy_library([step], f"{stem}_qr")["fit_step"])
     return Engine(
-        lib["fit_step"],
+        fallback,
         lib["fit_lu_step"],
         lib["fit_sens"],
         lib["fit_outputs_map"],
         lib["fit_equilibrium"],
     )
+
+
+class _Compiled:
+    """A Function compiled (or loaded from the disk cache) on its first call: the fallback
+    step, which most fits never call, costs no compile time until one does."""
+
+    def __init__(self, build) -> None:
+        self._build, self._function = build, None
+
+    def __call__(self, *args):
+        if self._function is None:
+            self._function = self._build()
+        return self._function(*args)
 
 
 def kinks(t: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -92,7 +92,7 @@ def test_a_solve_whose_start_cannot_be_simulated_fails_with_its_reason():
     assert sol.status.startswith("evaluation failed at the start (") and "finite" in sol.status
 
 
-@pytest.mark.parametrize("seed", [1, 4])
+@pytest.mark.parametrize("seed", [4])
 def test_equilibria_restored_by_quick_newton_equal_the_continued_ones(seed):
     """``restore`` at a trial point (parameters moved, equilibrium unknowns at a linear
     guess 1 % off) solves every equilibrium (a record's first node, three static points)

@@ -1,4 +1,4 @@
-"""Fits off the packaged path: generated muscles (2, 3 and 5 units; random load, staircase of
+"""Fits off the packaged path: generated muscles (2, 3 and 4 units; random load, staircase of
 pressure levels, true time constant and tube conductance shared by every unit, noise; a
 fixed seed each), their data simulated by CVODES at rtol 1e-10 (not the fit's own Radau
 steps), fitted from the model's defaults by both shooting methods with the step chosen
@@ -22,7 +22,7 @@ from sarcomere.dynamics.identification.problem import Problem
 
 SIGMA_LENGTH, SIGMA_PRESSURE = 5e-6, 50.0  # m, Pa
 DT = 2e-3  # s: 500 Hz
-T_END = 0.4  # s
+T_END = 0.3  # s
 
 
 def outputs(n: int) -> list[str]:
@@ -63,7 +63,7 @@ def generated(record, seed: int, n: int):
 
 
 @pytest.mark.slow  # a CVODES record and two fits per seed, and each n's engine compiled once
-@pytest.mark.parametrize(("seed", "n"), [(0, 2), (1, 3), (2, 5)])
+@pytest.mark.parametrize(("seed", "n"), [(0, 2), (1, 3), (2, 4)])
 def test_a_generated_muscle_is_recovered_within_its_fisher_intervals(tight_record, seed, n):
     m, t, u, data, truth, estimated, uses = generated(tight_record, seed, n)
     noise = {o: Noise(sd) for o, sd in sigma(n).items()}

@@ -198,7 +198,7 @@ def test_a_step_whose_newton_fails_is_found_from_substeps():
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("seed", [2, 5])
+@pytest.mark.parametrize("seed", [5])
 def test_the_sparse_lu_newton_lands_where_casadis_pivoting_qr_does(seed):
     """Every step of a generated march (1-3 units, a two-level staircase): the engine's
     Newton with the sparse LU (no pivoting), from the previous step's polynomial, and

@@ -20,7 +20,7 @@ kind = "grid"
 base = "step-50g"
 batch = 2
 [study.grid]
-load = {from = "20 g", to = "80 g", num = 300}
+load = {from = "20 g", to = "80 g", num = 150}
 pressure = ["0.05 MPa", "0.1 MPa"]
 [study.metrics]
 names = ["stroke", "rise_time", "peak_tension"]
@@ -89,7 +89,7 @@ def interrupt(study: Path, out: Path, sig: int, after: int) -> int:
     return computed(out / "study.zarr")
 
 
-@pytest.mark.slow  # four CLI studies of 600 samples
+@pytest.mark.slow  # four CLI studies of 300 samples
 def test_a_study_killed_by_sigint_then_sigkill_resumes_to_the_uninterrupted_result(tmp_path):
     import xarray as xr
 
@@ -100,10 +100,10 @@ def test_a_study_killed_by_sigint_then_sigkill_resumes_to_the_uninterrupted_resu
     out = tmp_path / "out"
     first = interrupt(study, out, signal.SIGINT, after=4)
     second = interrupt(study, out, signal.SIGKILL, after=4)
-    # both stopped mid-way: 600 samples of 1 s, computed in about 9 s, so that a poll of
+    # both stopped mid-way: 300 samples of 1 s, computed in about 4.5 s, so that a poll of
     # the store delayed by a busy test process still finds the study computing (with 20
     # of 0.3 s, the SIGKILL run finished before its signal under load: (10, 20), (12, 30))
-    assert 4 <= first < second < 600, (first, second)
+    assert 4 <= first < second < 300, (first, second)
     subprocess.run(study_cli(study, "--out", out, "--workers", 1, "--quiet"), env=ENV, check=True)
     ref = xr.open_zarr(ref / "study.zarr").load()
     got = xr.open_zarr(out / "study.zarr").load()
@@ -119,7 +119,7 @@ def test_the_cli_draws_once_and_again_only_when_asked(tmp_path):
     --plots-only."""
     study = tmp_path / "tiny.toml"
     study.write_text(
-        STUDY.replace("num = 300", "num = 2").replace('"1 s"', '"0.3 s"').replace("batch = 2", "")
+        STUDY.replace("num = 150", "num = 2").replace('"1 s"', '"0.3 s"').replace("batch = 2", "")
     )
     out = tmp_path / "out"
 
