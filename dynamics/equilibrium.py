@@ -155,17 +155,12 @@ class _Newton:
         )
 
 
-EQUILIBRIUM_TOL = 1e-10
-"""Largest weighted residual of a solved equilibrium: each row over its largest Jacobian
-entry times the size of that unknown (:func:`~.newton.row_weights`), a relative measure."""
-
-
 def solve_equilibrium(
     model: Model,
     inputs: Mapping[str, float] | None = None,
     params: Mapping[str, object] | None = None,
     guess: Equilibrium | None = None,
-    tol: float = EQUILIBRIUM_TOL,
+    tol: float = 1e-10,
     max_iter: int = 60,
     min_fraction_step: float = 1e-4,
 ) -> Equilibrium:

@@ -3,8 +3,7 @@
 - :mod:`.experiments`: estimated parameters, noise, time series, static points, targets;
 - :mod:`.shooting`: multiple shooting with Radau IIA collocation (exact derivatives);
 - :mod:`.problem`: the least-squares problem (:class:`~.problem.Problem`), its residuals,
-  constraints and sparse Jacobians; :mod:`.gauss_newton` solves it, :mod:`.equilibria`
-  solves its equilibria at each trial point;
+  constraints and sparse Jacobians; :mod:`.gauss_newton` solves it;
 - :mod:`.estimate`: one fit from one start, noise levels by maximum likelihood;
 - :mod:`.uncertainty`: sensitivities, Fisher covariance, profiles, verdicts;
 - :mod:`.design`: ranking candidate experiments by D-optimality.

@@ -26,8 +26,6 @@ import scipy.sparse as sp
 
 from ..equilibrium import solve_equilibrium
 from ..errors import ParameterError, SolverError
-from ..newton import NewtonFailure
-from .equilibria import check_domain, continued, quick_newton
 from .experiments import Estimated, Noise, StaticPoint, Target, TimeSeries, check_uses
 from .gauss_newton import Options, gauss_newton
 from .shooting import Shooting, auto_step, scales, step_error
@@ -222,10 +220,6 @@ class Problem:
         self._static = cs.Function(
             "static", [vs], [pred, g, cs.jacobian(pred, vs), cs.jacobian(g, vs)]
         )
-        ws = cs.vertcat(*unknowns[1:])
-        self._static_newton = cs.Function("static_newton", [vs], [g, cs.jacobian(g, ws)])
-        signals = [solved[pt.name, name] for pt in self.points for name in pt.model.signal_names]
-        self._point_signals = cs.Function("point_signals", [vs], [cs.vertcat(*signals)])
         self._w_offset = offset
         self.n_v = offset + vs.numel() - n_theta
         self.n_g = sum(s.exp.model.nx * s.shoot.nodes for s in self._series) + g.numel()
@@ -417,7 +411,7 @@ class Problem:
             try:
                 over = self._p_numeric(exp, theta)
                 inputs = dict(zip(m.input_names, exp.u[0], strict=True))
-                eq = continued(m, inputs, over, memory.get(exp.name))
+                eq = _continued(m, inputs, over, memory.get(exp.name))
             except (SolverError, ParameterError) as exc:
                 raise SolverError(f"experiment '{exp.name}': {exc}") from None
             memory[exp.name] = eq
@@ -431,7 +425,7 @@ class Problem:
                 over = self._p_numeric(pt, theta, links)
                 inputs = dict(zip(m.input_names, pt.u, strict=True))
                 guess = memory.get(pt.name, memory.get(("model", m.name)))
-                eq = continued(m, inputs, over, guess)
+                eq = _continued(m, inputs, over, guess)
             except (SolverError, ParameterError) as exc:
                 raise SolverError(f"static point '{pt.name}': {exc}") from None
             memory[pt.name] = eq
@@ -460,14 +454,9 @@ class Problem:
 
     def restore(self, v: np.ndarray) -> np.ndarray:
         """``v`` with every equilibrium unknown (each record's first node, each static
-        point) solved exactly at its parameters; the other nodes kept (lifted). First by
-        :meth:`_restored_quickly`, from ``v``'s own values; where that fails, by
-        :func:`solve_equilibrium`, continued from the last solution. Raises SolverError."""
+        point) solved exactly at its parameters (:func:`solve_equilibrium`, continued
+        from the last solution); the other nodes kept (lifted). Raises SolverError."""
         v = np.array(v, dtype=float)
-        try:
-            return self._restored_quickly(v)
-        except NewtonFailure:
-            pass
         theta = self.values(v[: len(self.params)])
         firsts, points = self._equilibria_of(theta)
         for s, eq in zip(self._series, firsts, strict=True):
@@ -475,46 +464,6 @@ class Problem:
         if points:
             v[self._w_offset :] = np.concatenate(points)
         return v
-
-    def _restored_quickly(self, v: np.ndarray) -> np.ndarray:
-        """``v`` with its equilibrium unknowns solved by the damped Newton of
-        :func:`~..newton.damped_newton` (row weights and tolerance as
-        :func:`solve_equilibrium`'s) from their values in ``v`` (the Gauss-Newton step's
-        linear prediction) on the fit's own Functions: each record's first node on its
-        compiled ``equilibrium``, the static points together on ``static_newton``. No
-        continuation and at most :data:`.equilibria.QUICK_ITERATIONS` iterations: raises
-        NewtonFailure where that does not converge or a solution leaves a signal's
-        physical domain (the caller then continues from the last solutions)."""
-        n = len(self.params)
-        theta, out = self.values(v[:n]), v.copy()
-        for s in self._series:
-            m, shoot = s.exp.model, s.shoot
-            p, u0 = self._p_numeric_series(s, theta), shoot.u[0]
-
-            def fun(xi, p=p, u0=u0, shoot=shoot):
-                f, F, _ = shoot.engine.equilibrium(xi, u0, p, shoot.scale)
-                return f.ravel(), F
-
-            xi = quick_newton(fun, v[s.offset : s.offset + m.nx])
-            signals = m.function("signals")(shoot.scale * xi, cs.DM(0, 1), u0, p)
-            check_domain(m, np.array(signals))
-            out[s.offset : s.offset + m.nx] = xi
-        if self.points:
-            phi = v[:n]
-
-            def static(w):
-                g, G = self._static_newton(np.concatenate([phi, w]))
-                return np.array(g).ravel(), np.array(G)
-
-            w = quick_newton(static, v[self._w_offset :])
-            values = np.array(self._point_signals(np.concatenate([phi, w]))).ravel()
-            k = 0
-            for pt in self.points:
-                size = len(pt.model.signal_names)
-                check_domain(pt.model, values[k : k + size, None])
-                k += size
-            out[self._w_offset :] = w
-        return out
 
     def solve(
         self,
@@ -577,6 +526,16 @@ def _failed(problem: Problem, v0, weights, why: str) -> Solution:
     phi = v0[: len(problem.params)]
     nan = np.full(len(problem.rows.data), np.nan)
     return Solution(phi, problem.values(phi), v0, np.inf, nan, weights, why, 0)
+
+
+def _continued(model, inputs, over, guess):
+    """The equilibrium continued from ``guess``, else solved from the model's own start."""
+    if guess is not None:
+        try:
+            return solve_equilibrium(model, inputs, over, guess=guess)
+        except SolverError:
+            pass
+    return solve_equilibrium(model, inputs, over)
 
 
 def _needed(points: Sequence[StaticPoint]) -> set[tuple[str, str]]:
