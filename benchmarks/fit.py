@@ -68,6 +68,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.sparse.linalg import splu
 
 from sarcomere.dynamics.equilibrium import solve_equilibrium
 from sarcomere.dynamics.errors import SarcomereError
@@ -488,7 +489,7 @@ def engine_trace(
     theta0: np.ndarray, method: str = "multiple-shooting"
 ) -> list[tuple[float, float, float, float]]:
     """One engine fit (``method``) from ``theta0`` (SI, the engine's order) with each
-    linearisation's (CPU s, wall s, 1/2 chi-squared, largest constraint) since the start:
+    linearisation's (CPU s, wall s, 1/2 chi-squared, :func:`natural_level`) since the start:
     multiple shooting's lifted iterates are not feasible (continuity defects) until the
     end; single shooting's always are."""
     from sarcomere.dynamics.identification.estimate import fit_from
@@ -497,9 +498,11 @@ def engine_trace(
     inner, log = problem.linearize, []
     cpu, wall = time.process_time(), time.perf_counter()
 
+    n = len(problem.params)
+
     def traced(v, weights, jacobian=True):
         lin = inner(v, weights, jacobian)
-        g = float(np.max(np.abs(lin.g))) if lin.g.size else 0.0
+        g = natural_level(lin, n)
         half = 0.5 * float(lin.rw @ lin.rw)
         log.append((time.process_time() - cpu, time.perf_counter() - wall, half, g))
         return lin
@@ -510,6 +513,17 @@ def engine_trace(
     finally:
         del problem.linearize
     return log
+
+
+def natural_level(lin, n: int) -> float:
+    """The constraints' size as the Gauss-Newton measures them (``max |G_y^-1 g|``: the
+    node change that would restore them, in scaled states; :mod:`gauss_newton`), not the
+    raw rows, whose units differ (inf without a Jacobian)."""
+    if not lin.g.size:
+        return 0.0
+    if lin.Jg is None:
+        return math.inf
+    return float(np.max(np.abs(splu(lin.Jg[:, n:].tocsc()).solve(lin.g))))
 
 
 def speed(args) -> dict:
