@@ -527,9 +527,10 @@ def natural_level(lin, n: int) -> float:
 
 
 def speed(args) -> dict:
-    """One fit from the file's start values: the engine (multiple shooting, a warm-up then
-    ``--repeats`` fits in this process) interleaved with the baseline (``--baseline``
-    fits); the time the baseline takes to come within ``SUCCESS_DCHI2`` of its best cost."""
+    """One fit from the file's start values: the engine (multiple and single shooting, a
+    warm-up then ``--repeats`` fits each in this process) interleaved with the baseline
+    (``--baseline`` fits); the time the baseline takes to come within ``SUCCESS_DCHI2`` of
+    its best cost."""
     cpu, wall, child = time.process_time(), time.perf_counter(), _children_cpu()
     fit = engine("multiple-shooting")  # Fit.from_file: bind, build (and compile if needed)
     build = {

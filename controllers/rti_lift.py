@@ -25,7 +25,6 @@ interval's end, ``A_k dx``) and the update (:meth:`stages`: ``dV_k`` itself).
 from __future__ import annotations
 
 import casadi as cs
-import numpy as np
 
 from sarcomere.dynamics.simulation import sparse_lu
 
@@ -93,8 +92,7 @@ class FactoredLift:
         ps = cs.SX.sym("p", pb.np)
         R = pb.res(xi, V, cs.vertcat(v, ps), pb.dt)
         RV, RX, RU = cs.jacobian(R, V), cs.jacobian(R, xi), cs.jacobian(R, v)
-        order = sparse_lu.block_order(np.array(cs.DM(RV.sparsity(), 1)) != 0, nx, d)
-        lu = sparse_lu.Factors(RV, order)
+        lu = sparse_lu.collocation_factors(RV, nx, d)
         self.spx, self.spu = RX.sparsity(), RU.sparsity()
         outs = cs.cse([lu.values, R, cs.vertcat(*RX.nonzeros()), cs.vertcat(*RU.nonzeros())])
         self.lin = cs.Function("radau_factor", [V, xi, v, ps], outs).map(N)

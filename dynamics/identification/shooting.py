@@ -152,9 +152,7 @@ def _build(model: Model, idx: tuple[int, ...], ne: int, outputs: tuple) -> Engin
     psel = cs.vertcat(*[p[i] for i in idx]) if idx else cs.SX(0, 1)
     R = cs.Function("R", [V, xi, q, p, scale], [r])
     RV = cs.jacobian(r, V)
-    lu = sparse_lu.Factors(
-        RV, sparse_lu.block_order(np.array(cs.DM(RV.sparsity(), 1)) != 0, nx, POINTS)
-    )
+    lu = sparse_lu.collocation_factors(RV, nx, POINTS)
     lu_solve = lu.solve_function("fit_lu_solve")
     factor = cs.Function("fit_lu_factor", [V, xi, q, p, scale], [lu.values])
     RJ = cs.Function("RJ", [V, xi, q, p, scale], [cs.jacobian(r, xi), cs.jacobian(r, psel)])

@@ -44,6 +44,12 @@ def block_order(pattern: np.ndarray, nx: int, d: int) -> list[int]:
     return [j * nx + i for i in states for j in range(d)]
 
 
+def collocation_factors(RV: cs.SX, nx: int, d: int) -> Factors:
+    """The :class:`Factors` of a collocation Jacobian ``RV`` (``nx`` states, ``d`` stages,
+    stage-major) in the :func:`block_order` of its structural pattern."""
+    return Factors(RV, block_order(np.array(cs.DM(RV.sparsity(), 1)) != 0, nx, d))
+
+
 def _rows(M: cs.SX, order: list[int] | None = None) -> list[dict[int, cs.SX]]:
     """The structural nonzeros of ``M`` row by row (columns renumbered by ``order``)."""
     sp, pos = M.sparsity(), None if order is None else {c: i for i, c in enumerate(order)}
